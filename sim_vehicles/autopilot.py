@@ -1,0 +1,119 @@
+"""One vehicle: rigid-body plant plus its attitude loop, advanced in fixed steps.
+
+Sampled-data semantics (the vehicle side):
+
+- The attitude loop and the plant share one step ``dt_s`` (1 ms by default). At the start of each
+  step the torque law is evaluated on the current state and held over the step; the plant is
+  integrated over the step with RK4. Time is ``k * dt_s``.
+- Between two commands the vehicle holds the last command: attitude ``q_c``, body rates
+  ``omega_c``, their derivative ``omegadot_c`` (zero when the sender cannot give it, as over
+  MAVLink) and thrust. Thrust is clipped to ``[0, max_thrust_N]``.
+- ``q_c`` and ``-q_c`` are the same attitude; the loop takes the one in the hemisphere of the current
+  attitude so it never unwinds a full turn (identical to the paper's law whenever the error scalar
+  part is non-negative, which is the paper's operating region).
+"""
+
+from typing import NamedTuple
+
+import numpy as np
+
+from sim_vehicles.jit import kernel
+from sim_vehicles.params import AttitudeGains, VehicleParams
+from sim_vehicles.quaternion import body_z_axis
+from sim_vehicles.rigid_body import QUAT, STATE_SIZE, rk4_step
+from sim_vehicles.torque_law import torque
+
+_ZERO3 = np.zeros(3)
+_ZERO3.flags.writeable = False
+
+
+class AttitudeCommand(NamedTuple):
+    """What an attitude loop is asked to track, held until the next command."""
+
+    q_c: np.ndarray  #: command attitude [Hamilton w,x,y,z; body FLU -> world ENU]
+    thrust_N: float  #: collective thrust [N]
+    omega_c_B: np.ndarray = _ZERO3  #: command body rates [rad/s; command body frame]
+    omegadot_c_B: np.ndarray = _ZERO3  #: their derivative [rad/s^2]; zeros where unknown
+
+    @staticmethod
+    def hover(params: VehicleParams, q_c: np.ndarray | None = None) -> "AttitudeCommand":
+        q = np.array([1.0, 0.0, 0.0, 0.0]) if q_c is None else q_c
+        return AttitudeCommand(q_c=q, thrust_N=params.hover_thrust_N)
+
+
+@kernel
+def advance_kernel(
+    x,
+    q_c,
+    omega_c,
+    omegadot_c,
+    thrust_N,
+    mass_kg,
+    inertia_kgm2,
+    g_mps2,
+    l_q,
+    k_q,
+    max_thrust_N,
+    dt_s,
+    n_steps,
+):
+    """Advance the state ``n_steps`` attitude-loop steps under one held command."""
+    T = min(max(thrust_N, 0.0), max_thrust_N)
+    qc_neg = -q_c
+    for _ in range(n_steps):
+        q = x[6:10]
+        dot = q[0] * q_c[0] + q[1] * q_c[1] + q[2] * q_c[2] + q[3] * q_c[3]
+        qc = q_c if dot >= 0.0 else qc_neg
+        tau = torque(q, x[10:13], qc, omega_c, omegadot_c, inertia_kgm2, l_q, k_q)
+        x = rk4_step(x, T, tau, mass_kg, inertia_kgm2, g_mps2, dt_s)
+    return x
+
+
+class Autopilot:
+    """Plant and attitude loop of one vehicle. No I/O: the MAVLink endpoint wraps it."""
+
+    def __init__(self, params: VehicleParams, gains: AttitudeGains, state0: np.ndarray, dt_s: float):
+        if state0.shape != (STATE_SIZE,):
+            raise ValueError(f"state must have {STATE_SIZE} entries, got {state0.shape}")
+        self.params = params
+        self.gains = gains
+        self.dt_s = float(dt_s)
+        self.state = np.array(state0, dtype=float)
+        self.state[QUAT] /= np.linalg.norm(self.state[QUAT])
+        self.step_index = 0
+        self.command = AttitudeCommand.hover(params, self.state[QUAT].copy())
+        self._inertia = params.inertia
+
+    @property
+    def time_s(self) -> float:
+        return self.step_index * self.dt_s
+
+    def set_command(self, command: AttitudeCommand) -> None:
+        self.command = command
+
+    def advance(self, n_steps: int) -> None:
+        """Run ``n_steps`` attitude-loop steps holding the current command."""
+        c = self.command
+        p = self.params
+        self.state = advance_kernel(
+            self.state,
+            np.asarray(c.q_c, dtype=float),
+            np.asarray(c.omega_c_B, dtype=float),
+            np.asarray(c.omegadot_c_B, dtype=float),
+            float(c.thrust_N),
+            p.mass_kg,
+            self._inertia,
+            p.g_mps2,
+            self.gains.l_q,
+            self.gains.k_q,
+            p.max_thrust_N,
+            self.dt_s,
+            int(n_steps),
+        )
+        self.step_index += int(n_steps)
+
+    def acceleration_W(self) -> np.ndarray:
+        """Current acceleration [m/s^2; world ENU] under the held thrust (what an IMU integrates)."""
+        p = self.params
+        T = min(max(float(self.command.thrust_N), 0.0), p.max_thrust_N)
+        return T / p.mass_kg * body_z_axis(self.state[QUAT]) - np.array([0.0, 0.0, p.g_mps2])

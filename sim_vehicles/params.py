@@ -1,0 +1,50 @@
+"""Physical and attitude-loop parameters of one simulated vehicle."""
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+class VehicleParamError(ValueError):
+    """A vehicle parameter is outside its physical range."""
+
+
+@dataclass(frozen=True)
+class VehicleParams:
+    """What the vehicle is: mass, inertia, actuator limit, gravity."""
+
+    mass_kg: float
+    inertia_kgm2: tuple[float, float, float]  #: principal inertia [kg m^2; body FLU axes]
+    max_thrust_N: float  #: largest collective thrust [N]; MAVLink thrust 1.0 maps to this
+    g_mps2: float = 9.81
+
+    def __post_init__(self) -> None:
+        if not self.mass_kg > 0:
+            raise VehicleParamError(f"mass_kg must be > 0, got {self.mass_kg}")
+        if len(self.inertia_kgm2) != 3 or not all(j > 0 for j in self.inertia_kgm2):
+            raise VehicleParamError(f"inertia_kgm2 must be three values > 0, got {self.inertia_kgm2}")
+        if not self.max_thrust_N > self.mass_kg * self.g_mps2:
+            raise VehicleParamError(
+                f"max_thrust_N ({self.max_thrust_N}) must exceed the weight m g "
+                f"({self.mass_kg * self.g_mps2:.3f} N) or the vehicle cannot hover"
+            )
+
+    @property
+    def inertia(self) -> np.ndarray:
+        return np.asarray(self.inertia_kgm2, dtype=float)
+
+    @property
+    def hover_thrust_N(self) -> float:
+        return self.mass_kg * self.g_mps2
+
+
+@dataclass(frozen=True)
+class AttitudeGains:
+    """Gains of the paper's torque law: sliding surface ``r = l_q q_e + omega_e``, ``J rdot = -k_q r``."""
+
+    l_q: float
+    k_q: float
+
+    def __post_init__(self) -> None:
+        if not (self.l_q > 0 and self.k_q > 0):
+            raise VehicleParamError(f"l_q and k_q must be > 0, got {self.l_q}, {self.k_q}")

@@ -1,0 +1,52 @@
+"""ENU/FLU <-> NED/FRD at the MAVLink boundary, and float32 round trips."""
+
+import numpy as np
+import pytest
+from hypothesis import given
+
+from sim_vehicles.autopilot import AttitudeCommand
+from sim_vehicles.frames import enu_to_ned, flu_to_frd, q_enu_flu_to_ned_frd, q_ned_frd_to_enu_flu
+from sim_vehicles.quaternion import from_axis_angle, rotation_matrix
+from sim_vehicles.wire_format import command_roundtrip, decode_attitude_target, encode_attitude_target
+from tests.strategies import unit_quaternions, vec3
+
+pytestmark = pytest.mark.unit
+
+
+@given(unit_quaternions(), vec3)
+def test_attitude_conversion_rotates_the_same_physical_vector(q, v_flu):
+    """R_NED_FRD(q') (FRD v) == NED(R_ENU_FLU(q) v): one physical vector, two frames."""
+    q_ned = q_enu_flu_to_ned_frd(q)
+    np.testing.assert_allclose(
+        rotation_matrix(q_ned) @ flu_to_frd(v_flu), enu_to_ned(rotation_matrix(q) @ v_flu), atol=1e-9
+    )
+    back = q_ned_frd_to_enu_flu(q_ned)
+    assert min(np.linalg.norm(back - q), np.linalg.norm(back + q)) < 1e-12
+
+
+def test_level_vehicle_facing_east_is_yaw_90_in_ned():
+    q = q_enu_flu_to_ned_frd(np.array([1.0, 0, 0, 0]))
+    np.testing.assert_allclose(q, [np.sqrt(0.5), 0, 0, np.sqrt(0.5)], atol=1e-15)
+
+
+def test_command_roundtrip_is_float32_exact_and_drops_omegadot():
+    cmd = AttitudeCommand(
+        from_axis_angle([1, 2, 3], 0.3), 12.345678, np.array([0.1, -0.2, 0.3]), np.array([1.0, 1.0, 1.0])
+    )
+    fields = encode_attitude_target(cmd, 25.0)
+    assert all(np.float32(x) == x for x in (*fields.q, *fields.body_rates, fields.thrust))
+    back = command_roundtrip(cmd, 25.0)
+    assert abs(back.thrust_N - 12.345678) < 25.0 * 2**-24
+    np.testing.assert_allclose(back.omega_c_B, [0.1, -0.2, 0.3], rtol=1e-6)
+    np.testing.assert_array_equal(back.omegadot_c_B, np.zeros(3))
+    assert abs(np.linalg.norm(back.q_c) - 1) < 1e-15
+
+
+def test_bad_attitude_target_is_refused():
+    with pytest.raises(ValueError, match="not a unit quaternion"):
+        decode_attitude_target(
+            encode_attitude_target(AttitudeCommand(np.array([2.0, 0, 0, 0]), 1.0), 25.0)._replace(
+                q=(0.0, 0.0, 0.0, 0.0)
+            ),
+            25.0,
+        )
