@@ -1,0 +1,181 @@
+"""A follower's controller as a sampled-data system, and the leader's reference publisher.
+
+Sampled-data semantics (the controller side; the same in ``sim`` and across processes):
+
+- The controller ticks at ``control_rate_hz``; tick ``k`` is at ``t_k = k * dt``.
+- At tick ``k`` it holds the estimate messages its in-neighbours sent at tick ``k - 1`` (their values
+  at ``t_{k-1}``; none at ``k = 0``) and the sample of its own vehicle at ``t_k``. A neighbour with no
+  message is left out of the sums (as if the edge were absent for that tick).
+- Tick ``k``: (1) advance the controller state from ``t_{k-1}`` to ``t_k`` with those messages and
+  the previous vehicle sample, in ``substeps`` RK4 steps; (2) compute the command at ``t_k`` from the
+  new state, the messages carried to ``t_k`` and the sample at ``t_k``; (3) emit its estimate at
+  ``t_k`` for its out-neighbours (used at tick ``k + 1``) and the command for its vehicle (held until
+  tick ``k + 1``).
+- Messages and the vehicle sample are carried in time by the ``hold`` policy (``follower_law``):
+  by default extrapolated by their age, which removes the one-period lag a zero-order hold adds per
+  graph hop.
+"""
+
+import math
+from collections.abc import Mapping, Sequence
+from typing import NamedTuple
+
+import numpy as np
+
+from sim_vehicles.autopilot import AttitudeCommand
+from sim_vehicles.quaternion import body_z_axis
+from swarm_sitl.command_attitude import SingularCommandError
+from swarm_sitl.follower_law import (
+    CTRL_SIZE,
+    HOLD_EXTRAPOLATE,
+    MSG_COLS,
+    OUT_A_HAT,
+    OUT_A_HAT_DOT,
+    OUT_OMEGA_C,
+    OUT_OMEGADOT_C,
+    OUT_Q_C,
+    OUT_THRUST,
+    ControlGains,
+    controller_advance,
+    controller_output,
+)
+from swarm_sitl.trajectories import Trajectory
+
+
+class EstimateMessage(NamedTuple):
+    """What node ``src`` tells its out-neighbours at tick ``step`` (the leader: its reference)."""
+
+    src: int
+    step: int
+    t_s: float  #: time the values hold at [s]
+    p_hat: np.ndarray  #: [m; world ENU]
+    v_hat: np.ndarray  #: [m/s]
+    a_hat: np.ndarray  #: [m/s^2]
+    a_hat_dot: np.ndarray  #: [m/s^3]
+
+
+class VehicleSample(NamedTuple):
+    """What the controller knows of its own vehicle at one instant."""
+
+    t_s: float
+    p_W: np.ndarray  #: [m; world ENU]
+    v_W: np.ndarray  #: [m/s; world ENU]
+    q_WB: np.ndarray  #: [w,x,y,z; body FLU -> world ENU]
+
+
+class ControllerStep(NamedTuple):
+    command: AttitudeCommand
+    estimate: EstimateMessage
+    state: np.ndarray  #: controller state after the advance (``follower_law`` layout), at t_k
+    output: np.ndarray  #: ``controller_output`` result (OUT_* layout)
+
+
+class LeaderNode:
+    """Node 0: publishes ``p_r`` and its derivatives as its 'estimate' (exact, so a_hat_dot = jerk)."""
+
+    def __init__(self, trajectory: Trajectory, control_dt_s: float):
+        self.trajectory = trajectory
+        self.dt_s = control_dt_s
+
+    def step(self, k: int) -> EstimateMessage:
+        t = k * self.dt_s
+        d = self.trajectory.derivatives(t)
+        return EstimateMessage(0, k, t, d[0], d[1], d[2], d[3])
+
+
+class FollowerController:
+    """Estimator and position loop of one follower. No I/O: inputs in, command and estimate out."""
+
+    def __init__(
+        self,
+        follower_id: int,
+        offset_m: Sequence[float],
+        in_edges: Sequence[tuple[int, float]],
+        gains: ControlGains,
+        control_dt_s: float,
+        substeps: int,
+        hold: int = HOLD_EXTRAPOLATE,
+        max_thrust_N: float = float("inf"),
+    ):
+        self.id = follower_id
+        self.offset = np.asarray(offset_m, dtype=float)
+        self.in_edges = tuple((int(s), float(w)) for s, w in in_edges)
+        self.gains = gains
+        self.dt_s = control_dt_s
+        self.substeps = int(substeps)
+        self.hold = int(hold)
+        self.max_thrust_N = max_thrust_N
+        self.state = np.zeros(CTRL_SIZE)
+        self._prev_sample: VehicleSample | None = None
+        self._prev_acc = np.zeros(3)
+        self._zero3 = np.zeros(3)
+        self._all_rows = np.empty((len(self.in_edges), MSG_COLS))
+
+    def _rows(self, inbox: Mapping[int, EstimateMessage]) -> np.ndarray:
+        """Message rows of the in-neighbours present in ``inbox`` (absent ones are left out)."""
+        rows = self._all_rows
+        n = 0
+        for s, w in self.in_edges:
+            m = inbox.get(s)
+            if m is not None:
+                r = rows[n]
+                r[0] = w
+                r[1] = m.t_s
+                r[2:5] = m.p_hat
+                r[5:8] = m.v_hat
+                r[8:11] = m.a_hat
+                r[11:14] = m.a_hat_dot
+                n += 1
+        return rows[:n].copy()
+
+    def step(self, k: int, sample: VehicleSample, inbox: Mapping[int, EstimateMessage]) -> ControllerStep:
+        """Tick ``k``: ``inbox`` holds the in-neighbours' messages of tick ``k - 1``."""
+        t = k * self.dt_s
+        msgs = self._rows(inbox)
+        g = self.gains
+        prev = self._prev_sample
+        if prev is not None:
+            self.state = controller_advance(
+                self.state,
+                prev.t_s,
+                t - prev.t_s,
+                self.substeps,
+                msgs,
+                self.hold,
+                prev.t_s,
+                prev.p_W,
+                prev.v_W,
+                self._prev_acc,
+                self.offset,
+                g,
+            )
+        out = controller_output(
+            self.state,
+            t,
+            msgs,
+            self.hold,
+            sample.p_W,
+            sample.v_W,
+            sample.q_WB,
+            self._zero3,
+            False,
+            self.offset,
+            g,
+        )
+        if not math.isfinite(out.sum()):
+            raise SingularCommandError(
+                f"follower {self.id} at t={t:.3f}s: controller output is not finite (the estimator "
+                f"diverged or the command force reached the singular set; see `swarm-sitl check`)"
+            )
+        thrust = float(out[OUT_THRUST])
+        applied = min(thrust, self.max_thrust_N)
+        acc = applied / g.mass_kg * body_z_axis(sample.q_WB)
+        acc[2] -= g.g_mps2
+        self._prev_sample = sample
+        self._prev_acc = acc
+        cmd = AttitudeCommand(
+            q_c=out[OUT_Q_C], thrust_N=thrust, omega_c_B=out[OUT_OMEGA_C], omegadot_c_B=out[OUT_OMEGADOT_C]
+        )
+        x = self.state  # never mutated in place: each advance returns a new array
+        est = EstimateMessage(self.id, k, t, x[0:3], x[3:6], out[OUT_A_HAT], out[OUT_A_HAT_DOT])
+        return ControllerStep(cmd, est, x, out)

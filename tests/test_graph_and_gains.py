@@ -1,0 +1,105 @@
+"""Graph, M, Lemma 2.1, and Theorem 1's conditions."""
+
+import numpy as np
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from swarm_sitl.gain_conditions import check_gains
+from swarm_sitl.graph import Graph, GraphError
+from swarm_sitl.trajectories import Helix
+
+pytestmark = pytest.mark.unit
+PAPER_GAINS = dict(k_p=8.0, k_v=8.0, l_a=12.0, k_a=4.0, k_eta=4.0, k_gamma=0.5)
+HELIX = Helix(5.0, 0.2, 1.0)
+
+
+def test_M_of_the_paper_tree():
+    g = Graph.from_edges(4, [(0, 1), (0, 2), (0, 3), (1, 4), (2, 4)])
+    expected = np.array([[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [-1, -1, 0, 2]], dtype=float)
+    np.testing.assert_array_equal(g.M(), expected)
+    assert g.in_neighbours(4) == ((1, 1.0), (2, 1.0))
+
+
+def test_missing_spanning_tree_names_the_unreachable_followers():
+    with pytest.raises(GraphError, match=r"cannot reach follower\(s\) 3, 4"):
+        Graph.from_edges(4, [(0, 1), (1, 2), (3, 4), (4, 3)])
+
+
+@pytest.mark.parametrize(
+    "edges, msg",
+    [
+        ([(0, 5)], "not 0..4"),
+        ([(1, 1)], "self loop"),
+        ([(1, 0)], "takes no input"),
+        ([(0, 1), (0, 1)], "twice"),
+        ([(0, 1, -1.0)], "weight"),
+    ],
+)
+def test_bad_edges(edges, msg):
+    with pytest.raises(GraphError, match=msg):
+        Graph.from_edges(4, edges)
+
+
+@st.composite
+def spanning_graphs(draw, weights=(1.0,)):
+    n = draw(st.integers(1, 7))
+    edges = []
+    for i in range(1, n + 1):  # a random spanning tree: each follower has a parent among earlier nodes
+        edges.append((draw(st.integers(0, i - 1)), i, draw(st.sampled_from(weights))))
+    extra = draw(st.lists(st.tuples(st.integers(1, n), st.integers(1, n)), max_size=2 * n))
+    seen = {(s, d) for s, d, _ in edges}
+    for s, d in extra:
+        if s != d and (s, d) not in seen:
+            seen.add((s, d))
+            edges.append((s, d, 1.0))
+    return Graph.from_edges(n, edges)
+
+
+@given(spanning_graphs(weights=(1.0, 0.5, 2.0)))
+def test_theta_makes_xi_positive_definite_on_every_spanning_graph(g):
+    M, Th, Xi = g.M(), g.theta(), g.xi()
+    assert np.all(np.real(np.linalg.eigvals(M)) > 0)  # non-singular M-matrix
+    assert np.all(np.diag(Th) > 0) and np.count_nonzero(Th - np.diag(np.diag(Th))) == 0
+    assert np.linalg.eigvalsh(Xi).min() > 0
+    Tq = g.theta_qu()  # Qu's construction alone always works
+    assert np.linalg.eigvalsh(M.T @ Tq + Tq @ M).min() > 0
+
+
+def test_lemma_2_1_as_printed_can_leave_xi_indefinite():
+    """Found by hypothesis: with [1/theta_i] = M^-1 1, Xi is indefinite on this weighted tree, and
+    not diagonally dominant on the unit-weight ring. `check` then uses Qu's Theta and says so."""
+    g = Graph.from_edges(6, [(0, 1, 1), (0, 2, 0.5), (0, 3, 1), (0, 4, 1), (2, 5, 1), (2, 6, 2)])
+    Tp = g.theta_paper()
+    assert np.linalg.eigvalsh(g.M().T @ Tp + Tp @ g.M()).min() < 0
+    assert g.theta_source().startswith("Qu")
+    tree = Graph.from_edges(4, [(0, 1), (0, 2), (0, 3), (1, 4), (2, 4)])
+    assert tree.theta_source().startswith("paper")
+    np.testing.assert_allclose(tree.theta(), np.diag([1, 1, 1, 2 / 3]))  # q = M^-1 1 = [1, 1, 1, 3/2]
+
+
+def test_paper_gains_pass_on_the_tree_and_fail_on_the_ring():
+    tree = Graph.from_edges(4, [(0, 1), (0, 2), (0, 3), (1, 4), (2, 4)])
+    ring = Graph.from_edges(4, [(0, 1), (1, 2), (2, 3), (3, 4), (4, 1)])
+    assert check_gains(tree, PAPER_GAINS, HELIX, 9.81, 100).all_hold
+    r = check_gains(ring, PAPER_GAINS, HELIX, 9.81, 100)
+    failing = {c.name.split()[0] for c in r.conditions if not c.holds}
+    assert failing == {"l_a", "k_a"}
+    assert check_gains(ring, {**PAPER_GAINS, **r.suggestion}, HELIX, 9.81, 100).all_hold
+
+
+def test_l_a_bound_is_where_omega_stops_being_positive_definite():
+    """NOTES.md error 5: with +l_a lmin(M^T Theta M) in Omega(3,3), Sylvester gives the printed bound."""
+    ring = Graph.from_edges(4, [(0, 1), (1, 2), (2, 3), (3, 4), (4, 1)])
+    r = check_gains(ring, PAPER_GAINS, HELIX, 9.81, 100)
+    la = r.conditions[1].bound
+    c = r.norm_theta
+
+    def omega(l_a):
+        return np.array(
+            [[8 * r.lambda_min_xi, -c, 0], [-c, 8 * r.lambda_min_xi, -c], [0, -c, l_a * r.lambda_min_mtm]]
+        )
+
+    assert np.linalg.eigvalsh(omega(la * 1.001)).min() > 0
+    assert np.linalg.eigvalsh(omega(la * 0.999)).min() < 0
+    assert abs(np.linalg.det(omega(la))) < 1e-9
