@@ -1,0 +1,3 @@
+from swarm_sitl.cli import main
+
+raise SystemExit(main())

@@ -1,0 +1,265 @@
+"""The one config schema of a swarm run, validated at load.
+
+``load_config(path)`` returns a frozen ``SwarmConfig`` or raises ``ConfigError`` whose message is
+one line naming the offending key. Unknown keys are errors. Cross-field checks (graph nodes exist
+and have a spanning tree from the leader, rates divide evenly, unit quaternions, thrust above
+weight) happen here, not mid-flight.
+"""
+
+from pathlib import Path
+from typing import Annotated, Literal
+
+import numpy as np
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+
+from sim_vehicles.params import AttitudeGains, VehicleParams
+from swarm_sitl.follower_law import HOLD_EXTRAPOLATE, HOLD_ZERO_ORDER, ControlGains
+from swarm_sitl.graph import Graph, GraphError
+from swarm_sitl.trajectories import FigureEight, Helix, Line, Trajectory
+
+
+class ConfigError(ValueError):
+    """A config file is unreadable or invalid; the message is one line naming the problem."""
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+Vec3 = tuple[float, float, float]
+Positive = Annotated[float, Field(gt=0)]
+
+
+class HelixSpec(_Strict):
+    type: Literal["helix"]
+    radius_m: Positive
+    angular_rate_radps: float
+    climb_rate_mps: float
+    center_m: Vec3 = (0.0, 0.0, 0.0)
+    phase_rad: float = 0.0
+
+    def build(self) -> Trajectory:
+        return Helix(
+            self.radius_m, self.angular_rate_radps, self.climb_rate_mps, self.center_m, self.phase_rad
+        )
+
+
+class FigureEightSpec(_Strict):
+    type: Literal["figure_eight"]
+    amplitude_x_m: Positive
+    amplitude_y_m: Positive
+    angular_rate_radps: Positive
+    center_m: Vec3 = (0.0, 0.0, 0.0)
+
+    def build(self) -> Trajectory:
+        return FigureEight(self.amplitude_x_m, self.amplitude_y_m, self.angular_rate_radps, self.center_m)
+
+
+class LineSpec(_Strict):
+    type: Literal["line"]
+    start_m: Vec3
+    velocity_mps: Vec3
+
+    def build(self) -> Trajectory:
+        return Line(self.start_m, self.velocity_mps)
+
+
+class LeaderSpec(_Strict):
+    trajectory: Annotated[HelixSpec | FigureEightSpec | LineSpec, Field(discriminator="type")]
+
+
+class RatesSpec(_Strict):
+    control_hz: Positive  #: position loop / estimator exchange rate
+    attitude_hz: Positive  #: attitude loop and plant integration rate
+    estimator_substeps: Annotated[int, Field(ge=1, le=1000)] = 10  #: RK4 steps per control period
+
+    @model_validator(mode="after")
+    def _divides(self) -> "RatesSpec":
+        ratio = self.attitude_hz / self.control_hz
+        if abs(ratio - round(ratio)) > 1e-9 or round(ratio) < 1:
+            raise ValueError(
+                f"attitude_hz ({self.attitude_hz}) must be a whole multiple of control_hz ({self.control_hz})"
+            )
+        return self
+
+    @property
+    def attitude_steps_per_control(self) -> int:
+        return round(self.attitude_hz / self.control_hz)
+
+
+class GraphSpec(_Strict):
+    edges: list[tuple[int, int] | tuple[int, int, Positive]]  #: [src, dst] or [src, dst, weight]
+
+
+class VehicleSpec(_Strict):
+    mass_kg: Positive
+    inertia_kgm2: tuple[Positive, Positive, Positive]
+    max_thrust_N: Positive
+    setpoint_timeout_s: Positive = 0.5  #: failsafe after this long without a valid setpoint
+
+
+class FollowerSpec(_Strict):
+    id: Annotated[int, Field(ge=1)]
+    offset_m: Vec3  #: delta_i, desired position relative to the leader [m; ENU]
+    initial_position_m: Vec3
+    initial_velocity_mps: Vec3 = (0.0, 0.0, 0.0)
+    initial_quaternion_wxyz: tuple[float, float, float, float] = (1.0, 0.0, 0.0, 0.0)
+
+    @field_validator("initial_quaternion_wxyz")
+    @classmethod
+    def _unit(cls, q: tuple[float, float, float, float]) -> tuple[float, float, float, float]:
+        n = float(np.linalg.norm(q))
+        if abs(n - 1.0) > 1e-6:
+            raise ValueError(f"must be a unit quaternion, its norm is {n:.6g}")
+        return q
+
+
+class GainsSpec(_Strict):
+    k_gamma: Positive
+    k_p: Positive
+    k_v: Positive
+    l_a: Positive
+    k_a: Positive
+    l_p: Positive
+    l_v: Positive
+    k_eta: Positive
+    l_q: Positive
+    k_q: Positive
+
+
+class EstimatorSpec(_Strict):
+    sign_boundary_layer: Annotated[float, Field(ge=0)] = 0.0  #: 0 = paper's sgn; >0 saturation width
+    neighbour_hold: Literal["extrapolate", "zero_order"] = "extrapolate"
+
+
+class SwarmConfig(_Strict):
+    name: Annotated[str, Field(pattern=r"^[A-Za-z0-9_-]+$")]
+    duration_s: Positive
+    gravity_mps2: Positive = 9.81
+    rates: RatesSpec
+    leader: LeaderSpec
+    graph: GraphSpec
+    vehicle: VehicleSpec
+    followers: list[FollowerSpec]
+    gains: GainsSpec
+    estimator: EstimatorSpec = EstimatorSpec()
+
+    @model_validator(mode="after")
+    def _cross(self) -> "SwarmConfig":
+        ids = [f.id for f in self.followers]
+        n = len(ids)
+        if n == 0:
+            raise ValueError("followers: at least one follower is needed")
+        if sorted(ids) != list(range(1, n + 1)):
+            raise ValueError(f"followers: ids must be 1..{n}, each once; got {ids}")
+        try:
+            self.build_graph()
+        except GraphError as e:
+            raise ValueError(f"graph: {e}") from None
+        if not self.vehicle.max_thrust_N > self.vehicle.mass_kg * self.gravity_mps2:
+            raise ValueError(
+                f"vehicle.max_thrust_N ({self.vehicle.max_thrust_N}) must exceed the weight "
+                f"{self.vehicle.mass_kg * self.gravity_mps2:.3f} N"
+            )
+        return self
+
+    # -- derived objects -------------------------------------------------------------------------
+    @property
+    def n_followers(self) -> int:
+        return len(self.followers)
+
+    def follower(self, i: int) -> FollowerSpec:
+        return next(f for f in self.followers if f.id == i)
+
+    def build_graph(self) -> Graph:
+        return Graph.from_edges(len(self.followers), [tuple(e) for e in self.graph.edges])
+
+    def trajectory(self) -> Trajectory:
+        return self.leader.trajectory.build()
+
+    def vehicle_params(self) -> VehicleParams:
+        v = self.vehicle
+        return VehicleParams(v.mass_kg, v.inertia_kgm2, v.max_thrust_N, self.gravity_mps2)
+
+    def attitude_gains(self) -> AttitudeGains:
+        return AttitudeGains(self.gains.l_q, self.gains.k_q)
+
+    def control_gains(self, mass_kg: float | None = None) -> ControlGains:
+        g = self.gains
+        return ControlGains(
+            g.k_gamma,
+            g.k_p,
+            g.k_v,
+            g.l_a,
+            g.k_a,
+            g.l_p,
+            g.l_v,
+            g.k_eta,
+            self.estimator.sign_boundary_layer,
+            self.vehicle.mass_kg if mass_kg is None else mass_kg,
+            self.gravity_mps2,
+        )
+
+    @property
+    def hold(self) -> int:
+        return HOLD_EXTRAPOLATE if self.estimator.neighbour_hold == "extrapolate" else HOLD_ZERO_ORDER
+
+    @property
+    def control_dt_s(self) -> float:
+        return 1.0 / self.rates.control_hz
+
+    @property
+    def attitude_dt_s(self) -> float:
+        return 1.0 / self.rates.attitude_hz
+
+    @property
+    def n_control_steps(self) -> int:
+        return round(self.duration_s * self.rates.control_hz)
+
+    def gain_dict(self) -> dict[str, float]:
+        return dict(self.gains.model_dump())
+
+    def to_yaml(self) -> str:
+        return yaml.safe_dump(self.model_dump(mode="json"), sort_keys=False)
+
+
+def _describe(err: ValidationError) -> str:
+    e = err.errors()[0]
+    loc = ".".join(
+        str(p) for p in e["loc"] if not (isinstance(p, str) and p in {"helix", "figure_eight", "line"})
+    )
+    kind = e["type"]
+    if kind == "missing":
+        return f"{loc}: missing key"
+    if kind == "extra_forbidden":
+        return f"{loc}: unknown key"
+    msg = e["msg"].removeprefix("Value error, ")
+    where = f"{loc}: " if loc else ""
+    got = e.get("input")
+    shown = "" if kind.startswith("value_error") or isinstance(got, dict | list) else f" (got {got!r})"
+    return f"{where}{msg}{shown}"
+
+
+def parse_config(data: object, source: str = "config") -> SwarmConfig:
+    if not isinstance(data, dict):
+        raise ConfigError(f"{source}: expected a mapping of keys at the top level")
+    try:
+        return SwarmConfig.model_validate(data)
+    except ValidationError as err:
+        raise ConfigError(f"{source}: {_describe(err)}") from None
+
+
+def load_config(path: str | Path) -> SwarmConfig:
+    p = Path(path)
+    try:
+        text = p.read_text()
+    except OSError as e:
+        raise ConfigError(f"{p}: cannot read ({e.strerror})") from None
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as e:
+        mark = getattr(e, "problem_mark", None)
+        where = f" at line {mark.line + 1}" if mark is not None else ""
+        raise ConfigError(f"{p}: not valid YAML{where}") from None
+    return parse_config(data, str(p))

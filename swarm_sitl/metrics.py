@@ -1,0 +1,79 @@
+"""Summary figures of a recorded run: final and peak errors, time to converge, invariants."""
+
+from typing import Any
+
+import numpy as np
+
+from swarm_sitl.recording import Recording
+
+
+def _norm(a: np.ndarray) -> np.ndarray:
+    return np.linalg.norm(a, axis=1)
+
+
+def time_to_converge(t: np.ndarray, err: np.ndarray, tol: float) -> float | None:
+    """First time after which ``err`` stays at or below ``tol`` to the end (None if never)."""
+    above = np.nonzero(~(err <= tol))[0]
+    if above.size == 0:
+        return float(t[0])
+    last = above[-1]
+    return None if last + 1 >= t.size else float(t[last + 1])
+
+
+def summarize(
+    rec: Recording,
+    gains: dict[str, float],
+    mass_kg: dict[int, float],
+    g_mps2: float,
+    settle_from_s: float = 20.0,
+) -> dict:
+    """Per-follower and swarm-wide figures (all errors are 2-norms of the error vector)."""
+    out: dict[str, Any] = {"followers": {}}
+    k_eta, k_gamma = gains["k_eta"], gains["k_gamma"]
+    uz_floor = g_mps2 - k_gamma - 2 * k_eta
+    worst: dict[str, Any] = {
+        "final_pos_err_m": 0.0,
+        "peak_pos_err_after_settle_m": 0.0,
+        "peak_vel_err_after_settle_mps": 0.0,
+        "min_u_z_mps2": np.inf,
+        "max_thrust_over_bound": -np.inf,
+        "time_to_0.1m_s": 0.0,
+        "time_to_0.01m_s": 0.0,
+    }
+    for i, a in rec.followers.items():
+        t = a["t_s"]
+        pe, ve = _norm(a["pos_err_m"]), _norm(a["vel_err_mps"])
+        late = t >= settle_from_s
+        t_bound = mass_kg[i] * (g_mps2 + 2 * np.sqrt(3) * k_eta + np.sqrt(3) * k_gamma)
+        f = {
+            "final_pos_err_m": float(pe[-1]),
+            "final_vel_err_mps": float(ve[-1]),
+            "peak_pos_err_m": float(pe.max()),
+            "peak_vel_err_mps": float(ve.max()),
+            "peak_pos_err_after_settle_m": float(pe[late].max()) if late.any() else None,
+            "peak_vel_err_after_settle_mps": float(ve[late].max()) if late.any() else None,
+            "final_est_pos_err_m": float(_norm(a["est_pos_err_m"])[-1]),
+            "time_to_0.1m_s": time_to_converge(t, pe, 0.1),
+            "time_to_0.01m_s": time_to_converge(t, pe, 0.01),
+            "min_u_z_mps2": float(np.min(a["u"][:, 2])),
+            "u_z_floor_mps2": uz_floor,
+            "max_thrust_N": float(np.max(a["thrust_N"])),
+            "thrust_bound_N": float(t_bound),
+        }
+        out["followers"][str(i)] = f
+        worst["final_pos_err_m"] = max(worst["final_pos_err_m"], f["final_pos_err_m"])
+        if f["peak_pos_err_after_settle_m"] is not None:
+            worst["peak_pos_err_after_settle_m"] = max(
+                worst["peak_pos_err_after_settle_m"], f["peak_pos_err_after_settle_m"]
+            )
+            worst["peak_vel_err_after_settle_mps"] = max(
+                worst["peak_vel_err_after_settle_mps"], f["peak_vel_err_after_settle_mps"]
+            )
+        worst["min_u_z_mps2"] = min(worst["min_u_z_mps2"], f["min_u_z_mps2"])
+        worst["max_thrust_over_bound"] = max(worst["max_thrust_over_bound"], f["max_thrust_N"] / t_bound)
+        for key in ("time_to_0.1m_s", "time_to_0.01m_s"):
+            worst[key] = None if f[key] is None or worst[key] is None else max(worst[key], f[key])
+    worst["u_z_floor_mps2"] = uz_floor
+    worst["settle_from_s"] = settle_from_s
+    out["swarm"] = worst
+    return out

@@ -1,0 +1,152 @@
+"""The run directory: what a run writes and what plotting reads.
+
+Layout::
+
+    RUN_DIR/config.yaml        the resolved config (every default filled in)
+    RUN_DIR/leader.npz         t_s, p_r, v_r, a_r              (N,), (N, 3) ...
+    RUN_DIR/follower_<i>.npz   per-follower time series, one row per control tick (below)
+    RUN_DIR/summary.json       final and peak errors, time to converge, invariant checks
+
+Follower arrays (row k is tick k at ``t_s[k] = k * dt``; vectors world ENU unless noted):
+
+    t_s                         [s]
+    p_W, v_W                    vehicle position [m], velocity [m/s] (true state)
+    q_WB, omega_B               vehicle attitude [w,x,y,z; FLU->ENU], body rates [rad/s; FLU]
+    p_hat, v_hat, a_hat, a_hat_dot   estimates of the leader's p, v, a, jerk
+    gamma, gamma_dot, eta, eta_dot   estimator and auxiliary-system states
+    u, u_dot, u_ddot            command force [m/s^2] and its derivatives
+    thrust_N                    commanded thrust [N]
+    q_c, omega_c, omegadot_c    command attitude, rate [rad/s; body], rate derivative [rad/s^2]
+    pos_err_m, vel_err_mps      p - p_r - delta_i, v - v_r
+    est_pos_err_m, est_vel_err_mps, est_acc_err_mps2   p_hat - p_r, v_hat - v_r, a_hat - a_r
+
+Load with ``numpy.load(path)``; ``load_run(RUN_DIR)`` gives them all.
+"""
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, cast
+
+import numpy as np
+
+from sim_vehicles.rigid_body import POS, QUAT, RATE, STATE_SIZE, VEL
+from swarm_sitl.estimator import EST_GAMMA, EST_GAMMA_DOT, EST_P, EST_V
+from swarm_sitl.follower import ControllerStep
+from swarm_sitl.follower_law import (
+    CTRL_ETA,
+    CTRL_ETA_DOT,
+    CTRL_SIZE,
+    OUT_A_HAT,
+    OUT_A_HAT_DOT,
+    OUT_OMEGA_C,
+    OUT_OMEGADOT_C,
+    OUT_Q_C,
+    OUT_SIZE,
+    OUT_THRUST,
+    OUT_U,
+    OUT_U_DDOT,
+    OUT_U_DOT,
+)
+from swarm_sitl.trajectories import Trajectory
+
+
+class FollowerSeries:
+    """Preallocated rows for one follower; ``arrays()`` splits them into the named series."""
+
+    def __init__(self, n_rows: int):
+        self.n = n_rows
+        self.t_s = np.full(n_rows, np.nan)
+        self.vehicle = np.full((n_rows, STATE_SIZE), np.nan)
+        self.ctrl_state = np.full((n_rows, CTRL_SIZE), np.nan)
+        self.ctrl_out = np.full((n_rows, OUT_SIZE), np.nan)
+
+    def record_vehicle(self, k: int, t_s: float, state: np.ndarray) -> None:
+        self.t_s[k] = t_s
+        self.vehicle[k] = state
+
+    def record_controller(self, k: int, step: ControllerStep) -> None:
+        self.ctrl_state[k] = step.state
+        self.ctrl_out[k] = step.output
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        x, c, o = self.vehicle, self.ctrl_state, self.ctrl_out
+        return {
+            "t_s": self.t_s,
+            "p_W": x[:, POS],
+            "v_W": x[:, VEL],
+            "q_WB": x[:, QUAT],
+            "omega_B": x[:, RATE],
+            "p_hat": c[:, EST_P],
+            "v_hat": c[:, EST_V],
+            "gamma": c[:, EST_GAMMA],
+            "gamma_dot": c[:, EST_GAMMA_DOT],
+            "eta": c[:, CTRL_ETA],
+            "eta_dot": c[:, CTRL_ETA_DOT],
+            "u": o[:, OUT_U],
+            "u_dot": o[:, OUT_U_DOT],
+            "u_ddot": o[:, OUT_U_DDOT],
+            "thrust_N": o[:, OUT_THRUST],
+            "q_c": o[:, OUT_Q_C],
+            "omega_c": o[:, OUT_OMEGA_C],
+            "omegadot_c": o[:, OUT_OMEGADOT_C],
+            "a_hat": o[:, OUT_A_HAT],
+            "a_hat_dot": o[:, OUT_A_HAT_DOT],
+        }
+
+
+@dataclass
+class Recording:
+    """Everything a run produced, in memory."""
+
+    leader: dict[str, np.ndarray]
+    followers: dict[int, dict[str, np.ndarray]]
+    offsets: dict[int, np.ndarray]
+
+    def with_errors(self) -> "Recording":
+        """Add the error series (idempotent)."""
+        L = self.leader
+        for i, a in self.followers.items():
+            a["pos_err_m"] = a["p_W"] - L["p_r"] - self.offsets[i]
+            a["vel_err_mps"] = a["v_W"] - L["v_r"]
+            a["est_pos_err_m"] = a["p_hat"] - L["p_r"]
+            a["est_vel_err_mps"] = a["v_hat"] - L["v_r"]
+            a["est_acc_err_mps2"] = a["a_hat"] - L["a_r"]
+        return self
+
+
+def leader_series(trajectory: Trajectory, t_s: np.ndarray) -> dict[str, np.ndarray]:
+    d = trajectory.derivatives(t_s)
+    return {"t_s": t_s, "p_r": d[:, 0], "v_r": d[:, 1], "a_r": d[:, 2]}
+
+
+def write_run(run_dir: Path, config_yaml: str, rec: Recording, summary: dict) -> None:
+    run_dir.mkdir(parents=True, exist_ok=True)
+    (run_dir / "config.yaml").write_text(config_yaml)
+    np.savez(run_dir / "leader.npz", **cast(dict[str, Any], rec.leader))
+    for i, arrays in rec.followers.items():
+        np.savez(
+            run_dir / f"follower_{i}.npz", **cast(dict[str, Any], {"offset_m": rec.offsets[i], **arrays})
+        )
+    (run_dir / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+
+
+class RunDirError(ValueError):
+    """A directory is not a readable run directory."""
+
+
+def load_run(run_dir: str | Path) -> Recording:
+    d = Path(run_dir)
+    if not (d / "leader.npz").is_file():
+        raise RunDirError(f"{d}: not a run directory (no leader.npz)")
+    leader = dict(np.load(d / "leader.npz"))
+    followers: dict[int, dict[str, np.ndarray]] = {}
+    offsets: dict[int, np.ndarray] = {}
+    for f in sorted(d.glob("follower_*.npz"), key=lambda p: int(p.stem.split("_")[1])):
+        i = int(f.stem.split("_")[1])
+        arrays = dict(np.load(f))
+        offsets[i] = arrays.pop("offset_m")
+        followers[i] = arrays
+    if not followers:
+        raise RunDirError(f"{d}: run directory has no follower_<i>.npz")
+    return Recording(leader, followers, offsets).with_errors()

@@ -1,0 +1,71 @@
+"""The whole swarm in one process, through the same step functions the processes run.
+
+Per control tick ``k`` (see ``follower`` for the controller's semantics, ``sim_vehicles.autopilot``
+for the vehicle's): the leader emits its reference at ``t_k``; each vehicle is sampled through the
+MAVLink wire representation (float32, NED/FRD); each controller steps with its in-neighbours'
+messages of tick ``k - 1``; each command crosses the wire representation and is held by the vehicle
+for ``attitude_hz / control_hz`` attitude-loop steps.
+"""
+
+from collections.abc import Callable
+
+import numpy as np
+
+from sim_vehicles.rigid_body import POS, QUAT, RATE, VEL
+from sim_vehicles.wire_format import (
+    command_roundtrip,
+    decode_attitude_quaternion,
+    decode_local_position,
+    encode_attitude_quaternion,
+    encode_local_position,
+)
+from swarm_sitl.assembly import build_autopilot, build_controller, build_leader
+from swarm_sitl.config import SwarmConfig
+from swarm_sitl.follower import EstimateMessage, VehicleSample
+from swarm_sitl.recording import FollowerSeries, Recording, leader_series
+
+
+def sample_through_wire(t_s: float, state: np.ndarray) -> VehicleSample:
+    """The vehicle state as a controller sees it in LOCAL_POSITION_NED and ATTITUDE_QUATERNION."""
+    p, v = decode_local_position(encode_local_position(state[POS], state[VEL]))
+    q, _ = decode_attitude_quaternion(encode_attitude_quaternion(state[QUAT], state[RATE]))
+    return VehicleSample(t_s, p, v, q)
+
+
+def run_sim(
+    cfg: SwarmConfig, n_steps: int | None = None, progress: Callable[[int], None] | None = None
+) -> Recording:
+    """Run ``n_steps`` control periods (default: the config's duration); rows 0..n_steps."""
+    n = cfg.n_control_steps if n_steps is None else n_steps
+    ids = [f.id for f in cfg.followers]
+    graph = cfg.build_graph()
+    leader = build_leader(cfg)
+    ctrls = {i: build_controller(cfg, i) for i in ids}
+    aps = {i: build_autopilot(cfg, i) for i in ids}
+    series = {i: FollowerSeries(n + 1) for i in ids}
+    sources = {i: graph.in_neighbours(i) for i in ids}
+    max_thrust = cfg.vehicle.max_thrust_N
+    n_att = cfg.rates.attitude_steps_per_control
+    dt = cfg.control_dt_s
+    latest: dict[int, EstimateMessage] = {}
+    for k in range(n + 1):
+        t = k * dt
+        inboxes = {i: {s: latest[s] for s, _ in sources[i] if s in latest} for i in ids}
+        new: dict[int, EstimateMessage] = {0: leader.step(k)}
+        for i in ids:
+            ap = aps[i]
+            series[i].record_vehicle(k, t, ap.state)
+            step = ctrls[i].step(k, sample_through_wire(t, ap.state), inboxes[i])
+            series[i].record_controller(k, step)
+            new[i] = step.estimate
+            if k < n:
+                ap.set_command(command_roundtrip(step.command, max_thrust))
+                ap.advance(n_att)
+        latest = new
+        if progress is not None:
+            progress(k)
+    t_s = np.arange(n + 1) * dt
+    offsets = {i: np.asarray(cfg.follower(i).offset_m, dtype=float) for i in ids}
+    return Recording(
+        leader_series(cfg.trajectory(), t_s), {i: s.arrays() for i, s in series.items()}, offsets
+    ).with_errors()

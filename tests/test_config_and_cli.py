@@ -1,0 +1,121 @@
+"""Config validation (one clear line per mistake) and the CLI."""
+
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from swarm_sitl.cli import main
+from tests.conftest import CONFIGS
+
+pytestmark = pytest.mark.integration
+
+
+def _paper() -> dict:
+    return yaml.safe_load((CONFIGS / "paper.yaml").read_text())
+
+
+def _mutated(tmp_path: Path, fn) -> Path:
+    data = _paper()
+    fn(data)
+    p = tmp_path / "bad.yaml"
+    p.write_text(yaml.safe_dump(data))
+    return p
+
+
+CASES = {
+    "missing key": (lambda d: d["vehicle"].pop("mass_kg"), "vehicle.mass_kg: missing key"),
+    "unknown key": (lambda d: d["gains"].update(k_zeta=1.0), "gains.k_zeta: unknown key"),
+    "no spanning tree": (
+        lambda d: d["graph"].update(edges=[[0, 1], [0, 2], [3, 4], [4, 3]]),
+        "node 0 cannot reach follower(s) 3, 4",
+    ),
+    "negative mass": (
+        lambda d: d["vehicle"].update(mass_kg=-0.85),
+        "vehicle.mass_kg: Input should be greater than 0",
+    ),
+    "non-unit quaternion": (
+        lambda d: d["followers"][1].update(initial_quaternion_wxyz=[1, 0.1, 0, 0]),
+        "followers.1.initial_quaternion_wxyz: must be a unit quaternion",
+    ),
+    "rates": (lambda d: d["rates"].update(attitude_hz=1050), "whole multiple of control_hz"),
+}
+
+
+@pytest.mark.parametrize("case", CASES)
+def test_bad_config_gives_one_line_naming_the_problem(tmp_path, capsys, case):
+    mutate, expected = CASES[case]
+    path = _mutated(tmp_path, mutate)
+    for command in (["check", str(path)], ["sim", str(path), "--quiet", "--out", str(tmp_path / "r")]):
+        assert main(command) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and err.startswith("swarm-sitl: error: ")
+        assert expected in err, err
+
+
+def test_unreadable_and_malformed_files(tmp_path, capsys):
+    assert main(["check", str(tmp_path / "nope.yaml")]) == 2
+    assert "cannot read" in capsys.readouterr().err
+    bad = tmp_path / "x.yaml"
+    bad.write_text("name: [unclosed\n")
+    assert main(["check", str(bad)]) == 2
+    assert "not valid YAML" in capsys.readouterr().err
+    assert main(["plot", str(tmp_path)]) == 2
+    assert "not a run directory" in capsys.readouterr().err
+
+
+def test_check_passes_paper_and_names_failures_on_ring(capsys):
+    assert main(["check", str(CONFIGS / "paper.yaml")]) == 0
+    out = capsys.readouterr().out
+    assert "all conditions hold." in out and "FAILS" not in out
+    assert main(["check", str(CONFIGS / "ring.yaml")]) == 0
+    out = capsys.readouterr().out
+    failing = [line for line in out.splitlines() if line.rstrip().endswith("FAILS")]
+    assert (
+        len(failing) == 2
+        and failing[0].strip().startswith("l_a >")
+        and failing[1].strip().startswith("k_a >")
+    )
+    assert "suggested gains" in out
+
+
+def test_sim_writes_a_run_directory_and_plot_draws_it(tmp_path):
+    run = tmp_path / "run"
+    r = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "swarm_sitl",
+            "sim",
+            str(CONFIGS / "paper.yaml"),
+            "--duration",
+            "3",
+            "--out",
+            str(run),
+            "--quiet",
+        ],
+        capture_output=True,
+        text=True,
+        check=True,
+    )
+    assert "3 s simulated" in r.stdout
+    for name in ("config.yaml", "leader.npz", "summary.json", *(f"follower_{i}.npz" for i in range(1, 5))):
+        assert (run / name).is_file(), name
+    f1 = np.load(run / "follower_1.npz")
+    assert f1["t_s"].shape == (301,) and f1["p_W"].shape == (301, 3) and f1["q_c"].shape == (301, 4)
+    assert yaml.safe_load((run / "config.yaml").read_text())["duration_s"] == 3.0
+    r = subprocess.run(
+        [sys.executable, "-m", "swarm_sitl", "plot", str(run)], capture_output=True, text=True, check=True
+    )
+    pngs = sorted(p.name for p in (run / "plots").glob("*.png"))
+    assert pngs == [
+        "estimator_error.png",
+        "formation_3d.png",
+        "position_error.png",
+        "thrust.png",
+        "velocity_error.png",
+    ]
+    assert all((run / "plots" / p).stat().st_size > 10_000 for p in pngs)
