@@ -19,7 +19,6 @@ import numpy as np
 
 from sim_vehicles.jit import kernel
 from sim_vehicles.params import AttitudeGains, VehicleParams
-from sim_vehicles.quaternion import body_z_axis
 from sim_vehicles.rigid_body import QUAT, STATE_SIZE, rk4_step
 from sim_vehicles.torque_law import torque
 
@@ -111,9 +110,3 @@ class Autopilot:
             int(n_steps),
         )
         self.step_index += int(n_steps)
-
-    def acceleration_W(self) -> np.ndarray:
-        """Current acceleration [m/s^2; world ENU] under the held thrust (what an IMU integrates)."""
-        p = self.params
-        T = min(max(float(self.command.thrust_N), 0.0), p.max_thrust_N)
-        return T / p.mass_kg * body_z_axis(self.state[QUAT]) - np.array([0.0, 0.0, p.g_mps2])
