@@ -1,0 +1,141 @@
+"""A vehicle process driven by a client that uses only pymavlink's public API (no project code)."""
+
+import math
+import socket
+import subprocess
+import sys
+import time
+
+import pytest
+from pymavlink import mavutil
+
+pytestmark = pytest.mark.system
+
+
+def _free_udp_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@pytest.fixture
+def vehicle(tmp_path):
+    port = _free_udp_port()
+    tlog = tmp_path / "vehicle.tlog"
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "sim_vehicles",
+            "--id",
+            "3",
+            "--port",
+            str(port),
+            "--position",
+            "0",
+            "0",
+            "20",
+            "--tlog",
+            str(tlog),
+            "--duration",
+            "60",
+        ],
+        stdout=subprocess.PIPE,
+        text=True,
+    )
+    assert "listening" in proc.stdout.readline()
+    yield port, tlog
+    proc.terminate()
+    proc.wait(timeout=10)
+
+
+def _wait(conn, kind, timeout=5.0, cond=lambda m: True):
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        m = conn.recv_match(type=kind, blocking=True, timeout=0.2)
+        if m is not None and cond(m):
+            return m
+    raise AssertionError(f"no {kind} within {timeout} s")
+
+
+def _latest(conn, kind):
+    """Drain what has arrived and return the newest message of ``kind``."""
+    time.sleep(0.1)
+    while conn.recv_match(blocking=False) is not None:
+        pass
+    return conn.messages[kind]
+
+
+def test_pymavlink_client_arms_tilts_north_and_sees_it(vehicle):
+    port, tlog = vehicle
+    conn = mavutil.mavlink_connection(f"udpout:127.0.0.1:{port}", source_system=250)
+    conn.mav.heartbeat_send(mavutil.mavlink.MAV_TYPE_GCS, mavutil.mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0)
+    hb = conn.wait_heartbeat(timeout=5)
+    assert hb is not None and conn.target_system == 3
+    assert hb.type == mavutil.mavlink.MAV_TYPE_QUADROTOR
+    assert not hb.base_mode & mavutil.mavlink.MAV_MODE_FLAG_SAFETY_ARMED
+
+    conn.mav.param_request_list_send(3, 1)
+    params = {}
+    end = time.monotonic() + 5
+    while len(params) < 6 and time.monotonic() < end:
+        m = conn.recv_match(type="PARAM_VALUE", blocking=True, timeout=0.2)
+        if m:
+            params[m.param_id] = m.param_value
+    assert params["MASS_KG"] == pytest.approx(0.85) and params["MAX_THRUST_N"] == pytest.approx(25.0)
+
+    conn.mav.command_long_send(3, 1, mavutil.mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 0, 1, 0, 0, 0, 0, 0, 0)
+    assert _wait(conn, "COMMAND_ACK").result == mavutil.mavlink.MAV_RESULT_ACCEPTED
+    conn.mav.command_long_send(3, 1, mavutil.mavlink.MAV_CMD_DO_SET_MODE, 0, 1, 1, 0, 0, 0, 0, 0)
+    assert _wait(conn, "COMMAND_ACK").result == mavutil.mavlink.MAV_RESULT_ACCEPTED
+    start = _wait(conn, "LOCAL_POSITION_NED")
+
+    # pitch nose-down 10 deg in NED/FRD (rotation about body y by -10 deg): thrust tips toward north
+    tilt = math.radians(10)
+    q = [math.cos(-tilt / 2), 0.0, math.sin(-tilt / 2), 0.0]
+    hover = 0.85 * 9.81 / 25.0 / math.cos(tilt)
+    modes = set()
+    end = time.monotonic() + 2.5
+    while time.monotonic() < end:
+        conn.mav.set_attitude_target_send(0, 3, 1, 0b0000_0111, q, 0, 0, 0, hover)
+        time.sleep(0.02)
+        while (m := conn.recv_match(type="HEARTBEAT", blocking=False)) is not None:
+            if m.get_srcSystem() == 3:
+                modes.add((bool(m.base_mode & mavutil.mavlink.MAV_MODE_FLAG_SAFETY_ARMED), m.custom_mode))
+    assert (True, 1) in modes  # armed, following external setpoints
+    lp = _latest(conn, "LOCAL_POSITION_NED")
+    att = conn.messages["ATTITUDE_QUATERNION"]
+    assert lp.time_boot_ms > start.time_boot_ms
+    north = lp.x - start.x
+    assert north > 0.5  # moved north
+    # the vehicle starts facing east (identity in ENU/FLU is yaw 90 deg in NED) and yaws to north while
+    # tilting, which moves it a little east; altitude is held by the tilt-compensated thrust
+    assert abs(lp.y - start.y) < 0.3 * north and abs(lp.z - start.z) < 0.3
+    assert att.q1 == pytest.approx(q[0], abs=5e-3) and att.q3 == pytest.approx(q[2], abs=5e-3)
+
+    # setpoint loss: the vehicle levels and reports failsafe
+    hb = _wait(conn, "HEARTBEAT", timeout=4, cond=lambda m: m.get_srcSystem() == 3 and m.custom_mode == 2)
+    assert hb.system_status == mavutil.mavlink.MAV_STATE_CRITICAL
+    conn.close()
+
+    log = mavutil.mavlink_connection(str(tlog))
+    kinds = set()
+    while (m := log.recv_match()) is not None:
+        kinds.add(m.get_type())
+    assert {
+        "HEARTBEAT",
+        "LOCAL_POSITION_NED",
+        "ATTITUDE_QUATERNION",
+        "SET_ATTITUDE_TARGET",
+        "PARAM_VALUE",
+    } <= kinds
+
+
+def test_garbage_bytes_are_dropped_and_the_vehicle_keeps_talking(vehicle):
+    port, _ = vehicle
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.sendto(b"\xfd\x09garbage-not-mavlink" * 5, ("127.0.0.1", port))
+    conn = mavutil.mavlink_connection(f"udpout:127.0.0.1:{port}", source_system=250)
+    conn.mav.heartbeat_send(mavutil.mavlink.MAV_TYPE_GCS, mavutil.mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0)
+    assert conn.wait_heartbeat(timeout=5) is not None
+    conn.close()
