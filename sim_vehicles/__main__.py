@@ -1,6 +1,7 @@
 """``python -m sim_vehicles``: one simulated vehicle behind a MAVLink 2 UDP endpoint, in real time."""
 
 import argparse
+import signal
 import sys
 
 from sim_vehicles.autopilot import Autopilot
@@ -53,6 +54,11 @@ def main(argv: list[str] | None = None) -> int:
         print(f"sim_vehicles: error: cannot bind udp {a.host}:{a.port} ({e.strerror})", file=sys.stderr)
         return 2
     print(f"vehicle {a.id} listening on udp:{ep.address[0]}:{ep.address[1]}", flush=True)
+
+    def _terminate(signum: int, frame: object) -> None:
+        raise KeyboardInterrupt  # close the .tlog through the finally below
+
+    signal.signal(signal.SIGTERM, _terminate)
     try:
         ep.run_realtime(a.duration)
     except KeyboardInterrupt:

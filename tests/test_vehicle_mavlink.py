@@ -44,7 +44,7 @@ def vehicle(tmp_path):
         text=True,
     )
     assert "listening" in proc.stdout.readline()
-    yield port, tlog
+    yield port, tlog, proc
     proc.terminate()
     proc.wait(timeout=10)
 
@@ -67,7 +67,7 @@ def _latest(conn, kind):
 
 
 def test_pymavlink_client_arms_tilts_north_and_sees_it(vehicle):
-    port, tlog = vehicle
+    port, tlog, proc = vehicle
     conn = mavutil.mavlink_connection(f"udpout:127.0.0.1:{port}", source_system=250)
     conn.mav.heartbeat_send(mavutil.mavlink.MAV_TYPE_GCS, mavutil.mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0)
     hb = conn.wait_heartbeat(timeout=5)
@@ -117,6 +117,8 @@ def test_pymavlink_client_arms_tilts_north_and_sees_it(vehicle):
     hb = _wait(conn, "HEARTBEAT", timeout=4, cond=lambda m: m.get_srcSystem() == 3 and m.custom_mode == 2)
     assert hb.system_status == mavutil.mavlink.MAV_STATE_CRITICAL
     conn.close()
+    proc.terminate()  # SIGTERM: the vehicle closes its .tlog before exiting
+    assert proc.wait(timeout=10) == 0
 
     log = mavutil.mavlink_connection(str(tlog))
     kinds = set()
@@ -132,7 +134,7 @@ def test_pymavlink_client_arms_tilts_north_and_sees_it(vehicle):
 
 
 def test_garbage_bytes_are_dropped_and_the_vehicle_keeps_talking(vehicle):
-    port, _ = vehicle
+    port, _, _ = vehicle
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
         s.sendto(b"\xfd\x09garbage-not-mavlink" * 5, ("127.0.0.1", port))
     conn = mavutil.mavlink_connection(f"udpout:127.0.0.1:{port}", source_system=250)
