@@ -279,16 +279,18 @@ class VehicleEndpoint:
             )
         if self._due("lpos", r.local_position_hz):
             self._send(self.mav.local_position_ned_encode(ms, *encode_local_position(x[POS], x[VEL])))
-        if self._due("attq", r.attitude_quaternion_hz):
-            f = encode_attitude_quaternion(x[QUAT], x[RATE])
-            self._send(self.mav.attitude_quaternion_encode(ms, *f))
-        if self._due("att", r.attitude_hz):
-            w, qx, qy, qz = encode_attitude_quaternion(x[QUAT], x[RATE])[0:4]
-            roll = math.atan2(2 * (w * qx + qy * qz), 1 - 2 * (qx * qx + qy * qy))
-            pitch = math.asin(max(-1.0, min(1.0, 2 * (w * qy - qz * qx))))
-            yaw = math.atan2(2 * (w * qz + qx * qy), 1 - 2 * (qy * qy + qz * qz))
-            f = encode_attitude_quaternion(x[QUAT], x[RATE])
-            self._send(self.mav.attitude_encode(ms, roll, pitch, yaw, f[4], f[5], f[6]))
+        send_attq = self._due("attq", r.attitude_quaternion_hz)
+        send_att = self._due("att", r.attitude_hz)
+        if send_attq or send_att:
+            f = encode_attitude_quaternion(x[QUAT], x[RATE])  # once for both messages
+            if send_attq:
+                self._send(self.mav.attitude_quaternion_encode(ms, *f))
+            if send_att:
+                w, qx, qy, qz = f[0:4]
+                roll = math.atan2(2 * (w * qx + qy * qz), 1 - 2 * (qx * qx + qy * qy))
+                pitch = math.asin(max(-1.0, min(1.0, 2 * (w * qy - qz * qx))))
+                yaw = math.atan2(2 * (w * qz + qx * qy), 1 - 2 * (qy * qy + qz * qz))
+                self._send(self.mav.attitude_encode(ms, roll, pitch, yaw, f[4], f[5], f[6]))
         if self._due("target", r.attitude_target_hz):
             c = ap.command
             f = encode_attitude_quaternion(c.q_c, c.omega_c_B)

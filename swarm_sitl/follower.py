@@ -126,7 +126,7 @@ class FollowerController:
                 r[8:11] = m.a_hat
                 r[11:14] = m.a_hat_dot
                 n += 1
-        return rows[:n].copy()
+        return rows[:n]  # a view: the kernels read it and keep nothing
 
     def step(self, k: int, sample: VehicleSample, inbox: Mapping[int, EstimateMessage]) -> ControllerStep:
         """Tick ``k``: ``inbox`` holds the in-neighbours' messages of tick ``k - 1``."""
