@@ -1,20 +1,39 @@
-"""``python -m sim_vehicles``: one simulated vehicle behind a MAVLink 2 UDP endpoint, in real time."""
+"""``python -m sim_vehicles``: one simulated vehicle behind a MAVLink 2 UDP endpoint.
+
+Real time by default; ``--lockstep-period-s`` makes simulated time advance one period per
+SET_ATTITUDE_TARGET stamped with the vehicle's current time (see ``mavlink_endpoint``). SIGTERM or
+SIGINT closes the .tlog and the truth log and exits 0.
+"""
 
 import argparse
 import signal
 import sys
 
+import numpy as np
+
 from sim_vehicles.autopilot import Autopilot
+from sim_vehicles.lifeline import hold_on
 from sim_vehicles.mavlink_endpoint import VehicleEndpoint
 from sim_vehicles.params import AttitudeGains, VehicleParamError, VehicleParams
 from sim_vehicles.rigid_body import make_state
+from sim_vehicles.wire_format import command_roundtrip
+
+
+def _warm_up(params: VehicleParams, gains: AttitudeGains, attitude_hz: float) -> None:
+    """Load the compiled kernel for both argument types it will see (the hover command's read-only
+    zero rates, then a command from the wire), so the first setpoints are not held up by it."""
+    ap = Autopilot(params, gains, make_state([0.0, 0.0, 0.0]), 1.0 / attitude_hz)
+    ap.advance(1)
+    ap.set_command(command_roundtrip(ap.command, params.max_thrust_N))
+    ap.advance(1)
 
 
 def main(argv: list[str] | None = None) -> int:
+    hold_on()  # a supervisor's child dies with it
     p = argparse.ArgumentParser(prog="python -m sim_vehicles", description=__doc__)
     p.add_argument("--id", type=int, default=1, help="MAVLink system id (1..255)")
     p.add_argument("--host", default="127.0.0.1", help="address to bind (loopback by default)")
-    p.add_argument("--port", type=int, default=14560, help="UDP port to bind")
+    p.add_argument("--port", type=int, default=14560, help="UDP port to bind (0: any free port)")
     p.add_argument(
         "--position",
         type=float,
@@ -23,6 +42,18 @@ def main(argv: list[str] | None = None) -> int:
         metavar=("E", "N", "U"),
         help="initial position [m; ENU]",
     )
+    p.add_argument(
+        "--velocity", type=float, nargs=3, default=[0.0, 0.0, 0.0], metavar=("E", "N", "U"), help="[m/s; ENU]"
+    )
+    p.add_argument(
+        "--quaternion",
+        type=float,
+        nargs=4,
+        default=[1.0, 0.0, 0.0, 0.0],
+        metavar=("W", "X", "Y", "Z"),
+        help="initial attitude [FLU -> ENU]",
+    )
+    p.add_argument("--gravity-mps2", type=float, default=9.81)
     p.add_argument("--mass-kg", type=float, default=0.85)
     p.add_argument("--inertia-kgm2", type=float, nargs=3, default=[4.856e-2, 4.856e-2, 8.801e-2])
     p.add_argument("--max-thrust-n", type=float, default=25.0)
@@ -31,28 +62,46 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--setpoint-timeout-s", type=float, default=0.5)
     p.add_argument("--attitude-hz", type=float, default=1000.0)
     p.add_argument("--tlog", help="write the MAVLink traffic to this .tlog")
-    p.add_argument("--duration", type=float, help="stop after this many seconds of wall time")
+    p.add_argument("--truth", help="write the true state at every LOCAL_POSITION_NED to this row log")
+    p.add_argument(
+        "--lockstep-period-s",
+        type=float,
+        help="lockstep: advance this much simulated time per setpoint stamped with the current time",
+    )
+    p.add_argument("--duration", type=float, help="stop after this many seconds of wall time (real time)")
     a = p.parse_args(argv)
     if not 1 <= a.id <= 255:
         print(f"sim_vehicles: error: --id must be 1..255, got {a.id}", file=sys.stderr)
         return 2
-    try:
-        params = VehicleParams(a.mass_kg, tuple(a.inertia_kgm2), a.max_thrust_n)
-        gains = AttitudeGains(a.l_q, a.k_q)
-    except VehicleParamError as e:
-        print(f"sim_vehicles: error: {e}", file=sys.stderr)
+    q = np.asarray(a.quaternion, dtype=float)
+    if abs(float(np.linalg.norm(q)) - 1.0) > 1e-6:
+        print(
+            f"sim_vehicles: error: --quaternion must be a unit quaternion, got {a.quaternion}",
+            file=sys.stderr,
+        )
+        return 2
+    if not a.attitude_hz > 0:
+        print(f"sim_vehicles: error: --attitude-hz must be > 0, got {a.attitude_hz}", file=sys.stderr)
         return 2
     try:
+        params = VehicleParams(a.mass_kg, tuple(a.inertia_kgm2), a.max_thrust_n, a.gravity_mps2)
+        gains = AttitudeGains(a.l_q, a.k_q)
         ep = VehicleEndpoint(
-            Autopilot(params, gains, make_state(a.position), 1.0 / a.attitude_hz),
+            Autopilot(params, gains, make_state(a.position, a.velocity, q), 1.0 / a.attitude_hz),
             a.id,
             (a.host, a.port),
             a.setpoint_timeout_s,
             tlog_path=a.tlog,
+            lockstep_period_s=a.lockstep_period_s,
+            truth_path=a.truth,
         )
+    except (VehicleParamError, ValueError) as e:
+        print(f"sim_vehicles: error: {e}", file=sys.stderr)
+        return 2
     except OSError as e:
         print(f"sim_vehicles: error: cannot bind udp {a.host}:{a.port} ({e.strerror})", file=sys.stderr)
         return 2
+    _warm_up(params, gains, a.attitude_hz)
     print(f"vehicle {a.id} listening on udp:{ep.address[0]}:{ep.address[1]}", flush=True)
 
     def _terminate(signum: int, frame: object) -> None:
@@ -60,7 +109,10 @@ def main(argv: list[str] | None = None) -> int:
 
     signal.signal(signal.SIGTERM, _terminate)
     try:
-        ep.run_realtime(a.duration)
+        if a.lockstep_period_s is not None:
+            ep.run_lockstep()
+        else:
+            ep.run_realtime(a.duration)
     except KeyboardInterrupt:
         pass
     finally:

@@ -16,16 +16,34 @@ It behaves as a MAVLink tool expects of an autopilot (the PX4 SITL habits):
 - COMMAND_LONG MAV_CMD_COMPONENT_ARM_DISARM and MAV_CMD_DO_SET_MODE (param2 = custom mode), each
   answered with COMMAND_ACK.
 - Parameters MASS_KG, INERTIA_X/Y/Z, MAX_THRUST_N, SP_TIMEOUT_S over the parameter protocol.
+- MAV_CMD_SET_MESSAGE_INTERVAL (param1 message id, param2 interval [us]; -1 stops, 0 restores the
+  default) and MAV_CMD_REQUEST_MESSAGE (param1 message id: sent once, now) for the telemetry above.
 - Every message in and out written to a ``.tlog`` (8-byte big-endian microseconds, then the frame).
+- Optionally the true state (float64, ENU/FLU) at every LOCAL_POSITION_NED instant, written to a
+  ``row_log`` file: what a bench records and a real autopilot cannot give.
+
+Two clocks:
+
+- Real time (default, ``run_realtime``): the vehicle steps with the wall clock (``time.monotonic``).
+- Lockstep (``lockstep_period_s`` set, ``run_lockstep``): simulated time stands still until a
+  SET_ATTITUDE_TARGET stamped with the vehicle's current ``time_boot_ms`` arrives; the vehicle then
+  applies it (if armed and in offboard) and advances exactly one period, and streams its telemetry.
+  A setpoint stamped earlier (a retransmission) makes it send its current LOCAL_POSITION_NED and
+  ATTITUDE_QUATERNION again and nothing else; one stamped later is refused and counted. The run is
+  deterministic: the same setpoints give the same trajectory, bit for bit. LOCAL_POSITION_NED and
+  ATTITUDE_QUATERNION default to once per period. The heartbeat runs on
+  the wall clock in both modes (it says the link is alive), and a new peer gets one at once.
 
 While disarmed the vehicle is held where it is (as if on a stand); physics runs once armed.
 Bad bytes are dropped and counted (``stats``); nothing a peer sends stops the vehicle.
 """
 
 import math
+import select
 import socket
 import struct
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, BinaryIO
@@ -36,6 +54,7 @@ from pymavlink.dialects.v20 import common as mav
 from sim_vehicles.autopilot import AttitudeCommand, Autopilot
 from sim_vehicles.quaternion import rotation_matrix
 from sim_vehicles.rigid_body import POS, QUAT, RATE, VEL
+from sim_vehicles.row_log import RowLog
 from sim_vehicles.wire_format import (
     AttitudeTargetFields,
     decode_attitude_target,
@@ -54,7 +73,7 @@ IGNORE_ATTITUDE = 0b1000_0000
 
 @dataclass(frozen=True)
 class TelemetryRates:
-    """Stream rates [Hz], PX4-like defaults."""
+    """Stream rates [Hz], PX4-like defaults (0 = off)."""
 
     local_position_hz: float = 50.0
     attitude_hz: float = 50.0
@@ -62,7 +81,20 @@ class TelemetryRates:
     attitude_target_hz: float = 10.0
     imu_hz: float = 50.0
     sys_status_hz: float = 1.0
-    heartbeat_hz: float = 1.0
+    heartbeat_hz: float = 1.0  #: on the wall clock, in both clock modes
+
+    def by_message(self) -> dict[int, float]:
+        return {
+            mav.MAVLINK_MSG_ID_LOCAL_POSITION_NED: self.local_position_hz,
+            mav.MAVLINK_MSG_ID_ATTITUDE: self.attitude_hz,
+            mav.MAVLINK_MSG_ID_ATTITUDE_QUATERNION: self.attitude_quaternion_hz,
+            mav.MAVLINK_MSG_ID_ATTITUDE_TARGET: self.attitude_target_hz,
+            mav.MAVLINK_MSG_ID_HIGHRES_IMU: self.imu_hz,
+            mav.MAVLINK_MSG_ID_SYS_STATUS: self.sys_status_hz,
+        }
+
+
+TRUTH_COLUMNS = ["time_boot_s", "px", "py", "pz", "vx", "vy", "vz", "qw", "qx", "qy", "qz", "wx", "wy", "wz"]
 
 
 @dataclass
@@ -71,6 +103,7 @@ class EndpointStats:
     rx_bad: int = 0  #: frames that failed to parse or were refused
     tx_messages: int = 0
     setpoints: int = 0
+    lockstep_resends: int = 0  #: retransmitted setpoints answered with the current sample
 
 
 class _Sink:
@@ -91,8 +124,20 @@ class VehicleEndpoint:
     setpoint_timeout_s: float = 0.5
     rates: TelemetryRates = field(default_factory=TelemetryRates)
     tlog_path: Path | None = None
+    lockstep_period_s: float | None = None  #: None: real time; else simulated time per setpoint
+    truth_path: Path | None = None  #: write the true state at every LOCAL_POSITION_NED instant
 
     def __post_init__(self) -> None:
+        self._lockstep_steps = 0
+        if self.lockstep_period_s is not None:
+            n = self.lockstep_period_s / self.autopilot.dt_s
+            ms = self.lockstep_period_s * 1000
+            if not (round(n) >= 1 and abs(n - round(n)) < 1e-9 and abs(ms - round(ms)) < 1e-9):
+                raise ValueError(
+                    f"lockstep period {self.lockstep_period_s} s must be a whole number of attitude "
+                    f"steps ({self.autopilot.dt_s} s) and of milliseconds"
+                )
+            self._lockstep_steps = round(n)
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.sock.bind(self.bind)
         self.sock.setblocking(False)
@@ -106,8 +151,24 @@ class VehicleEndpoint:
         self.mode = MODE_HOLD
         self.stats = EndpointStats()
         self._last_setpoint_s = -math.inf
-        self._next_send: dict[str, float] = {}
+        self._next_send: dict[int, float] = {}
         self._tlog: BinaryIO | None = open(self.tlog_path, "wb") if self.tlog_path else None  # noqa: SIM115
+        self._truth = RowLog(self.truth_path, TRUTH_COLUMNS) if self.truth_path else None
+        self._defaults = self.rates.by_message()
+        if self.lockstep_period_s is not None:  # in lockstep the sample follows every period
+            for msg_id in (mav.MAVLINK_MSG_ID_LOCAL_POSITION_NED, mav.MAVLINK_MSG_ID_ATTITUDE_QUATERNION):
+                self._defaults[msg_id] = max(self._defaults[msg_id], 1.0 / self.lockstep_period_s)
+        self._rate_hz = dict(self._defaults)
+        self._senders: dict[int, Callable[[int], None]] = {
+            mav.MAVLINK_MSG_ID_LOCAL_POSITION_NED: self._send_local_position,
+            mav.MAVLINK_MSG_ID_ATTITUDE: self._send_attitude,
+            mav.MAVLINK_MSG_ID_ATTITUDE_QUATERNION: self._send_attitude_quaternion,
+            mav.MAVLINK_MSG_ID_ATTITUDE_TARGET: self._send_attitude_target,
+            mav.MAVLINK_MSG_ID_HIGHRES_IMU: self._send_imu,
+            mav.MAVLINK_MSG_ID_SYS_STATUS: self._send_sys_status,
+        }
+        self._next_heartbeat_wall = -math.inf
+        self._attq_cache: tuple[int, tuple[float, ...]] | None = None
         p = self.autopilot.params
         self.params: dict[str, float] = {
             "MASS_KG": p.mass_kg,
@@ -137,6 +198,13 @@ class VehicleEndpoint:
         if self._tlog is not None:
             self._tlog.close()
             self._tlog = None
+        if self._truth is not None:
+            self._truth.close()
+            self._truth = None
+
+    @property
+    def time_boot_ms(self) -> int:
+        return round(self.autopilot.time_s * 1000)
 
     # -- receive ---------------------------------------------------------------------------------
     def poll(self) -> None:
@@ -148,7 +216,10 @@ class VehicleEndpoint:
                 return
             except OSError:
                 return
+            new_peer = addr != self.peer
             self.peer = addr
+            if new_peer:
+                self.send_heartbeat()
             try:
                 msgs = self._parser.parse_buffer(data) or []
             except Exception:  # pymavlink raises its own and struct errors on garbage: drop, count
@@ -201,12 +272,35 @@ class VehicleEndpoint:
         elif m.command == mav.MAV_CMD_DO_SET_MODE and int(m.param2) in (MODE_HOLD, MODE_OFFBOARD):
             self.mode = int(m.param2)
             self._last_setpoint_s = self.autopilot.time_s if self.mode == MODE_OFFBOARD else -math.inf
+        elif m.command == mav.MAV_CMD_SET_MESSAGE_INTERVAL and int(m.param1) in self._rate_hz:
+            msg_id, us = int(m.param1), float(m.param2)
+            self._rate_hz[msg_id] = (
+                self._defaults[msg_id] if us == 0 else (0.0 if us < 0 else 1e6 / max(us, 1.0))
+            )
+            self._next_send.pop(msg_id, None)
+        elif m.command == mav.MAV_CMD_REQUEST_MESSAGE and int(m.param1) in self._senders:
+            self._ack(m.command, result)  # the ack first, then the message, as PX4 does
+            self._senders[int(m.param1)](self.time_boot_ms)
+            return
         else:
             result = mav.MAV_RESULT_UNSUPPORTED
-        self._send(self.mav.command_ack_encode(m.command, result))
+        self._ack(m.command, result)
+
+    def _ack(self, command: int, result: int) -> None:
+        self._send(self.mav.command_ack_encode(command, result))
 
     def _on_setpoint(self, m: Any) -> None:
         ap = self.autopilot
+        if self.lockstep_period_s is not None:
+            now_ms = self.time_boot_ms
+            if m.time_boot_ms < now_ms:  # a retransmission: the sample it waits for was lost
+                self.stats.lockstep_resends += 1
+                self._send_local_position(now_ms)
+                self._send_attitude_quaternion(now_ms)
+                return
+            if m.time_boot_ms > now_ms:
+                self.stats.rx_bad += 1
+                return
         cur = ap.command
         mask = m.type_mask
         try:
@@ -218,6 +312,8 @@ class VehicleEndpoint:
             )
         except ValueError:
             self.stats.rx_bad += 1
+            if self.lockstep_period_s is not None:
+                self.step(self._lockstep_steps)  # the clock still advances; the old command is held
             return
         cmd = AttitudeCommand(
             q_c=cur.q_c if mask & IGNORE_ATTITUDE else new.q_c,
@@ -229,6 +325,8 @@ class VehicleEndpoint:
         if self.mode in (MODE_OFFBOARD, MODE_FAILSAFE):
             self.mode = MODE_OFFBOARD
             ap.set_command(cmd)
+        if self.lockstep_period_s is not None:
+            self.step(self._lockstep_steps)
 
     # -- simulate --------------------------------------------------------------------------------
     def _failsafe_check(self) -> None:
@@ -241,97 +339,113 @@ class VehicleEndpoint:
             ap.set_command(AttitudeCommand(q_c=q, thrust_N=ap.params.hover_thrust_N))
 
     def step(self, n_steps: int = 1) -> None:
-        """Advance the vehicle ``n_steps`` attitude steps (held still while disarmed), then stream."""
+        """Advance ``n_steps`` attitude steps under the held command (held still while disarmed),
+        check the setpoint timeout, then stream what is due."""
         ap = self.autopilot
-        for _ in range(n_steps):
-            if self.armed:
-                ap.advance(1)
-            else:
-                ap.step_index += 1
-            self._failsafe_check()
+        if self.armed:
+            ap.advance(n_steps)
+        else:
+            ap.step_index += n_steps
+        self._failsafe_check()
         self._stream()
 
-    def _due(self, name: str, rate_hz: float) -> bool:
+    def _due(self, msg_id: int) -> bool:
+        """Each stream is sent on its own grid of multiples of its period in boot time, so streams
+        of the same rate (LOCAL_POSITION_NED and ATTITUDE_QUATERNION) always share their instants."""
+        rate_hz = self._rate_hz[msg_id]
         t = self.autopilot.time_s
-        nxt = self._next_send.get(name, 0.0)
-        if rate_hz <= 0 or t + 1e-9 < nxt:
+        if rate_hz <= 0 or t + 1e-9 < self._next_send.get(msg_id, 0.0):
             return False
-        self._next_send[name] = max(nxt + 1.0 / rate_hz, t)
+        self._next_send[msg_id] = (math.floor(t * rate_hz + 1e-6) + 1) / rate_hz
         return True
 
-    def _stream(self) -> None:
-        ap, r = self.autopilot, self.rates
-        ms = round(ap.time_s * 1000)
-        x = ap.state
-        if self._due("heartbeat", r.heartbeat_hz):
-            base = mav.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | (
-                mav.MAV_MODE_FLAG_SAFETY_ARMED if self.armed else 0
-            )
-            status = (
-                mav.MAV_STATE_CRITICAL
-                if self.mode == MODE_FAILSAFE
-                else (mav.MAV_STATE_ACTIVE if self.armed else mav.MAV_STATE_STANDBY)
-            )
-            self._send(
-                self.mav.heartbeat_encode(
-                    mav.MAV_TYPE_QUADROTOR, mav.MAV_AUTOPILOT_GENERIC, base, self.mode, status
-                )
-            )
-        if self._due("lpos", r.local_position_hz):
-            self._send(self.mav.local_position_ned_encode(ms, *encode_local_position(x[POS], x[VEL])))
-        send_attq = self._due("attq", r.attitude_quaternion_hz)
-        send_att = self._due("att", r.attitude_hz)
-        if send_attq or send_att:
-            f = encode_attitude_quaternion(x[QUAT], x[RATE])  # once for both messages
-            if send_attq:
-                self._send(self.mav.attitude_quaternion_encode(ms, *f))
-            if send_att:
-                w, qx, qy, qz = f[0:4]
-                roll = math.atan2(2 * (w * qx + qy * qz), 1 - 2 * (qx * qx + qy * qy))
-                pitch = math.asin(max(-1.0, min(1.0, 2 * (w * qy - qz * qx))))
-                yaw = math.atan2(2 * (w * qz + qx * qy), 1 - 2 * (qy * qy + qz * qz))
-                self._send(self.mav.attitude_encode(ms, roll, pitch, yaw, f[4], f[5], f[6]))
-        if self._due("target", r.attitude_target_hz):
-            c = ap.command
-            f = encode_attitude_quaternion(c.q_c, c.omega_c_B)
-            self._send(
-                self.mav.attitude_target_encode(
-                    ms, 0, list(f[0:4]), f[4], f[5], f[6], float(c.thrust_N) / ap.params.max_thrust_N
-                )
-            )
-        if self._due("imu", r.imu_hz):
-            p = ap.params
-            T = min(max(float(ap.command.thrust_N), 0.0), p.max_thrust_N) if self.armed else p.hover_thrust_N
-            # specific force [m/s^2; body FLU]: thrust when flying, the stand's reaction when held
-            f_b = (
-                np.array([0.0, 0.0, T / p.mass_kg])
-                if self.armed
-                else rotation_matrix(x[QUAT]).T @ [0, 0, p.g_mps2]
-            )
-            self._send(
-                self.mav.highres_imu_encode(
-                    ms * 1000,
-                    f_b[0],
-                    -f_b[1],
-                    -f_b[2],
-                    x[RATE][0],
-                    -x[RATE][1],
-                    -x[RATE][2],
-                    0,
-                    0,
-                    0,
-                    1013.25,
-                    0,
-                    0,
-                    0.0,
-                    0b111111,
-                )
-            )
-        if self._due("sys", r.sys_status_hz):
-            self._send(self.mav.sys_status_encode(0, 0, 0, 0, 12000, -1, -1, 0, 0, 0, 0, 0, 0))
+    def next_stream_s(self) -> float:
+        """Simulated time at which the next telemetry message is due."""
+        nxt = [self._next_send.get(i, 0.0) for i, r in self._rate_hz.items() if r > 0]
+        return min(nxt) if nxt else math.inf
 
-    def run_realtime(self, duration_s: float | None = None, stop: Any = None) -> None:
-        """Run against the wall clock (``time.monotonic``) until ``duration_s`` or ``stop()``."""
+    def send_heartbeat(self) -> None:
+        base = mav.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | (mav.MAV_MODE_FLAG_SAFETY_ARMED if self.armed else 0)
+        status = (
+            mav.MAV_STATE_CRITICAL
+            if self.mode == MODE_FAILSAFE
+            else (mav.MAV_STATE_ACTIVE if self.armed else mav.MAV_STATE_STANDBY)
+        )
+        self._send(
+            self.mav.heartbeat_encode(
+                mav.MAV_TYPE_QUADROTOR, mav.MAV_AUTOPILOT_GENERIC, base, self.mode, status
+            )
+        )
+
+    def heartbeat_tick(self, now_wall_s: float) -> None:
+        """Send the heartbeat if it is due on the wall clock (``time.monotonic`` seconds)."""
+        if self.rates.heartbeat_hz > 0 and now_wall_s >= self._next_heartbeat_wall:
+            self._next_heartbeat_wall = now_wall_s + 1.0 / self.rates.heartbeat_hz
+            self.send_heartbeat()
+
+    def _stream(self) -> None:
+        ms = self.time_boot_ms
+        for msg_id, send in self._senders.items():
+            if self._due(msg_id):
+                send(ms)
+
+    def _attq_fields(self, ms: int) -> tuple[float, ...]:
+        """ATTITUDE_QUATERNION fields of the current state, encoded once per instant."""
+        if self._attq_cache is None or self._attq_cache[0] != self.autopilot.step_index:
+            x = self.autopilot.state
+            self._attq_cache = (self.autopilot.step_index, encode_attitude_quaternion(x[QUAT], x[RATE]))
+        return self._attq_cache[1]
+
+    def _send_local_position(self, ms: int) -> None:
+        x = self.autopilot.state
+        self._send(self.mav.local_position_ned_encode(ms, *encode_local_position(x[POS], x[VEL])))
+        if self._truth is not None:
+            self._truth.append(self.autopilot.time_s, x)
+
+    def _send_attitude_quaternion(self, ms: int) -> None:
+        self._send(self.mav.attitude_quaternion_encode(ms, *self._attq_fields(ms)))
+
+    def _send_attitude(self, ms: int) -> None:
+        f = self._attq_fields(ms)
+        w, qx, qy, qz = f[0:4]
+        roll = math.atan2(2 * (w * qx + qy * qz), 1 - 2 * (qx * qx + qy * qy))
+        pitch = math.asin(max(-1.0, min(1.0, 2 * (w * qy - qz * qx))))
+        yaw = math.atan2(2 * (w * qz + qx * qy), 1 - 2 * (qy * qy + qz * qz))
+        self._send(self.mav.attitude_encode(ms, roll, pitch, yaw, f[4], f[5], f[6]))
+
+    def _send_attitude_target(self, ms: int) -> None:
+        ap = self.autopilot
+        c = ap.command
+        f = encode_attitude_quaternion(c.q_c, c.omega_c_B)
+        self._send(
+            self.mav.attitude_target_encode(
+                ms, 0, list(f[0:4]), f[4], f[5], f[6], float(c.thrust_N) / ap.params.max_thrust_N
+            )
+        )
+
+    def _send_imu(self, ms: int) -> None:
+        ap = self.autopilot
+        x, p = ap.state, ap.params
+        if self.armed:  # specific force [m/s^2; body FLU]: thrust when flying, the stand's reaction when held
+            T = min(max(float(ap.command.thrust_N), 0.0), p.max_thrust_N)
+            f_b = np.array([0.0, 0.0, T / p.mass_kg])
+        else:
+            f_b = rotation_matrix(x[QUAT]).T @ np.array([0.0, 0.0, p.g_mps2])
+        w = x[RATE]
+        self._send(
+            self.mav.highres_imu_encode(
+                ms * 1000, f_b[0], -f_b[1], -f_b[2], w[0], -w[1], -w[2], 0, 0, 0, 1013.25, 0, 0, 0.0, 0b111111
+            )
+        )
+
+    def _send_sys_status(self, ms: int) -> None:
+        self._send(self.mav.sys_status_encode(0, 0, 0, 0, 12000, -1, -1, 0, 0, 0, 0, 0, 0))
+
+    def run_realtime(self, duration_s: float | None = None, stop: Callable[[], bool] | None = None) -> None:
+        """Step with the wall clock (``time.monotonic``) until ``duration_s`` of wall time or ``stop()``.
+
+        The loop sleeps in ``select`` until a datagram arrives or the next telemetry message is due;
+        on waking it first catches the plant up to now under the command it held, then reads."""
         start = time.monotonic()
         dt = self.autopilot.dt_s
         k0 = self.autopilot.step_index
@@ -339,9 +453,25 @@ class VehicleEndpoint:
             now = time.monotonic() - start
             if (duration_s is not None and now >= duration_s) or (stop is not None and stop()):
                 return
-            self.poll()
             due = k0 + int(now / dt) - self.autopilot.step_index
             if due > 0:
-                self.step(min(due, 50))
-            else:
-                time.sleep(dt / 2)
+                self.step(due)
+            self.heartbeat_tick(start + now)
+            t_next = self.next_stream_s() - k0 * dt
+            if self.mode == MODE_OFFBOARD:
+                t_next = min(t_next, self._last_setpoint_s + self.setpoint_timeout_s - k0 * dt)
+            wait = min(max(t_next - now, 0.0), 0.05)
+            readable, _, _ = select.select([self.sock], [], [], wait)
+            if readable:
+                due = k0 + int((time.monotonic() - start) / dt) - self.autopilot.step_index
+                if due > 0:
+                    self.step(due)
+                self.poll()
+
+    def run_lockstep(self, stop: Callable[[], bool] | None = None) -> None:
+        """Serve setpoints until ``stop()``: simulated time moves only with them (see the module doc)."""
+        while stop is None or not stop():
+            self.heartbeat_tick(time.monotonic())
+            readable, _, _ = select.select([self.sock], [], [], 0.2)
+            if readable:
+                self.poll()
