@@ -4,6 +4,7 @@ import numpy as np
 
 from sim_vehicles.autopilot import Autopilot
 from sim_vehicles.rigid_body import make_state
+from sim_vehicles.wire_format import f32
 from swarm_sitl.config import SwarmConfig
 from swarm_sitl.follower import FollowerController, LeaderNode
 
@@ -28,6 +29,13 @@ def build_controller(
         cfg.hold,
         cfg.vehicle.max_thrust_N if max_thrust_N is None else max_thrust_N,
     )
+
+
+def reported_vehicle_params(cfg: SwarmConfig) -> tuple[float, float]:
+    """``(mass_kg, max_thrust_N)`` as a controller reads them over the MAVLink parameter protocol
+    (float32): ``sim`` gives its controllers these, as a controller process gets them."""
+    mass, max_thrust = f32(cfg.vehicle.mass_kg, cfg.vehicle.max_thrust_N)
+    return mass, max_thrust
 
 
 def build_autopilot(cfg: SwarmConfig, i: int) -> Autopilot:

@@ -10,10 +10,12 @@ import time
 from collections.abc import Sequence
 from datetime import datetime
 from pathlib import Path
+from typing import Any
 
 from swarm_sitl.command_attitude import SingularCommandError
 from swarm_sitl.config import ConfigError, SwarmConfig, load_config
 from swarm_sitl.graph import GraphError
+from swarm_sitl.node_main import add_node_parsers
 from swarm_sitl.recording import Recording, RunDirError
 
 EXIT_USAGE = 2
@@ -109,6 +111,127 @@ def cmd_sim(args: argparse.Namespace) -> int:
     return 0
 
 
+class _RunProgress:
+    """A progress bar over ticks with each follower's formation error from its status messages."""
+
+    def __init__(self, cfg: SwarmConfig, label: str, quiet: bool):
+        self.cfg = cfg
+        self.bar: Any = None
+        if not quiet:
+            from tqdm import tqdm
+
+            self.bar = tqdm(
+                total=cfg.n_control_steps + 1, unit="tick", desc=label, mininterval=0.25, leave=False
+            )
+
+    def __call__(self, step: int, errors_m: dict[int, float]) -> None:
+        if self.bar is None:
+            return
+        if step + 1 > self.bar.n:
+            self.bar.update(step + 1 - self.bar.n)
+        if errors_m:
+            worst = max(errors_m, key=lambda i: errors_m[i])
+            shown = (
+                " ".join(f"{i}:{e:.3f}" for i, e in sorted(errors_m.items()))
+                if len(errors_m) <= 6
+                else f"max {errors_m[worst]:.3f} (#{worst})"
+            )
+            self.bar.set_postfix_str(f"|p-p_r-d| m {shown}", refresh=False)
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.close()
+
+
+def _run_and_record(
+    cfg: SwarmConfig, run_dir: Path, lockstep: bool, quiet: bool, mavlink: dict[int, str] | None, kind: str
+) -> int:
+    from swarm_sitl.run_merge import merge_run
+    from swarm_sitl.supervisor import RunFailedError, run_swarm
+
+    clock = "lockstep" if lockstep else "real time"
+    progress = _RunProgress(cfg, f"{kind} {cfg.name} ({clock})", quiet)
+    failure: str | None = None
+    interrupted = False
+    result = None
+    try:
+        result = run_swarm(cfg, run_dir, lockstep, mavlink, progress)
+    except RunFailedError as e:
+        failure = str(e)
+    except KeyboardInterrupt:
+        interrupted = True
+    finally:
+        progress.close()
+    # whatever happened, what the processes recorded is merged and written
+    summary = write_outputs(cfg, merge_run(cfg, run_dir), run_dir)
+    if failure is not None:
+        print(
+            f"swarm-sitl: error: {failure} (partial run in {run_dir}, logs in {run_dir / 'logs'})",
+            file=sys.stderr,
+        )
+        return 1
+    if interrupted:
+        print(f"swarm-sitl: interrupted; partial run in {run_dir}", file=sys.stderr)
+        return 130
+    assert result is not None
+    print(
+        f"{kind} {cfg.name} ({clock}): {cfg.duration_s:g} s simulated in {result.run_wall_s:.2f} s wall "
+        f"({cfg.duration_s / result.run_wall_s:.1f}x real time; start-up {result.startup_wall_s:.1f} s) "
+        f"-> {run_dir}"
+    )
+    print("\n".join(_summary_lines(summary)))
+    return 0
+
+
+def cmd_run(args: argparse.Namespace) -> int:
+    cfg = _with_duration(_load(args.config), args.duration)
+    run_dir = Path(args.out) if args.out else _default_run_dir(cfg, "run")
+    return _run_and_record(cfg, run_dir, not args.realtime, args.quiet, None, "run")
+
+
+def cmd_controllers(args: argparse.Namespace) -> int:
+    cfg = _with_duration(_load(args.config), args.duration)
+    if len(args.mavlink) != cfg.n_followers:
+        raise CliError(
+            f"--mavlink needs one connection string per follower ({cfg.n_followers}, in id order), "
+            f"got {len(args.mavlink)}"
+        )
+    run_dir = Path(args.out) if args.out else _default_run_dir(cfg, "controllers")
+    mavlink = {
+        f.id: url for f, url in zip(sorted(cfg.followers, key=lambda f: f.id), args.mavlink, strict=True)
+    }
+    return _run_and_record(cfg, run_dir, args.lockstep, args.quiet, mavlink, "controllers")
+
+
+def cmd_vehicles(args: argparse.Namespace) -> int:
+    from swarm_sitl.supervisor import RunFailedError, Supervisor, start_vehicles
+
+    cfg = _load(args.config)
+    if not 0 <= args.base_port <= 65535 - cfg.n_followers:
+        raise CliError(
+            f"--base-port must be 0 or a port with room for {cfg.n_followers}, got {args.base_port}"
+        )
+    run_dir = Path(args.out) if args.out else _default_run_dir(cfg, "vehicles")
+    sup = Supervisor(run_dir)
+    try:
+        endpoints = start_vehicles(sup, cfg, args.lockstep, args.base_port)
+        clock = f"lockstep, {cfg.control_dt_s:g} s per setpoint" if args.lockstep else "real time"
+        print(f"{cfg.n_followers} vehicles of {cfg.name} ({clock}); .tlogs in {run_dir / 'tlogs'}")
+        for i, ep in sorted(endpoints.items()):
+            print(f"  vehicle {i}: udpout:{ep.removeprefix('udp:')}  (MAVLink system id {i})")
+        print("Ctrl-C stops them", flush=True)
+        while True:
+            sup.check()
+            time.sleep(0.1)
+    except RunFailedError as e:
+        raise CliError(str(e)) from None
+    except KeyboardInterrupt:
+        print("swarm-sitl: vehicles stopped", file=sys.stderr)
+        return 0
+    finally:
+        sup.close()
+
+
 def cmd_plot(args: argparse.Namespace) -> int:
     from swarm_sitl.plots import plot_run
     from swarm_sitl.recording import load_run
@@ -132,6 +255,12 @@ def cmd_bench(args: argparse.Namespace) -> int:
     return run_bench(args.config, repeats=args.repeats)
 
 
+def _run_outputs(p: argparse.ArgumentParser, kind: str) -> None:
+    p.add_argument("--out", help=f"run directory (default runs/<name>-{kind}-<time>)")
+    p.add_argument("--duration", type=float, help="override duration_s [s]")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="swarm-sitl", description="Software-in-the-loop bench for VTOL UAV swarms."
@@ -144,10 +273,40 @@ def build_parser() -> argparse.ArgumentParser:
 
     s = sub.add_parser("sim", help="run the whole swarm in one process and write a run directory")
     s.add_argument("config")
-    s.add_argument("--out", help="run directory (default runs/<name>-sim-<time>)")
-    s.add_argument("--duration", type=float, help="override duration_s [s]")
-    s.add_argument("--quiet", action="store_true", help="no progress bar")
+    _run_outputs(s, "sim")
     s.set_defaults(func=cmd_sim)
+
+    r = sub.add_parser("run", help="run the swarm as processes: vehicles, controllers, leader, zenoh")
+    r.add_argument("config")
+    r.add_argument("--realtime", action="store_true", help="wall clock, as in flight (default: lockstep)")
+    _run_outputs(r, "run")
+    r.set_defaults(func=cmd_run)
+
+    v = sub.add_parser("vehicles", help="start only the simulated vehicles and print their MAVLink endpoints")
+    v.add_argument("config")
+    v.add_argument("--lockstep", action="store_true", help="step one control period per stamped setpoint")
+    v.add_argument(
+        "--base-port", type=int, default=0, help="vehicle i on BASE_PORT + i - 1 (default: free ports)"
+    )
+    v.add_argument("--out", help="directory for .tlogs and logs (default runs/<name>-vehicles-<time>)")
+    v.set_defaults(func=cmd_vehicles)
+
+    cs = sub.add_parser("controllers", help="run the leader and controllers against given MAVLink endpoints")
+    cs.add_argument("config")
+    cs.add_argument(
+        "--mavlink",
+        nargs="+",
+        required=True,
+        metavar="URL",
+        help="one pymavlink connection string per follower",
+    )
+    cs.add_argument(
+        "--lockstep", action="store_true", help="the vehicles step in lockstep (default: real time)"
+    )
+    _run_outputs(cs, "controllers")
+    cs.set_defaults(func=cmd_controllers)
+
+    add_node_parsers(sub, lambda a: _with_duration(_load(a.config), a.duration))
 
     pl = sub.add_parser("plot", help="draw the figures of a run directory as PNG")
     pl.add_argument("run_dir")

@@ -133,6 +133,39 @@ class EstimatorSpec(_Strict):
     neighbour_hold: Literal["extrapolate", "zero_order"] = "extrapolate"
 
 
+class ZenohSpec(_Strict):
+    """How each process joins the zenoh bus. The defaults keep everything on loopback: a peer
+    session listening on an ephemeral loopback port, no multicast scouting, and (added by
+    ``swarm-sitl run``/``controllers``) a connection to the supervisor's session, from which the
+    peers learn each other (gossip) and connect directly. For several hosts, list a router's or
+    peers' endpoints in ``connect`` and a reachable address in ``listen``."""
+
+    mode: Literal["peer", "client"] = "peer"
+    listen: list[str] = ["tcp/127.0.0.1:0"]
+    connect: list[str] = []
+    multicast_scouting: bool = False
+
+
+class RunSpec(_Strict):
+    """Limits of a multi-process run (wall-clock seconds)."""
+
+    start_timeout_s: Positive = 120.0  #: every process ready (connected, parameters read) within this
+    stall_timeout_s: Positive = 20.0  #: lockstep: a process waiting this long for an input gives up
+    status_every: Annotated[int, Field(ge=1)] = 10  #: ticks between status messages of a controller
+    lockstep_window: Annotated[int, Field(ge=1)] = 50  #: ticks the leader may run ahead in lockstep
+    #: rate a controller asks its vehicle for ATTITUDE and HIGHRES_IMU, which it does not use [Hz]
+    other_telemetry_hz: Annotated[float, Field(ge=0)] = 10.0
+
+    @model_validator(mode="after")
+    def _window(self) -> "RunSpec":
+        if self.lockstep_window <= self.status_every:
+            raise ValueError(
+                f"lockstep_window ({self.lockstep_window}) must exceed status_every ({self.status_every}), "
+                "or the leader waits for a status that never comes"
+            )
+        return self
+
+
 class SwarmConfig(_Strict):
     name: Annotated[str, Field(pattern=r"^[A-Za-z0-9_-]+$")]
     duration_s: Positive
@@ -144,6 +177,8 @@ class SwarmConfig(_Strict):
     followers: list[FollowerSpec]
     gains: GainsSpec
     estimator: EstimatorSpec = EstimatorSpec()
+    zenoh: ZenohSpec = ZenohSpec()
+    run: RunSpec = RunSpec()
 
     @model_validator(mode="after")
     def _cross(self) -> "SwarmConfig":

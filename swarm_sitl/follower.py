@@ -7,7 +7,8 @@ Sampled-data semantics (the controller side; the same in ``sim`` and across proc
   at ``t_{k-1}``; none at ``k = 0``) and the sample of its own vehicle at ``t_k``. A neighbour with no
   message is left out of the sums (as if the edge were absent for that tick).
 - Tick ``k``: (1) advance the controller state from ``t_{k-1}`` to ``t_k`` with those messages and
-  the previous vehicle sample, in ``substeps`` RK4 steps; (2) compute the command at ``t_k`` from the
+  the previous vehicle sample (carried from its own instant, which in real time may be older than
+  ``t_{k-1}``), in ``substeps`` RK4 steps; (2) compute the command at ``t_k`` from the
   new state, the messages carried to ``t_k`` and the sample at ``t_k``; (3) emit its estimate at
   ``t_k`` for its out-neighbours (used at tick ``k + 1``) and the command for its vehicle (held until
   tick ``k + 1``).
@@ -107,6 +108,7 @@ class FollowerController:
         self.max_thrust_N = max_thrust_N
         self.state = np.zeros(CTRL_SIZE)
         self._prev_sample: VehicleSample | None = None
+        self._prev_t = 0.0
         self._prev_acc = np.zeros(3)
         self._zero3 = np.zeros(3)
         self._all_rows = np.empty((len(self.in_edges), MSG_COLS))
@@ -135,10 +137,10 @@ class FollowerController:
         g = self.gains
         prev = self._prev_sample
         if prev is not None:
-            self.state = controller_advance(
+            self.state = controller_advance(  # from the previous tick to this one
                 self.state,
-                prev.t_s,
-                t - prev.t_s,
+                self._prev_t,
+                t - self._prev_t,
                 self.substeps,
                 msgs,
                 self.hold,
@@ -172,6 +174,7 @@ class FollowerController:
         acc = applied / g.mass_kg * body_z_axis(sample.q_WB)
         acc[2] -= g.g_mps2
         self._prev_sample = sample
+        self._prev_t = t
         self._prev_acc = acc
         cmd = AttitudeCommand(
             q_c=out[OUT_Q_C], thrust_N=thrust, omega_c_B=out[OUT_OMEGA_C], omegadot_c_B=out[OUT_OMEGADOT_C]

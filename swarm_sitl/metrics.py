@@ -40,12 +40,19 @@ def summarize(
         "time_to_0.1m_s": 0.0,
         "time_to_0.01m_s": 0.0,
     }
-    for i, a in rec.followers.items():
+    for i, full in rec.followers.items():
+        # rows a run did not record (ticks skipped in real time, a run cut short) are NaN: left out
+        ok = np.isfinite(full["t_s"]) & np.isfinite(full["pos_err_m"]).all(axis=1)
+        if not ok.any():
+            out["followers"][str(i)] = {"recorded_ticks": 0}
+            continue
+        a = {key: v[ok] for key, v in full.items()}
         t = a["t_s"]
         pe, ve = _norm(a["pos_err_m"]), _norm(a["vel_err_mps"])
         late = t >= settle_from_s
         t_bound = mass_kg[i] * (g_mps2 + 2 * np.sqrt(3) * k_eta + np.sqrt(3) * k_gamma)
         f = {
+            "recorded_ticks": int(ok.sum()),
             "final_pos_err_m": float(pe[-1]),
             "final_vel_err_mps": float(ve[-1]),
             "peak_pos_err_m": float(pe.max()),

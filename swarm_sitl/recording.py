@@ -9,7 +9,9 @@ Layout::
 
 Follower arrays (row k is tick k at ``t_s[k] = k * dt``; vectors world ENU unless noted):
 
-    t_s                         [s]
+    t_s                         [s] the control tick
+    sample_t_s                  [s] instant of the vehicle sample used at that tick (= t_s in sim and
+                                lockstep; in real time the latest sample, up to a period older)
     p_W, v_W                    vehicle position [m], velocity [m/s] (true state)
     q_WB, omega_B               vehicle attitude [w,x,y,z; FLU->ENU], body rates [rad/s; FLU]
     p_hat, v_hat, a_hat, a_hat_dot   estimates of the leader's p, v, a, jerk
@@ -17,7 +19,7 @@ Follower arrays (row k is tick k at ``t_s[k] = k * dt``; vectors world ENU unles
     u, u_dot, u_ddot            command force [m/s^2] and its derivatives
     thrust_N                    commanded thrust [N]
     q_c, omega_c, omegadot_c    command attitude, rate [rad/s; body], rate derivative [rad/s^2]
-    pos_err_m, vel_err_mps      p - p_r - delta_i, v - v_r
+    pos_err_m, vel_err_mps      p - p_r - delta_i, v - v_r (p, v at sample_t_s, so is the reference)
     est_pos_err_m, est_vel_err_mps, est_acc_err_mps2   p_hat - p_r, v_hat - v_r, a_hat - a_r
 
 Load with ``numpy.load(path)``; ``load_run(RUN_DIR)`` gives them all.
@@ -61,8 +63,11 @@ class FollowerSeries:
         self.ctrl_state = np.full((n_rows, CTRL_SIZE), np.nan)
         self.ctrl_out = np.full((n_rows, OUT_SIZE), np.nan)
 
-    def record_vehicle(self, k: int, t_s: float, state: np.ndarray) -> None:
+        self.sample_t_s = np.full(n_rows, np.nan)
+
+    def record_vehicle(self, k: int, t_s: float, state: np.ndarray, sample_t_s: float | None = None) -> None:
         self.t_s[k] = t_s
+        self.sample_t_s[k] = t_s if sample_t_s is None else sample_t_s
         self.vehicle[k] = state
 
     def record_controller(self, k: int, step: ControllerStep) -> None:
@@ -73,6 +78,7 @@ class FollowerSeries:
         x, c, o = self.vehicle, self.ctrl_state, self.ctrl_out
         return {
             "t_s": self.t_s,
+            "sample_t_s": self.sample_t_s,
             "p_W": x[:, POS],
             "v_W": x[:, VEL],
             "q_WB": x[:, QUAT],
@@ -103,12 +109,19 @@ class Recording:
     followers: dict[int, dict[str, np.ndarray]]
     offsets: dict[int, np.ndarray]
 
-    def with_errors(self) -> "Recording":
-        """Add the error series (idempotent)."""
+    def with_errors(self, trajectory: Trajectory | None = None) -> "Recording":
+        """Add the error series (idempotent). Where a follower's samples are not at its ticks
+        (``sample_t_s``, real time), ``trajectory`` gives the reference at the sample instants."""
         L = self.leader
         for i, a in self.followers.items():
-            a["pos_err_m"] = a["p_W"] - L["p_r"] - self.offsets[i]
-            a["vel_err_mps"] = a["v_W"] - L["v_r"]
+            ts = a.get("sample_t_s")
+            if trajectory is not None and ts is not None and not np.array_equal(ts, a["t_s"], equal_nan=True):
+                d = trajectory.derivatives(np.nan_to_num(ts, nan=0.0))
+                p_r, v_r = np.where(np.isnan(ts)[:, None], np.nan, d[:, 0]), d[:, 1]
+            else:
+                p_r, v_r = L["p_r"], L["v_r"]
+            a["pos_err_m"] = a["p_W"] - p_r - self.offsets[i]
+            a["vel_err_mps"] = a["v_W"] - v_r
             a["est_pos_err_m"] = a["p_hat"] - L["p_r"]
             a["est_vel_err_mps"] = a["v_hat"] - L["v_r"]
             a["est_acc_err_mps2"] = a["a_hat"] - L["a_r"]
@@ -136,6 +149,8 @@ class RunDirError(ValueError):
 
 
 def load_run(run_dir: str | Path) -> Recording:
+    from swarm_sitl.config import ConfigError, load_config
+
     d = Path(run_dir)
     if not (d / "leader.npz").is_file():
         raise RunDirError(f"{d}: not a run directory (no leader.npz)")
@@ -149,4 +164,8 @@ def load_run(run_dir: str | Path) -> Recording:
         followers[i] = arrays
     if not followers:
         raise RunDirError(f"{d}: run directory has no follower_<i>.npz")
-    return Recording(leader, followers, offsets).with_errors()
+    try:
+        trajectory = load_config(d / "config.yaml").trajectory()
+    except ConfigError:
+        trajectory = None
+    return Recording(leader, followers, offsets).with_errors(trajectory)

@@ -4,7 +4,9 @@ Per control tick ``k`` (see ``follower`` for the controller's semantics, ``sim_v
 for the vehicle's): the leader emits its reference at ``t_k``; each vehicle is sampled through the
 MAVLink wire representation (float32, NED/FRD); each controller steps with its in-neighbours'
 messages of tick ``k - 1``; each command crosses the wire representation and is held by the vehicle
-for ``attitude_hz / control_hz`` attitude-loop steps.
+for ``attitude_hz / control_hz`` attitude-loop steps. Controllers know the vehicle's mass and
+maximum thrust as the MAVLink parameter protocol reports them (float32). This is what
+``swarm-sitl run`` does across processes in lockstep; the transport is the only difference.
 """
 
 from collections.abc import Callable
@@ -19,7 +21,7 @@ from sim_vehicles.wire_format import (
     encode_attitude_quaternion,
     encode_local_position,
 )
-from swarm_sitl.assembly import build_autopilot, build_controller, build_leader
+from swarm_sitl.assembly import build_autopilot, build_controller, build_leader, reported_vehicle_params
 from swarm_sitl.config import SwarmConfig
 from swarm_sitl.follower import EstimateMessage, VehicleSample
 from swarm_sitl.recording import FollowerSeries, Recording, leader_series
@@ -40,7 +42,7 @@ def run_sim(
     ids = [f.id for f in cfg.followers]
     graph = cfg.build_graph()
     leader = build_leader(cfg)
-    ctrls = {i: build_controller(cfg, i) for i in ids}
+    ctrls = {i: build_controller(cfg, i, *reported_vehicle_params(cfg)) for i in ids}
     aps = {i: build_autopilot(cfg, i) for i in ids}
     series = {i: FollowerSeries(n + 1) for i in ids}
     sources = {i: graph.in_neighbours(i) for i in ids}

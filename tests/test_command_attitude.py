@@ -16,7 +16,9 @@ def test_extracted_attitude_points_thrust_along_u(u):
     n = np.linalg.norm(u)
     assume(n > 1e-3 and 1 + u[2] / n > 1e-6)
     q, _, _ = command_attitude(u)
-    assert abs(np.linalg.norm(q) - 1.0) < 1e-12
+    # rounding in |q_c| grows as sigma_c^2 = (1 + u_z/|u|)/2 shrinks toward the singular set
+    sigma2 = (1 + u[2] / n) / 2
+    assert abs(np.linalg.norm(q) - 1.0) < 1e-13 / sigma2
     np.testing.assert_allclose(rotation_matrix(q) @ [0, 0, 1.0], u / n, atol=1e-9)
     assert q[3] == 0.0  # minimal rotation from e3: no rotation about the thrust axis
 

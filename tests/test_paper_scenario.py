@@ -3,6 +3,7 @@
 import numpy as np
 import pytest
 
+from swarm_sitl.assembly import reported_vehicle_params
 from swarm_sitl.sim import run_sim
 
 pytestmark = pytest.mark.integration
@@ -27,7 +28,7 @@ def test_formation_converges(paper_run):
 
 def test_command_force_and_thrust_bounds_hold_at_every_step(paper_run, paper_cfg):
     g, k = paper_cfg.gravity_mps2, paper_cfg.gains
-    m = paper_cfg.vehicle.mass_kg
+    m, _ = reported_vehicle_params(paper_cfg)  # the mass the controller knows: float32, as over MAVLink
     for a in paper_run.followers.values():
         assert np.all(a["u"][:, 2] >= g - k.k_gamma - 2 * k.k_eta)
         assert np.all(a["thrust_N"] <= m * (g + 2 * np.sqrt(3) * k.k_eta + np.sqrt(3) * k.k_gamma))

@@ -1,0 +1,194 @@
+"""The estimate bus of one node over zenoh: its in-edges in, its out-edges out, nothing else.
+
+``NodeBus`` is the interface the leader and controller loops use; ``ZenohNodeBus`` implements it
+on an embedded zenoh session (keys in ``zenoh_keys``, payloads in ``bus_codec``). Faults (loss,
+delay, partitions) belong in wrappers of this interface, not in the loops.
+
+Received samples wait in zenoh's own FIFO channels (on the Rust side) until the loop calls
+``poll()``, which decodes and files them on the loop's thread: no Python callback thread, so no GIL
+hand-over per message (which costs more than the message on a loaded 2-core machine). Malformed
+payloads are dropped and counted in ``dropped``.
+"""
+
+import json
+from collections.abc import Callable, Iterable, Iterator
+from typing import Any, Protocol, TypeVar
+
+import zenoh
+
+from swarm_sitl import zenoh_keys
+from swarm_sitl.bus_codec import (
+    PayloadError,
+    Status,
+    decode_estimate,
+    decode_start,
+    decode_status,
+    encode_estimate,
+    encode_start,
+    encode_status,
+)
+from swarm_sitl.config import ZenohSpec
+from swarm_sitl.follower import EstimateMessage
+
+
+def zenoh_config(spec: ZenohSpec, extra_connect: Iterable[str] = ()) -> zenoh.Config:
+    c = zenoh.Config()
+    c.insert_json5("mode", json.dumps(spec.mode))
+    if spec.mode == "peer":
+        c.insert_json5("listen/endpoints", json.dumps(list(spec.listen)))
+    c.insert_json5("connect/endpoints", json.dumps([*spec.connect, *extra_connect]))
+    c.insert_json5("scouting/multicast/enabled", json.dumps(spec.multicast_scouting))
+    return c
+
+
+def open_session(spec: ZenohSpec, extra_connect: Iterable[str] = ()) -> zenoh.Session:
+    return zenoh.open(zenoh_config(spec, extra_connect))
+
+
+def _publisher(session: zenoh.Session, key: str) -> zenoh.Publisher:
+    """Reliable, and blocking rather than dropping when the link is congested: in lockstep a lost
+    estimate would stall the swarm (the fault issue drops on purpose, in a wrapper)."""
+    return session.declare_publisher(
+        key, congestion_control=zenoh.CongestionControl.BLOCK, reliability=zenoh.Reliability.RELIABLE
+    )
+
+
+CHANNEL_CAPACITY = 4096
+T = TypeVar("T")
+
+
+class NodeBus(Protocol):
+    dropped: int
+
+    def poll(self) -> None: ...
+    def publish(self, msg: EstimateMessage) -> None: ...
+    def publish_status(self, status: Status) -> None: ...
+    def estimate(self, src: int, step: int) -> EstimateMessage | None: ...
+    def latest(self, src: int) -> EstimateMessage | None: ...
+    def forget_before(self, step: int) -> None: ...
+    def progress(self, follower: int) -> int: ...
+    def start_epoch(self) -> float | None: ...
+    def lost(self) -> set[int]: ...
+    def set_ready(self) -> None: ...
+    def close(self) -> None: ...
+
+
+class ZenohNodeBus:
+    """Node ``node`` of swarm ``swarm``: subscribes to its ``in_sources``' edges, publishes on its
+    ``out_dests``' edges, watches the status of ``watch_status`` followers (the leader's pacing)."""
+
+    def __init__(
+        self,
+        session: zenoh.Session,
+        swarm: str,
+        node: int,
+        in_sources: Iterable[int],
+        out_dests: Iterable[int],
+        watch_status: Iterable[int] = (),
+    ):
+        self.session = session
+        self.swarm = swarm
+        self.node = node
+        self.dropped = 0
+        self._estimates: dict[int, dict[int, EstimateMessage]] = {}
+        self._latest: dict[int, EstimateMessage] = {}
+        self._progress: dict[int, int] = {}
+        self._lost: set[int] = set()
+        self._epoch: float | None = None
+        self._token: Any = None
+        self._pubs = [_publisher(session, zenoh_keys.edge(swarm, node, d)) for d in out_dests]
+        self._status_pub = _publisher(session, zenoh_keys.status(swarm, node)) if node > 0 else None
+
+        def fifo() -> Any:
+            return zenoh.handlers.FifoChannel(CHANNEL_CAPACITY)
+
+        sources = list(in_sources)
+        self._est_subs = [
+            session.declare_subscriber(zenoh_keys.edge(swarm, s, node), fifo()) for s in sources
+        ]
+        self._alive_subs = [
+            (s, session.liveliness().declare_subscriber(zenoh_keys.alive(swarm, s), fifo(), history=True))
+            for s in sources
+        ]
+        self._status_subs = [
+            session.declare_subscriber(zenoh_keys.status(swarm, f), fifo()) for f in watch_status
+        ]
+        self._start_sub = [session.declare_subscriber(zenoh_keys.start(swarm), fifo())]
+
+    # -- receive ---------------------------------------------------------------------------------
+    def poll(self) -> None:
+        """File everything that has arrived."""
+        for sub in self._est_subs:
+            for m in self._decoded(sub, decode_estimate):
+                self._estimates.setdefault(m.src, {})[m.step] = m
+                cur = self._latest.get(m.src)
+                if cur is None or m.step >= cur.step:
+                    self._latest[m.src] = m
+        for sub in self._status_subs:
+            for st in self._decoded(sub, decode_status):
+                self._progress[st.follower] = max(self._progress.get(st.follower, -1), st.step)
+        for src, sub in self._alive_subs:
+            while (sample := sub.try_recv()) is not None:
+                if sample.kind == zenoh.SampleKind.DELETE:
+                    self._lost.add(src)
+                else:
+                    self._lost.discard(src)
+        for sub in self._start_sub:
+            for epoch in self._decoded(sub, decode_start):
+                if self._epoch is None:
+                    self._epoch = epoch
+
+    def _decoded(self, sub: Any, decode: Callable[[bytes], T]) -> Iterator[T]:
+        """The payloads waiting on ``sub``, decoded; malformed ones are dropped and counted."""
+        while (sample := sub.try_recv()) is not None:
+            try:
+                yield decode(sample.payload.to_bytes())
+            except PayloadError:
+                self.dropped += 1
+
+    # -- the loop's side -------------------------------------------------------------------------
+    def publish(self, msg: EstimateMessage) -> None:
+        payload = encode_estimate(msg)
+        for p in self._pubs:
+            p.put(payload)
+
+    def publish_status(self, status: Status) -> None:
+        if self._status_pub is not None:
+            self._status_pub.put(encode_status(status))
+
+    def estimate(self, src: int, step: int) -> EstimateMessage | None:
+        return self._estimates.get(src, {}).get(step)
+
+    def latest(self, src: int) -> EstimateMessage | None:
+        return self._latest.get(src)
+
+    def forget_before(self, step: int) -> None:
+        for table in self._estimates.values():
+            for k in [k for k in table if k < step]:
+                del table[k]
+
+    def progress(self, follower: int) -> int:
+        return self._progress.get(follower, -1)
+
+    def start_epoch(self) -> float | None:
+        return self._epoch
+
+    def lost(self) -> set[int]:
+        return set(self._lost)
+
+    def set_ready(self) -> None:
+        if self._token is None:
+            self._token = self.session.liveliness().declare_token(zenoh_keys.alive(self.swarm, self.node))
+
+    def close(self) -> None:
+        subs = [*self._est_subs, *(sub for _, sub in self._alive_subs), *self._status_subs, *self._start_sub]
+        for sub in subs:
+            sub.undeclare()
+        self._est_subs, self._alive_subs, self._status_subs, self._start_sub = [], [], [], []
+        if self._token is not None:
+            self._token.undeclare()
+            self._token = None
+
+
+def publish_start(session: zenoh.Session, swarm: str, epoch_unix_s: float) -> None:
+    session.put(zenoh_keys.start(swarm), encode_start(epoch_unix_s))

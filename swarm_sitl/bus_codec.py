@@ -1,0 +1,72 @@
+"""Byte layouts of what crosses the zenoh bus (little-endian, fixed size, versioned).
+
+- estimate: ``u8 version, u16 src, u32 step, f64 t_s, 12 x f64 p_hat v_hat a_hat a_hat_dot``
+  (float64: nothing is rounded, so lockstep runs equal ``sim``)
+- status: ``u8 version, u16 follower, u32 step, f64 t_s, f64 sample_t_s, 3 x f64 p_W``
+- start: ``u8 version, f64 epoch_unix_s`` (real time: tick 0 happens at this instant)
+
+``decode_*`` raise ``PayloadError`` (one line) for anything else; receivers drop and count it.
+"""
+
+import math
+import struct
+from typing import NamedTuple
+
+import numpy as np
+
+from swarm_sitl.follower import EstimateMessage
+
+VERSION = 1
+_EST = struct.Struct("<BHId12d")
+_STATUS = struct.Struct("<BHIdd3d")
+_START = struct.Struct("<Bd")
+
+
+class PayloadError(ValueError):
+    """A payload on the bus is malformed."""
+
+
+class Status(NamedTuple):
+    follower: int
+    step: int
+    t_s: float  #: tick time [s]
+    sample_t_s: float  #: time of the vehicle sample used [s]
+    p_W: np.ndarray  #: vehicle position as sampled [m; ENU]
+
+
+def _check(data: bytes, layout: struct.Struct, what: str) -> tuple:
+    if len(data) != layout.size:
+        raise PayloadError(f"{what} payload has {len(data)} bytes, expected {layout.size}")
+    fields = layout.unpack(data)
+    if fields[0] != VERSION:
+        raise PayloadError(f"{what} payload version {fields[0]}, expected {VERSION}")
+    if not all(math.isfinite(x) for x in fields if isinstance(x, float)):
+        raise PayloadError(f"{what} payload has a non-finite value")
+    return fields
+
+
+def encode_estimate(m: EstimateMessage) -> bytes:
+    return _EST.pack(VERSION, m.src, m.step, m.t_s, *m.p_hat, *m.v_hat, *m.a_hat, *m.a_hat_dot)
+
+
+def decode_estimate(data: bytes) -> EstimateMessage:
+    f = _check(data, _EST, "estimate")
+    v = np.array(f[4:16])
+    return EstimateMessage(f[1], f[2], f[3], v[0:3], v[3:6], v[6:9], v[9:12])
+
+
+def encode_status(s: Status) -> bytes:
+    return _STATUS.pack(VERSION, s.follower, s.step, s.t_s, s.sample_t_s, *s.p_W)
+
+
+def decode_status(data: bytes) -> Status:
+    f = _check(data, _STATUS, "status")
+    return Status(f[1], f[2], f[3], f[4], np.array(f[5:8]))
+
+
+def encode_start(epoch_unix_s: float) -> bytes:
+    return _START.pack(VERSION, epoch_unix_s)
+
+
+def decode_start(data: bytes) -> float:
+    return float(_check(data, _START, "start")[1])

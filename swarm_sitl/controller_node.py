@@ -1,0 +1,259 @@
+"""One follower's controller as a process: its vehicle over MAVLink, its neighbours over the bus.
+
+The step function is ``FollowerController.step``, the same one ``sim`` runs; this module only
+feeds it. Per tick ``k`` (semantics in ``follower``):
+
+- lockstep: wait for the vehicle's sample stamped ``t_k`` and for every in-neighbour's estimate of
+  tick ``k - 1``; step; publish the estimate; send SET_ATTITUDE_TARGET stamped ``t_k``, which
+  advances the vehicle one period. A setpoint whose answer does not come is sent again (the vehicle
+  answers a repeat with its sample and does not step twice). The run is deterministic and equals
+  ``sim``.
+- real time: at ``epoch + t_k`` on the wall clock, step with the latest sample and the latest
+  estimate of each in-neighbour; a tick that starts more than one period late is skipped.
+  The sample's instant in swarm time is its ``time_boot_ms`` plus the vehicle's clock offset,
+  estimated as the smallest (arrival - stamp) seen.
+
+Every tick is written to ``procs/controller_<i>.rows`` (``row_log``) as it happens.
+"""
+
+import math
+import time
+from pathlib import Path
+from typing import NamedTuple
+
+import numpy as np
+
+from sim_vehicles.autopilot import AttitudeCommand
+from sim_vehicles.row_log import RowLog
+from swarm_sitl.assembly import build_controller
+from swarm_sitl.bus import NodeBus
+from swarm_sitl.bus_codec import Status
+from swarm_sitl.config import SwarmConfig
+from swarm_sitl.follower import EstimateMessage, VehicleSample
+from swarm_sitl.follower_law import CTRL_SIZE, OUT_SIZE
+from swarm_sitl.node_clock import StallError, sleep_until, wait_until, wall_epoch_to_monotonic
+from swarm_sitl.vehicle_link import VehicleLink
+
+CONTROLLER_COLUMNS = [
+    "k",
+    "t_s",
+    "sample_boot_s",
+    "sample_t_s",
+    "late_s",
+    *[f"sample_{n}" for n in ("px", "py", "pz", "vx", "vy", "vz", "qw", "qx", "qy", "qz")],
+    *[f"ctrl_{j}" for j in range(CTRL_SIZE)],
+    *[f"out_{j}" for j in range(OUT_SIZE)],
+]
+RESEND_AFTER_S = 0.25
+
+
+class ControllerReport(NamedTuple):
+    ticks: int
+    late_ticks: int  #: real time: ticks started more than one period late (skipped) or overrunning
+    max_late_s: float
+    resends: int
+    dropped_payloads: int
+
+
+def wait_for_start(bus: NodeBus, link: VehicleLink | None, timeout_s: float, who: str) -> float:
+    """Declare this node ready and wait for the supervisor's start; returns the epoch [UNIX s]."""
+    bus.set_ready()
+    fds = [link.fileno()] if link else []
+
+    def read() -> None:
+        bus.poll()
+        if link is not None:
+            link.poll()
+
+    def idle() -> None:
+        if link is not None:
+            link.send_heartbeat_if_due()
+
+    wait_until(
+        lambda: bus.start_epoch() is not None, read, fds, timeout_s, lambda: f"{who}: no start signal", idle
+    )
+    epoch = bus.start_epoch()
+    assert epoch is not None
+    return epoch
+
+
+class _Inputs:
+    """What one tick waits for, and reading it: the vehicle link and the bus."""
+
+    def __init__(self, who: str, link: VehicleLink, bus: NodeBus, sources: list[int], dt: float):
+        self.who, self.link, self.bus, self.sources, self.dt = who, link, bus, sources, dt
+        self.fds = [link.fileno()]
+        self.epoch_mono = math.nan
+        self.offset_s = math.inf  #: vehicle boot time -> swarm time (real time)
+        self._last_ms = -1
+        self.last_cmd: AttitudeCommand | None = None
+        self.sent_at = math.inf
+        self.resends = 0
+        # lockstep: the tick being waited for
+        self.k = 0
+        self.t_ms = 0
+        self.need: list[int] = []
+
+    def read(self) -> None:
+        self.bus.poll()
+        self.link.poll()
+        if self.link.sample_ms != self._last_ms:
+            self._last_ms = self.link.sample_ms
+            arrival = time.monotonic() - self.epoch_mono
+            self.offset_s = min(self.offset_s, arrival - self._last_ms / 1000.0)
+
+    # -- lockstep --------------------------------------------------------------------------------
+    def ready(self) -> bool:
+        return self.link.sample_ms == self.t_ms and all(
+            self.bus.estimate(s, self.k - 1) is not None for s in self.need
+        )
+
+    def missing(self) -> str:
+        k = self.k
+        what = [
+            f"estimate of node {s} for tick {k - 1}" for s in self.need if self.bus.estimate(s, k - 1) is None
+        ]
+        if self.link.sample_ms != self.t_ms:
+            what.append(f"vehicle sample at {self.t_ms} ms (latest {self.link.sample_ms} ms)")
+        gone = self.bus.lost() & set(self.need)
+        tail = f"; node(s) {sorted(gone)} went away" if gone else ""
+        return f"{self.who} at tick {k}: no {', '.join(what)}{tail}"
+
+    def idle(self) -> None:
+        if (
+            self.last_cmd is not None
+            and self.link.sample_ms < self.t_ms
+            and time.monotonic() - self.sent_at > RESEND_AFTER_S
+        ):  # the setpoint or its answer was lost: send it again, the vehicle will not step twice
+            self.link.send_setpoint(self.last_cmd, self.t_ms - round(self.dt * 1000))
+            self.sent_at = time.monotonic()
+            self.resends += 1
+        if self.bus.lost() & set(self.need) and not self.ready():
+            raise StallError(self.missing())
+
+    def wait_lockstep(self, k: int, timeout_s: float) -> dict[int, EstimateMessage]:
+        self.k, self.t_ms = k, round(k * self.dt * 1000)
+        self.need = self.sources if k > 0 else []
+        wait_until(self.ready, self.read, self.fds, timeout_s, self.missing, self.idle)
+        return {s: m for s in self.need if (m := self.bus.estimate(s, k - 1)) is not None}
+
+    def send(self, cmd: AttitudeCommand, time_boot_ms: int) -> None:
+        self.last_cmd = cmd
+        self.link.send_setpoint(cmd, time_boot_ms)
+        self.sent_at = time.monotonic()
+
+
+def _warm_up(cfg: SwarmConfig, i: int, link: VehicleLink) -> None:
+    """Two steps of a scratch controller: the compiled kernels load now, not in the first ticks."""
+    scratch = build_controller(cfg, i, link.params["MASS_KG"], link.params["MAX_THRUST_N"])
+    x = np.zeros(3)
+    msg = EstimateMessage(0, 0, 0.0, x, x, x, x)
+    inbox = {s: msg._replace(src=s) for s, _ in scratch.in_edges}
+    q = np.array([1.0, 0.0, 0.0, 0.0])
+    for k in range(2):
+        scratch.step(k, VehicleSample(k * cfg.control_dt_s, x, x, q), inbox)
+
+
+def run_controller(
+    cfg: SwarmConfig, i: int, link: VehicleLink, bus: NodeBus, lockstep: bool, rows: RowLog | None
+) -> ControllerReport:
+    who = f"follower {i}"
+    r = cfg.run
+    dt = cfg.control_dt_s
+    n = cfg.n_control_steps
+    link.connect(r.start_timeout_s)
+    ctrl = build_controller(cfg, i, link.params["MASS_KG"], link.params["MAX_THRUST_N"])
+    io = _Inputs(who, link, bus, [s for s, _ in ctrl.in_edges], dt)
+    _warm_up(cfg, i, link)
+    link.request_rates(dt, r.other_telemetry_hz, r.start_timeout_s)
+    if lockstep:
+        link.arm_offboard(r.start_timeout_s)
+        link.request_sample(r.start_timeout_s)
+    io.epoch_mono = wall_epoch_to_monotonic(wait_for_start(bus, link, r.start_timeout_s, who))
+    if not lockstep:
+        link.arm_offboard(r.start_timeout_s)
+    late = 0
+    max_late = 0.0
+    k = 0
+    while k <= n:
+        t = k * dt
+        if lockstep:
+            inbox = io.wait_lockstep(k, r.stall_timeout_s)
+            boot_s, p, v, q = link.sample()
+            sample_t = t
+            lateness = 0.0
+        else:
+            sleep_until(io.epoch_mono + t, io.fds, io.read)
+            io.read()
+            lateness = time.monotonic() - io.epoch_mono - t
+            if lateness > dt:  # a whole period behind: skip to the current tick
+                skip_to = int((time.monotonic() - io.epoch_mono) / dt)
+                late += skip_to - k
+                k = skip_to
+                continue
+            if link.sample_ms < 0:
+                raise StallError(f"{who}: no vehicle sample at tick {k}")
+            inbox = {s: m for s in io.sources if (m := bus.latest(s)) is not None}
+            boot_s, p, v, q = link.sample()
+            sample_t = min(boot_s + io.offset_s, t)
+        step = ctrl.step(k, VehicleSample(sample_t, p, v, q), inbox)
+        bus.publish(step.estimate)
+        if k < n:
+            io.send(step.command, round(t * 1000) if lockstep else round((t - io.offset_s) * 1000))
+        if not lockstep:
+            overrun = time.monotonic() - io.epoch_mono - (t + dt)
+            if overrun > 0:
+                late += 1
+            max_late = max(max_late, lateness, overrun + dt)
+        if rows is not None:
+            rows.append(float(k), t, boot_s, sample_t, lateness, p, v, q, step.state, step.output)
+        if k % r.status_every == 0 or k == n:
+            bus.publish_status(Status(i, k, t, sample_t, p))
+        if lockstep and k >= 2:
+            bus.forget_before(k - 1)
+        k += 1
+    return ControllerReport(n + 1, late, max_late, io.resends, bus.dropped + link.rx_bad)
+
+
+def run_leader(cfg: SwarmConfig, bus: NodeBus, lockstep: bool, out_neighbours: list[int]) -> ControllerReport:
+    """Node 0: the reference at every tick, on the wall clock or a window ahead of the followers."""
+    from swarm_sitl.assembly import build_leader
+
+    leader = build_leader(cfg)
+    r = cfg.run
+    dt = cfg.control_dt_s
+    n = cfg.n_control_steps
+    epoch_mono = wall_epoch_to_monotonic(wait_for_start(bus, None, r.start_timeout_s, "leader"))
+    late = 0
+    step = [0]
+
+    def ahead_ok() -> bool:
+        return all(bus.progress(j) >= step[0] - r.lockstep_window for j in out_neighbours)
+
+    def behind() -> str:
+        at = [bus.progress(j) for j in out_neighbours]
+        return f"leader at tick {step[0]}: followers {out_neighbours} report no progress (at ticks {at})"
+
+    for k in range(n + 1):
+        step[0] = k
+        if lockstep:
+            wait_until(ahead_ok, bus.poll, [], r.stall_timeout_s, behind)
+        else:
+            sleep_until(epoch_mono + k * dt, [], bus.poll)
+            if time.monotonic() - epoch_mono - k * dt > dt:
+                late += 1
+        msg: EstimateMessage = leader.step(k)
+        bus.publish(msg)
+    return ControllerReport(n + 1, late, 0.0, 0, bus.dropped)
+
+
+def procs_dir(run_dir: Path) -> Path:
+    return run_dir / "procs"
+
+
+def controller_rows_path(run_dir: Path, i: int) -> Path:
+    return procs_dir(run_dir) / f"controller_{i}.rows"
+
+
+def vehicle_truth_path(run_dir: Path, i: int) -> Path:
+    return procs_dir(run_dir) / f"vehicle_{i}.truth"

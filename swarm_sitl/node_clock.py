@@ -1,0 +1,65 @@
+"""Waiting, for the per-process loops: for inputs, or for a wall-clock instant.
+
+Both clocks use it. In lockstep a loop waits for its inputs (``wait_until``), in real time for the
+next tick's instant (``sleep_until``); either way it keeps reading its inputs while it waits. The
+loop blocks in ``select`` on its file descriptors (the MAVLink link) for at most ``poll_s`` at a
+time and drains its bus in between, all on one thread: no lock and no GIL hand-over per message.
+"""
+
+import select
+import time
+from collections.abc import Callable, Sequence
+
+POLL_S = 0.0005  #: longest block between two reads of the bus [s]
+
+
+class StallError(RuntimeError):
+    """A lockstep input did not come within the stall timeout; the message names it."""
+
+
+def wall_epoch_to_monotonic(epoch_unix_s: float) -> float:
+    """The ``time.monotonic()`` instant of a UNIX-time epoch (how a start instant crosses hosts)."""
+    return time.monotonic() + (epoch_unix_s - time.time())
+
+
+def _block(fds: Sequence[int], seconds: float) -> None:
+    if fds:
+        select.select(fds, [], [], seconds)
+    else:
+        time.sleep(seconds)
+
+
+def sleep_until(deadline_mono_s: float, fds: Sequence[int], read: Callable[[], None]) -> None:
+    """Until ``deadline_mono_s``, reading inputs as they come."""
+    while True:
+        read()
+        left = deadline_mono_s - time.monotonic()
+        if left <= 0:
+            return
+        _block(fds, min(left, POLL_S))
+
+
+def wait_until(
+    ready: Callable[[], bool],
+    read: Callable[[], None],
+    fds: Sequence[int],
+    timeout_s: float,
+    describe: Callable[[], str],
+    on_idle: Callable[[], None] | None = None,
+    idle_every_s: float = 0.05,
+) -> None:
+    """Read inputs until ``ready()``; ``on_idle()`` every ``idle_every_s``; ``StallError`` after
+    ``timeout_s`` with ``describe()`` saying what is missing."""
+    start = time.monotonic()
+    next_idle = start + idle_every_s
+    while True:
+        read()
+        if ready():
+            return
+        now = time.monotonic()
+        if now - start > timeout_s:
+            raise StallError(f"{describe()} (waited {now - start:.1f} s)")
+        if on_idle is not None and now >= next_idle:
+            on_idle()
+            next_idle = now + idle_every_s
+        _block(fds, POLL_S)

@@ -1,0 +1,146 @@
+"""Entry points of the per-node processes: ``swarm-sitl controller`` and ``swarm-sitl leader``.
+
+These are the building blocks ``run`` and ``controllers`` spawn; they are public so a node can be
+started by hand (another host, a debugger). Each prints one line when it is done, or one error line
+(exit 1) naming what failed; SIGTERM/SIGINT end it cleanly (its recording is flushed).
+"""
+
+import argparse
+import os
+import signal
+import sys
+from pathlib import Path
+from typing import Any
+
+from swarm_sitl.config import SwarmConfig
+
+
+def _terminate(signum: int, frame: object) -> None:
+    raise KeyboardInterrupt
+
+
+def _session(cfg: SwarmConfig, connect: list[str]) -> Any:
+    from swarm_sitl.bus import open_session
+
+    return open_session(cfg.zenoh, connect)
+
+
+def _guarded(name: str, body: Any) -> int:
+    import zenoh
+
+    from sim_vehicles.lifeline import hold_on
+    from swarm_sitl.command_attitude import SingularCommandError
+    from swarm_sitl.node_clock import StallError
+    from swarm_sitl.vehicle_link import LinkError
+
+    hold_on()
+    signal.signal(signal.SIGTERM, _terminate)
+    try:
+        if os.environ.get("SWARM_SITL_PROFILE"):  # debugging aid: a cProfile dump per node
+            import cProfile
+
+            prof = cProfile.Profile()
+            try:
+                line = prof.runcall(body)
+            finally:
+                prof.dump_stats(f"{os.environ['SWARM_SITL_PROFILE']}/{name.replace(' ', '_')}.prof")
+        else:
+            line = body()
+    except (LinkError, StallError, SingularCommandError) as e:
+        print(f"{name}: error: {e}", file=sys.stderr, flush=True)
+        return 1
+    except zenoh.ZError as e:
+        first = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
+        print(f"{name}: error: zenoh: {first}", file=sys.stderr, flush=True)
+        return 1
+    except KeyboardInterrupt:
+        print(f"{name}: stopped", file=sys.stderr, flush=True)
+        return 130
+    print(line, flush=True)
+    return 0
+
+
+def cmd_controller(cfg: SwarmConfig, args: argparse.Namespace) -> int:
+    from sim_vehicles.row_log import RowLog
+    from swarm_sitl.bus import ZenohNodeBus
+    from swarm_sitl.controller_node import CONTROLLER_COLUMNS, controller_rows_path, run_controller
+    from swarm_sitl.vehicle_link import VehicleLink
+
+    i = args.id
+    if i not in {f.id for f in cfg.followers}:
+        raise ValueError(f"--id {i} is not a follower of {cfg.name} (ids 1..{cfg.n_followers})")
+    graph = cfg.build_graph()
+
+    def body() -> str:
+        rows = None
+        link = session = bus = None
+        try:
+            if args.out:
+                path = controller_rows_path(Path(args.out), i)
+                path.parent.mkdir(parents=True, exist_ok=True)
+                rows = RowLog(path, CONTROLLER_COLUMNS)
+            link = VehicleLink(args.mavlink, i)
+            session = _session(cfg, args.connect)
+            bus = ZenohNodeBus(
+                session,
+                cfg.name,
+                i,
+                [s for s, _ in graph.in_neighbours(i)],
+                list(graph.out_neighbours(i)),
+            )
+            rep = run_controller(cfg, i, link, bus, args.lockstep, rows)
+            return (
+                f"follower {i}: {rep.ticks} ticks, {rep.late_ticks} late "
+                f"(max {rep.max_late_s * 1e3:.2f} ms), "
+                f"{rep.resends} setpoints resent, {rep.dropped_payloads} bad inputs dropped"
+            )
+        finally:
+            for thing in (rows, bus, link, session):
+                if thing is not None:
+                    thing.close()
+
+    return _guarded(f"controller {i}", body)
+
+
+def cmd_leader(cfg: SwarmConfig, args: argparse.Namespace) -> int:
+    from swarm_sitl.bus import ZenohNodeBus
+    from swarm_sitl.controller_node import run_leader
+
+    graph = cfg.build_graph()
+    outs = list(graph.out_neighbours(0))
+
+    def body() -> str:
+        session = bus = None
+        try:
+            session = _session(cfg, args.connect)
+            bus = ZenohNodeBus(session, cfg.name, 0, [], outs, watch_status=outs)
+            rep = run_leader(cfg, bus, args.lockstep, outs)
+            return f"leader: {rep.ticks} ticks published to {outs}, {rep.late_ticks} late"
+        finally:
+            for thing in (bus, session):
+                if thing is not None:
+                    thing.close()
+
+    return _guarded("leader", body)
+
+
+def add_node_parsers(sub: Any, load: Any) -> None:
+    c = sub.add_parser("controller", help="one follower's controller process (spawned by run/controllers)")
+    c.add_argument("config")
+    c.add_argument("--id", type=int, required=True, help="follower id (= its vehicle's MAVLink system id)")
+    c.add_argument(
+        "--mavlink", required=True, help="pymavlink connection string, e.g. udpout:127.0.0.1:14561"
+    )
+    _common(c)
+    c.set_defaults(func=lambda a: cmd_controller(load(a), a))
+    ld = sub.add_parser("leader", help="the leader's process (spawned by run/controllers)")
+    ld.add_argument("config")
+    _common(ld)
+    ld.set_defaults(func=lambda a: cmd_leader(load(a), a))
+
+
+def _common(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--lockstep", action="store_true", help="lockstep clock (default: real time)")
+    p.add_argument("--connect", action="append", default=[], help="extra zenoh endpoint to connect to")
+    p.add_argument("--out", help="run directory to record into")
+    p.add_argument("--duration", type=float, help="override duration_s [s]")

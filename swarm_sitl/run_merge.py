@@ -1,0 +1,68 @@
+"""Merge what the processes of a run recorded into one ``Recording`` (the layout ``sim`` writes).
+
+Inputs in ``RUN_DIR/procs/``: ``controller_<i>.rows`` (one row per tick: the tick, the vehicle
+sample it used, controller state and output) and ``vehicle_<i>.truth`` (the vehicle's true state at
+every LOCAL_POSITION_NED it sent). Row ``k`` of follower ``i`` takes the true state at the sample's
+``time_boot_ms``; without a truth file (a vehicle that is not ours) it takes the sample itself
+(float32 as received, no body rates). Ticks nobody recorded stay NaN.
+"""
+
+from pathlib import Path
+
+import numpy as np
+
+from sim_vehicles.rigid_body import POS, QUAT, VEL
+from sim_vehicles.row_log import RowLogError, read_rows
+from swarm_sitl.config import SwarmConfig
+from swarm_sitl.controller_node import CONTROLLER_COLUMNS, controller_rows_path, vehicle_truth_path
+from swarm_sitl.follower_law import CTRL_SIZE, OUT_SIZE
+from swarm_sitl.recording import FollowerSeries, Recording, leader_series
+
+_C = {name: j for j, name in enumerate(CONTROLLER_COLUMNS)}
+_SAMPLE = slice(_C["sample_px"], _C["sample_qz"] + 1)
+_CTRL = slice(_C["ctrl_0"], _C["ctrl_0"] + CTRL_SIZE)
+_OUT = slice(_C["out_0"], _C["out_0"] + OUT_SIZE)
+
+
+def _rows(path: Path, width: int) -> np.ndarray:
+    if not path.is_file():
+        return np.empty((0, width))
+    try:
+        cols, rows = read_rows(path)
+    except RowLogError:
+        return np.empty((0, width))
+    return rows if len(cols) == width else np.empty((0, width))
+
+
+def merge_run(cfg: SwarmConfig, run_dir: Path) -> Recording:
+    n = cfg.n_control_steps
+    dt = cfg.control_dt_s
+    followers = {}
+    offsets = {}
+    for f in cfg.followers:
+        i = f.id
+        series = FollowerSeries(n + 1)
+        ctrl = _rows(controller_rows_path(run_dir, i), len(CONTROLLER_COLUMNS))
+        truth = _rows(vehicle_truth_path(run_dir, i), 14)
+        by_ms: dict[int, int] = {}
+        for j, ms in enumerate(np.round(truth[:, 0] * 1000).astype(np.int64)):
+            by_ms.setdefault(int(ms), j)
+        for row in ctrl:
+            k = int(row[_C["k"]])
+            if not 0 <= k <= n:
+                continue
+            at = by_ms.get(round(row[_C["sample_boot_s"]] * 1000))
+            if at is not None:
+                state = truth[at, 1:]
+            else:
+                state = np.full(13, np.nan)
+                s = row[_SAMPLE]
+                state[POS], state[VEL], state[QUAT] = s[0:3], s[3:6], s[6:10]
+            series.record_vehicle(k, row[_C["t_s"]], state, row[_C["sample_t_s"]])
+            series.ctrl_state[k] = row[_CTRL]
+            series.ctrl_out[k] = row[_OUT]
+        followers[i] = series.arrays()
+        offsets[i] = np.asarray(f.offset_m, dtype=float)
+    t_s = np.arange(n + 1) * dt
+    trajectory = cfg.trajectory()
+    return Recording(leader_series(trajectory, t_s), followers, offsets).with_errors(trajectory)

@@ -1,0 +1,339 @@
+"""Spawn, supervise and tear down the processes of a swarm; the one place that owns child processes.
+
+``Supervisor`` starts each child in its own session with its output in ``RUN_DIR/logs/<name>.log``
+and ``SWARM_SITL_PARENT_PID`` set (children die with it, ``sim_vehicles.lifeline``). Whatever
+happens (completion, Ctrl-C, a child failing, an exception here), ``close()`` sends SIGTERM to every
+child still running, waits, then SIGKILLs: no orphan process, no port left bound.
+
+``run_swarm`` is the whole run: vehicles (optional: ``controllers`` uses endpoints given by the
+user), then the leader and one controller per follower, all-or-nothing: each must report ready
+(its zenoh liveliness token, declared once its MAVLink handshake is done) within
+``run.start_timeout_s`` or the run ends before it starts. Then the start signal, progress while it
+runs, and the merge of what each process recorded.
+"""
+
+import contextlib
+import os
+import re
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import IO, Any
+
+import numpy as np
+
+from sim_vehicles.lifeline import ENV as PARENT_ENV
+from swarm_sitl import zenoh_keys
+from swarm_sitl.bus_codec import PayloadError, Status, decode_status
+from swarm_sitl.config import SwarmConfig
+from swarm_sitl.controller_node import procs_dir, vehicle_truth_path
+
+TERM_GRACE_S = 5.0
+_LISTENING = re.compile(r"listening on udp:([0-9.]+):(\d+)")
+
+
+class RunFailedError(RuntimeError):
+    """A process of the run failed; the message names it."""
+
+
+@dataclass
+class Child:
+    name: str
+    proc: subprocess.Popen
+    log_path: Path
+    must_finish: bool  #: leader/controllers end by themselves; vehicles run until torn down
+
+    def last_line(self) -> str:
+        try:
+            lines = [ln for ln in self.log_path.read_text(errors="replace").splitlines() if ln.strip()]
+        except OSError:
+            return ""
+        return lines[-1].strip() if lines else ""
+
+
+@dataclass
+class Supervisor:
+    run_dir: Path
+    children: list[Child] = field(default_factory=list)
+    _logs: list[IO[bytes]] = field(default_factory=list)
+
+    def spawn(self, name: str, argv: list[str], must_finish: bool) -> Child:
+        log_dir = self.run_dir / "logs"
+        log_dir.mkdir(parents=True, exist_ok=True)
+        log_path = log_dir / f"{name}.log"
+        log = open(log_path, "wb")  # noqa: SIM115  (closed in close())
+        self._logs.append(log)
+        env = {**os.environ, PARENT_ENV: str(os.getpid()), "PYTHONUNBUFFERED": "1"}
+        proc = subprocess.Popen(
+            argv,
+            stdout=log,
+            stderr=subprocess.STDOUT,
+            stdin=subprocess.DEVNULL,
+            env=env,
+            start_new_session=True,
+        )
+        child = Child(name, proc, log_path, must_finish)
+        self.children.append(child)
+        return child
+
+    def check(self) -> None:
+        """Raise ``RunFailedError`` if a child failed, or a vehicle stopped while it was needed."""
+        for c in self.children:
+            code = c.proc.poll()
+            if code is None:
+                continue
+            if code != 0 or not c.must_finish:
+                why = c.last_line()
+                raise RunFailedError(f"{c.name} exited with code {code}" + (f": {why}" if why else ""))
+
+    def finished(self) -> bool:
+        return all(c.proc.poll() == 0 for c in self.children if c.must_finish)
+
+    def close(self) -> None:
+        alive = [c for c in self.children if c.proc.poll() is None]
+        for c in alive:
+            with contextlib.suppress(ProcessLookupError):
+                c.proc.send_signal(signal.SIGTERM)
+        end = time.monotonic() + TERM_GRACE_S
+        for c in alive:
+            try:
+                c.proc.wait(timeout=max(0.0, end - time.monotonic()))
+            except subprocess.TimeoutExpired:
+                with contextlib.suppress(ProcessLookupError):
+                    os.killpg(c.proc.pid, signal.SIGKILL)
+                c.proc.wait()
+        for log in self._logs:
+            log.close()
+        self._logs.clear()
+
+
+def free_tcp_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def vehicle_argv(cfg: SwarmConfig, i: int, run_dir: Path, lockstep: bool, port: int = 0) -> list[str]:
+    f, v, g = cfg.follower(i), cfg.vehicle, cfg.gains
+    argv = [
+        sys.executable,
+        "-m",
+        "sim_vehicles",
+        "--id",
+        str(i),
+        "--host",
+        "127.0.0.1",
+        "--port",
+        str(port),
+        "--position",
+        *map(repr, f.initial_position_m),
+        "--velocity",
+        *map(repr, f.initial_velocity_mps),
+        "--quaternion",
+        *map(repr, f.initial_quaternion_wxyz),
+        "--mass-kg",
+        repr(v.mass_kg),
+        "--inertia-kgm2",
+        *map(repr, v.inertia_kgm2),
+        "--max-thrust-n",
+        repr(v.max_thrust_N),
+        "--gravity-mps2",
+        repr(cfg.gravity_mps2),
+        "--l-q",
+        repr(g.l_q),
+        "--k-q",
+        repr(g.k_q),
+        "--setpoint-timeout-s",
+        repr(v.setpoint_timeout_s),
+        "--attitude-hz",
+        repr(cfg.rates.attitude_hz),
+        "--tlog",
+        str(run_dir / "tlogs" / f"vehicle_{i}.tlog"),
+        "--truth",
+        str(vehicle_truth_path(run_dir, i)),
+    ]
+    if lockstep:
+        argv += ["--lockstep-period-s", repr(cfg.control_dt_s)]
+    return argv
+
+
+def start_vehicles(sup: Supervisor, cfg: SwarmConfig, lockstep: bool, base_port: int = 0) -> dict[int, str]:
+    """Spawn one vehicle per follower; returns ``{id: "udp:host:port"}`` once each is listening."""
+    run_dir = sup.run_dir
+    (run_dir / "tlogs").mkdir(parents=True, exist_ok=True)
+    procs_dir(run_dir).mkdir(parents=True, exist_ok=True)
+    children = {}
+    for f in cfg.followers:
+        port = base_port + f.id - 1 if base_port else 0
+        children[f.id] = sup.spawn(f"vehicle_{f.id}", vehicle_argv(cfg, f.id, run_dir, lockstep, port), False)
+    endpoints: dict[int, str] = {}
+    end = time.monotonic() + cfg.run.start_timeout_s
+    while len(endpoints) < len(children):
+        sup.check()
+        for i, c in children.items():
+            if i not in endpoints:
+                with contextlib.suppress(OSError):
+                    m = _LISTENING.search(c.log_path.read_text(errors="replace"))
+                    if m:
+                        endpoints[i] = f"udp:{m.group(1)}:{m.group(2)}"
+        if time.monotonic() > end:
+            late = sorted(set(children) - set(endpoints))
+            raise RunFailedError(
+                f"vehicle(s) {late} did not start listening within {cfg.run.start_timeout_s:g} s"
+            )
+        time.sleep(0.02)
+    return endpoints
+
+
+def node_argv(
+    cfg_path: Path, role: str, lockstep: bool, hub: str, run_dir: Path, extra: list[str]
+) -> list[str]:
+    argv = [
+        sys.executable,
+        "-m",
+        "swarm_sitl",
+        role,
+        str(cfg_path),
+        "--connect",
+        hub,
+        "--out",
+        str(run_dir),
+        *extra,
+    ]
+    return [*argv, "--lockstep"] if lockstep else argv
+
+
+class RunMonitor:
+    """The supervisor's own view of the bus: readiness of every node and followers' status."""
+
+    def __init__(self, session: Any, cfg: SwarmConfig):
+        self.cfg = cfg
+        self._lock = threading.Lock()
+        self.ready: set[int] = set()
+        self.status: dict[int, Status] = {}
+        self.dropped = 0
+        self._subs = [
+            session.liveliness().declare_subscriber(
+                zenoh_keys.alive(cfg.name, node), self._on_alive(node), history=True
+            )
+            for node in range(cfg.n_followers + 1)
+        ]
+        self._subs += [
+            session.declare_subscriber(zenoh_keys.status(cfg.name, f.id), self._on_status)
+            for f in cfg.followers
+        ]
+
+    def _on_alive(self, node: int) -> Callable[[Any], None]:
+        def cb(sample: Any) -> None:
+            import zenoh
+
+            with self._lock:
+                if sample.kind == zenoh.SampleKind.PUT:
+                    self.ready.add(node)
+
+        return cb
+
+    def _on_status(self, sample: Any) -> None:
+        try:
+            s = decode_status(sample.payload.to_bytes())
+        except PayloadError:
+            self.dropped += 1
+            return
+        with self._lock:
+            self.status[s.follower] = s
+
+    def errors_m(self) -> dict[int, float]:
+        """Each follower's |p - p_r - delta| at its latest status."""
+        traj = self.cfg.trajectory()
+        out = {}
+        with self._lock:
+            items = list(self.status.items())
+        for i, s in items:
+            p_r = traj.derivatives(s.sample_t_s)[0]
+            out[i] = float(np.linalg.norm(s.p_W - p_r - np.asarray(self.cfg.follower(i).offset_m)))
+        return out
+
+    def min_step(self) -> int:
+        with self._lock:
+            if len(self.status) < self.cfg.n_followers:
+                return -1
+            return min(s.step for s in self.status.values())
+
+    def close(self) -> None:
+        for s in self._subs:
+            s.undeclare()
+
+
+@dataclass
+class RunResult:
+    run_wall_s: float  #: from the start signal to the last controller done
+    startup_wall_s: float  #: from spawning to every process ready
+    endpoints: dict[int, str]
+
+
+def run_swarm(
+    cfg: SwarmConfig,
+    run_dir: Path,
+    lockstep: bool,
+    mavlink: dict[int, str] | None = None,
+    on_progress: Callable[[int, dict[int, float]], None] | None = None,
+) -> RunResult:
+    """Run the swarm; vehicles are spawned unless ``mavlink`` gives each follower's endpoint."""
+    from swarm_sitl.bus import open_session, publish_start
+
+    run_dir.mkdir(parents=True, exist_ok=True)
+    cfg_path = run_dir / "config.yaml"
+    cfg_path.write_text(cfg.to_yaml())
+    procs_dir(run_dir).mkdir(parents=True, exist_ok=True)
+    t_spawn = time.monotonic()
+    sup = Supervisor(run_dir)
+    hub_port = free_tcp_port()
+    hub = f"tcp/127.0.0.1:{hub_port}"
+    session = open_session(cfg.zenoh.model_copy(update={"listen": [hub]}))
+    monitor = RunMonitor(session, cfg)
+    try:
+        endpoints = start_vehicles(sup, cfg, lockstep) if mavlink is None else dict(mavlink)
+        sup.spawn("leader", node_argv(cfg_path, "leader", lockstep, hub, run_dir, []), True)
+        for f in cfg.followers:
+            url = endpoints[f.id]
+            url = "udpout:" + url.removeprefix("udp:") if mavlink is None else url
+            extra = ["--id", str(f.id), "--mavlink", url]
+            sup.spawn(
+                f"controller_{f.id}", node_argv(cfg_path, "controller", lockstep, hub, run_dir, extra), True
+            )
+        end = time.monotonic() + cfg.run.start_timeout_s
+        while len(monitor.ready) < cfg.n_followers + 1:
+            sup.check()
+            if time.monotonic() > end:
+                missing = sorted(set(range(cfg.n_followers + 1)) - monitor.ready)
+                raise RunFailedError(f"node(s) {missing} not ready within {cfg.run.start_timeout_s:g} s")
+            time.sleep(0.02)
+        startup = time.monotonic() - t_spawn
+        epoch = time.time() + (0.0 if lockstep else 0.5)
+        t_start = time.monotonic()
+        next_start_put = 0.0
+        next_progress = 0.0
+        while not sup.finished():
+            sup.check()
+            now = time.monotonic()
+            if now >= next_start_put:  # again and again: a late subscriber still gets it
+                publish_start(session, cfg.name, epoch)
+                next_start_put = now + 0.5
+            if on_progress is not None and now >= next_progress:
+                on_progress(monitor.min_step(), monitor.errors_m())
+                next_progress = now + 0.25
+            time.sleep(0.01)
+        run_wall = time.monotonic() - t_start
+        if on_progress is not None:
+            on_progress(cfg.n_control_steps, monitor.errors_m())
+        return RunResult(run_wall, startup, endpoints)
+    finally:
+        monitor.close()
+        sup.close()
+        session.close()

@@ -1,0 +1,209 @@
+"""A controller's MAVLink link to its vehicle, through any pymavlink connection string.
+
+What it does is what an offboard companion computer does with PX4: it speaks as component
+MAV_COMP_ID_ONBOARD_COMPUTER of the vehicle's own system, sends its heartbeat, waits for the
+autopilot's, reads the vehicle's parameters (the controller uses the mass and maximum thrust the
+vehicle reports, never a copy of its own), asks for LOCAL_POSITION_NED and ATTITUDE_QUATERNION at
+the control rate and the streams it does not use at a lower rate (MAV_CMD_SET_MESSAGE_INTERVAL:
+parsing MAVLink in Python is the largest cost of a lockstep tick), arms, switches to offboard and streams
+SET_ATTITUDE_TARGET. Fields are read and written with ``sim_vehicles.wire_format``: NED/FRD exists
+only inside this module.
+
+Incoming messages are read with ``poll()`` (non-blocking; ``fileno()`` is there for ``select``).
+The latest vehicle sample is the last LOCAL_POSITION_NED and ATTITUDE_QUATERNION of the same
+``time_boot_ms``.
+"""
+
+import os
+import time
+from typing import Any
+
+os.environ.setdefault("MAVLINK20", "1")  # before pymavlink picks its wire protocol
+
+import numpy as np
+from pymavlink import mavutil
+
+from sim_vehicles.autopilot import AttitudeCommand
+from sim_vehicles.mavlink_endpoint import MODE_OFFBOARD
+from sim_vehicles.wire_format import (
+    decode_attitude_quaternion,
+    decode_local_position,
+    encode_attitude_target,
+)
+
+mav = mavutil.mavlink
+COMP_ONBOARD = 191  # MAV_COMP_ID_ONBOARD_COMPUTER
+COMP_AUTOPILOT = 1
+IGNORE_NOTHING = 0
+REQUIRED_PARAMS = ("MASS_KG", "MAX_THRUST_N")
+
+
+class LinkError(RuntimeError):
+    """The vehicle did not answer as an autopilot should; the message is one line."""
+
+
+class VehicleLink:
+    def __init__(self, url: str, system_id: int):
+        try:
+            self.conn: Any = mavutil.mavlink_connection(
+                url, source_system=system_id, source_component=COMP_ONBOARD, dialect="common"
+            )
+        except Exception as e:  # pymavlink raises many kinds for a bad connection string
+            raise LinkError(f"cannot open MAVLink connection {url!r}: {e}") from None
+        self.conn.mav.robust_parsing = True  # garbage becomes BAD_DATA, counted, not an exception
+        self.url = url
+        self.system_id = system_id
+        self.params: dict[str, float] = {}
+        self._lpos: Any = None
+        self._attq: Any = None
+        self.sample_ms = -1  #: time_boot_ms of the latest complete sample
+        self.heartbeat: Any = None
+        self.acks: dict[int, int] = {}
+        self.rx_bad = 0
+        self._next_hb = 0.0
+
+    def fileno(self) -> int:
+        return int(self.conn.fd)
+
+    def close(self) -> None:
+        self.conn.close()
+
+    # -- receive ---------------------------------------------------------------------------------
+    def poll(self) -> int:
+        """Read everything waiting; returns the number of messages handled. Bytes go straight to
+        the parser (``mav.parse_buffer``): mavutil's per-message bookkeeping, which this link does
+        not use, costs as much as the parsing."""
+        n = 0
+        conn = self.conn
+        while True:
+            try:
+                data = conn.recv()
+            except OSError:
+                return n
+            if not data:
+                return n
+            try:
+                msgs = conn.mav.parse_buffer(data) or []
+            except Exception:  # pymavlink raises its own and struct errors on garbage: drop, count
+                self.rx_bad += 1
+                continue
+            for m in msgs:
+                n += 1
+                self._handle(m)
+
+    def _handle(self, m: Any) -> None:
+        t = m.get_type()
+        if t == "BAD_DATA":
+            self.rx_bad += 1
+            return
+        if m.get_srcSystem() != self.system_id or m.get_srcComponent() != COMP_AUTOPILOT:
+            return
+        if t == "LOCAL_POSITION_NED":
+            self._lpos = m
+            self._complete()
+        elif t == "ATTITUDE_QUATERNION":
+            self._attq = m
+            self._complete()
+        elif t == "HEARTBEAT":
+            self.heartbeat = m
+        elif t == "PARAM_VALUE":
+            self.params[m.param_id] = float(m.param_value)
+        elif t == "COMMAND_ACK":
+            self.acks[m.command] = m.result
+
+    def _complete(self) -> None:
+        if (
+            self._lpos is not None
+            and self._attq is not None
+            and self._lpos.time_boot_ms == self._attq.time_boot_ms
+        ):
+            self.sample_ms = int(self._lpos.time_boot_ms)
+
+    def sample(self) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
+        """``(time_boot_s, p_W, v_W, q_WB)`` of the latest complete sample, in ENU/FLU."""
+        lp, aq = self._lpos, self._attq
+        p, v = decode_local_position((lp.x, lp.y, lp.z, lp.vx, lp.vy, lp.vz))
+        q, _ = decode_attitude_quaternion(
+            (aq.q1, aq.q2, aq.q3, aq.q4, aq.rollspeed, aq.pitchspeed, aq.yawspeed)
+        )
+        return self.sample_ms / 1000.0, p, v, q
+
+    # -- send ------------------------------------------------------------------------------------
+    def send_heartbeat_if_due(self) -> None:
+        now = time.monotonic()
+        if now >= self._next_hb:
+            self._next_hb = now + 1.0
+            self.conn.mav.heartbeat_send(mav.MAV_TYPE_ONBOARD_CONTROLLER, mav.MAV_AUTOPILOT_INVALID, 0, 0, 0)
+
+    def command(self, command: int, *params: float) -> None:
+        p = [*params, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0][:7]
+        self.acks.pop(command, None)
+        self.conn.mav.command_long_send(self.system_id, COMP_AUTOPILOT, command, 0, *p)
+
+    def send_setpoint(self, cmd: AttitudeCommand, time_boot_ms: int) -> None:
+        f = encode_attitude_target(cmd, self.params["MAX_THRUST_N"])
+        self.conn.mav.set_attitude_target_send(
+            time_boot_ms, self.system_id, COMP_AUTOPILOT, IGNORE_NOTHING, list(f.q), *f.body_rates, f.thrust
+        )
+
+    # -- the start-up handshake ------------------------------------------------------------------
+    def _wait(self, done: Any, what: str, timeout_s: float, resend: Any = None, every_s: float = 0.5) -> None:
+        end = time.monotonic() + timeout_s
+        next_send = 0.0
+        while not done():
+            now = time.monotonic()
+            if now > end:
+                raise LinkError(f"{self.url}: no {what} within {timeout_s:g} s")
+            if resend is not None and now >= next_send:
+                resend()
+                next_send = now + every_s
+            self.send_heartbeat_if_due()
+            self.conn.select(0.02)
+            self.poll()
+
+    def connect(self, timeout_s: float) -> None:
+        """Heartbeat, parameters and telemetry rates; raises ``LinkError`` naming what is missing."""
+        self._wait(lambda: self.heartbeat is not None, f"HEARTBEAT from system {self.system_id}", timeout_s)
+        self._wait(
+            lambda: all(k in self.params for k in REQUIRED_PARAMS),
+            f"parameters {', '.join(REQUIRED_PARAMS)}",
+            timeout_s,
+            lambda: self.conn.mav.param_request_list_send(self.system_id, COMP_AUTOPILOT),
+            1.0,
+        )
+
+    def request_rates(self, period_s: float, other_hz: float, timeout_s: float) -> None:
+        """LOCAL_POSITION_NED and ATTITUDE_QUATERNION once per ``period_s``; ATTITUDE and
+        HIGHRES_IMU, which the controller does not use, at ``other_hz`` (0: off)."""
+        for msg_id in (mav.MAVLINK_MSG_ID_LOCAL_POSITION_NED, mav.MAVLINK_MSG_ID_ATTITUDE_QUATERNION):
+            self._command_acked(mav.MAV_CMD_SET_MESSAGE_INTERVAL, timeout_s, float(msg_id), period_s * 1e6)
+        other_us = 1e6 / other_hz if other_hz > 0 else -1.0
+        for msg_id in (mav.MAVLINK_MSG_ID_ATTITUDE, mav.MAVLINK_MSG_ID_HIGHRES_IMU):
+            self._command_acked(mav.MAV_CMD_SET_MESSAGE_INTERVAL, timeout_s, float(msg_id), other_us)
+
+    def arm_offboard(self, timeout_s: float) -> None:
+        self._command_acked(mav.MAV_CMD_COMPONENT_ARM_DISARM, timeout_s, 1.0)
+        self._command_acked(
+            mav.MAV_CMD_DO_SET_MODE, timeout_s, float(mav.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED), MODE_OFFBOARD
+        )
+
+    def request_sample(self, timeout_s: float) -> None:
+        """Ask for LOCAL_POSITION_NED and ATTITUDE_QUATERNION now (MAV_CMD_REQUEST_MESSAGE)."""
+
+        def ask() -> None:
+            for msg_id in (mav.MAVLINK_MSG_ID_LOCAL_POSITION_NED, mav.MAVLINK_MSG_ID_ATTITUDE_QUATERNION):
+                self.command(mav.MAV_CMD_REQUEST_MESSAGE, float(msg_id))
+
+        self._wait(lambda: self.sample_ms >= 0, "LOCAL_POSITION_NED and ATTITUDE_QUATERNION", timeout_s, ask)
+
+    def _command_acked(self, command: int, timeout_s: float, *params: float) -> None:
+        name = mav.enums["MAV_CMD"][command].name
+        self.acks.pop(command, None)  # an answer to an earlier command of the same kind is not ours
+        self._wait(
+            lambda: command in self.acks,
+            f"COMMAND_ACK for {name}",
+            timeout_s,
+            lambda: self.command(command, *params),
+        )
+        if self.acks[command] != mav.MAV_RESULT_ACCEPTED:
+            raise LinkError(f"{self.url}: {name} refused (MAV_RESULT {self.acks[command]})")
