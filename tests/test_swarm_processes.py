@@ -1,0 +1,233 @@
+"""The swarm as real processes on loopback, through the CLI a user types (``swarm-sitl run`` ...)."""
+
+import json
+import os
+import re
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+from pymavlink import mavutil
+
+from swarm_sitl.sim import run_sim
+from tests.conftest import CONFIGS
+
+pytestmark = pytest.mark.system
+CLI = [sys.executable, "-m", "swarm_sitl"]
+
+
+def _cli(*args, timeout=240, **kw):
+    return subprocess.run([*CLI, *map(str, args)], capture_output=True, text=True, timeout=timeout, **kw)
+
+
+def _processes_mentioning(text: str) -> list[int]:
+    """Live processes whose command line contains ``text`` (a run directory)."""
+    found = []
+    for d in Path("/proc").iterdir():
+        if not d.name.isdigit():
+            continue
+        try:
+            cmd = (d / "cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
+            state = (d / "stat").read_text().rsplit(")", 1)[1].split()[0]
+        except OSError:
+            continue
+        if text in cmd and state != "Z":
+            found.append(int(d.name))
+    return found
+
+
+def _udp_free(port: int) -> bool:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        try:
+            s.bind(("127.0.0.1", port))
+        except OSError:
+            return False
+    return True
+
+
+def _vehicle_ports(run_dir: Path) -> list[int]:
+    ports = []
+    for log in sorted((run_dir / "logs").glob("vehicle_*.log")):
+        m = re.search(r"listening on udp:[0-9.]+:(\d+)", log.read_text())
+        if m:
+            ports.append(int(m.group(1)))
+    return ports
+
+
+@pytest.fixture(scope="module")
+def sim20(paper_cfg):
+    return run_sim(paper_cfg.model_copy(update={"duration_s": 20.0}))
+
+
+def test_lockstep_run_equals_sim_and_is_repeatable(tmp_path, sim20):
+    runs = []
+    for name in ("a", "b"):
+        out = tmp_path / name
+        r = _cli("run", CONFIGS / "paper.yaml", "--duration", 20, "--out", out, "--quiet")
+        assert r.returncode == 0, r.stderr + r.stdout
+        runs.append({i: dict(np.load(out / f"follower_{i}.npz")) for i in range(1, 5)})
+    for i, s in sim20.followers.items():
+        a, b = runs[0][i], runs[1][i]
+        assert np.isfinite(a["p_W"]).all()
+        assert np.abs(a["p_W"] - s["p_W"]).max() <= 1e-9  # the issue's bound; in fact bit for bit
+        assert np.abs(a["v_W"] - s["v_W"]).max() <= 1e-9
+        assert np.abs(a["p_hat"] - s["p_hat"]).max() <= 1e-9
+        for key in a:
+            assert np.array_equal(a[key], b[key], equal_nan=True), key  # two runs: identical
+
+    out = tmp_path / "a"
+    assert {p.name for p in (out / "logs").iterdir()} >= {"leader.log", "controller_4.log", "vehicle_4.log"}
+    log = mavutil.mavlink_connection(str(out / "tlogs" / "vehicle_2.tlog"))
+    kinds: dict[str, int] = {}
+    while (m := log.recv_match()) is not None:
+        kinds[m.get_type()] = kinds.get(m.get_type(), 0) + 1
+    assert kinds["SET_ATTITUDE_TARGET"] == 2000 and kinds["LOCAL_POSITION_NED"] >= 2001
+    assert {"HEARTBEAT", "PARAM_VALUE", "COMMAND_ACK", "ATTITUDE_QUATERNION"} <= set(kinds)
+    assert not _processes_mentioning(str(tmp_path))
+
+
+def test_realtime_run_reaches_the_formation(tmp_path):
+    out = tmp_path / "rt"
+    r = _cli("run", CONFIGS / "paper.yaml", "--realtime", "--duration", 20, "--out", out, "--quiet")
+    assert r.returncode == 0, r.stderr + r.stdout
+    summary = json.loads((out / "summary.json").read_text())
+    for i in range(1, 5):
+        a = np.load(out / f"follower_{i}.npz")
+        t, p, s = a["t_s"], a["p_W"], a["sample_t_s"]
+        ok = np.isfinite(t)
+        assert ok.mean() > 0.95  # ticks recorded (a skipped tick is NaN)
+        assert np.all(np.abs(s[ok] - t[ok]) < 0.05)  # each sample is recent
+        assert np.isfinite(p[ok]).all()
+        assert summary["followers"][str(i)]["final_pos_err_m"] < 0.05
+    err = [np.linalg.norm(np.load(out / f"follower_{i}.npz")["pos_err_m"], axis=1) for i in range(1, 5)]
+    t = np.load(out / "follower_1.npz")["t_s"]
+    assert max(np.nanmax(e[t >= 15.0]) for e in err) < 0.05
+
+
+def test_a_process_failing_to_start_tears_everything_down(tmp_path):
+    busy = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+    busy.bind(("127.0.0.1", 0))
+    busy.listen()
+    cfg = yaml.safe_load((CONFIGS / "paper.yaml").read_text())
+    cfg["zenoh"] = {"listen": [f"tcp/127.0.0.1:{busy.getsockname()[1]}"]}  # every node fails to listen
+    path = tmp_path / "bad.yaml"
+    path.write_text(yaml.safe_dump(cfg))
+    out = tmp_path / "run"
+    r = _cli("run", path, "--out", out, "--quiet", "--duration", 5)
+    busy.close()
+    assert r.returncode == 1
+    line = r.stderr.strip().splitlines()[-1]
+    assert re.search(r"(leader|controller_\d) exited with code 1: .*zenoh", line), r.stderr
+    assert not _processes_mentioning(str(tmp_path))
+    assert all(_udp_free(p) for p in _vehicle_ports(out))
+
+
+def _start_run(out: Path, *extra) -> subprocess.Popen:
+    return subprocess.Popen(
+        [*CLI, "run", str(CONFIGS / "paper.yaml"), "--out", str(out), "--quiet", *map(str, extra)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        start_new_session=True,
+    )
+
+
+def _wait_running(out: Path, timeout=120.0) -> None:
+    """Until every controller has recorded ticks."""
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        rows = [out / "procs" / f"controller_{i}.rows" for i in range(1, 5)]
+        if all(p.is_file() and p.stat().st_size > 20_000 for p in rows):
+            return
+        time.sleep(0.1)
+    raise AssertionError("the run did not get going")
+
+
+def test_ctrl_c_leaves_no_process_and_no_bound_port(tmp_path):
+    out = tmp_path / "int"
+    proc = _start_run(out, "--realtime", "--duration", 60)
+    _wait_running(out)
+    ports = _vehicle_ports(out)
+    assert len(ports) == 4 and not any(_udp_free(p) for p in ports)
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130, err
+    assert "interrupted" in err
+    assert not _processes_mentioning(str(tmp_path))
+    assert all(_udp_free(p) for p in ports)
+    a = np.load(out / "follower_1.npz")  # what was recorded is kept
+    assert np.isfinite(a["p_W"]).any()
+
+
+def test_a_killed_controller_ends_the_run_naming_it(tmp_path):
+    out = tmp_path / "kill"
+    proc = _start_run(out, "--duration", 60)
+    _wait_running(out)
+    victim = [
+        pid
+        for pid in _processes_mentioning(str(out))
+        if " controller " in _cmdline(pid) and "--id 3" in _cmdline(pid)
+    ]
+    assert len(victim) == 1
+    os.kill(victim[0], signal.SIGKILL)
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 1
+    assert "controller_3 exited with code -9" in err
+    assert not _processes_mentioning(str(tmp_path))
+
+
+def _cmdline(pid: int) -> str:
+    try:
+        return Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode()
+    except OSError:
+        return ""
+
+
+def test_own_vehicles_and_controllers_meet_over_given_endpoints(tmp_path, paper_cfg):
+    """``vehicles`` on one side, ``controllers --mavlink`` on the other, as a user would split them."""
+    vehicles = subprocess.Popen(
+        [*CLI, "vehicles", str(CONFIGS / "paper.yaml"), "--lockstep", "--out", str(tmp_path / "veh")],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        start_new_session=True,
+    )
+    try:
+        urls = []
+        while len(urls) < 4:
+            line = vehicles.stdout.readline()
+            assert line, vehicles.stderr.read()
+            m = re.search(r"vehicle \d+: (udpout:\S+)", line)
+            if m:
+                urls.append(m.group(1))
+        out = tmp_path / "ctl"
+        r = _cli(
+            "controllers",
+            CONFIGS / "paper.yaml",
+            "--lockstep",
+            "--duration",
+            5,
+            "--out",
+            out,
+            "--quiet",
+            "--mavlink",
+            *urls,
+        )
+        assert r.returncode == 0, r.stderr
+    finally:
+        vehicles.send_signal(signal.SIGINT)
+        vehicles.communicate(timeout=30)
+    assert vehicles.returncode == 0
+    sim = run_sim(paper_cfg.model_copy(update={"duration_s": 5.0}))
+    for i in range(1, 5):
+        a = np.load(out / f"follower_{i}.npz")
+        # no truth from vehicles that are not ours: the run records the float32 samples it received
+        assert np.abs(a["p_W"] - sim.followers[i]["p_W"]).max() < 1e-5
+        assert np.array_equal(a["p_hat"], sim.followers[i]["p_hat"])  # the controllers are exact
+    assert not _processes_mentioning(str(tmp_path))

@@ -1,0 +1,104 @@
+"""The vehicle's lockstep clock, driven over real UDP by a pymavlink client (endpoint in-process)."""
+
+import numpy as np
+import pytest
+from pymavlink import mavutil
+
+from sim_vehicles.autopilot import Autopilot
+from sim_vehicles.mavlink_endpoint import VehicleEndpoint
+from sim_vehicles.params import AttitudeGains, VehicleParams
+from sim_vehicles.rigid_body import make_state
+from sim_vehicles.row_log import read_rows
+
+pytestmark = pytest.mark.integration
+mav = mavutil.mavlink
+
+
+@pytest.fixture
+def lockstep(tmp_path):
+    params = VehicleParams(0.85, (0.05, 0.05, 0.09), 25.0)
+    ap = Autopilot(params, AttitudeGains(16.0, 16.0), make_state([1.0, 2.0, 3.0]), 0.001)
+    ep = VehicleEndpoint(ap, 7, lockstep_period_s=0.01, truth_path=tmp_path / "truth.rows")
+    conn = mavutil.mavlink_connection(
+        f"udpout:127.0.0.1:{ep.address[1]}", source_system=7, source_component=191
+    )
+    yield ep, conn
+    conn.close()
+    ep.close()
+
+
+def _exchange(ep, conn, send, kind=None, n=1):
+    """Send, let the vehicle serve it, and collect what comes back."""
+    send()
+    ep.poll()
+    got = []
+    while (m := conn.recv_match(blocking=True, timeout=0.5)) is not None:
+        got.append(m)
+        if kind is not None and sum(x.get_type() == kind for x in got) >= n:
+            break
+    return got
+
+
+def _setpoint(conn, ms, thrust=0.85 * 9.81 / 25.0):
+    return lambda: conn.mav.set_attitude_target_send(ms, 7, 1, 0, [1.0, 0, 0, 0], 0, 0, 0, thrust)
+
+
+def test_time_moves_only_with_stamped_setpoints(lockstep):
+    ep, conn = lockstep
+    arm = lambda: conn.mav.command_long_send(7, 1, mav.MAV_CMD_COMPONENT_ARM_DISARM, 0, 1, 0, 0, 0, 0, 0, 0)  # noqa: E731
+    assert any(m.get_type() == "COMMAND_ACK" for m in _exchange(ep, conn, arm, "COMMAND_ACK"))
+    mode = lambda: conn.mav.command_long_send(7, 1, mav.MAV_CMD_DO_SET_MODE, 0, 1, 1, 0, 0, 0, 0, 0)  # noqa: E731
+    _exchange(ep, conn, mode, "COMMAND_ACK")
+    assert ep.time_boot_ms == 0  # nothing moves without a setpoint
+
+    got = _exchange(ep, conn, _setpoint(conn, 0), "ATTITUDE_QUATERNION")
+    lp = [m for m in got if m.get_type() == "LOCAL_POSITION_NED"]
+    assert ep.time_boot_ms == 10 and lp[-1].time_boot_ms == 10  # exactly one period
+
+    got = _exchange(ep, conn, _setpoint(conn, 0), "ATTITUDE_QUATERNION")  # a retransmission
+    assert ep.time_boot_ms == 10 and ep.stats.lockstep_resends == 1  # answered, not stepped twice
+    assert [m.time_boot_ms for m in got if m.get_type() == "LOCAL_POSITION_NED"] == [10]
+
+    bad_before = ep.stats.rx_bad
+    _exchange(ep, conn, _setpoint(conn, 500))  # from the future: refused
+    assert ep.time_boot_ms == 10 and ep.stats.rx_bad == bad_before + 1
+
+
+def test_same_setpoints_give_the_same_trajectory_bit_for_bit(tmp_path):
+    def fly(path):
+        params = VehicleParams(0.85, (0.05, 0.05, 0.09), 25.0)
+        ap = Autopilot(params, AttitudeGains(16.0, 16.0), make_state([0.0, 0.0, 0.0]), 0.001)
+        ep = VehicleEndpoint(ap, 7, lockstep_period_s=0.01, truth_path=path)
+        ep.armed, ep.mode = True, 1
+        conn = mavutil.mavlink_connection(f"udpout:127.0.0.1:{ep.address[1]}", source_system=7)
+        tilt = np.radians(5)
+        for k in range(50):
+            conn.mav.set_attitude_target_send(
+                10 * k, 7, 1, 0, [np.cos(tilt / 2), np.sin(tilt / 2), 0, 0], 0.1, 0, 0, 0.4
+            )
+            ep.poll()
+        conn.close()
+        ep.close()
+        return read_rows(path)[1]
+
+    a, b = fly(tmp_path / "a.rows"), fly(tmp_path / "b.rows")
+    assert a.shape == (50, 14) and np.array_equal(a, b)
+    assert np.allclose(a[:, 0], np.arange(1, 51) * 0.01)
+
+
+def test_message_interval_and_request_message(lockstep):
+    ep, conn = lockstep
+    interval = lambda: conn.mav.command_long_send(  # noqa: E731
+        7, 1, mav.MAV_CMD_SET_MESSAGE_INTERVAL, 0, mav.MAVLINK_MSG_ID_HIGHRES_IMU, -1, 0, 0, 0, 0, 0
+    )
+    acks = [m for m in _exchange(ep, conn, interval, "COMMAND_ACK") if m.get_type() == "COMMAND_ACK"]
+    assert acks[0].result == mav.MAV_RESULT_ACCEPTED
+    request = lambda: conn.mav.command_long_send(  # noqa: E731
+        7, 1, mav.MAV_CMD_REQUEST_MESSAGE, 0, mav.MAVLINK_MSG_ID_LOCAL_POSITION_NED, 0, 0, 0, 0, 0, 0
+    )
+    got = _exchange(ep, conn, request, "LOCAL_POSITION_NED")
+    lp = next(m for m in got if m.get_type() == "LOCAL_POSITION_NED")
+    assert (lp.x, lp.y, lp.z) == pytest.approx((2.0, 1.0, -3.0))  # ENU (1, 2, 3) in NED
+    for k in range(3):
+        got = _exchange(ep, conn, _setpoint(conn, 10 * k), "ATTITUDE_QUATERNION")
+        assert not any(m.get_type() == "HIGHRES_IMU" for m in got)  # switched off
