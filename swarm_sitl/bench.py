@@ -1,4 +1,12 @@
-"""``swarm-sitl bench``: speed figures, printed. Ratios are measured in one run on one machine."""
+"""``swarm-sitl bench``: speed figures, printed. Ratios are measured in one run on one machine.
+
+- ``sim`` of a config as a new process (start-up included), and its cost per simulated second;
+- the same config as a lockstep ``run`` across processes: cost per simulated second next to
+  ``sim``'s, and how many times faster than real time (start-up reported apart);
+- a larger config in real time: the share of control ticks that are late (skipped, or whose
+  setpoint goes out after the next tick's instant) and the distribution of when setpoints go out;
+- one vehicle's plant and attitude loop, CPU per 1 kHz step.
+"""
 
 import statistics
 import subprocess
@@ -9,13 +17,16 @@ from pathlib import Path
 
 import numpy as np
 
+from sim_vehicles.row_log import read_rows
 from swarm_sitl.assembly import build_autopilot
-from swarm_sitl.config import load_config
+from swarm_sitl.config import SwarmConfig, load_config
+from swarm_sitl.controller_node import CONTROLLER_COLUMNS, controller_rows_path
 
 
-def _vehicle_step_cost_us(cfg_path: str, n_steps: int = 200_000, per_call: int = 10) -> tuple[float, float]:
+def _vehicle_step_cost_us(
+    cfg: SwarmConfig, n_steps: int = 200_000, per_call: int = 10
+) -> tuple[float, float]:
     """CPU microseconds per 1 kHz attitude-loop + plant step: one long call, and calls of ``per_call``."""
-    cfg = load_config(cfg_path)
     ap = build_autopilot(cfg, 1)
     ap.advance(10)  # compile / load cache
     t0 = time.process_time()
@@ -53,14 +64,36 @@ def _sim_wall_s(cfg_path: str, repeats: int) -> list[float]:
     return out
 
 
-def run_bench(cfg_path: str, repeats: int = 3) -> int:
+def _sim_in_process_s(cfg: SwarmConfig) -> float:
+    from swarm_sitl.sim import run_sim
+
+    run_sim(cfg, n_steps=2)  # kernels loaded
+    t0 = time.monotonic()
+    run_sim(cfg)
+    return time.monotonic() - t0
+
+
+def _late_ticks(cfg: SwarmConfig, run_dir: Path) -> tuple[int, int, np.ndarray]:
+    """``(late, expected, done_s of every recorded tick)`` over all controllers of a real-time run."""
+    n = cfg.n_control_steps + 1
+    c = CONTROLLER_COLUMNS.index("done_s")
+    late, done = 0, []
+    for f in cfg.followers:
+        _, rows = read_rows(controller_rows_path(run_dir, f.id))
+        late += (n - len(rows)) + int(np.sum(rows[:, c] > cfg.control_dt_s))
+        done.append(rows[:, c])
+    return late, n * cfg.n_followers, np.concatenate(done)
+
+
+def run_bench(cfg_path: str, scale_cfg_path: str, repeats: int = 3, realtime_s: float = 20.0) -> int:
+    from swarm_sitl.supervisor import run_swarm
+
     cfg = load_config(cfg_path)
     print(
         f"bench on {cfg_path}: {cfg.n_followers} followers, {cfg.duration_s:g} s, control "
         f"{cfg.rates.control_hz:g} Hz, attitude loop {cfg.rates.attitude_hz:g} Hz"
     )
-    # one untimed run so the compiled kernels are in the on-disk cache
-    _sim_wall_s(cfg_path, 1)
+    _sim_wall_s(cfg_path, 1)  # one untimed run so the compiled kernels are in the on-disk cache
     walls = _sim_wall_s(cfg_path, repeats)
     best, med = min(walls), statistics.median(walls)
     print(
@@ -68,7 +101,35 @@ def run_bench(cfg_path: str, repeats: int = 3) -> int:
         f"of {repeats} -> {cfg.duration_s / best:.1f}x real time (target: >= 20x, i.e. < "
         f"{cfg.duration_s / 20:.1f} s)"
     )
-    long_us, short_us = _vehicle_step_cost_us(cfg_path)
+    sim_s = _sim_in_process_s(cfg)
+    sim_cost = sim_s / cfg.duration_s
+    with tempfile.TemporaryDirectory() as tmp:
+        lock = [run_swarm(cfg, Path(tmp) / f"l{r}", lockstep=True) for r in range(repeats)]
+    lock_best = min(r.run_wall_s for r in lock)
+    lock_cost = lock_best / cfg.duration_s
+    print(
+        f"  cost per simulated second: sim {sim_cost * 1e3:.1f} ms; lockstep run across "
+        f"{2 * cfg.n_followers + 1} processes {lock_cost * 1e3:.1f} ms (best of {repeats}; median "
+        f"{statistics.median(r.run_wall_s for r in lock) / cfg.duration_s * 1e3:.1f} ms) = "
+        f"{lock_cost / sim_cost:.1f}x sim"
+    )
+    print(
+        f"  lockstep run: {cfg.duration_s:g} s in {lock_best:.2f} s -> {cfg.duration_s / lock_best:.1f}x "
+        f"real time (target: >= 10x); start-up before the first tick "
+        f"{min(r.startup_wall_s for r in lock):.1f} s"
+    )
+    big = load_config(scale_cfg_path).model_copy(update={"duration_s": realtime_s})
+    with tempfile.TemporaryDirectory() as tmp:
+        run_swarm(big, Path(tmp), lockstep=False)
+        late, total, done = _late_ticks(big, Path(tmp))
+    dt_ms = big.control_dt_s * 1e3
+    print(
+        f"  real time, {scale_cfg_path} ({big.n_followers} followers, {realtime_s:g} s, period "
+        f"{dt_ms:g} ms): {late} of {total} ticks late = {100 * late / total:.2f} % (target: < 1 %); "
+        f"setpoint out after the tick's instant: median {np.median(done) * 1e3:.2f} ms, "
+        f"p99 {np.percentile(done, 99) * 1e3:.2f} ms, max {done.max() * 1e3:.1f} ms"
+    )
+    long_us, short_us = _vehicle_step_cost_us(cfg)
     print(
         f"  vehicle plant + attitude loop, CPU per 1 kHz step: {long_us:.2f} us in long calls, "
         f"{short_us:.2f} us in calls of 10 steps as the sim makes them (target: < 10 us)"

@@ -252,7 +252,9 @@ def cmd_plot(args: argparse.Namespace) -> int:
 def cmd_bench(args: argparse.Namespace) -> int:
     from swarm_sitl.bench import run_bench
 
-    return run_bench(args.config, repeats=args.repeats)
+    if args.repeats < 1 or not args.realtime_s > 0:
+        raise CliError("--repeats must be >= 1 and --realtime-s > 0")
+    return run_bench(args.config, args.scale_config, args.repeats, args.realtime_s)
 
 
 def _run_outputs(p: argparse.ArgumentParser, kind: str) -> None:
@@ -316,6 +318,10 @@ def build_parser() -> argparse.ArgumentParser:
     b = sub.add_parser("bench", help="measure speed figures and print them")
     b.add_argument("--config", default=str(Path("configs") / "paper.yaml"))
     b.add_argument("--repeats", type=int, default=3)
+    b.add_argument(
+        "--scale-config", default=str(Path("configs") / "swarm16.yaml"), help="real-time scale run"
+    )
+    b.add_argument("--realtime-s", type=float, default=20.0, help="duration of the real-time scale run [s]")
     b.set_defaults(func=cmd_bench)
     return p
 

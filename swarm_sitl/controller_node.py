@@ -31,7 +31,7 @@ from swarm_sitl.bus_codec import Status
 from swarm_sitl.config import SwarmConfig
 from swarm_sitl.follower import EstimateMessage, VehicleSample
 from swarm_sitl.follower_law import CTRL_SIZE, OUT_SIZE
-from swarm_sitl.node_clock import StallError, sleep_until, wait_until, wall_epoch_to_monotonic
+from swarm_sitl.node_clock import POLL_S, StallError, sleep_until, wait_until, wall_epoch_to_monotonic
 from swarm_sitl.vehicle_link import VehicleLink
 
 CONTROLLER_COLUMNS = [
@@ -40,16 +40,18 @@ CONTROLLER_COLUMNS = [
     "sample_boot_s",
     "sample_t_s",
     "late_s",
+    "done_s",
     *[f"sample_{n}" for n in ("px", "py", "pz", "vx", "vy", "vz", "qw", "qx", "qy", "qz")],
     *[f"ctrl_{j}" for j in range(CTRL_SIZE)],
     *[f"out_{j}" for j in range(OUT_SIZE)],
 ]
 RESEND_AFTER_S = 0.25
+LEADER_POLL_S = 0.002  #: lockstep: the leader is up to ``lockstep_window`` ticks ahead, no hurry
 
 
 class ControllerReport(NamedTuple):
     ticks: int
-    late_ticks: int  #: real time: ticks started more than one period late (skipped) or overrunning
+    late_ticks: int  #: real time: ticks skipped (a period behind) or done after the next tick's instant
     max_late_s: float
     resends: int
     dropped_payloads: int
@@ -131,10 +133,16 @@ class _Inputs:
         if self.bus.lost() & set(self.need) and not self.ready():
             raise StallError(self.missing())
 
+    def block_s(self) -> float:
+        """Poll the bus often only while an estimate is missing; a vehicle sample wakes us itself."""
+        if all(self.bus.estimate(s, self.k - 1) is not None for s in self.need):
+            return min(RESEND_AFTER_S, 0.05)
+        return POLL_S
+
     def wait_lockstep(self, k: int, timeout_s: float) -> dict[int, EstimateMessage]:
         self.k, self.t_ms = k, round(k * self.dt * 1000)
         self.need = self.sources if k > 0 else []
-        wait_until(self.ready, self.read, self.fds, timeout_s, self.missing, self.idle)
+        wait_until(self.ready, self.read, self.fds, timeout_s, self.missing, self.idle, block_s=self.block_s)
         return {s: m for s in self.need if (m := self.bus.estimate(s, k - 1)) is not None}
 
     def send(self, cmd: AttitudeCommand, time_boot_ms: int) -> None:
@@ -200,13 +208,14 @@ def run_controller(
         bus.publish(step.estimate)
         if k < n:
             io.send(step.command, round(t * 1000) if lockstep else round((t - io.offset_s) * 1000))
+        done = 0.0
         if not lockstep:
-            overrun = time.monotonic() - io.epoch_mono - (t + dt)
-            if overrun > 0:
+            done = time.monotonic() - io.epoch_mono - t  # the setpoint is out this long after t_k
+            if done > dt:
                 late += 1
-            max_late = max(max_late, lateness, overrun + dt)
+            max_late = max(max_late, done)
         if rows is not None:
-            rows.append(float(k), t, boot_s, sample_t, lateness, p, v, q, step.state, step.output)
+            rows.append(float(k), t, boot_s, sample_t, lateness, done, p, v, q, step.state, step.output)
         if k % r.status_every == 0 or k == n:
             bus.publish_status(Status(i, k, t, sample_t, p))
         if lockstep and k >= 2:
@@ -237,7 +246,7 @@ def run_leader(cfg: SwarmConfig, bus: NodeBus, lockstep: bool, out_neighbours: l
     for k in range(n + 1):
         step[0] = k
         if lockstep:
-            wait_until(ahead_ok, bus.poll, [], r.stall_timeout_s, behind)
+            wait_until(ahead_ok, bus.poll, [], r.stall_timeout_s, behind, block_s=lambda: LEADER_POLL_S)
         else:
             sleep_until(epoch_mono + k * dt, [], bus.poll)
             if time.monotonic() - epoch_mono - k * dt > dt:

@@ -30,13 +30,14 @@ def _block(fds: Sequence[int], seconds: float) -> None:
 
 
 def sleep_until(deadline_mono_s: float, fds: Sequence[int], read: Callable[[], None]) -> None:
-    """Until ``deadline_mono_s``, reading inputs as they come."""
+    """Until ``deadline_mono_s``, reading inputs when one of ``fds`` has data (a real-time loop
+    reads its bus at its tick, so it does not poll it in between)."""
     while True:
         read()
         left = deadline_mono_s - time.monotonic()
         if left <= 0:
             return
-        _block(fds, min(left, POLL_S))
+        _block(fds, left)
 
 
 def wait_until(
@@ -47,9 +48,12 @@ def wait_until(
     describe: Callable[[], str],
     on_idle: Callable[[], None] | None = None,
     idle_every_s: float = 0.05,
+    block_s: Callable[[], float] | None = None,
 ) -> None:
     """Read inputs until ``ready()``; ``on_idle()`` every ``idle_every_s``; ``StallError`` after
-    ``timeout_s`` with ``describe()`` saying what is missing."""
+    ``timeout_s`` with ``describe()`` saying what is missing. Between reads it blocks on ``fds``
+    for ``block_s()`` (default ``POLL_S``): longer when only an fd input is missing, since a
+    datagram wakes the select anyway and each needless wake-up costs a loaded machine."""
     start = time.monotonic()
     next_idle = start + idle_every_s
     while True:
@@ -62,4 +66,4 @@ def wait_until(
         if on_idle is not None and now >= next_idle:
             on_idle()
             next_idle = now + idle_every_s
-        _block(fds, POLL_S)
+        _block(fds, POLL_S if block_s is None else block_s())
