@@ -94,6 +94,8 @@ class TelemetryRates:
         }
 
 
+MAX_DATAGRAM = 1200  #: bytes; below any loopback or Ethernet MTU
+
 TRUTH_COLUMNS = ["time_boot_s", "px", "py", "pz", "vx", "vy", "vz", "qw", "qx", "qy", "qz", "wx", "wy", "wz"]
 
 
@@ -185,13 +187,27 @@ class VehicleEndpoint:
             self._tlog.write(struct.pack(">Q", int(time.time() * 1e6)) + frame)
 
     def _send(self, msg: Any) -> None:
+        """Queue one message; ``flush`` sends what is queued."""
         self.mav.send(msg)
-        for frame in self._sink.frames:
+
+    def flush(self) -> None:
+        """Send the queued frames to the peer, packed into as few datagrams as fit (as PX4 does):
+        a telemetry pass is one datagram, one wake-up of the receiver."""
+        frames = self._sink.frames
+        if not frames:
+            return
+        for frame in frames:
             self._log(frame)
-            if self.peer is not None:
-                self.sock.sendto(frame, self.peer)
-                self.stats.tx_messages += 1
-        self._sink.frames.clear()
+        if self.peer is not None:
+            self.stats.tx_messages += len(frames)
+            packet = b""
+            for frame in frames:
+                if len(packet) + len(frame) > MAX_DATAGRAM:
+                    self.sock.sendto(packet, self.peer)
+                    packet = b""
+                packet += frame
+            self.sock.sendto(packet, self.peer)
+        frames.clear()
 
     def close(self) -> None:
         self.sock.close()
@@ -208,7 +224,13 @@ class VehicleEndpoint:
 
     # -- receive ---------------------------------------------------------------------------------
     def poll(self) -> None:
-        """Handle every datagram waiting on the socket."""
+        """Handle every datagram waiting on the socket, then send what that produced."""
+        try:
+            self._receive()
+        finally:
+            self.flush()
+
+    def _receive(self) -> None:
         while True:
             try:
                 data, addr = self.sock.recvfrom(4096)
@@ -348,6 +370,7 @@ class VehicleEndpoint:
             ap.step_index += n_steps
         self._failsafe_check()
         self._stream()
+        self.flush()
 
     def _due(self, msg_id: int) -> bool:
         """Each stream is sent on its own grid of multiples of its period in boot time, so streams
@@ -382,6 +405,7 @@ class VehicleEndpoint:
         if self.rates.heartbeat_hz > 0 and now_wall_s >= self._next_heartbeat_wall:
             self._next_heartbeat_wall = now_wall_s + 1.0 / self.rates.heartbeat_hz
             self.send_heartbeat()
+            self.flush()
 
     def _stream(self) -> None:
         ms = self.time_boot_ms
