@@ -28,6 +28,7 @@ from sim_vehicles.row_log import RowLog
 from swarm_sitl.assembly import build_controller
 from swarm_sitl.bus import NodeBus
 from swarm_sitl.bus_codec import Status
+from swarm_sitl.command_attitude import SingularCommandError
 from swarm_sitl.config import SwarmConfig
 from swarm_sitl.follower import EstimateMessage, VehicleSample
 from swarm_sitl.follower_law import CTRL_SIZE, OUT_SIZE
@@ -204,7 +205,12 @@ def run_controller(
             inbox = {s: m for s in io.sources if (m := bus.latest(s)) is not None}
             boot_s, p, v, q = link.sample()
             sample_t = min(boot_s + io.offset_s, t)
-        step = ctrl.step(k, VehicleSample(sample_t, p, v, q), inbox)
+        try:
+            step = ctrl.step(k, VehicleSample(sample_t, p, v, q), inbox)
+        except SingularCommandError as e:
+            if rows is not None and hasattr(e, "inputs"):  # what it was given, to reproduce it offline
+                np.savez(rows.path.with_suffix(".failure.npz"), **e.inputs)
+            raise
         bus.publish(step.estimate)
         if k < n:
             io.send(step.command, round(t * 1000) if lockstep else round((t - io.offset_s) * 1000))

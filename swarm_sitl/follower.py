@@ -136,12 +136,16 @@ class FollowerController:
         msgs = self._rows(inbox)
         g = self.gains
         prev = self._prev_sample
+        before = self.state
         if prev is not None:
-            self.state = controller_advance(  # from the previous tick to this one
+            # from the previous tick to this one, at the configured internal step however long the
+            # gap (a real-time tick skipped under load must not stretch the RK4 step)
+            periods = max(1, round((t - self._prev_t) / self.dt_s))
+            self.state = controller_advance(
                 self.state,
                 self._prev_t,
                 t - self._prev_t,
-                self.substeps,
+                self.substeps * periods,
                 msgs,
                 self.hold,
                 prev.t_s,
@@ -165,10 +169,24 @@ class FollowerController:
             g,
         )
         if not math.isfinite(out.sum()):
-            raise SingularCommandError(
+            ages = ", ".join(f"{t - r[1]:.3f}" for r in msgs)
+            err = SingularCommandError(
                 f"follower {self.id} at t={t:.3f}s: controller output is not finite (the estimator "
-                f"diverged or the command force reached the singular set; see `swarm-sitl check`)"
+                f"diverged or the command force reached the singular set; see `swarm-sitl check`); "
+                f"state finite: {bool(np.isfinite(self.state).all())}, sample age {t - sample.t_s:.3f} s, "
+                f"message ages [{ages}] s"
             )
+            err.inputs = {  # type: ignore[attr-defined]
+                "t": t,
+                "prev_t": self._prev_t,
+                "state_before": before,
+                "msgs": msgs.copy(),
+                "sample": np.concatenate([[sample.t_s], sample.p_W, sample.v_W, sample.q_WB]),
+                "prev_sample": np.concatenate([[prev.t_s], prev.p_W, prev.v_W, prev.q_WB, self._prev_acc])
+                if prev is not None
+                else np.zeros(0),
+            }
+            raise err
         thrust = float(out[OUT_THRUST])
         applied = min(thrust, self.max_thrust_N)
         acc = applied / g.mass_kg * body_z_axis(sample.q_WB)

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from swarm_sitl.follower import FollowerController, LeaderNode, VehicleSample
+from swarm_sitl.follower import EstimateMessage, FollowerController, LeaderNode, VehicleSample
 from swarm_sitl.gain_conditions import check_gains
 
 pytestmark = pytest.mark.integration
@@ -46,3 +46,47 @@ def test_estimator_converges_to_the_leader_on_the_cyclic_graph(ring_cfg):
     assert err[0] >= 5.0  # starts far (estimates at zero, leader at [5, 0, 0])
     # k_a = 31 makes sgn() chatter; with 0.1 ms estimator steps the floor is about 1 mm (0.5 ms: 7 mm)
     assert err[t >= 20.0].max() < 2e-3
+
+
+def test_a_tick_after_a_long_gap_keeps_the_internal_step(tmp_path):
+    """Regression from a real run (configs/swarm16.yaml in real time on an overloaded machine):
+    follower 8 stalled 1.28 s between two ticks. Advancing over the gap in the 10 RK4 substeps of
+    one period (h = 128 ms) turned its estimator into NaN; at the configured internal step
+    (1 ms) it stays finite and its estimate moves to where its neighbours say the leader is."""
+    from swarm_sitl.assembly import build_controller, reported_vehicle_params
+    from swarm_sitl.config import load_config
+    from tests.conftest import CONFIGS
+
+    cfg = load_config(CONFIGS / "swarm16.yaml")
+    ctrl = build_controller(cfg, 8, *reported_vehicle_params(cfg))
+    assert [s for s, _ in ctrl.in_edges] == [3, 4]
+    ctrl.state = np.array(
+        [-4.757962741168665, -1.536824883177032, 17.270000000000056, 0.307604847480344, -0.9526119772205924,
+         0.999999999999998, 0.40914127714274184, 0.0939371009027566, 0.0, -0.01631647568256747,
+         0.10008970812733083, 0.0, 0.0006148942087254209, -0.008329182322908697, 3.041619089462685e-05,
+         0.003454216646615267, -0.007063268194157468, 0.0005611977498840371]
+    )  # fmt: skip
+    prev = [17.267760242766947, 1.2443294525146484, -3.553597927093506, 17.26675033569336,
+            0.31489306688308716, -0.9687008857727051, 1.0000463724136353, 0.999944442191014,
+            -0.004749756421773924, 0.00941022556736777, 8.429369772832967e-08]  # fmt: skip
+    ctrl._prev_sample = VehicleSample(prev[0], np.array(prev[1:4]), np.array(prev[4:7]), np.array(prev[7:11]))
+    ctrl._prev_t = 17.27
+    ctrl._prev_acc = np.array([0.18457523437473233, 0.09316329159330908, -0.0044710809965859966])
+    rows = {
+        3: [18.47, -4.256305970337456, -2.6236954941802604, 18.47, 0.5248363641483657, -0.851296198240883,
+            1.0, 0.17103254992387842, 0.10468944777348439, 0.0, -0.01957261313351058, 0.033960257590095994,
+            0.0],
+        4: [18.13, -4.424739757704056, -2.3284334988706465, 18.13, 0.4657852623147619, -0.8849843445912079,
+            1.0, 0.17783240062023417, 0.09289036738446227, 0.0, -0.017422410751370906, 0.03628958581452627,
+            0.0],
+    }  # fmt: skip
+    inbox = {s: EstimateMessage(s, round(r[0] / 0.01), r[0], *(np.array(r[j : j + 3]) for j in (1, 4, 7, 10)))
+             for s, r in rows.items()}  # fmt: skip
+    q = np.array([0.9999999981104012, -1.645318455160787e-05, 2.219406222313708e-05, -5.491734213121736e-05])
+    p = np.array([1.754791021347046, -4.721144199371338, 18.545101165771484])
+    v = np.array([0.42843690514564514, -0.8896619081497192, 0.9973580837249756])
+    sample = VehicleSample(18.54876024276695, p, v, q)
+    step = ctrl.step(1855, sample, inbox)
+    assert np.isfinite(step.state).all() and np.isfinite(step.output).all()
+    told = np.mean([m.p_hat + m.v_hat * (18.55 - m.t_s) for m in inbox.values()], axis=0)
+    assert np.linalg.norm(step.estimate.p_hat - told) < 0.3
