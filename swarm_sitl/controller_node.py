@@ -99,6 +99,9 @@ class _Inputs:
 
     def read(self) -> None:
         self.bus.poll()
+        self.read_link()
+
+    def read_link(self) -> None:
         self.link.poll()
         if self.link.sample_ms != self._last_ms:
             self._last_ms = self.link.sample_ms
@@ -192,7 +195,7 @@ def run_controller(
             sample_t = t
             lateness = 0.0
         else:
-            sleep_until(io.epoch_mono + t, io.fds, io.read)
+            sleep_until(io.epoch_mono + t, io.fds, io.read_link)  # the bus is read at the tick
             io.read()
             lateness = time.monotonic() - io.epoch_mono - t
             if lateness > dt:  # a whole period behind: skip to the current tick
