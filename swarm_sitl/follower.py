@@ -14,7 +14,9 @@ Sampled-data semantics (the controller side; the same in ``sim`` and across proc
   tick ``k + 1``).
 - Messages and the vehicle sample are carried in time by the ``hold`` policy (``follower_law``):
   by default extrapolated by their age, which removes the one-period lag a zero-order hold adds per
-  graph hop.
+  graph hop. In real time the sample used at ``t_k`` is up to a telemetry period old; it is carried
+  to ``t_k`` the same way (position and velocity, with the acceleration commanded at the previous
+  tick). In ``sim`` and lockstep it is taken at ``t_k`` and nothing is carried.
 """
 
 import math
@@ -155,13 +157,21 @@ class FollowerController:
                 self.offset,
                 g,
             )
+        p_W, v_W = sample.p_W, sample.v_W
+        age = t - sample.t_s
+        if age > 0.0 and self.hold == HOLD_EXTRAPOLATE and prev is not None:
+            # real time: the sample is older than the tick; carry it to t_k under the acceleration
+            # commanded since the last tick (as messages are carried by their age)
+            a = self._prev_acc
+            p_W = p_W + v_W * age + 0.5 * a * age * age
+            v_W = v_W + a * age
         out = controller_output(
             self.state,
             t,
             msgs,
             self.hold,
-            sample.p_W,
-            sample.v_W,
+            p_W,
+            v_W,
             sample.q_WB,
             self._zero3,
             False,
