@@ -20,7 +20,8 @@ import numpy as np
 from sim_vehicles.row_log import read_rows
 from swarm_sitl.assembly import build_autopilot
 from swarm_sitl.config import SwarmConfig, load_config
-from swarm_sitl.controller_node import CONTROLLER_COLUMNS, controller_rows_path
+from swarm_sitl.controller_node import CONTROLLER_COLUMNS
+from swarm_sitl.recording import controller_rows_path
 
 
 def _vehicle_step_cost_us(

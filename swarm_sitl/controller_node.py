@@ -18,7 +18,6 @@ Every tick is written to ``procs/controller_<i>.rows`` (``row_log``) as it happe
 
 import math
 import time
-from pathlib import Path
 from typing import NamedTuple
 
 import numpy as np
@@ -47,10 +46,9 @@ CONTROLLER_COLUMNS = [
     *[f"out_{j}" for j in range(OUT_SIZE)],
 ]
 RESEND_AFTER_S = 0.25
-LEADER_POLL_S = 0.002  #: lockstep: the leader is up to ``lockstep_window`` ticks ahead, no hurry
 
 
-class ControllerReport(NamedTuple):
+class NodeReport(NamedTuple):
     ticks: int
     late_ticks: int  #: real time: ticks skipped (a period behind) or done after the next tick's instant
     max_late_s: float
@@ -168,7 +166,7 @@ def _warm_up(cfg: SwarmConfig, i: int, link: VehicleLink) -> None:
 
 def run_controller(
     cfg: SwarmConfig, i: int, link: VehicleLink, bus: NodeBus, lockstep: bool, rows: RowLog | None
-) -> ControllerReport:
+) -> NodeReport:
     who = f"follower {i}"
     r = cfg.run
     dt = cfg.control_dt_s
@@ -230,48 +228,4 @@ def run_controller(
         if lockstep and k >= 2:
             bus.forget_before(k - 1)
         k += 1
-    return ControllerReport(n + 1, late, max_late, io.resends, bus.dropped + link.rx_bad)
-
-
-def run_leader(cfg: SwarmConfig, bus: NodeBus, lockstep: bool, out_neighbours: list[int]) -> ControllerReport:
-    """Node 0: the reference at every tick, on the wall clock or a window ahead of the followers."""
-    from swarm_sitl.assembly import build_leader
-
-    leader = build_leader(cfg)
-    r = cfg.run
-    dt = cfg.control_dt_s
-    n = cfg.n_control_steps
-    epoch_mono = wall_epoch_to_monotonic(wait_for_start(bus, None, r.start_timeout_s, "leader"))
-    late = 0
-    step = [0]
-
-    def ahead_ok() -> bool:
-        return all(bus.progress(j) >= step[0] - r.lockstep_window for j in out_neighbours)
-
-    def behind() -> str:
-        at = [bus.progress(j) for j in out_neighbours]
-        return f"leader at tick {step[0]}: followers {out_neighbours} report no progress (at ticks {at})"
-
-    for k in range(n + 1):
-        step[0] = k
-        if lockstep:
-            wait_until(ahead_ok, bus.poll, [], r.stall_timeout_s, behind, block_s=lambda: LEADER_POLL_S)
-        else:
-            sleep_until(epoch_mono + k * dt, [], bus.poll)
-            if time.monotonic() - epoch_mono - k * dt > dt:
-                late += 1
-        msg: EstimateMessage = leader.step(k)
-        bus.publish(msg)
-    return ControllerReport(n + 1, late, 0.0, 0, bus.dropped)
-
-
-def procs_dir(run_dir: Path) -> Path:
-    return run_dir / "procs"
-
-
-def controller_rows_path(run_dir: Path, i: int) -> Path:
-    return procs_dir(run_dir) / f"controller_{i}.rows"
-
-
-def vehicle_truth_path(run_dir: Path, i: int) -> Path:
-    return procs_dir(run_dir) / f"vehicle_{i}.truth"
+    return NodeReport(n + 1, late, max_late, io.resends, bus.dropped + link.rx_bad)

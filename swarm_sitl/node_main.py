@@ -63,7 +63,8 @@ def _guarded(name: str, body: Any) -> int:
 def cmd_controller(cfg: SwarmConfig, args: argparse.Namespace) -> int:
     from sim_vehicles.row_log import RowLog
     from swarm_sitl.bus import ZenohNodeBus
-    from swarm_sitl.controller_node import CONTROLLER_COLUMNS, controller_rows_path, run_controller
+    from swarm_sitl.controller_node import CONTROLLER_COLUMNS, run_controller
+    from swarm_sitl.recording import controller_rows_path
     from swarm_sitl.vehicle_link import VehicleLink
 
     i = args.id
@@ -104,7 +105,7 @@ def cmd_controller(cfg: SwarmConfig, args: argparse.Namespace) -> int:
 
 def cmd_leader(cfg: SwarmConfig, args: argparse.Namespace) -> int:
     from swarm_sitl.bus import ZenohNodeBus
-    from swarm_sitl.controller_node import run_leader
+    from swarm_sitl.leader_node import run_leader
 
     graph = cfg.build_graph()
     outs = list(graph.out_neighbours(0))

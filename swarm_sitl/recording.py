@@ -22,7 +22,8 @@ Follower arrays (row k is tick k at ``t_s[k] = k * dt``; vectors world ENU unles
     pos_err_m, vel_err_mps      p - p_r - delta_i, v - v_r (p, v at sample_t_s, so is the reference)
     est_pos_err_m, est_vel_err_mps, est_acc_err_mps2   p_hat - p_r, v_hat - v_r, a_hat - a_r
 
-Load with ``numpy.load(path)``; ``load_run(RUN_DIR)`` gives them all.
+Load with ``numpy.load(path)``; ``load_run(RUN_DIR)`` gives them all. ``swarm-sitl run`` also
+writes ``logs/``, ``tlogs/`` and ``procs/`` (each process's own rows, as they happen).
 """
 
 import json
@@ -169,3 +170,16 @@ def load_run(run_dir: str | Path) -> Recording:
     except ConfigError:
         trajectory = None
     return Recording(leader, followers, offsets).with_errors(trajectory)
+
+
+# -- what the processes of ``swarm-sitl run`` write as they go (merged by ``run_merge``) ---------
+def procs_dir(run_dir: Path) -> Path:
+    return run_dir / "procs"
+
+
+def controller_rows_path(run_dir: Path, i: int) -> Path:
+    return procs_dir(run_dir) / f"controller_{i}.rows"
+
+
+def vehicle_truth_path(run_dir: Path, i: int) -> Path:
+    return procs_dir(run_dir) / f"vehicle_{i}.truth"

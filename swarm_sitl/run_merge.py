@@ -14,9 +14,15 @@ import numpy as np
 from sim_vehicles.rigid_body import POS, QUAT, VEL
 from sim_vehicles.row_log import RowLogError, read_rows
 from swarm_sitl.config import SwarmConfig
-from swarm_sitl.controller_node import CONTROLLER_COLUMNS, controller_rows_path, vehicle_truth_path
+from swarm_sitl.controller_node import CONTROLLER_COLUMNS
 from swarm_sitl.follower_law import CTRL_SIZE, OUT_SIZE
-from swarm_sitl.recording import FollowerSeries, Recording, leader_series
+from swarm_sitl.recording import (
+    FollowerSeries,
+    Recording,
+    controller_rows_path,
+    leader_series,
+    vehicle_truth_path,
+)
 
 _C = {name: j for j, name in enumerate(CONTROLLER_COLUMNS)}
 _SAMPLE = slice(_C["sample_px"], _C["sample_qz"] + 1)

@@ -32,7 +32,7 @@ from sim_vehicles.lifeline import ENV as PARENT_ENV
 from swarm_sitl import zenoh_keys
 from swarm_sitl.bus_codec import PayloadError, Status, decode_status
 from swarm_sitl.config import SwarmConfig
-from swarm_sitl.controller_node import procs_dir, vehicle_truth_path
+from swarm_sitl.recording import procs_dir, vehicle_truth_path
 
 TERM_GRACE_S = 5.0
 _LISTENING = re.compile(r"listening on udp:([0-9.]+):(\d+)")

@@ -1,0 +1,47 @@
+"""The leader as a process: node 0 publishes the reference ``p_r`` and its derivatives.
+
+Real time: tick ``k`` at ``epoch + t_k`` on the wall clock. Lockstep: as fast as its out-neighbours
+allow, at most ``run.lockstep_window`` ticks ahead of the slowest of them (their status messages
+say where they are), so a follower never has an unbounded backlog.
+"""
+
+import time
+
+from swarm_sitl.assembly import build_leader
+from swarm_sitl.bus import NodeBus
+from swarm_sitl.config import SwarmConfig
+from swarm_sitl.controller_node import NodeReport, wait_for_start
+from swarm_sitl.follower import EstimateMessage
+from swarm_sitl.node_clock import sleep_until, wait_until, wall_epoch_to_monotonic
+
+LEADER_POLL_S = 0.002  #: lockstep: the leader is up to ``lockstep_window`` ticks ahead, no hurry
+
+
+def run_leader(cfg: SwarmConfig, bus: NodeBus, lockstep: bool, out_neighbours: list[int]) -> NodeReport:
+    """Node 0: the reference at every tick, on the wall clock or a window ahead of the followers."""
+    leader = build_leader(cfg)
+    r = cfg.run
+    dt = cfg.control_dt_s
+    n = cfg.n_control_steps
+    epoch_mono = wall_epoch_to_monotonic(wait_for_start(bus, None, r.start_timeout_s, "leader"))
+    late = 0
+    step = [0]
+
+    def ahead_ok() -> bool:
+        return all(bus.progress(j) >= step[0] - r.lockstep_window for j in out_neighbours)
+
+    def behind() -> str:
+        at = [bus.progress(j) for j in out_neighbours]
+        return f"leader at tick {step[0]}: followers {out_neighbours} report no progress (at ticks {at})"
+
+    for k in range(n + 1):
+        step[0] = k
+        if lockstep:
+            wait_until(ahead_ok, bus.poll, [], r.stall_timeout_s, behind, block_s=lambda: LEADER_POLL_S)
+        else:
+            sleep_until(epoch_mono + k * dt, [], bus.poll)
+            if time.monotonic() - epoch_mono - k * dt > dt:
+                late += 1
+        msg: EstimateMessage = leader.step(k)
+        bus.publish(msg)
+    return NodeReport(n + 1, late, 0.0, 0, bus.dropped)
