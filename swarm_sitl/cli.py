@@ -204,7 +204,7 @@ def cmd_controllers(args: argparse.Namespace) -> int:
 
 
 def cmd_vehicles(args: argparse.Namespace) -> int:
-    from swarm_sitl.supervisor import RunFailedError, Supervisor, start_vehicles
+    from swarm_sitl.supervisor import RunFailedError, Supervisor, compile_kernels, start_vehicles
 
     cfg = _load(args.config)
     if not 0 <= args.base_port <= 65535 - cfg.n_followers:
@@ -212,6 +212,7 @@ def cmd_vehicles(args: argparse.Namespace) -> int:
             f"--base-port must be 0 or a port with room for {cfg.n_followers}, got {args.base_port}"
         )
     run_dir = Path(args.out) if args.out else _default_run_dir(cfg, "vehicles")
+    compile_kernels(cfg)
     sup = Supervisor(run_dir)
     try:
         endpoints = start_vehicles(sup, cfg, args.lockstep, args.base_port)

@@ -113,6 +113,15 @@ class Supervisor:
         self._logs.clear()
 
 
+def compile_kernels(cfg: SwarmConfig) -> None:
+    """Compile (or load) the numerical kernels here, once, before the children start: on a fresh
+    install every vehicle and controller would otherwise compile the same kernels at the same time
+    (52 s of start-up for paper.yaml on 2 cores, instead of about 20 s)."""
+    from swarm_sitl.sim import run_sim
+
+    run_sim(cfg, n_steps=1)
+
+
 def free_tcp_port() -> int:
     with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
         s.bind(("127.0.0.1", 0))
@@ -288,6 +297,7 @@ def run_swarm(
     from swarm_sitl.bus import open_session, publish_start
 
     run_dir.mkdir(parents=True, exist_ok=True)
+    compile_kernels(cfg)
     cfg_path = run_dir / "config.yaml"
     cfg_path.write_text(cfg.to_yaml())
     procs_dir(run_dir).mkdir(parents=True, exist_ok=True)
