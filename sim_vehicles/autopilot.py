@@ -68,6 +68,13 @@ def advance_kernel(
     return x
 
 
+def _kernel_arg(v: np.ndarray) -> np.ndarray:
+    """A writable C-contiguous float64 array: one compiled signature of the kernel whatever the
+    command's arrays are (the read-only default rates would otherwise compile a second one in
+    every vehicle process)."""
+    return np.require(v, dtype=float, requirements=["C", "W"])
+
+
 class Autopilot:
     """Plant and attitude loop of one vehicle. No I/O: the MAVLink endpoint wraps it."""
 
@@ -96,9 +103,9 @@ class Autopilot:
         p = self.params
         self.state = advance_kernel(
             self.state,
-            np.asarray(c.q_c, dtype=float),
-            np.asarray(c.omega_c_B, dtype=float),
-            np.asarray(c.omegadot_c_B, dtype=float),
+            _kernel_arg(c.q_c),
+            _kernel_arg(c.omega_c_B),
+            _kernel_arg(c.omegadot_c_B),
             float(c.thrust_N),
             p.mass_kg,
             self._inertia,

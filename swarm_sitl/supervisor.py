@@ -201,20 +201,13 @@ def start_vehicles(sup: Supervisor, cfg: SwarmConfig, lockstep: bool, base_port:
 
 
 def node_argv(
-    cfg_path: Path, role: str, lockstep: bool, hub: str, run_dir: Path, extra: list[str]
+    cfg_path: Path, role: str, lockstep: bool, hub: str | None, run_dir: Path, extra: list[str]
 ) -> list[str]:
-    argv = [
-        sys.executable,
-        "-m",
-        "swarm_sitl",
-        role,
-        str(cfg_path),
-        "--connect",
-        hub,
-        "--out",
-        str(run_dir),
-        *extra,
-    ]
+    """A node's command line; ``hub`` is the supervisor's zenoh endpoint (peer mode) or None
+    (client mode: the nodes reach the router the config names)."""
+    argv = [sys.executable, "-m", "swarm_sitl", role, str(cfg_path), "--out", str(run_dir), *extra]
+    if hub is not None:
+        argv += ["--connect", hub]
     return [*argv, "--lockstep"] if lockstep else argv
 
 
@@ -303,9 +296,12 @@ def run_swarm(
     procs_dir(run_dir).mkdir(parents=True, exist_ok=True)
     t_spawn = time.monotonic()
     sup = Supervisor(run_dir)
-    hub_port = free_tcp_port()
-    hub = f"tcp/127.0.0.1:{hub_port}"
-    session = open_session(cfg.zenoh.model_copy(update={"listen": [hub]}))
+    if cfg.zenoh.mode == "peer":  # the supervisor's session is where the peers meet
+        hub: str | None = f"tcp/127.0.0.1:{free_tcp_port()}"
+        session = open_session(cfg.zenoh.model_copy(update={"listen": [hub]}))
+    else:
+        hub = None
+        session = open_session(cfg.zenoh)
     monitor = RunMonitor(session, cfg)
     try:
         endpoints = start_vehicles(sup, cfg, lockstep) if mavlink is None else dict(mavlink)

@@ -238,3 +238,41 @@ def test_own_vehicles_and_controllers_meet_over_given_endpoints(tmp_path, paper_
         assert np.abs(a["p_W"] - sim.followers[i]["p_W"]).max() < 1e-5
         assert np.array_equal(a["p_hat"], sim.followers[i]["p_hat"])  # the controllers are exact
     assert not _processes_mentioning(str(tmp_path))
+
+
+ROUTER = """
+import json, signal, sys, time, zenoh
+c = zenoh.Config()
+c.insert_json5("mode", '"router"')
+c.insert_json5("listen/endpoints", json.dumps([sys.argv[1]]))
+c.insert_json5("scouting/multicast/enabled", "false")
+s = zenoh.open(c)
+print("up", flush=True)
+signal.signal(signal.SIGTERM, lambda *a: sys.exit(0))
+while True:
+    time.sleep(1)
+"""
+
+
+def test_the_same_swarm_runs_through_a_zenoh_router(tmp_path, paper_cfg):
+    """Client sessions through a router (a Python session in router mode; zenohd would do the same):
+    the configuration a multi-host swarm uses, here on loopback."""
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        endpoint = f"tcp/127.0.0.1:{s.getsockname()[1]}"
+    router = subprocess.Popen([sys.executable, "-c", ROUTER, endpoint], stdout=subprocess.PIPE, text=True)
+    try:
+        assert router.stdout.readline().strip() == "up"
+        cfg = yaml.safe_load((CONFIGS / "paper.yaml").read_text())
+        cfg["zenoh"] = {"mode": "client", "connect": [endpoint]}
+        path = tmp_path / "routed.yaml"
+        path.write_text(yaml.safe_dump(cfg))
+        out = tmp_path / "run"
+        r = _cli("run", path, "--duration", 3, "--out", out, "--quiet")
+        assert r.returncode == 0, r.stderr
+    finally:
+        router.terminate()
+        router.wait(timeout=10)
+    sim = run_sim(paper_cfg.model_copy(update={"duration_s": 3.0}))
+    for i in range(1, 5):
+        assert np.array_equal(np.load(out / f"follower_{i}.npz")["p_W"], sim.followers[i]["p_W"])
