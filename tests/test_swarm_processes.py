@@ -101,20 +101,29 @@ def test_realtime_run_reaches_the_formation(tmp_path):
     r = _cli("run", CONFIGS / "paper.yaml", "--realtime", "--duration", 20, "--out", out, "--quiet")
     assert r.returncode == 0, r.stderr + r.stdout
     summary = json.loads((out / "summary.json").read_text())
+    logs = "; ".join(
+        (out / "logs" / f"controller_{i}.log").read_text().strip().splitlines()[-1] for i in range(1, 5)
+    )
+    worst_after_15 = 0.0
     for i in range(1, 5):
         a = np.load(out / f"follower_{i}.npz")
         t, p, s = a["t_s"], a["p_W"], a["sample_t_s"]
         ok = np.isfinite(t)
         # ticks recorded: a tick that starts a whole period late is skipped (NaN); on a loaded 2-core
         # machine that can be a fifth of them, and the formation must hold regardless
-        assert ok.mean() > 0.5
+        assert ok.mean() > 0.5, logs
         age = t[ok] - s[ok]
-        assert np.all(age >= 0) and np.percentile(age, 99) < 0.02  # samples are recent (a rare stall aside)
+        assert np.all(age >= 0), (i, age.min())
+        assert np.percentile(age, 99) < 0.02, (
+            i,
+            np.percentile(age, [50, 99, 100]),
+            logs,
+        )  # samples are recent
         assert np.isfinite(p[ok]).all()
-        assert summary["followers"][str(i)]["final_pos_err_m"] < 0.05
-    err = [np.linalg.norm(np.load(out / f"follower_{i}.npz")["pos_err_m"], axis=1) for i in range(1, 5)]
-    t = np.load(out / "follower_1.npz")["t_s"]
-    assert max(np.nanmax(e[t >= 15.0]) for e in err) < 0.05
+        assert summary["followers"][str(i)]["final_pos_err_m"] < 0.05, (i, summary["followers"][str(i)], logs)
+        e = np.linalg.norm(a["pos_err_m"], axis=1)
+        worst_after_15 = max(worst_after_15, float(np.nanmax(e[t >= 15.0])))
+    assert worst_after_15 < 0.05, (worst_after_15, logs)
 
 
 def test_a_process_failing_to_start_tears_everything_down(tmp_path):
