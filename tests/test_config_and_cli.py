@@ -42,6 +42,14 @@ CASES = {
         "followers.1.initial_quaternion_wxyz: must be a unit quaternion",
     ),
     "rates": (lambda d: d["rates"].update(attitude_hz=1050), "whole multiple of control_hz"),
+    "lockstep window": (
+        lambda d: d.update(run={"lockstep_window": 5, "status_every": 10}),
+        "lockstep_window (5) must exceed status_every (10)",
+    ),
+    "zenoh mode": (
+        lambda d: d.update(zenoh={"mode": "router"}),
+        "zenoh.mode: Input should be 'peer' or 'client'",
+    ),
 }
 
 
@@ -49,7 +57,12 @@ CASES = {
 def test_bad_config_gives_one_line_naming_the_problem(tmp_path, capsys, case):
     mutate, expected = CASES[case]
     path = _mutated(tmp_path, mutate)
-    for command in (["check", str(path)], ["sim", str(path), "--quiet", "--out", str(tmp_path / "r")]):
+    commands = (
+        ["check", str(path)],
+        ["sim", str(path), "--quiet", "--out", str(tmp_path / "r")],
+        ["run", str(path), "--quiet", "--out", str(tmp_path / "p")],  # before any process starts
+    )
+    for command in commands:
         assert main(command) == 2
         err = capsys.readouterr().err
         assert err.count("\n") == 1 and err.startswith("swarm-sitl: error: ")
@@ -65,6 +78,11 @@ def test_unreadable_and_malformed_files(tmp_path, capsys):
     assert "not valid YAML" in capsys.readouterr().err
     assert main(["plot", str(tmp_path)]) == 2
     assert "not a run directory" in capsys.readouterr().err
+    paper = str(CONFIGS / "paper.yaml")
+    assert main(["controllers", paper, "--mavlink", "udpout:127.0.0.1:9"]) == 2
+    assert "one connection string per follower (4, in id order), got 1" in capsys.readouterr().err
+    assert main(["vehicles", paper, "--base-port", "70000"]) == 2
+    assert "--base-port" in capsys.readouterr().err
 
 
 def test_check_passes_paper_and_names_failures_on_ring(capsys):
