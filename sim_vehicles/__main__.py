@@ -12,7 +12,7 @@ import sys
 import numpy as np
 
 from sim_vehicles.autopilot import Autopilot
-from sim_vehicles.lifeline import hold_on
+from sim_vehicles.lifeline import hold_on, settle_heap
 from sim_vehicles.mavlink_endpoint import VehicleEndpoint
 from sim_vehicles.params import AttitudeGains, VehicleParamError, VehicleParams
 from sim_vehicles.rigid_body import make_state
@@ -108,6 +108,7 @@ def main(argv: list[str] | None = None) -> int:
         raise KeyboardInterrupt  # close the .tlog through the finally below
 
     signal.signal(signal.SIGTERM, _terminate)
+    settle_heap()
     try:
         if a.lockstep_period_s is not None:
             ep.run_lockstep()

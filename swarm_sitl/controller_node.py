@@ -23,6 +23,7 @@ from typing import NamedTuple
 import numpy as np
 
 from sim_vehicles.autopilot import AttitudeCommand
+from sim_vehicles.lifeline import settle_heap
 from sim_vehicles.row_log import RowLog
 from swarm_sitl.assembly import build_controller
 from swarm_sitl.bus import NodeBus
@@ -175,6 +176,7 @@ def run_controller(
     ctrl = build_controller(cfg, i, link.params["MASS_KG"], link.params["MAX_THRUST_N"])
     io = _Inputs(who, link, bus, [s for s, _ in ctrl.in_edges], dt)
     _warm_up(cfg, i, link)
+    settle_heap()
     link.request_rates(dt, r.other_telemetry_hz, r.start_timeout_s)
     if lockstep:
         link.arm_offboard(r.start_timeout_s)

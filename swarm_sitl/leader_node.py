@@ -7,6 +7,7 @@ say where they are), so a follower never has an unbounded backlog.
 
 import time
 
+from sim_vehicles.lifeline import settle_heap
 from swarm_sitl.assembly import build_leader
 from swarm_sitl.bus import NodeBus
 from swarm_sitl.config import SwarmConfig
@@ -20,6 +21,7 @@ LEADER_POLL_S = 0.002  #: lockstep: the leader is up to ``lockstep_window`` tick
 def run_leader(cfg: SwarmConfig, bus: NodeBus, lockstep: bool, out_neighbours: list[int]) -> NodeReport:
     """Node 0: the reference at every tick, on the wall clock or a window ahead of the followers."""
     leader = build_leader(cfg)
+    settle_heap()
     r = cfg.run
     dt = cfg.control_dt_s
     n = cfg.n_control_steps

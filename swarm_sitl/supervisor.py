@@ -29,6 +29,7 @@ from typing import IO, Any
 import numpy as np
 
 from sim_vehicles.lifeline import ENV as PARENT_ENV
+from sim_vehicles.lifeline import settle_heap
 from swarm_sitl import zenoh_keys
 from swarm_sitl.bus_codec import PayloadError, Status, decode_status
 from swarm_sitl.config import SwarmConfig
@@ -120,6 +121,7 @@ def compile_kernels(cfg: SwarmConfig) -> None:
     from swarm_sitl.sim import run_sim
 
     run_sim(cfg, n_steps=1)
+    settle_heap()
 
 
 def free_tcp_port() -> int:
