@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
+from sim_vehicles.mavlink_endpoint import TRUTH_COLUMNS
 from sim_vehicles.rigid_body import POS, QUAT, VEL
 from sim_vehicles.row_log import RowLogError, read_rows
 from swarm_sitl.config import SwarmConfig
@@ -49,7 +50,7 @@ def merge_run(cfg: SwarmConfig, run_dir: Path) -> Recording:
         i = f.id
         series = FollowerSeries(n + 1)
         ctrl = _rows(controller_rows_path(run_dir, i), len(CONTROLLER_COLUMNS))
-        truth = _rows(vehicle_truth_path(run_dir, i), 14)
+        truth = _rows(vehicle_truth_path(run_dir, i), len(TRUTH_COLUMNS))
         by_ms: dict[int, int] = {}
         for j, ms in enumerate(np.round(truth[:, 0] * 1000).astype(np.int64)):
             by_ms.setdefault(int(ms), j)

@@ -218,6 +218,8 @@ class RunMonitor:
 
     def __init__(self, session: Any, cfg: SwarmConfig):
         self.cfg = cfg
+        self._trajectory = cfg.trajectory()
+        self._offsets = {f.id: np.asarray(f.offset_m, dtype=float) for f in cfg.followers}
         self._lock = threading.Lock()
         self.ready: set[int] = set()
         self.status: dict[int, Status] = {}
@@ -254,13 +256,12 @@ class RunMonitor:
 
     def errors_m(self) -> dict[int, float]:
         """Each follower's |p - p_r - delta| at its latest status."""
-        traj = self.cfg.trajectory()
         out = {}
         with self._lock:
             items = list(self.status.items())
         for i, s in items:
-            p_r = traj.derivatives(s.sample_t_s)[0]
-            out[i] = float(np.linalg.norm(s.p_W - p_r - np.asarray(self.cfg.follower(i).offset_m)))
+            p_r = self._trajectory.derivatives(s.sample_t_s)[0]
+            out[i] = float(np.linalg.norm(s.p_W - p_r - self._offsets[i]))
         return out
 
     def min_step(self) -> int:

@@ -137,7 +137,6 @@ class VehicleLink:
 
     def command(self, command: int, *params: float) -> None:
         p = [*params, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0][:7]
-        self.acks.pop(command, None)
         self.conn.mav.command_long_send(self.system_id, COMP_AUTOPILOT, command, 0, *p)
 
     def send_setpoint(self, cmd: AttitudeCommand, time_boot_ms: int) -> None:
