@@ -12,7 +12,7 @@ import sys
 import numpy as np
 
 from sim_vehicles.autopilot import Autopilot
-from sim_vehicles.lifeline import hold_on, settle_heap
+from sim_vehicles.lifeline import hold_on, profiled, settle_heap
 from sim_vehicles.mavlink_endpoint import VehicleEndpoint
 from sim_vehicles.params import AttitudeGains, VehicleParamError, VehicleParams
 from sim_vehicles.rigid_body import make_state
@@ -111,9 +111,9 @@ def main(argv: list[str] | None = None) -> int:
     settle_heap()
     try:
         if a.lockstep_period_s is not None:
-            ep.run_lockstep()
+            profiled(f"vehicle_{a.id}", ep.run_lockstep)
         else:
-            ep.run_realtime(a.duration)
+            profiled(f"vehicle_{a.id}", lambda: ep.run_realtime(a.duration))
     except KeyboardInterrupt:
         pass
     finally:

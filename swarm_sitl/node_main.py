@@ -6,7 +6,6 @@ started by hand (another host, a debugger). Each prints one line when it is done
 """
 
 import argparse
-import os
 import signal
 import sys
 from pathlib import Path
@@ -28,7 +27,7 @@ def _session(cfg: SwarmConfig, connect: list[str]) -> Any:
 def _guarded(name: str, body: Any) -> int:
     import zenoh
 
-    from sim_vehicles.lifeline import hold_on
+    from sim_vehicles.lifeline import hold_on, profiled
     from swarm_sitl.command_attitude import SingularCommandError
     from swarm_sitl.node_clock import StallError
     from swarm_sitl.vehicle_link import LinkError
@@ -36,16 +35,7 @@ def _guarded(name: str, body: Any) -> int:
     hold_on()
     signal.signal(signal.SIGTERM, _terminate)
     try:
-        if os.environ.get("SWARM_SITL_PROFILE"):  # debugging aid: a cProfile dump per node
-            import cProfile
-
-            prof = cProfile.Profile()
-            try:
-                line = prof.runcall(body)
-            finally:
-                prof.dump_stats(f"{os.environ['SWARM_SITL_PROFILE']}/{name.replace(' ', '_')}.prof")
-        else:
-            line = body()
+        line = profiled(name, body)
     except (LinkError, StallError, SingularCommandError) as e:
         print(f"{name}: error: {e}", file=sys.stderr, flush=True)
         return 1
