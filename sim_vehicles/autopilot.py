@@ -87,8 +87,8 @@ class Autopilot:
         self.state = np.array(state0, dtype=float)
         self.state[QUAT] /= np.linalg.norm(self.state[QUAT])
         self.step_index = 0
-        self.command = AttitudeCommand.hover(params, self.state[QUAT].copy())
         self._inertia = params.inertia
+        self.set_command(AttitudeCommand.hover(params, self.state[QUAT].copy()))
 
     @property
     def time_s(self) -> float:
@@ -96,17 +96,24 @@ class Autopilot:
 
     def set_command(self, command: AttitudeCommand) -> None:
         self.command = command
+        # the kernel's arguments, prepared once per command rather than once per advance
+        self._args = (
+            _kernel_arg(command.q_c),
+            _kernel_arg(command.omega_c_B),
+            _kernel_arg(command.omegadot_c_B),
+            float(command.thrust_N),
+        )
 
     def advance(self, n_steps: int) -> None:
         """Run ``n_steps`` attitude-loop steps holding the current command."""
-        c = self.command
+        q_c, omega_c, omegadot_c, thrust_N = self._args
         p = self.params
         self.state = advance_kernel(
             self.state,
-            _kernel_arg(c.q_c),
-            _kernel_arg(c.omega_c_B),
-            _kernel_arg(c.omegadot_c_B),
-            float(c.thrust_N),
+            q_c,
+            omega_c,
+            omegadot_c,
+            thrust_N,
             p.mass_kg,
             self._inertia,
             p.g_mps2,

@@ -46,11 +46,12 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, BinaryIO
+from typing import Any, BinaryIO, NamedTuple
 
 import numpy as np
 from pymavlink.dialects.v20 import common as mav
 
+from sim_vehicles import mavlink_frames as frames
 from sim_vehicles.autopilot import AttitudeCommand, Autopilot
 from sim_vehicles.quaternion import rotation_matrix
 from sim_vehicles.rigid_body import POS, QUAT, RATE, VEL
@@ -97,6 +98,21 @@ class TelemetryRates:
 MAX_DATAGRAM = 1200  #: bytes; below any loopback or Ethernet MTU
 
 TRUTH_COLUMNS = ["time_boot_s", "px", "py", "pz", "vx", "vy", "vz", "qw", "qx", "qy", "qz", "wx", "wy", "wz"]
+
+
+class _Setpoint(NamedTuple):
+    """SET_ATTITUDE_TARGET as read off the wire (NED/FRD, thrust 0..1)."""
+
+    time_boot_ms: int
+    target_system: int
+    target_component: int
+    type_mask: int
+    q: tuple[float, ...]
+    body_rates: tuple[float, ...]
+    thrust: float
+
+
+_FAST_IN = {frames.SET_ATTITUDE_TARGET.msg_id: frames.SET_ATTITUDE_TARGET}
 
 
 @dataclass
@@ -170,6 +186,7 @@ class VehicleEndpoint:
             mav.MAVLINK_MSG_ID_SYS_STATUS: self._send_sys_status,
         }
         self._next_heartbeat_wall = -math.inf
+        self._next_any_s = 0.0  #: simulated time of the next telemetry message due
         self._attq_cache: tuple[int, tuple[float, ...]] | None = None
         p = self.autopilot.params
         self.params: dict[str, float] = {
@@ -189,6 +206,11 @@ class VehicleEndpoint:
     def _send(self, msg: Any) -> None:
         """Queue one message; ``flush`` sends what is queued."""
         self.mav.send(msg)
+
+    def _send_fields(self, layout: frames.Layout, values: tuple[float, ...] | list[float]) -> None:
+        """Queue one telemetry message from its field values (``mavlink_frames``: the same bytes
+        as ``_send``, without building a message object)."""
+        self._sink.frames.append(frames.pack_frame(self.mav, layout, values))
 
     def flush(self) -> None:
         """Send the queued frames to the peer, packed into as few datagrams as fit (as PX4 does):
@@ -242,6 +264,24 @@ class VehicleEndpoint:
             self.peer = addr
             if new_peer:
                 self.send_heartbeat()
+            fast = frames.read_datagram(data, _FAST_IN) if self._parser.signing.secret_key is None else None
+            if fast is not None:
+                for _id, _sys, _comp, values, frame in fast:
+                    self._log(frame)
+                    self.stats.rx_messages += 1
+                    if values is not None:  # SET_ATTITUDE_TARGET
+                        v = values
+                        sp = _Setpoint(v[0], v[1], v[2], v[3], v[4:8], v[8:11], v[11])
+                        if self._for_me(sp):
+                            self._on_setpoint(sp)
+                        continue
+                    try:
+                        m = self._parser.decode(bytearray(frame))
+                    except Exception:  # pymavlink's own errors and struct errors: drop, count
+                        self.stats.rx_bad += 1
+                        continue
+                    self._handle(m)
+                continue
             try:
                 msgs = self._parser.parse_buffer(data) or []
             except Exception:  # pymavlink raises its own and struct errors on garbage: drop, count
@@ -264,7 +304,17 @@ class VehicleEndpoint:
     def _handle(self, m: Any) -> None:
         t = m.get_type()
         if t == "SET_ATTITUDE_TARGET" and self._for_me(m):
-            self._on_setpoint(m)
+            self._on_setpoint(
+                _Setpoint(
+                    m.time_boot_ms,
+                    m.target_system,
+                    m.target_component,
+                    m.type_mask,
+                    tuple(m.q),
+                    (m.body_roll_rate, m.body_pitch_rate, m.body_yaw_rate),
+                    m.thrust,
+                )
+            )
         elif t == "COMMAND_LONG" and self._for_me(m):
             self._on_command(m)
         elif t == "PARAM_REQUEST_LIST" and self._for_me(m):
@@ -300,6 +350,7 @@ class VehicleEndpoint:
                 self._defaults[msg_id] if us == 0 else (0.0 if us < 0 else 1e6 / max(us, 1.0))
             )
             self._next_send.pop(msg_id, None)
+            self._next_any_s = 0.0
         elif m.command == mav.MAV_CMD_REQUEST_MESSAGE and int(m.param1) in self._senders:
             self._ack(m.command, result)  # the ack first, then the message, as PX4 does
             self._senders[int(m.param1)](self.time_boot_ms)
@@ -311,7 +362,7 @@ class VehicleEndpoint:
     def _ack(self, command: int, result: int) -> None:
         self._send(self.mav.command_ack_encode(command, result))
 
-    def _on_setpoint(self, m: Any) -> None:
+    def _on_setpoint(self, m: "_Setpoint") -> None:
         ap = self.autopilot
         if self.lockstep_period_s is not None:
             now_ms = self.time_boot_ms
@@ -327,9 +378,7 @@ class VehicleEndpoint:
         mask = m.type_mask
         try:
             new = decode_attitude_target(
-                AttitudeTargetFields(
-                    tuple(m.q), (m.body_roll_rate, m.body_pitch_rate, m.body_yaw_rate), m.thrust
-                ),
+                AttitudeTargetFields(m.q, m.body_rates, m.thrust),  # type: ignore[arg-type]
                 ap.params.max_thrust_N,
             )
         except ValueError:
@@ -408,10 +457,13 @@ class VehicleEndpoint:
             self.flush()
 
     def _stream(self) -> None:
+        if self.autopilot.time_s + 1e-9 < self._next_any_s:
+            return
         ms = self.time_boot_ms
         for msg_id, send in self._senders.items():
             if self._due(msg_id):
                 send(ms)
+        self._next_any_s = self.next_stream_s()
 
     def _attq_fields(self, ms: int) -> tuple[float, ...]:
         """ATTITUDE_QUATERNION fields of the current state, encoded once per instant."""
@@ -422,12 +474,12 @@ class VehicleEndpoint:
 
     def _send_local_position(self, ms: int) -> None:
         x = self.autopilot.state
-        self._send(self.mav.local_position_ned_encode(ms, *encode_local_position(x[POS], x[VEL])))
+        self._send_fields(frames.LOCAL_POSITION_NED, (ms, *encode_local_position(x[POS], x[VEL])))
         if self._truth is not None:
             self._truth.append(self.autopilot.time_s, x)
 
     def _send_attitude_quaternion(self, ms: int) -> None:
-        self._send(self.mav.attitude_quaternion_encode(ms, *self._attq_fields(ms)))
+        self._send_fields(frames.ATTITUDE_QUATERNION, (ms, *self._attq_fields(ms)))
 
     def _send_attitude(self, ms: int) -> None:
         f = self._attq_fields(ms)
@@ -435,17 +487,14 @@ class VehicleEndpoint:
         roll = math.atan2(2 * (w * qx + qy * qz), 1 - 2 * (qx * qx + qy * qy))
         pitch = math.asin(max(-1.0, min(1.0, 2 * (w * qy - qz * qx))))
         yaw = math.atan2(2 * (w * qz + qx * qy), 1 - 2 * (qy * qy + qz * qz))
-        self._send(self.mav.attitude_encode(ms, roll, pitch, yaw, f[4], f[5], f[6]))
+        self._send_fields(frames.ATTITUDE, (ms, roll, pitch, yaw, f[4], f[5], f[6]))
 
     def _send_attitude_target(self, ms: int) -> None:
         ap = self.autopilot
         c = ap.command
         f = encode_attitude_quaternion(c.q_c, c.omega_c_B)
-        self._send(
-            self.mav.attitude_target_encode(
-                ms, 0, list(f[0:4]), f[4], f[5], f[6], float(c.thrust_N) / ap.params.max_thrust_N
-            )
-        )
+        thrust = float(c.thrust_N) / ap.params.max_thrust_N
+        self._send_fields(frames.ATTITUDE_TARGET, (ms, 0, *f[0:4], f[4], f[5], f[6], thrust))
 
     def _send_imu(self, ms: int) -> None:
         ap = self.autopilot
@@ -456,10 +505,9 @@ class VehicleEndpoint:
         else:
             f_b = rotation_matrix(x[QUAT]).T @ np.array([0.0, 0.0, p.g_mps2])
         w = x[RATE]
-        self._send(
-            self.mav.highres_imu_encode(
-                ms * 1000, f_b[0], -f_b[1], -f_b[2], w[0], -w[1], -w[2], 0, 0, 0, 1013.25, 0, 0, 0.0, 0b111111
-            )
+        self._send_fields(
+            frames.HIGHRES_IMU,
+            (ms * 1000, f_b[0], -f_b[1], -f_b[2], w[0], -w[1], -w[2], 0, 0, 0, 1013.25, 0, 0, 0.0, 0b111111),
         )
 
     def _send_sys_status(self, ms: int) -> None:
@@ -477,13 +525,14 @@ class VehicleEndpoint:
             now = time.monotonic() - start
             if (duration_s is not None and now >= duration_s) or (stop is not None and stop()):
                 return
-            due = k0 + int(now / dt) - self.autopilot.step_index
-            if due > 0:
-                self.step(due)
-            self.heartbeat_tick(start + now)
-            t_next = self.next_stream_s() - k0 * dt
+            t_next = self._next_any_s - k0 * dt
             if self.mode == MODE_OFFBOARD:
                 t_next = min(t_next, self._last_setpoint_s + self.setpoint_timeout_s - k0 * dt)
+            due = k0 + int(now / dt) - self.autopilot.step_index
+            if due > 0 and now >= t_next:  # only a stream or the failsafe needs the state now
+                self.step(due)
+                continue
+            self.heartbeat_tick(start + now)
             wait = min(max(t_next - now, 0.0), 0.05)
             readable, _, _ = select.select([self.sock], [], [], wait)
             if readable:

@@ -85,6 +85,9 @@ class _Inputs:
     def __init__(self, who: str, link: VehicleLink, bus: NodeBus, sources: list[int], dt: float):
         self.who, self.link, self.bus, self.sources, self.dt = who, link, bus, sources, dt
         self.fds = [link.fileno()]
+        # real time: a link with kernel arrival stamps is read at the tick only (no wake-up per
+        # datagram); any other link is read as its datagrams come, to stamp them
+        self.tick_fds = [] if link.stamps_arrivals else self.fds
         self.epoch_mono = math.nan
         self.offset_s = math.inf  #: vehicle boot time -> swarm time (real time)
         self._last_ms = -1
@@ -104,7 +107,7 @@ class _Inputs:
         self.link.poll()
         if self.link.sample_ms != self._last_ms:
             self._last_ms = self.link.sample_ms
-            arrival = time.monotonic() - self.epoch_mono
+            arrival = self.link.sample_arrival_mono - self.epoch_mono
             self.offset_s = min(self.offset_s, arrival - self._last_ms / 1000.0)
 
     # -- lockstep --------------------------------------------------------------------------------
@@ -195,7 +198,7 @@ def run_controller(
             sample_t = t
             lateness = 0.0
         else:
-            sleep_until(io.epoch_mono + t, io.fds, io.read_link)  # the bus is read at the tick
+            sleep_until(io.epoch_mono + t, io.tick_fds, io.read_link)  # the bus is read at the tick
             io.read()
             lateness = time.monotonic() - io.epoch_mono - t
             if lateness > dt:  # a whole period behind: skip to the current tick

@@ -11,10 +11,20 @@ only inside this module.
 
 Incoming messages are read with ``poll()`` (non-blocking; ``fileno()`` is there for ``select``).
 The latest vehicle sample is the last LOCAL_POSITION_NED and ATTITUDE_QUATERNION of the same
-``time_boot_ms``.
+``time_boot_ms``; ``sample_arrival_mono`` is when it arrived (``time.monotonic`` seconds). On a
+plain UDP client link (``udpout:``, Linux) that instant is the kernel's receive timestamp, so a
+real-time loop need not wake up for each datagram to know it (``stamps_arrivals``); on any other
+link it is when ``poll()`` read it.
+
+The per-tick messages (the two sample messages in, SET_ATTITUDE_TARGET out) are read and packed
+with ``sim_vehicles.mavlink_frames``; everything else goes through pymavlink.
 """
 
+import math
 import os
+import socket
+import struct
+import sys
 import time
 from typing import Any
 
@@ -23,6 +33,7 @@ os.environ.setdefault("MAVLINK20", "1")  # before pymavlink picks its wire proto
 import numpy as np
 from pymavlink import mavutil
 
+from sim_vehicles import mavlink_frames as frames
 from sim_vehicles.autopilot import AttitudeCommand
 from sim_vehicles.mavlink_endpoint import MODE_OFFBOARD
 from sim_vehicles.wire_format import (
@@ -36,6 +47,11 @@ COMP_ONBOARD = 191  # MAV_COMP_ID_ONBOARD_COMPUTER
 COMP_AUTOPILOT = 1
 IGNORE_NOTHING = 0
 REQUIRED_PARAMS = ("MASS_KG", "MAX_THRUST_N")
+_SO_TIMESTAMPNS = 35  #: Linux; the kernel's receive time of each datagram (CLOCK_REALTIME)
+_TIMESPEC = struct.Struct("qq")
+_LPOS = frames.LOCAL_POSITION_NED
+_ATTQ = frames.ATTITUDE_QUATERNION
+_FAST_IN = {_LPOS.msg_id: _LPOS, _ATTQ.msg_id: _ATTQ}
 
 
 class LinkError(RuntimeError):
@@ -54,13 +70,30 @@ class VehicleLink:
         self.url = url
         self.system_id = system_id
         self.params: dict[str, float] = {}
-        self._lpos: Any = None
-        self._attq: Any = None
+        self._lpos: tuple = ()  #: LOCAL_POSITION_NED fields, declared order
+        self._attq: tuple = ()  #: ATTITUDE_QUATERNION fields, declared order
         self.sample_ms = -1  #: time_boot_ms of the latest complete sample
+        self.sample_arrival_mono = math.nan  #: when it arrived [s; time.monotonic]
         self.heartbeat: Any = None
         self.acks: dict[int, int] = {}
         self.rx_bad = 0
         self._next_hb = 0.0
+        self.stamps_arrivals = self._enable_timestamps()
+
+    def _enable_timestamps(self) -> bool:
+        c = self.conn
+        if not (
+            sys.platform.startswith("linux")
+            and isinstance(c, mavutil.mavudp)
+            and not c.udp_server
+            and not c.broadcast
+        ):
+            return False
+        try:
+            c.port.setsockopt(socket.SOL_SOCKET, _SO_TIMESTAMPNS, 1)
+        except OSError:
+            return False
+        return True
 
     def fileno(self) -> int:
         return int(self.conn.fd)
@@ -69,19 +102,46 @@ class VehicleLink:
         self.conn.close()
 
     # -- receive ---------------------------------------------------------------------------------
+    def _recv(self, wall_to_mono: float) -> tuple[bytes, float]:
+        """One datagram (``b""`` if none) and its arrival time."""
+        if not self.stamps_arrivals:
+            return self.conn.recv(), time.monotonic()
+        try:
+            data, anc, _flags, _addr = self.conn.port.recvmsg(65535, 64)
+        except OSError:  # nothing waiting, or the vehicle's port is closed (ICMP unreachable)
+            return b"", math.nan
+        for level, kind, raw in anc:
+            if level == socket.SOL_SOCKET and kind == _SO_TIMESTAMPNS and len(raw) >= _TIMESPEC.size:
+                sec, nsec = _TIMESPEC.unpack_from(raw)
+                return data, sec + nsec * 1e-9 + wall_to_mono
+        return data, time.monotonic()
+
     def poll(self) -> int:
         """Read everything waiting; returns the number of messages handled. Bytes go straight to
-        the parser (``mav.parse_buffer``): mavutil's per-message bookkeeping, which this link does
-        not use, costs as much as the parsing."""
+        the parsers (``mavlink_frames``, else ``mav.parse_buffer``): mavutil's per-message
+        bookkeeping, which this link does not use, costs as much as the parsing."""
         n = 0
         conn = self.conn
+        wall_to_mono = time.monotonic() - time.time()
         while True:
             try:
-                data = conn.recv()
+                data, arrival = self._recv(wall_to_mono)
             except OSError:
                 return n
             if not data:
                 return n
+            fast = frames.read_datagram(data, _FAST_IN) if conn.mav.signing.secret_key is None else None
+            if fast is not None:
+                for msg_id, sysid, compid, values, frame in fast:
+                    n += 1
+                    if values is None:
+                        try:
+                            self._handle(conn.mav.decode(bytearray(frame)), arrival)
+                        except Exception:  # pymavlink's own errors and struct errors: drop, count
+                            self.rx_bad += 1
+                    elif sysid == self.system_id and compid == COMP_AUTOPILOT:
+                        self._sample_part(msg_id == _LPOS.msg_id, values, arrival)
+                continue
             try:
                 msgs = conn.mav.parse_buffer(data) or []
             except Exception:  # pymavlink raises its own and struct errors on garbage: drop, count
@@ -89,9 +149,9 @@ class VehicleLink:
                 continue
             for m in msgs:
                 n += 1
-                self._handle(m)
+                self._handle(m, arrival)
 
-    def _handle(self, m: Any) -> None:
+    def _handle(self, m: Any, arrival: float) -> None:
         t = m.get_type()
         if t == "BAD_DATA":
             self.rx_bad += 1
@@ -99,11 +159,10 @@ class VehicleLink:
         if m.get_srcSystem() != self.system_id or m.get_srcComponent() != COMP_AUTOPILOT:
             return
         if t == "LOCAL_POSITION_NED":
-            self._lpos = m
-            self._complete()
+            self._sample_part(True, (m.time_boot_ms, m.x, m.y, m.z, m.vx, m.vy, m.vz), arrival)
         elif t == "ATTITUDE_QUATERNION":
-            self._attq = m
-            self._complete()
+            fields = (m.time_boot_ms, m.q1, m.q2, m.q3, m.q4, m.rollspeed, m.pitchspeed, m.yawspeed)
+            self._sample_part(False, fields, arrival)
         elif t == "HEARTBEAT":
             self.heartbeat = m
         elif t == "PARAM_VALUE":
@@ -111,21 +170,19 @@ class VehicleLink:
         elif t == "COMMAND_ACK":
             self.acks[m.command] = m.result
 
-    def _complete(self) -> None:
-        if (
-            self._lpos is not None
-            and self._attq is not None
-            and self._lpos.time_boot_ms == self._attq.time_boot_ms
-        ):
-            self.sample_ms = int(self._lpos.time_boot_ms)
+    def _sample_part(self, is_position: bool, fields: tuple, arrival: float) -> None:
+        if is_position:
+            self._lpos = fields
+        else:
+            self._attq = fields
+        if self._lpos and self._attq and self._lpos[0] == self._attq[0]:
+            self.sample_ms = int(self._lpos[0])
+            self.sample_arrival_mono = arrival
 
     def sample(self) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
         """``(time_boot_s, p_W, v_W, q_WB)`` of the latest complete sample, in ENU/FLU."""
-        lp, aq = self._lpos, self._attq
-        p, v = decode_local_position((lp.x, lp.y, lp.z, lp.vx, lp.vy, lp.vz))
-        q, _ = decode_attitude_quaternion(
-            (aq.q1, aq.q2, aq.q3, aq.q4, aq.rollspeed, aq.pitchspeed, aq.yawspeed)
-        )
+        p, v = decode_local_position(self._lpos[1:7])
+        q, _ = decode_attitude_quaternion(self._attq[1:8])
         return self.sample_ms / 1000.0, p, v, q
 
     # -- send ------------------------------------------------------------------------------------
@@ -141,9 +198,12 @@ class VehicleLink:
 
     def send_setpoint(self, cmd: AttitudeCommand, time_boot_ms: int) -> None:
         f = encode_attitude_target(cmd, self.params["MAX_THRUST_N"])
-        self.conn.mav.set_attitude_target_send(
-            time_boot_ms, self.system_id, COMP_AUTOPILOT, IGNORE_NOTHING, list(f.q), *f.body_rates, f.thrust
-        )
+        values = (time_boot_ms, self.system_id, COMP_AUTOPILOT, IGNORE_NOTHING, *f.q, *f.body_rates, f.thrust)
+        mav_ = self.conn.mav
+        if mav_.signing.sign_outgoing:
+            mav_.set_attitude_target_send(*values[0:4], list(f.q), *f.body_rates, f.thrust)
+        else:
+            self.conn.write(frames.pack_frame(mav_, frames.SET_ATTITUDE_TARGET, values))
 
     # -- the start-up handshake ------------------------------------------------------------------
     def _wait(self, done: Any, what: str, timeout_s: float, resend: Any = None, every_s: float = 0.5) -> None:

@@ -1,0 +1,172 @@
+"""The per-tick MAVLink path (``sim_vehicles.mavlink_frames``) against pymavlink itself: the same
+bytes out, the same fields in, and anything it does not handle left to pymavlink whole."""
+
+import os
+import socket
+import struct
+import time
+
+os.environ.setdefault("MAVLINK20", "1")
+
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from pymavlink.dialects.v20 import common as mav
+
+from sim_vehicles import mavlink_frames as frames
+
+pytestmark = pytest.mark.unit
+
+LAYOUTS = [
+    frames.LOCAL_POSITION_NED,
+    frames.ATTITUDE_QUATERNION,
+    frames.ATTITUDE,
+    frames.ATTITUDE_TARGET,
+    frames.HIGHRES_IMU,
+    frames.SET_ATTITUDE_TARGET,
+]
+
+
+class _Sink:
+    def __init__(self) -> None:
+        self.frames: list[bytes] = []
+
+    def write(self, data: bytes) -> None:
+        self.frames.append(bytes(data))
+
+
+def _f32(x: float) -> float:
+    return struct.unpack("<f", struct.pack("<f", x))[0]
+
+
+def _values(layout: frames.Layout, draw: st.DrawFn) -> list:
+    """Random declared-order values that fit each field's wire type."""
+    fmt = layout.struct.format.lstrip("<")
+    wire_types: list[str] = []
+    count = ""
+    for ch in fmt:
+        if ch.isdigit():
+            count += ch
+        else:
+            wire_types += [ch] * int(count or 1)
+            count = ""
+    out = []
+    for d in range(len(layout.names)):
+        t = wire_types[layout.wire_of[d]]
+        if t == "f":
+            out.append(_f32(draw(st.floats(-1e6, 1e6))) if draw(st.booleans()) else 0.0)
+        else:
+            bits = {"B": 8, "H": 16, "I": 32, "Q": 64}[t]
+            out.append(draw(st.integers(0, 2**bits - 1)) if draw(st.booleans()) else 0)
+    return out
+
+
+def _pymavlink_message(layout: frames.Layout, values: list):
+    """The pymavlink message with these declared-order values (arrays regrouped)."""
+    cls = mav.mavlink_map[layout.msg_id]
+    args, i = [], 0
+    for name in cls.fieldnames:
+        if f"{name}[0]" in layout.names:
+            n = sum(1 for x in layout.names if x.startswith(f"{name}["))
+            args.append(list(values[i : i + n]))
+            i += n
+        else:
+            args.append(values[i])
+            i += 1
+    return cls(*args)
+
+
+@settings(max_examples=150, deadline=None)
+@given(data=st.data(), seq=st.integers(0, 255), sysid=st.integers(1, 255), compid=st.integers(0, 255))
+def test_frames_are_byte_identical_to_pymavlink_and_read_back_the_same(data, seq, sysid, compid):
+    layout = data.draw(st.sampled_from(LAYOUTS))
+    values = _values(layout, data.draw)
+    ref, ours = mav.MAVLink(_Sink(), sysid, compid), mav.MAVLink(_Sink(), sysid, compid)
+    ref.seq = ours.seq = seq
+    ref.send(_pymavlink_message(layout, values))
+    frame = frames.pack_frame(ours, layout, values)
+    assert frame == ref.file.frames[0]
+    assert ours.seq == ref.seq == (seq + 1) % 256
+
+    (msg_id, s, c, got, raw), *rest = frames.read_datagram(frame, {layout.msg_id: layout})
+    assert not rest and (msg_id, s, c, raw) == (layout.msg_id, sysid, compid, frame)
+    decoded = mav.MAVLink(None, 255, 0).decode(bytearray(frame))
+    flat = []
+    for name in decoded.fieldnames:
+        v = getattr(decoded, name)
+        flat += list(v) if isinstance(v, list) else [v]
+    assert list(got) == flat == values
+
+
+def test_trailing_zero_fields_shorten_the_frame_and_read_back_as_zero():
+    ours = mav.MAVLink(_Sink(), 1, 1)
+    frame = frames.pack_frame(ours, frames.LOCAL_POSITION_NED, (5, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0))
+    assert frame[1] == 8  # time_boot_ms and x: the zeros after them are not sent
+    ((_, _, _, got, _),) = frames.read_datagram(frame, {32: frames.LOCAL_POSITION_NED})
+    assert got == (5, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+
+
+def _two_frames() -> tuple[bytes, bytes]:
+    link = mav.MAVLink(_Sink(), 3, 1)
+    a = frames.pack_frame(link, frames.LOCAL_POSITION_NED, (10, 1.0, 2.0, 3.0, 0.1, 0.2, 0.3))
+    link.heartbeat_send(mav.MAV_TYPE_QUADROTOR, mav.MAV_AUTOPILOT_GENERIC, 0, 0, 0)
+    return a, link.file.frames[0]
+
+
+def test_other_messages_are_handed_back_whole_for_pymavlink():
+    lpos, hb = _two_frames()
+    out = frames.read_datagram(lpos + hb, {32: frames.LOCAL_POSITION_NED})
+    assert [o[0] for o in out] == [32, mav.MAVLINK_MSG_ID_HEARTBEAT]
+    assert out[1][3] is None and out[1][4] == hb
+    assert mav.MAVLink(None, 255, 0).decode(bytearray(out[1][4])).get_type() == "HEARTBEAT"
+
+
+@pytest.mark.parametrize(
+    "mangle",
+    [
+        lambda d: d[:-1],  # truncated
+        lambda d: d[:20] + bytes([d[20] ^ 0xFF]) + d[21:],  # a payload byte flipped: bad CRC
+        lambda d: b"\xfe" + d[1:],  # not a MAVLink 2 start byte
+        lambda d: d[:2] + b"\x01" + d[3:],  # signed (incompat flag): pymavlink's job
+        lambda d: b"garbage" + d,
+        lambda d: d + b"\x00",
+    ],
+)
+def test_anything_but_plain_mavlink2_frames_goes_to_pymavlink(mangle):
+    lpos, hb = _two_frames()
+    assert frames.read_datagram(mangle(lpos + hb), {32: frames.LOCAL_POSITION_NED}) is None
+
+
+def test_pack_frame_leaves_signing_to_pymavlink():
+    link = mav.MAVLink(_Sink(), 1, 1)
+    link.signing.sign_outgoing = True
+    with pytest.raises(ValueError, match="sign"):
+        frames.pack_frame(link, frames.LOCAL_POSITION_NED, (1, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0))
+
+
+@pytest.mark.skipif(os.uname().sysname != "Linux", reason="kernel receive timestamps are Linux only")
+def test_a_udp_link_knows_when_a_sample_arrived_without_reading_it_then():
+    from swarm_sitl.vehicle_link import VehicleLink
+
+    vehicle = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    vehicle.bind(("127.0.0.1", 0))
+    vehicle.settimeout(5)
+    link = VehicleLink(f"udpout:127.0.0.1:{vehicle.getsockname()[1]}", 3)
+    try:
+        assert link.stamps_arrivals
+        link.send_heartbeat_if_due()
+        _, controller_addr = vehicle.recvfrom(512)
+        tx = mav.MAVLink(_Sink(), 3, 1)
+        sample = frames.pack_frame(tx, frames.LOCAL_POSITION_NED, (40, 1.0, 2.0, -3.0, 0.0, 0.0, 0.0))
+        sample += frames.pack_frame(tx, frames.ATTITUDE_QUATERNION, (40, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0))
+        sent = time.monotonic()
+        vehicle.sendto(sample, controller_addr)
+        time.sleep(0.2)  # read long after it arrived
+        link.poll()
+        assert link.sample_ms == 40
+        assert sent - 0.005 <= link.sample_arrival_mono <= sent + 0.1
+        _, p, _, _ = link.sample()
+        assert list(p) == [2.0, 1.0, 3.0]  # NED -> ENU
+    finally:
+        link.close()
+        vehicle.close()
