@@ -47,6 +47,9 @@ CONTROLLER_COLUMNS = [
     *[f"out_{j}" for j in range(OUT_SIZE)],
 ]
 RESEND_AFTER_S = 0.25
+#: lockstep: how long a tick still waits for an estimate from a node whose liveliness token has gone
+#: (its last messages may come after the token's removal) before the run is called stalled
+LOST_GRACE_S = 1.0
 
 
 class NodeReport(NamedTuple):
@@ -98,6 +101,7 @@ class _Inputs:
         self.k = 0
         self.t_ms = 0
         self.need: list[int] = []
+        self._lost_since = math.inf
 
     def read(self) -> None:
         self.bus.poll()
@@ -123,7 +127,7 @@ class _Inputs:
         ]
         if self.link.sample_ms != self.t_ms:
             what.append(f"vehicle sample at {self.t_ms} ms (latest {self.link.sample_ms} ms)")
-        gone = self.bus.lost() & set(self.need)
+        gone = self.bus.lost() & {s for s in self.need if self.bus.estimate(s, k - 1) is None}
         tail = f"; node(s) {sorted(gone)} went away" if gone else ""
         return f"{self.who} at tick {k}: no {', '.join(what)}{tail}"
 
@@ -136,7 +140,15 @@ class _Inputs:
             self.link.send_setpoint(self.last_cmd, self.t_ms - round(self.dt * 1000))
             self.sent_at = time.monotonic()
             self.resends += 1
-        if self.bus.lost() & set(self.need) and not self.ready():
+        # a node that finished its run and exited is gone too: only an estimate that is missing
+        # from a node that is gone stalls the tick
+        lacking = {s for s in self.need if self.bus.estimate(s, self.k - 1) is None}
+        if not lacking & self.bus.lost():
+            self._lost_since = math.inf
+            return
+        now = time.monotonic()
+        self._lost_since = min(self._lost_since, now)
+        if now - self._lost_since > LOST_GRACE_S:
             raise StallError(self.missing())
 
     def block_s(self) -> float:

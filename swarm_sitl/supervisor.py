@@ -36,6 +36,7 @@ from swarm_sitl.config import SwarmConfig
 from swarm_sitl.recording import procs_dir, vehicle_truth_path
 
 TERM_GRACE_S = 5.0
+SUPERVISE_EVERY_S = 0.05  #: how often a run looks at its children (each look polls every one of them)
 _LISTENING = re.compile(r"listening on udp:([0-9.]+):(\d+)")
 
 
@@ -337,7 +338,7 @@ def run_swarm(
             if on_progress is not None and now >= next_progress:
                 on_progress(monitor.min_step(), monitor.errors_m())
                 next_progress = now + 0.25
-            time.sleep(0.01)
+            time.sleep(SUPERVISE_EVERY_S)
         run_wall = time.monotonic() - t_start
         if on_progress is not None:
             on_progress(cfg.n_control_steps, monitor.errors_m())

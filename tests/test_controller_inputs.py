@@ -1,0 +1,69 @@
+"""What a lockstep controller waits for when a neighbour's process is gone (``controller_node``)."""
+
+import numpy as np
+import pytest
+
+from swarm_sitl import controller_node
+from swarm_sitl.controller_node import _Inputs
+from swarm_sitl.follower import EstimateMessage
+from swarm_sitl.node_clock import StallError
+
+pytestmark = pytest.mark.unit
+
+
+class _Bus:
+    def __init__(self) -> None:
+        self.estimates: dict[tuple[int, int], EstimateMessage] = {}
+        self.gone: set[int] = set()
+
+    def estimate(self, src: int, step: int) -> EstimateMessage | None:
+        return self.estimates.get((src, step))
+
+    def lost(self) -> set[int]:
+        return set(self.gone)
+
+
+class _Link:
+    stamps_arrivals = True
+    sample_ms = 90  # the vehicle sample of this tick (100 ms) has not come either
+
+    def fileno(self) -> int:
+        return -1
+
+
+def _waiting_at_tick_10(bus: _Bus) -> _Inputs:
+    io = _Inputs("follower 4", _Link(), bus, [1, 2], 0.01)  # type: ignore[arg-type]
+    io.k, io.t_ms, io.need = 10, 100, [1, 2]
+    return io
+
+
+def _estimate(src: int, step: int) -> EstimateMessage:
+    z = np.zeros(3)
+    return EstimateMessage(src, step, step * 0.01, z, z, z, z)
+
+
+def test_a_neighbour_that_finished_after_sending_what_is_needed_does_not_stall_the_tick(monkeypatch):
+    monkeypatch.setattr(controller_node, "LOST_GRACE_S", -1.0)  # no grace: any stall raises at once
+    bus = _Bus()
+    bus.estimates[(2, 9)] = _estimate(2, 9)
+    bus.gone = {2}  # node 2 ran ahead, finished and exited; node 1's estimate is still on its way
+    _waiting_at_tick_10(bus).idle()
+
+
+def test_a_missing_estimate_from_a_node_that_is_gone_stalls_the_tick_naming_it(monkeypatch):
+    monkeypatch.setattr(controller_node, "LOST_GRACE_S", -1.0)
+    bus = _Bus()
+    bus.estimates[(2, 9)] = _estimate(2, 9)
+    bus.gone = {1, 2}
+    with pytest.raises(StallError, match=r"no estimate of node 1 for tick 9.*node\(s\) \[1\] went away"):
+        _waiting_at_tick_10(bus).idle()
+
+
+def test_a_gone_node_gets_a_grace_period_for_messages_still_in_flight():
+    bus = _Bus()
+    bus.gone = {1}
+    io = _waiting_at_tick_10(bus)
+    io.idle()  # within LOST_GRACE_S of noticing: no error yet
+    bus.estimates[(1, 9)] = _estimate(1, 9)
+    bus.estimates[(2, 9)] = _estimate(2, 9)
+    io.idle()  # it came: nothing is lacking from a node that is gone
