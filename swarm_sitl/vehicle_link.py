@@ -79,6 +79,9 @@ class VehicleLink:
         self.rx_bad = 0
         self._next_hb = 0.0
         self.stamps_arrivals = self._enable_timestamps()
+        # whole frames per read: UDP only (a serial or TCP read can end inside a frame, and
+        # pymavlink's parser keeps the rest for the next read)
+        self._datagrams = isinstance(self.conn, mavutil.mavudp)
 
     def _enable_timestamps(self) -> bool:
         c = self.conn
@@ -130,7 +133,8 @@ class VehicleLink:
                 return n
             if not data:
                 return n
-            fast = frames.read_datagram(data, _FAST_IN) if conn.mav.signing.secret_key is None else None
+            plain = self._datagrams and conn.mav.signing.secret_key is None
+            fast = frames.read_datagram(data, _FAST_IN) if plain else None
             if fast is not None:
                 for msg_id, sysid, compid, values, frame in fast:
                     n += 1
