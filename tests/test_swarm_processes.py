@@ -20,6 +20,11 @@ from swarm_sitl.sim import run_sim
 from tests.conftest import CONFIGS
 
 pytestmark = pytest.mark.system
+# A shell that starts a job in the background ignores SIGINT in it, and an ignored signal stays
+# ignored in every child: the Ctrl-C tests below would then test nothing. Restore the default
+# here; the processes these tests start inherit it.
+signal.signal(signal.SIGINT, signal.default_int_handler)
+
 CLI = [sys.executable, "-m", "swarm_sitl"]
 
 
