@@ -66,10 +66,6 @@ class Layout:
         )
         self._identity = self.wire_of == tuple(range(len(self.wire_of)))
 
-    def index(self, name: str) -> int:
-        """Position of a field in declared-order values (``"q[2]"`` for an array element)."""
-        return self.names.index(name)
-
     def pack_payload(self, values: Sequence[float]) -> bytes:
         v = list(values)
         v += [0] * (len(self.names) - len(v))

@@ -115,19 +115,20 @@ class _Inputs:
             self.offset_s = min(self.offset_s, arrival - self._last_ms / 1000.0)
 
     # -- lockstep --------------------------------------------------------------------------------
+    def _lacking(self) -> list[int]:
+        """The in-neighbours whose estimate of tick ``k - 1`` has not come."""
+        return [s for s in self.need if self.bus.estimate(s, self.k - 1) is None]
+
     def ready(self) -> bool:
-        return self.link.sample_ms == self.t_ms and all(
-            self.bus.estimate(s, self.k - 1) is not None for s in self.need
-        )
+        return self.link.sample_ms == self.t_ms and not self._lacking()
 
     def missing(self) -> str:
         k = self.k
-        what = [
-            f"estimate of node {s} for tick {k - 1}" for s in self.need if self.bus.estimate(s, k - 1) is None
-        ]
+        lacking = self._lacking()
+        what = [f"estimate of node {s} for tick {k - 1}" for s in lacking]
         if self.link.sample_ms != self.t_ms:
             what.append(f"vehicle sample at {self.t_ms} ms (latest {self.link.sample_ms} ms)")
-        gone = self.bus.lost() & {s for s in self.need if self.bus.estimate(s, k - 1) is None}
+        gone = self.bus.lost() & set(lacking)
         tail = f"; node(s) {sorted(gone)} went away" if gone else ""
         return f"{self.who} at tick {k}: no {', '.join(what)}{tail}"
 
@@ -142,8 +143,7 @@ class _Inputs:
             self.resends += 1
         # a node that finished its run and exited is gone too: only an estimate that is missing
         # from a node that is gone stalls the tick
-        lacking = {s for s in self.need if self.bus.estimate(s, self.k - 1) is None}
-        if not lacking & self.bus.lost():
+        if not self.bus.lost() & set(self._lacking()):
             self._lost_since = math.inf
             return
         now = time.monotonic()
@@ -153,7 +153,7 @@ class _Inputs:
 
     def block_s(self) -> float:
         """Poll the bus often only while an estimate is missing; a vehicle sample wakes us itself."""
-        if all(self.bus.estimate(s, self.k - 1) is not None for s in self.need):
+        if not self._lacking():
             return min(RESEND_AFTER_S, 0.05)
         return POLL_S
 
