@@ -54,4 +54,5 @@ def profiled(name: str, body: Callable[[], T]) -> T:
     try:
         return prof.runcall(body)
     finally:
+        os.makedirs(folder, exist_ok=True)
         prof.dump_stats(os.path.join(folder, name.replace(" ", "_") + ".prof"))
