@@ -52,6 +52,7 @@ import numpy as np
 from pymavlink.dialects.v20 import common as mav
 
 from sim_vehicles import mavlink_frames as frames
+from sim_vehicles import udp_arrival
 from sim_vehicles.autopilot import AttitudeCommand, Autopilot
 from sim_vehicles.quaternion import rotation_matrix
 from sim_vehicles.rigid_body import POS, QUAT, RATE, VEL
@@ -96,6 +97,7 @@ class TelemetryRates:
 
 
 MAX_DATAGRAM = 1200  #: bytes; below any loopback or Ethernet MTU
+RX_EVERY_S = 0.01  #: real time, offboard: longest a datagram waits to be read [s]
 
 TRUTH_COLUMNS = ["time_boot_s", "px", "py", "pz", "vx", "vy", "vz", "qw", "qx", "qy", "qz", "wx", "wy", "wz"]
 
@@ -160,6 +162,8 @@ class VehicleEndpoint:
         self.sock.bind(self.bind)
         self.sock.setblocking(False)
         self.address = self.sock.getsockname()
+        #: real time: datagrams carry the kernel's arrival stamp, so the loop may read them late
+        self._stamped = self.lockstep_period_s is None and udp_arrival.enable(self.sock)
         self._sink = _Sink()
         self.mav = mav.MAVLink(self._sink, srcSystem=self.system_id, srcComponent=mav.MAV_COMP_ID_AUTOPILOT1)
         self._parser = mav.MAVLink(None, srcSystem=255, srcComponent=0)
@@ -245,21 +249,27 @@ class VehicleEndpoint:
         return round(self.autopilot.time_s * 1000)
 
     # -- receive ---------------------------------------------------------------------------------
-    def poll(self) -> None:
-        """Handle every datagram waiting on the socket, then send what that produced."""
+    def poll(self, at_arrival: Callable[[float], None] | None = None) -> None:
+        """Handle every datagram waiting on the socket, then send what that produced.
+        ``at_arrival(t)`` runs before each datagram with its arrival [s; ``time.monotonic``]."""
         try:
-            self._receive()
+            self._receive(at_arrival)
         finally:
             self.flush()
 
-    def _receive(self) -> None:
+    def _receive(self, at_arrival: Callable[[float], None] | None) -> None:
+        wall_to_mono = udp_arrival.wall_to_monotonic_s() if self._stamped else 0.0
         while True:
             try:
-                data, addr = self.sock.recvfrom(4096)
-            except BlockingIOError:
+                if self._stamped:
+                    data, addr, arrival = udp_arrival.recv(self.sock, wall_to_mono, 4096)
+                else:
+                    data, addr = self.sock.recvfrom(4096)
+                    arrival = time.monotonic()
+            except OSError:  # BlockingIOError: nothing waits
                 return
-            except OSError:
-                return
+            if at_arrival is not None:
+                at_arrival(arrival)
             new_peer = addr != self.peer
             self.peer = addr
             if new_peer:
@@ -516,12 +526,25 @@ class VehicleEndpoint:
     def run_realtime(self, duration_s: float | None = None, stop: Callable[[], bool] | None = None) -> None:
         """Step with the wall clock (``time.monotonic``) until ``duration_s`` of wall time or ``stop()``.
 
-        The loop sleeps in ``select`` until a datagram arrives or the next telemetry message is due;
-        on waking it first catches the plant up to now under the command it held, then reads."""
+        The plant is caught up to each datagram's arrival before the datagram is handled, so a
+        setpoint takes effect at the attitude step in which it arrived. While setpoints stream in
+        (offboard) and the kernel stamps arrivals (``udp_arrival``), the loop wakes only when a
+        telemetry message or the failsafe is due, or ``RX_EVERY_S`` after its last read, and
+        reads what came in between: one wake-up per period instead of two. Otherwise it also
+        wakes for each datagram."""
         start = time.monotonic()
         dt = self.autopilot.dt_s
         k0 = self.autopilot.step_index
+
+        def catch_up(mono_s: float) -> None:
+            due = k0 + int((mono_s - start) / dt) - self.autopilot.step_index
+            if due > 0:
+                self.step(due)
+
         while True:
+            deferred = self._stamped and self.mode == MODE_OFFBOARD
+            if deferred:
+                self.poll(catch_up)
             now = time.monotonic() - start
             if (duration_s is not None and now >= duration_s) or (stop is not None and stop()):
                 return
@@ -534,12 +557,10 @@ class VehicleEndpoint:
                 continue
             self.heartbeat_tick(start + now)
             wait = min(max(t_next - now, 0.0), 0.05)
-            readable, _, _ = select.select([self.sock], [], [], wait)
-            if readable:
-                due = k0 + int((time.monotonic() - start) / dt) - self.autopilot.step_index
-                if due > 0:
-                    self.step(due)
-                self.poll()
+            if deferred:
+                time.sleep(min(wait, RX_EVERY_S))
+            elif select.select([self.sock], [], [], wait)[0]:
+                self.poll(catch_up)
 
     def run_lockstep(self, stop: Callable[[], bool] | None = None) -> None:
         """Serve setpoints until ``stop()``: simulated time moves only with them (see the module doc)."""

@@ -22,9 +22,6 @@ with ``sim_vehicles.mavlink_frames``; everything else goes through pymavlink.
 
 import math
 import os
-import socket
-import struct
-import sys
 import time
 from typing import Any
 
@@ -34,6 +31,7 @@ import numpy as np
 from pymavlink import mavutil
 
 from sim_vehicles import mavlink_frames as frames
+from sim_vehicles import udp_arrival
 from sim_vehicles.autopilot import AttitudeCommand
 from sim_vehicles.mavlink_endpoint import MODE_OFFBOARD
 from sim_vehicles.wire_format import (
@@ -47,8 +45,6 @@ COMP_ONBOARD = 191  # MAV_COMP_ID_ONBOARD_COMPUTER
 COMP_AUTOPILOT = 1
 IGNORE_NOTHING = 0
 REQUIRED_PARAMS = ("MASS_KG", "MAX_THRUST_N")
-_SO_TIMESTAMPNS = 35  #: Linux; the kernel's receive time of each datagram (CLOCK_REALTIME)
-_TIMESPEC = struct.Struct("qq")
 _LPOS = frames.LOCAL_POSITION_NED
 _ATTQ = frames.ATTITUDE_QUATERNION
 _FAST_IN = {_LPOS.msg_id: _LPOS, _ATTQ.msg_id: _ATTQ}
@@ -85,18 +81,9 @@ class VehicleLink:
 
     def _enable_timestamps(self) -> bool:
         c = self.conn
-        if not (
-            sys.platform.startswith("linux")
-            and isinstance(c, mavutil.mavudp)
-            and not c.udp_server
-            and not c.broadcast
-        ):
+        if not isinstance(c, mavutil.mavudp) or c.udp_server or c.broadcast:
             return False
-        try:
-            c.port.setsockopt(socket.SOL_SOCKET, _SO_TIMESTAMPNS, 1)
-        except OSError:
-            return False
-        return True
+        return udp_arrival.enable(c.port)
 
     def fileno(self) -> int:
         return int(self.conn.fd)
@@ -110,14 +97,10 @@ class VehicleLink:
         if not self.stamps_arrivals:
             return self.conn.recv(), time.monotonic()
         try:
-            data, anc, _flags, _addr = self.conn.port.recvmsg(65535, 64)
+            data, _addr, arrival = udp_arrival.recv(self.conn.port, wall_to_mono)
         except OSError:  # nothing waiting, or the vehicle's port is closed (ICMP unreachable)
             return b"", math.nan
-        for level, kind, raw in anc:
-            if level == socket.SOL_SOCKET and kind == _SO_TIMESTAMPNS and len(raw) >= _TIMESPEC.size:
-                sec, nsec = _TIMESPEC.unpack_from(raw)
-                return data, sec + nsec * 1e-9 + wall_to_mono
-        return data, time.monotonic()
+        return data, arrival
 
     def poll(self) -> int:
         """Read everything waiting; returns the number of messages handled. Bytes go straight to
@@ -125,7 +108,7 @@ class VehicleLink:
         bookkeeping, which this link does not use, costs as much as the parsing."""
         n = 0
         conn = self.conn
-        wall_to_mono = time.monotonic() - time.time()
+        wall_to_mono = udp_arrival.wall_to_monotonic_s()
         while True:
             try:
                 data, arrival = self._recv(wall_to_mono)

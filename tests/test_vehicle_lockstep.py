@@ -1,4 +1,8 @@
-"""The vehicle's lockstep clock, driven over real UDP by a pymavlink client (endpoint in-process)."""
+"""The vehicle's clocks, driven over real UDP by a pymavlink client (endpoint in-process)."""
+
+import sys
+import threading
+import time
 
 import numpy as np
 import pytest
@@ -102,3 +106,50 @@ def test_message_interval_and_request_message(lockstep):
     for k in range(3):
         got = _exchange(ep, conn, _setpoint(conn, 10 * k), "ATTITUDE_QUATERNION")
         assert not any(m.get_type() == "HIGHRES_IMU" for m in got)  # switched off
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="kernel receive timestamps are Linux only")
+def test_real_time_setpoint_acts_from_its_arrival_though_read_later(tmp_path):
+    """In offboard the real-time loop reads its socket only at its own instants (up to
+    ``RX_EVERY_S`` late); the plant must still switch command at the setpoint's arrival. From
+    hover, full thrust gives vz = (T_max/m - g)(t - t_switch): fit t_switch from the true state."""
+    params = VehicleParams(0.85, (0.05, 0.05, 0.09), 25.0)
+    ap = Autopilot(params, AttitudeGains(16.0, 16.0), make_state([0.0, 0.0, 50.0]), 0.001)
+    ep = VehicleEndpoint(ap, 7, truth_path=tmp_path / "truth.rows")
+    conn = mavutil.mavlink_connection(
+        f"udpout:127.0.0.1:{ep.address[1]}", source_system=7, source_component=191
+    )
+    hover = params.hover_thrust_N / params.max_thrust_N
+    try:
+        assert ep._stamped
+        conn.mav.command_long_send(7, 1, mav.MAV_CMD_COMPONENT_ARM_DISARM, 0, 1, 0, 0, 0, 0, 0, 0)
+        conn.mav.command_long_send(7, 1, mav.MAV_CMD_DO_SET_MODE, 0, 1, 1, 0, 0, 0, 0, 0)
+        ep.poll()
+        assert ep.armed and ep.mode == 1
+        started = []  # the loop's own start, on its thread, right before its clock starts
+        loop = threading.Thread(target=lambda: (started.append(time.monotonic()), ep.run_realtime(0.6)))
+        loop.start()
+        while not started:
+            time.sleep(0.001)
+        start = started[0]
+        sent = []
+        for i in range(40):  # hover, then full thrust from the 21st setpoint on, every 10 ms
+            time.sleep(0.01)
+            if i == 20:
+                sent.append(time.monotonic() - start)
+            conn.mav.set_attitude_target_send(0, 7, 1, 0, [1.0, 0, 0, 0], 0, 0, 0, 1.0 if i >= 20 else hover)
+        loop.join(5)
+        assert not loop.is_alive()
+    finally:
+        conn.close()
+        ep.close()
+    _, truth = read_rows(tmp_path / "truth.rows")
+    t, vz = truth[:, 0], truth[:, 6]
+    climbing = vz > 1e-3
+    # before: hovering (to float32 rounding of the normalised hover thrust)
+    assert climbing.sum() >= 5 and np.all(np.abs(vz[t < sent[0] - 0.002]) < 1e-5)
+    a = params.max_thrust_N / params.mass_kg - params.g_mps2
+    t_switch = np.median(t[climbing] - vz[climbing] / a)
+    # it acts from the start of the attitude step (1 ms) it arrived in, after loopback delivery; a
+    # read at the loop's next instant instead of the arrival would be up to RX_EVERY_S late
+    assert sent[0] - 0.0012 <= t_switch <= sent[0] + 0.002, (t_switch, sent[0])

@@ -1,0 +1,53 @@
+"""When each UDP datagram arrived, as the kernel saw it (Linux ``SO_TIMESTAMPNS``).
+
+A real-time loop that reads its socket at its own instants, instead of waking up for every
+datagram, still knows when each datagram came: the kernel stamps it on receipt. Both ends of the
+vehicle link use this: the controller to date its vehicle's samples, the vehicle to apply each
+setpoint at the instant it arrived.
+
+Stamps are on ``time.monotonic``'s clock (the kernel's are CLOCK_REALTIME; ``wall_to_monotonic_s``
+converts). Where the option is missing (not Linux), ``enable`` says so and a caller falls back to
+reading datagrams as they come.
+"""
+
+import math
+import socket
+import struct
+import sys
+import time
+from typing import Any
+
+SO_TIMESTAMPNS = 35  #: Linux's value (the ``socket`` module does not export it)
+_TIMESPEC = struct.Struct("qq")
+_ANCILLARY_BYTES = 64
+
+
+def enable(sock: socket.socket) -> bool:
+    """Ask the kernel to stamp each datagram ``sock`` receives; ``False`` where it cannot."""
+    if not sys.platform.startswith("linux") or sock.type != socket.SOCK_DGRAM:
+        return False
+    try:
+        sock.setsockopt(socket.SOL_SOCKET, SO_TIMESTAMPNS, 1)
+    except OSError:
+        return False
+    return True
+
+
+def wall_to_monotonic_s() -> float:
+    """Add to a CLOCK_REALTIME instant to get the ``time.monotonic`` instant (read it once per
+    batch of datagrams: the two clocks drift apart only slowly)."""
+    return time.monotonic() - time.time()
+
+
+def recv(sock: socket.socket, wall_to_mono_s: float, bufsize: int = 65535) -> tuple[bytes, Any, float]:
+    """One datagram, its sender and its arrival [s; ``time.monotonic``]. Raises what ``recvmsg``
+    raises (``BlockingIOError`` when nothing waits on a non-blocking socket). A datagram without a
+    stamp is dated now."""
+    data, ancillary, _flags, addr = sock.recvmsg(bufsize, _ANCILLARY_BYTES)
+    for level, kind, raw in ancillary:
+        if level == socket.SOL_SOCKET and kind == SO_TIMESTAMPNS and len(raw) >= _TIMESPEC.size:
+            sec, nsec = _TIMESPEC.unpack_from(raw)
+            arrival = sec + nsec * 1e-9 + wall_to_mono_s
+            if math.isfinite(arrival):
+                return data, addr, arrival
+    return data, addr, time.monotonic()
