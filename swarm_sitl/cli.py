@@ -59,10 +59,16 @@ def _summary_lines(summary: dict) -> list[str]:
     def fmt(x: float | None, unit: str) -> str:
         return "never" if x is None else f"{x:.4g} {unit}"
 
+    after = f"after {s['settle_from_s']:.0f} s"
+    if s["peak_pos_err_after_settle_m"] is None:  # the run ended before
+        peaks = f"no peak {after} (the run is shorter)"
+    else:
+        peaks = (
+            f"peak {after} {s['peak_pos_err_after_settle_m']:.3g} m; "
+            f"velocity error peak {after} {s['peak_vel_err_after_settle_mps']:.3g} m/s"
+        )
     lines = [
-        f"  formation error |p - p_r - delta|: final {s['final_pos_err_m']:.3g} m, "
-        f"peak after {s['settle_from_s']:.0f} s {s['peak_pos_err_after_settle_m']:.3g} m; "
-        f"velocity error peak after {s['settle_from_s']:.0f} s {s['peak_vel_err_after_settle_mps']:.3g} m/s",
+        f"  formation error |p - p_r - delta|: final {s['final_pos_err_m']:.3g} m, {peaks}",
         f"  converged below 0.1 m at {fmt(s['time_to_0.1m_s'], 's')}, below 0.01 m at "
         f"{fmt(s['time_to_0.01m_s'], 's')}",
         f"  min u_z {s['min_u_z_mps2']:.3f} m/s^2 (floor g - k_gamma - 2 k_eta = {s['u_z_floor_mps2']:.3f}); "

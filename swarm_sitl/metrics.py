@@ -33,8 +33,8 @@ def summarize(
     uz_floor = g_mps2 - k_gamma - 2 * k_eta
     worst: dict[str, Any] = {
         "final_pos_err_m": 0.0,
-        "peak_pos_err_after_settle_m": 0.0,
-        "peak_vel_err_after_settle_mps": 0.0,
+        "peak_pos_err_after_settle_m": None,  # None: no follower recorded past settle_from_s
+        "peak_vel_err_after_settle_mps": None,
         "min_u_z_mps2": np.inf,
         "max_thrust_over_bound": -np.inf,
         "time_to_0.1m_s": 0.0,
@@ -69,13 +69,9 @@ def summarize(
         }
         out["followers"][str(i)] = f
         worst["final_pos_err_m"] = max(worst["final_pos_err_m"], f["final_pos_err_m"])
-        if f["peak_pos_err_after_settle_m"] is not None:
-            worst["peak_pos_err_after_settle_m"] = max(
-                worst["peak_pos_err_after_settle_m"], f["peak_pos_err_after_settle_m"]
-            )
-            worst["peak_vel_err_after_settle_mps"] = max(
-                worst["peak_vel_err_after_settle_mps"], f["peak_vel_err_after_settle_mps"]
-            )
+        for key in ("peak_pos_err_after_settle_m", "peak_vel_err_after_settle_mps"):
+            if f[key] is not None:
+                worst[key] = f[key] if worst[key] is None else max(worst[key], f[key])
         worst["min_u_z_mps2"] = min(worst["min_u_z_mps2"], f["min_u_z_mps2"])
         worst["max_thrust_over_bound"] = max(worst["max_thrust_over_bound"], f["max_thrust_N"] / t_bound)
         for key in ("time_to_0.1m_s", "time_to_0.01m_s"):

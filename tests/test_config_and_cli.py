@@ -1,5 +1,6 @@
 """Config validation (one clear line per mistake) and the CLI."""
 
+import json
 import subprocess
 import sys
 from pathlib import Path
@@ -120,6 +121,9 @@ def test_sim_writes_a_run_directory_and_plot_draws_it(tmp_path):
         check=True,
     )
     assert "3 s simulated" in r.stdout
+    assert "no peak after 20 s (the run is shorter)" in r.stdout  # not a peak of 0 m
+    swarm = json.loads((run / "summary.json").read_text())["swarm"]
+    assert swarm["peak_pos_err_after_settle_m"] is None and swarm["final_pos_err_m"] > 0
     for name in ("config.yaml", "leader.npz", "summary.json", *(f"follower_{i}.npz" for i in range(1, 5))):
         assert (run / name).is_file(), name
     f1 = np.load(run / "follower_1.npz")
