@@ -265,7 +265,7 @@ class VehicleEndpoint:
                     data, addr, arrival = udp_arrival.recv(self.sock, wall_to_mono, 4096)
                 else:
                     data, addr = self.sock.recvfrom(4096)
-                    arrival = time.monotonic()
+                    arrival = 0.0 if at_arrival is None else time.monotonic()  # unstamped: read now
             except OSError:  # BlockingIOError: nothing waits
                 return
             if at_arrival is not None:
