@@ -10,7 +10,6 @@ converts). Where the option is missing (not Linux), ``enable`` says so and a cal
 reading datagrams as they come.
 """
 
-import math
 import socket
 import struct
 import sys
@@ -47,7 +46,5 @@ def recv(sock: socket.socket, wall_to_mono_s: float, bufsize: int = 65535) -> tu
     for level, kind, raw in ancillary:
         if level == socket.SOL_SOCKET and kind == SO_TIMESTAMPNS and len(raw) >= _TIMESPEC.size:
             sec, nsec = _TIMESPEC.unpack_from(raw)
-            arrival = sec + nsec * 1e-9 + wall_to_mono_s
-            if math.isfinite(arrival):
-                return data, addr, arrival
+            return data, addr, sec + nsec * 1e-9 + wall_to_mono_s
     return data, addr, time.monotonic()
