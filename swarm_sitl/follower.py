@@ -26,7 +26,6 @@ from typing import NamedTuple
 import numpy as np
 
 from sim_vehicles.autopilot import AttitudeCommand
-from sim_vehicles.quaternion import body_z_axis
 from swarm_sitl.command_attitude import SingularCommandError
 from swarm_sitl.follower_law import (
     CTRL_SIZE,
@@ -38,9 +37,11 @@ from swarm_sitl.follower_law import (
     OUT_OMEGADOT_C,
     OUT_Q_C,
     OUT_THRUST,
+    TICK_ACC,
+    TICK_OUT,
+    TICK_STATE,
     ControlGains,
-    controller_advance,
-    controller_output,
+    controller_tick,
 )
 from swarm_sitl.trajectories import Trajectory
 
@@ -139,45 +140,37 @@ class FollowerController:
         g = self.gains
         prev = self._prev_sample
         before = self.state
+        n_sub = 0
+        veh = sample if prev is None else prev
         if prev is not None:
             # from the previous tick to this one, at the configured internal step however long the
             # gap (a real-time tick skipped under load must not stretch the RK4 step)
-            periods = max(1, round((t - self._prev_t) / self.dt_s))
-            self.state = controller_advance(
-                self.state,
-                self._prev_t,
-                t - self._prev_t,
-                self.substeps * periods,
-                msgs,
-                self.hold,
-                prev.t_s,
-                prev.p_W,
-                prev.v_W,
-                self._prev_acc,
-                self.offset,
-                g,
-            )
-        p_W, v_W = sample.p_W, sample.v_W
+            n_sub = self.substeps * max(1, round((t - self._prev_t) / self.dt_s))
         age = t - sample.t_s
-        if age > 0.0 and self.hold == HOLD_EXTRAPOLATE and prev is not None:
-            # real time: the sample is older than the tick; carry it to t_k under the acceleration
-            # commanded since the last tick (as messages are carried by their age)
-            a = self._prev_acc
-            p_W = p_W + v_W * age + 0.5 * a * age * age
-            v_W = v_W + a * age
-        out = controller_output(
+        if not (age > 0.0 and self.hold == HOLD_EXTRAPOLATE and prev is not None):
+            age = 0.0  # real time: a sample older than the tick is carried to t_k under the
+            # acceleration commanded since the last tick (as messages are carried by their age)
+        res = controller_tick(
             self.state,
+            self._prev_t,
             t,
+            n_sub,
             msgs,
             self.hold,
-            p_W,
-            v_W,
+            veh.t_s,
+            veh.p_W,
+            veh.v_W,
+            self._prev_acc,
+            sample.p_W,
+            sample.v_W,
             sample.q_WB,
-            self._zero3,
-            False,
+            age,
             self.offset,
             g,
+            self.max_thrust_N,
         )
+        self.state = res[TICK_STATE]
+        out = res[TICK_OUT]
         if not math.isfinite(out.sum()):
             ages = ", ".join(f"{t - r[1]:.3f}" for r in msgs)
             err = SingularCommandError(
@@ -198,12 +191,9 @@ class FollowerController:
             }
             raise err
         thrust = float(out[OUT_THRUST])
-        applied = min(thrust, self.max_thrust_N)
-        acc = applied / g.mass_kg * body_z_axis(sample.q_WB)
-        acc[2] -= g.g_mps2
         self._prev_sample = sample
         self._prev_t = t
-        self._prev_acc = acc
+        self._prev_acc = res[TICK_ACC]
         cmd = AttitudeCommand(
             q_c=out[OUT_Q_C], thrust_N=thrust, omega_c_B=out[OUT_OMEGA_C], omegadot_c_B=out[OUT_OMEGADOT_C]
         )

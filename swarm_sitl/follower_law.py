@@ -172,3 +172,37 @@ def controller_output(xc, t, msgs, hold, p, v, q_WB, a_given, use_a_given, offse
     out[23:26] = a_hat_dot
     out[26:29] = acc
     return out
+
+
+TICK_STATE = slice(0, CTRL_SIZE)
+TICK_OUT = slice(CTRL_SIZE, CTRL_SIZE + OUT_SIZE)
+TICK_ACC = slice(CTRL_SIZE + OUT_SIZE, CTRL_SIZE + OUT_SIZE + 3)
+TICK_SIZE = CTRL_SIZE + OUT_SIZE + 3
+
+
+@kernel
+def controller_tick(
+    xc, t_prev, t, n_sub, msgs, hold, veh_t, veh_p, veh_v, veh_a, p, v, q_WB, age, offset, gains, max_thrust_N
+):
+    """One control tick in one call: ``controller_advance`` from ``t_prev`` to ``t`` (none if
+    ``n_sub`` is 0), ``controller_output`` at ``t`` for the sample ``(p, v, q_WB)`` carried by
+    ``age`` under ``veh_a`` (0: taken at ``t``), and the acceleration the command gives once the
+    thrust is limited to ``max_thrust_N``. Returns ``[state | output | acceleration]``
+    (``TICK_*``): one call and one array per tick, where a loaded machine charges per call."""
+    res = np.empty(TICK_SIZE)
+    if n_sub > 0:
+        dt = t - t_prev
+        x = controller_advance(xc, t_prev, dt, n_sub, msgs, hold, veh_t, veh_p, veh_v, veh_a, offset, gains)
+    else:
+        x = xc.copy()
+    if age > 0.0:
+        p = p + v * age + 0.5 * veh_a * age * age
+        v = v + veh_a * age
+    out = controller_output(x, t, msgs, hold, p, v, q_WB, veh_a, False, offset, gains)
+    applied = min(out[OUT_THRUST], max_thrust_N)
+    acc = (applied / gains.mass_kg) * body_z_axis(q_WB)
+    acc[2] -= gains.g_mps2
+    res[0:CTRL_SIZE] = x
+    res[CTRL_SIZE : CTRL_SIZE + OUT_SIZE] = out
+    res[CTRL_SIZE + OUT_SIZE :] = acc
+    return res
