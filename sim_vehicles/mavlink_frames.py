@@ -22,10 +22,12 @@ Signing: ``pack_frame`` refuses (``ValueError``) a ``mav`` that signs outgoing f
 callers must not use ``read_datagram`` on a link that checks signatures; both are pymavlink's job.
 """
 
+import operator
 import struct
 from collections.abc import Sequence
 from typing import Any
 
+from fastcrc import crc16
 from pymavlink.dialects.v20 import common as mav
 
 MAGIC_V2 = 0xFD
@@ -65,12 +67,15 @@ class Layout:
             sorted(range(len(self.wire_of)), key=lambda d: self.wire_of[d])
         )
         self._identity = self.wire_of == tuple(range(len(self.wire_of)))
+        self._to_wire = operator.itemgetter(*self.declared_of)
+        self._to_declared = operator.itemgetter(*self.wire_of)
 
     def pack_payload(self, values: Sequence[float]) -> bytes:
-        v = list(values)
-        v += [0] * (len(self.names) - len(v))
+        v = tuple(values)
+        if len(v) < len(self.names):
+            v += (0,) * (len(self.names) - len(v))
         if not self._identity:
-            v = [v[d] for d in self.declared_of]
+            v = self._to_wire(v)
         return self.struct.pack(*v)
 
     def unpack_payload(self, payload: bytes) -> tuple:
@@ -80,7 +85,7 @@ class Layout:
         w = self.struct.unpack_from(payload)
         if self._identity:
             return w
-        return tuple(w[i] for i in self.wire_of)
+        return self._to_declared(w)
 
 
 LOCAL_POSITION_NED = Layout(mav.MAVLink_local_position_ned_message)
@@ -92,9 +97,9 @@ SET_ATTITUDE_TARGET = Layout(mav.MAVLink_set_attitude_target_message)
 
 
 def _crc(body: bytes, crc_extra: bytes) -> int:
-    c = mav.x25crc(body)
-    c.accumulate(crc_extra)
-    return int(c.crc)
+    """MAVLink's X.25 CRC (CRC-16/MCRF4XX) of ``body`` and the message's CRC extra: the C routine
+    pymavlink itself uses, called without its per-call wrapper object."""
+    return int(crc16.mcrf4xx(crc_extra, crc16.mcrf4xx(body, 0xFFFF)))
 
 
 def pack_frame(link: Any, layout: Layout, values: Sequence[float]) -> bytes:
@@ -113,6 +118,16 @@ def pack_frame(link: Any, layout: Layout, values: Sequence[float]) -> bytes:
     link.total_packets_sent += 1
     link.total_bytes_sent += len(frame)
     return frame
+
+
+def crc_ok(frame: bytes) -> bool:
+    """Whether a plain MAVLink 2 frame (as ``read_datagram`` returns it) of any message of the
+    common set has a valid CRC: what a receiver that ignores the message still checks, to count it."""
+    msg_id = frame[7] | (frame[8] << 8) | (frame[9] << 16)
+    cls = mav.mavlink_map.get(msg_id)
+    if cls is None:
+        return False
+    return _CRC.unpack_from(frame, len(frame) - 2)[0] == _crc(frame[1:-2], bytes([cls.crc_extra]))
 
 
 Frame = tuple[int, int, int, tuple | None, bytes]
