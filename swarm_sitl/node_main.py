@@ -70,7 +70,7 @@ def cmd_controller(cfg: SwarmConfig, args: argparse.Namespace) -> int:
                 path = controller_rows_path(Path(args.out), i)
                 path.parent.mkdir(parents=True, exist_ok=True)
                 rows = RowLog(path, CONTROLLER_COLUMNS)
-            link = VehicleLink(args.mavlink, i)
+            link = VehicleLink(args.mavlink, i, stamp_arrivals=not args.lockstep)
             session = _session(cfg, args.connect)
             bus = ZenohNodeBus(
                 session,

@@ -170,3 +170,36 @@ def test_a_udp_link_knows_when_a_sample_arrived_without_reading_it_then():
     finally:
         link.close()
         vehicle.close()
+
+
+def test_a_link_checks_the_telemetry_it_ignores_and_counts_what_is_bad():
+    """The controller's link decodes only the messages it uses; a frame it skips still has its
+    CRC checked, and a bad one (or an unknown message) is counted, as pymavlink's parser would."""
+    from swarm_sitl.vehicle_link import VehicleLink
+
+    vehicle = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    vehicle.bind(("127.0.0.1", 0))
+    vehicle.settimeout(5)
+    link = VehicleLink(f"udpout:127.0.0.1:{vehicle.getsockname()[1]}", 3, stamp_arrivals=False)
+    try:
+        assert not link.stamps_arrivals
+        link.send_heartbeat_if_due()
+        _, controller_addr = vehicle.recvfrom(512)
+        tx = mav.MAVLink(_Sink(), 3, 1)
+        sample = frames.pack_frame(tx, frames.LOCAL_POSITION_NED, (40, 1.0, 2.0, -3.0, 0.0, 0.0, 0.0))
+        sample += frames.pack_frame(tx, frames.ATTITUDE_QUATERNION, (40, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0))
+        attitude = frames.pack_frame(tx, frames.ATTITUDE, (40, 0.1, 0.2, 0.3, 0.0, 0.0, 0.0))
+        corrupted = attitude[:-1] + bytes([attitude[-1] ^ 0xFF])
+        unknown = bytearray(attitude)
+        unknown[7:10] = (60000).to_bytes(3, "little")  # no such message in the common set
+        for extra, bad in ((attitude, 0), (corrupted, 1), (bytes(unknown), 1)):
+            before = link.rx_bad
+            vehicle.sendto(sample + extra, controller_addr)
+            deadline = time.monotonic() + 5
+            while link.poll() == 0 and time.monotonic() < deadline:
+                time.sleep(0.01)
+            assert link.sample_ms == 40
+            assert link.rx_bad - before == bad
+    finally:
+        link.close()
+        vehicle.close()
