@@ -72,6 +72,8 @@ def _kernel_arg(v: np.ndarray) -> np.ndarray:
     """A writable C-contiguous float64 array: one compiled signature of the kernel whatever the
     command's arrays are (the read-only default rates would otherwise compile a second one in
     every vehicle process)."""
+    if type(v) is np.ndarray and v.dtype == np.float64 and v.flags.c_contiguous and v.flags.writeable:
+        return v  # already so (what the MAVLink endpoint decodes): no call into np.require
     return np.require(v, dtype=float, requirements=["C", "W"])
 
 

@@ -203,9 +203,14 @@ class VehicleEndpoint:
         }
 
     # -- I/O -------------------------------------------------------------------------------------
-    def _log(self, frame: bytes) -> None:
+    def _log(self, frame: bytes, stamp: bytes | None = None) -> None:
+        """One frame into the ``.tlog``, after ``stamp`` (``_tlog_stamp()``; now if not given)."""
         if self._tlog is not None:
-            self._tlog.write(struct.pack(">Q", int(time.time() * 1e6)) + frame)
+            self._tlog.write((stamp or self._tlog_stamp()) + frame)
+
+    @staticmethod
+    def _tlog_stamp() -> bytes:
+        return struct.pack(">Q", int(time.time() * 1e6))
 
     def _send(self, msg: Any) -> None:
         """Queue one message; ``flush`` sends what is queued."""
@@ -222,8 +227,9 @@ class VehicleEndpoint:
         frames = self._sink.frames
         if not frames:
             return
+        stamp = self._tlog_stamp()
         for frame in frames:
-            self._log(frame)
+            self._log(frame, stamp)
         if self.peer is not None:
             self.stats.tx_messages += len(frames)
             packet = b""
@@ -431,20 +437,18 @@ class VehicleEndpoint:
         self._stream()
         self.flush()
 
-    def _due(self, msg_id: int) -> bool:
-        """Each stream is sent on its own grid of multiples of its period in boot time, so streams
+    def _due_at(self, msg_id: int, t: float) -> float:
+        """When stream ``msg_id`` is next due (inf: off); if it is due at ``t``, send it first.
+        Each stream is sent on its own grid of multiples of its period in boot time, so streams
         of the same rate (LOCAL_POSITION_NED and ATTITUDE_QUATERNION) always share their instants."""
         rate_hz = self._rate_hz[msg_id]
-        t = self.autopilot.time_s
-        if rate_hz <= 0 or t + 1e-9 < self._next_send.get(msg_id, 0.0):
-            return False
-        self._next_send[msg_id] = (math.floor(t * rate_hz + 1e-6) + 1) / rate_hz
-        return True
-
-    def next_stream_s(self) -> float:
-        """Simulated time at which the next telemetry message is due."""
-        nxt = [self._next_send.get(i, 0.0) for i, r in self._rate_hz.items() if r > 0]
-        return min(nxt) if nxt else math.inf
+        if rate_hz <= 0:
+            return math.inf
+        at = self._next_send.get(msg_id, 0.0)
+        if t + 1e-9 >= at:
+            at = self._next_send[msg_id] = (math.floor(t * rate_hz + 1e-6) + 1) / rate_hz
+            self._senders[msg_id](round(t * 1000))
+        return at
 
     def send_heartbeat(self) -> None:
         base = mav.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | (mav.MAV_MODE_FLAG_SAFETY_ARMED if self.armed else 0)
@@ -467,13 +471,10 @@ class VehicleEndpoint:
             self.flush()
 
     def _stream(self) -> None:
-        if self.autopilot.time_s + 1e-9 < self._next_any_s:
+        t = self.autopilot.time_s
+        if t + 1e-9 < self._next_any_s:
             return
-        ms = self.time_boot_ms
-        for msg_id, send in self._senders.items():
-            if self._due(msg_id):
-                send(ms)
-        self._next_any_s = self.next_stream_s()
+        self._next_any_s = min([self._due_at(msg_id, t) for msg_id in self._senders])
 
     def _attq_fields(self, ms: int) -> tuple[float, ...]:
         """ATTITUDE_QUATERNION fields of the current state, encoded once per instant."""
