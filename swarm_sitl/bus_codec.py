@@ -34,33 +34,37 @@ class Status(NamedTuple):
     p_W: np.ndarray  #: vehicle position as sampled [m; ENU]
 
 
-def _check(data: bytes, layout: struct.Struct, what: str) -> tuple:
+def _check(data: bytes, layout: struct.Struct, what: str, first_float: int) -> tuple:
+    """The fields of ``data``; every field from ``first_float`` on is a float and must be finite."""
     if len(data) != layout.size:
         raise PayloadError(f"{what} payload has {len(data)} bytes, expected {layout.size}")
     fields = layout.unpack(data)
     if fields[0] != VERSION:
         raise PayloadError(f"{what} payload version {fields[0]}, expected {VERSION}")
-    if not all(math.isfinite(x) for x in fields if isinstance(x, float)):
+    if not all(map(math.isfinite, fields[first_float:])):
         raise PayloadError(f"{what} payload has a non-finite value")
     return fields
 
 
 def encode_estimate(m: EstimateMessage) -> bytes:
-    return _EST.pack(VERSION, m.src, m.step, m.t_s, *m.p_hat, *m.v_hat, *m.a_hat, *m.a_hat_dot)
+    # ``tolist``: one call per array instead of a numpy scalar per element
+    values = (*m.p_hat.tolist(), *m.v_hat.tolist(), *m.a_hat.tolist(), *m.a_hat_dot.tolist())
+    return _EST.pack(VERSION, m.src, m.step, m.t_s, *values)
 
 
 def decode_estimate(data: bytes) -> EstimateMessage:
-    f = _check(data, _EST, "estimate")
+    f = _check(data, _EST, "estimate", 3)
     v = np.array(f[4:16])
     return EstimateMessage(f[1], f[2], f[3], v[0:3], v[3:6], v[6:9], v[9:12])
 
 
 def encode_status(s: Status) -> bytes:
-    return _STATUS.pack(VERSION, s.follower, s.step, s.t_s, s.sample_t_s, *s.p_W)
+    p = np.asarray(s.p_W, dtype=float).tolist()
+    return _STATUS.pack(VERSION, s.follower, s.step, s.t_s, s.sample_t_s, *p)
 
 
 def decode_status(data: bytes) -> Status:
-    f = _check(data, _STATUS, "status")
+    f = _check(data, _STATUS, "status", 3)
     return Status(f[1], f[2], f[3], f[4], np.array(f[5:8]))
 
 
@@ -69,4 +73,4 @@ def encode_start(epoch_unix_s: float) -> bytes:
 
 
 def decode_start(data: bytes) -> float:
-    return float(_check(data, _START, "start")[1])
+    return float(_check(data, _START, "start", 1)[1])
