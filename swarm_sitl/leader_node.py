@@ -15,7 +15,12 @@ from swarm_sitl.controller_node import NodeReport, wait_for_start
 from swarm_sitl.follower import EstimateMessage
 from swarm_sitl.node_clock import sleep_until, wait_until, wall_epoch_to_monotonic
 
-LEADER_POLL_S = 0.002  #: lockstep: the leader is up to ``lockstep_window`` ticks ahead, no hurry
+#: lockstep: how long the leader sleeps when it is ``lockstep_window`` ticks ahead of a follower.
+#: Long enough that it wakes a few times per window, not per tick, and publishes the ticks it may
+#: then run in one burst (zenoh sends them in one batch, each follower reads them in one wake-up);
+#: short enough that followers never wait for it below 5000 ticks/s (the default window of 50
+#: ticks lasts 10 ms at that rate).
+LEADER_POLL_S = 0.01
 
 
 def run_leader(cfg: SwarmConfig, bus: NodeBus, lockstep: bool, out_neighbours: list[int]) -> NodeReport:
