@@ -113,7 +113,6 @@ class FollowerController:
         self._prev_sample: VehicleSample | None = None
         self._prev_t = 0.0
         self._prev_acc = np.zeros(3)
-        self._zero3 = np.zeros(3)
         self._all_rows = np.empty((len(self.in_edges), MSG_COLS))
 
     def _rows(self, inbox: Mapping[int, EstimateMessage]) -> np.ndarray:
@@ -146,10 +145,11 @@ class FollowerController:
             # from the previous tick to this one, at the configured internal step however long the
             # gap (a real-time tick skipped under load must not stretch the RK4 step)
             n_sub = self.substeps * max(1, round((t - self._prev_t) / self.dt_s))
+        # real time: a sample older than the tick is carried to t_k under the acceleration
+        # commanded since the last tick (as messages are carried by their age); else taken as is
         age = t - sample.t_s
         if not (age > 0.0 and self.hold == HOLD_EXTRAPOLATE and prev is not None):
-            age = 0.0  # real time: a sample older than the tick is carried to t_k under the
-            # acceleration commanded since the last tick (as messages are carried by their age)
+            age = 0.0
         res = controller_tick(
             self.state,
             self._prev_t,
