@@ -120,14 +120,17 @@ def pack_frame(link: Any, layout: Layout, values: Sequence[float]) -> bytes:
     return frame
 
 
+def _crc_matches(frame: bytes, crc_extra: bytes) -> bool:
+    """Whether the CRC a whole frame ends with is the one its bytes and ``crc_extra`` give."""
+    return bool(_CRC.unpack_from(frame, len(frame) - 2)[0] == _crc(frame[1:-2], crc_extra))
+
+
 def crc_ok(frame: bytes) -> bool:
     """Whether a plain MAVLink 2 frame (as ``read_datagram`` returns it) of any message of the
     common set has a valid CRC: what a receiver that ignores the message still checks, to count it."""
     msg_id = frame[7] | (frame[8] << 8) | (frame[9] << 16)
     cls = mav.mavlink_map.get(msg_id)
-    if cls is None:
-        return False
-    return _CRC.unpack_from(frame, len(frame) - 2)[0] == _crc(frame[1:-2], bytes([cls.crc_extra]))
+    return cls is not None and _crc_matches(frame, bytes([cls.crc_extra]))
 
 
 Frame = tuple[int, int, int, tuple | None, bytes]
@@ -152,7 +155,7 @@ def read_datagram(data: bytes, layouts: dict[int, Layout]) -> list[Frame] | None
         if layout is None:
             out.append((msg_id, sysid, compid, None, frame))
         else:
-            if _CRC.unpack_from(frame, len(frame) - 2)[0] != _crc(frame[1:-2], layout.crc_extra):
+            if not _crc_matches(frame, layout.crc_extra):
                 return None
             out.append((msg_id, sysid, compid, layout.unpack_payload(frame[_HEADER_LEN:-2]), frame))
         i = end

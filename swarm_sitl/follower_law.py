@@ -194,7 +194,7 @@ def controller_tick(
         dt = t - t_prev
         x = controller_advance(xc, t_prev, dt, n_sub, msgs, hold, veh_t, veh_p, veh_v, veh_a, offset, gains)
     else:
-        x = xc.copy()
+        x = xc  # copied into the result below, never written
     if age > 0.0:
         p = p + v * age + 0.5 * veh_a * age * age
         v = v + veh_a * age

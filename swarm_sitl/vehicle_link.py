@@ -126,10 +126,11 @@ class VehicleLink:
             if fast is not None:
                 for msg_id, sysid, compid, values, frame in fast:
                     n += 1
-                    if values is None and msg_id not in _HANDLED:
-                        if not frames.crc_ok(frame):
-                            self.rx_bad += 1
-                    elif values is None:
+                    if values is None:
+                        if msg_id not in _HANDLED:  # checked and counted, not decoded
+                            if not frames.crc_ok(frame):
+                                self.rx_bad += 1
+                            continue
                         try:
                             self._handle(conn.mav.decode(bytearray(frame)), arrival)
                         except Exception:  # pymavlink's own errors and struct errors: drop, count
