@@ -164,6 +164,7 @@ class VehicleEndpoint:
         self.address = self.sock.getsockname()
         #: real time: datagrams carry the kernel's arrival stamp, so the loop may read them late
         self._stamped = self.lockstep_period_s is None and udp_arrival.enable(self.sock)
+        self._waiting = udp_arrival.Waiting(self.sock)
         self._sink = _Sink()
         self.mav = mav.MAVLink(self._sink, srcSystem=self.system_id, srcComponent=mav.MAV_COMP_ID_AUTOPILOT1)
         self._parser = mav.MAVLink(None, srcSystem=255, srcComponent=0)
@@ -265,14 +266,14 @@ class VehicleEndpoint:
 
     def _receive(self, at_arrival: Callable[[float], None] | None) -> None:
         wall_to_mono = udp_arrival.wall_to_monotonic_s() if self._stamped else 0.0
-        while True:
+        while self._waiting():
             try:
                 if self._stamped:
                     data, addr, arrival = udp_arrival.recv(self.sock, wall_to_mono, 4096)
                 else:
                     data, addr = self.sock.recvfrom(4096)
                     arrival = 0.0 if at_arrival is None else time.monotonic()  # unstamped: read now
-            except OSError:  # BlockingIOError: nothing waits
+            except OSError:  # an ICMP error, or nothing after all
                 return
             if at_arrival is not None:
                 at_arrival(arrival)

@@ -5,11 +5,17 @@ datagram, still knows when each datagram came: the kernel stamps it on receipt. 
 vehicle link use this: the controller to date its vehicle's samples, the vehicle to apply each
 setpoint at the instant it arrived.
 
+``Waiting(sock)`` says whether a datagram waits, so a loop that drains its socket stops on a
+``poll(2)`` that returns nothing instead of on the ``BlockingIOError`` of a read that finds
+nothing. Building that exception (its message from ``strerror``, decoded) is what such a read costs,
+and in a loop just woken from sleep it cost about 65 us against 24 us for the poll, on every drain.
+
 Stamps are on ``time.monotonic``'s clock (the kernel's are CLOCK_REALTIME; ``wall_to_monotonic_s``
 converts). Where the option is missing (not Linux), ``enable`` says so and a caller falls back to
 reading datagrams as they come.
 """
 
+import select
 import socket
 import struct
 import sys
@@ -36,6 +42,21 @@ def wall_to_monotonic_s() -> float:
     """Add to a CLOCK_REALTIME instant to get the ``time.monotonic`` instant (read it once per
     batch of datagrams: the two clocks drift apart only slowly)."""
     return time.monotonic() - time.time()
+
+
+class Waiting:
+    """``Waiting(sock)()``: whether a datagram (or an error, which the next read raises) waits."""
+
+    def __init__(self, sock: socket.socket):
+        self._fd = sock.fileno()
+        self._poll = select.poll() if hasattr(select, "poll") else None
+        if self._poll is not None:
+            self._poll.register(self._fd, select.POLLIN)
+
+    def __call__(self) -> bool:
+        if self._poll is None:
+            return bool(select.select([self._fd], [], [], 0)[0])
+        return bool(self._poll.poll(0))
 
 
 def recv(sock: socket.socket, wall_to_mono_s: float, bufsize: int = 65535) -> tuple[bytes, Any, float]:

@@ -83,6 +83,8 @@ class VehicleLink:
         # whole frames per read: UDP only (a serial or TCP read can end inside a frame, and
         # pymavlink's parser keeps the rest for the next read)
         self._datagrams = isinstance(self.conn, mavutil.mavudp)
+        #: UDP: whether a datagram waits, asked without a read that raises when none does
+        self._waiting = udp_arrival.Waiting(self.conn.port) if self._datagrams else None
 
     def _enable_timestamps(self) -> bool:
         c = self.conn
@@ -99,6 +101,8 @@ class VehicleLink:
     # -- receive ---------------------------------------------------------------------------------
     def _recv(self, wall_to_mono: float) -> tuple[bytes, float]:
         """One datagram (``b""`` if none) and its arrival time."""
+        if self._waiting is not None and not self._waiting():
+            return b"", math.nan
         if not self.stamps_arrivals:
             return self.conn.recv(), time.monotonic()
         try:

@@ -1,5 +1,6 @@
 """The vehicle's clocks, driven over real UDP by a pymavlink client (endpoint in-process)."""
 
+import socket
 import sys
 import threading
 import time
@@ -8,6 +9,7 @@ import numpy as np
 import pytest
 from pymavlink import mavutil
 
+from sim_vehicles import udp_arrival
 from sim_vehicles.autopilot import Autopilot
 from sim_vehicles.mavlink_endpoint import VehicleEndpoint
 from sim_vehicles.params import AttitudeGains, VehicleParams
@@ -162,3 +164,34 @@ def test_real_time_setpoint_acts_from_its_arrival_though_read_later(tmp_path, st
     # unstamped, a wake-up). Acting when read, at the loop's next instant, would be up to
     # RX_EVERY_S late; acting from where the plant last stood, up to a telemetry period early.
     assert sent[0] - 0.0012 <= t_switch <= sent[1] + 0.003, (t_switch, sent)
+
+
+def test_waiting_says_whether_a_datagram_or_an_error_waits():
+    rx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    tx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    gone = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        rx.bind(("127.0.0.1", 0))
+        rx.setblocking(False)
+        waiting = udp_arrival.Waiting(rx)
+        assert not waiting()
+        tx.sendto(b"one", rx.getsockname())
+        tx.sendto(b"two", rx.getsockname())
+        got = []
+        while waiting():
+            got.append(rx.recv(64))
+        assert got == [b"one", b"two"] and not waiting()
+        # an ICMP port-unreachable is 'waiting' too: the read that follows raises it
+        gone.bind(("127.0.0.1", 0))
+        port = gone.getsockname()[1]
+        gone.close()
+        rx.connect(("127.0.0.1", port))
+        rx.send(b"nobody")
+        deadline = time.monotonic() + 1.0
+        while not waiting() and time.monotonic() < deadline:
+            time.sleep(0.001)
+        with pytest.raises(ConnectionRefusedError):
+            rx.recv(64)
+    finally:
+        rx.close()
+        tx.close()
