@@ -98,6 +98,34 @@ def test_bad_payload_on_an_edge_is_dropped_and_counted():
         session.close()
 
 
+def test_forget_before_drops_exactly_the_older_ticks_even_out_of_order():
+    session = open_session(ZenohSpec(listen=[]))
+    try:
+        bus = ZenohNodeBus(session, "t", 2, [1], [])
+        steps = [0, 1, 2, 4, 3, 5, 6, 7]  # one pair out of order
+        for k in steps:
+            session.put(
+                zenoh_keys.edge("t", 1, 2),
+                encode_estimate(EstimateMessage(1, k, 0.01 * k, *[np.ones(3)] * 4)),
+            )
+        for _ in range(200):
+            bus.poll()
+            if bus.latest(1) is not None and bus.latest(1).step == 7:
+                break
+            time.sleep(0.01)
+        kept = lambda: [k for k in range(8) if bus.estimate(1, k) is not None]  # noqa: E731
+        assert kept() == list(range(8))
+        bus.forget_before(3)
+        assert kept() == [3, 4, 5, 6, 7]
+        bus.forget_before(4)  # tick 3 came after tick 4: it may stay until tick 4 goes
+        assert kept()[-4:] == [4, 5, 6, 7]
+        bus.forget_before(6)
+        assert kept() == [6, 7]
+        bus.close()
+    finally:
+        session.close()
+
+
 def test_row_log_survives_a_cut_mid_row(tmp_path):
     path = tmp_path / "x.rows"
     log = RowLog(path, ["a", "b", "c"], flush_rows=2)
