@@ -12,7 +12,7 @@ import sys
 import numpy as np
 
 from sim_vehicles.autopilot import Autopilot
-from sim_vehicles.lifeline import hold_on, profiled, settle_heap
+from sim_vehicles.lifeline import batch_scheduling, hold_on, profiled, settle_heap
 from sim_vehicles.mavlink_endpoint import VehicleEndpoint
 from sim_vehicles.params import AttitudeGains, VehicleParamError, VehicleParams
 from sim_vehicles.rigid_body import make_state
@@ -83,6 +83,8 @@ def main(argv: list[str] | None = None) -> int:
     if not a.attitude_hz > 0:
         print(f"sim_vehicles: error: --attitude-hz must be > 0, got {a.attitude_hz}", file=sys.stderr)
         return 2
+    if a.lockstep_period_s is not None:
+        batch_scheduling()
     try:
         params = VehicleParams(a.mass_kg, tuple(a.inertia_kgm2), a.max_thrust_n, a.gravity_mps2)
         gains = AttitudeGains(a.l_q, a.k_q)

@@ -6,6 +6,13 @@
 - ``settle_heap()``: once set-up is done, move everything allocated so far (numba's and llvmlite's
   large object graphs among it) out of the garbage collector's sight. Without it the collector's
   periodic full passes over that graph cost a lockstep run about a quarter of its CPU.
+- ``batch_scheduling()``: a lockstep process asks the kernel to schedule it for throughput
+  (``SCHED_BATCH``, Linux; elsewhere a no-op). In lockstep the processes hand each tick to one
+  another: a controller's setpoint wakes its vehicle, the vehicle's sample wakes the controller.
+  Under the default policy the woken process preempts the sender in the middle of its ``sendto``,
+  and both pay an extra context switch and refill their caches. A batch process is not preempted
+  when another wakes, so a sender finishes its tick first. Threads started afterwards (zenoh's)
+  inherit the policy. Real-time processes keep the default policy: there latency matters.
 - ``profiled(name, body)``: a debugging aid. With ``SWARM_SITL_PROFILE=DIR`` set, run ``body`` under
   cProfile timed by this thread's CPU clock (sleeping, waiting and being preempted cost nothing, so
   the figures are what the loop itself spends) and write ``DIR/<name>.prof``.
@@ -37,6 +44,17 @@ def hold_on() -> None:
         return
     if str(os.getppid()) != parent:  # the parent died before we asked
         os.kill(os.getpid(), signal.SIGTERM)
+
+
+def batch_scheduling() -> bool:
+    """``SCHED_BATCH`` for this thread and the threads it starts; whether the kernel took it."""
+    if not hasattr(os, "sched_setscheduler") or not hasattr(os, "SCHED_BATCH"):
+        return False
+    try:
+        os.sched_setscheduler(0, os.SCHED_BATCH, os.sched_param(0))
+    except OSError:
+        return False
+    return True
 
 
 def settle_heap() -> None:

@@ -24,15 +24,17 @@ def _session(cfg: SwarmConfig, connect: list[str]) -> Any:
     return open_session(cfg.zenoh, connect)
 
 
-def _guarded(name: str, body: Any) -> int:
+def _guarded(name: str, body: Any, lockstep: bool) -> int:
     import zenoh
 
-    from sim_vehicles.lifeline import hold_on, profiled
+    from sim_vehicles.lifeline import batch_scheduling, hold_on, profiled
     from swarm_sitl.command_attitude import SingularCommandError
     from swarm_sitl.node_clock import StallError
     from swarm_sitl.vehicle_link import LinkError
 
     hold_on()
+    if lockstep:  # before zenoh starts its threads, so they inherit it
+        batch_scheduling()
     signal.signal(signal.SIGTERM, _terminate)
     try:
         line = profiled(name, body)
@@ -90,7 +92,7 @@ def cmd_controller(cfg: SwarmConfig, args: argparse.Namespace) -> int:
                 if thing is not None:
                     thing.close()
 
-    return _guarded(f"controller {i}", body)
+    return _guarded(f"controller {i}", body, args.lockstep)
 
 
 def cmd_leader(cfg: SwarmConfig, args: argparse.Namespace) -> int:
@@ -112,7 +114,7 @@ def cmd_leader(cfg: SwarmConfig, args: argparse.Namespace) -> int:
                 if thing is not None:
                     thing.close()
 
-    return _guarded("leader", body)
+    return _guarded("leader", body, args.lockstep)
 
 
 def add_node_parsers(sub: Any, load: Any) -> None:
