@@ -24,6 +24,7 @@ from sim_vehicles.torque_law import torque
 
 _ZERO3 = np.zeros(3)
 _ZERO3.flags.writeable = False
+_ZERO3_ARG = np.zeros(3)  #: what the kernel gets for ``_ZERO3``: writable (one signature), never written
 
 
 class AttitudeCommand(NamedTuple):
@@ -72,6 +73,8 @@ def _kernel_arg(v: np.ndarray) -> np.ndarray:
     """A writable C-contiguous float64 array: one compiled signature of the kernel whatever the
     command's arrays are (the read-only default rates would otherwise compile a second one in
     every vehicle process)."""
+    if v is _ZERO3:  # the default rates of nearly every command: no new array per setpoint
+        return _ZERO3_ARG
     if type(v) is np.ndarray and v.dtype == np.float64 and v.flags.c_contiguous and v.flags.writeable:
         return v  # already so (what the MAVLink endpoint decodes): no call into np.require
     return np.require(v, dtype=float, requirements=["C", "W"])
