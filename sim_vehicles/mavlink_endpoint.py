@@ -204,10 +204,10 @@ class VehicleEndpoint:
         }
 
     # -- I/O -------------------------------------------------------------------------------------
-    def _log(self, frame: bytes, stamp: bytes | None = None) -> None:
-        """One frame into the ``.tlog``, after ``stamp`` (``_tlog_stamp()``; now if not given)."""
+    def _log(self, frame: bytes) -> None:
+        """One received frame into the ``.tlog``, stamped now."""
         if self._tlog is not None:
-            self._tlog.write((stamp or self._tlog_stamp()) + frame)
+            self._tlog.write(self._tlog_stamp() + frame)
 
     @staticmethod
     def _tlog_stamp() -> bytes:
@@ -228,9 +228,9 @@ class VehicleEndpoint:
         frames = self._sink.frames
         if not frames:
             return
-        stamp = self._tlog_stamp()
-        for frame in frames:
-            self._log(frame, stamp)
+        if self._tlog is not None:  # one write, one stamp, for the pass
+            stamp = self._tlog_stamp()
+            self._tlog.write(b"".join([stamp + frame for frame in frames]))
         if self.peer is not None:
             self.stats.tx_messages += len(frames)
             packet = b""
