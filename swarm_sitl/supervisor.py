@@ -214,10 +214,20 @@ def node_argv(
     return [*argv, "--lockstep"] if lockstep else argv
 
 
+#: status samples kept per follower between two looks of the supervisor (only the latest is used)
+STATUS_RING = 8
+
+
 class RunMonitor:
-    """The supervisor's own view of the bus: readiness of every node and followers' status."""
+    """The supervisor's own view of the bus: readiness of every node and followers' status.
+
+    Status samples wait in a ring per follower (zenoh's, on the Rust side) until the supervisor
+    looks, a few times a second: in lockstep they come hundreds of times a second, and a Python
+    callback for each would wake the supervisor and take the GIL that often for nothing."""
 
     def __init__(self, session: Any, cfg: SwarmConfig):
+        import zenoh
+
         self.cfg = cfg
         self._trajectory = cfg.trajectory()
         self._offsets = {f.id: np.asarray(f.offset_m, dtype=float) for f in cfg.followers}
@@ -231,8 +241,10 @@ class RunMonitor:
             )
             for node in range(cfg.n_followers + 1)
         ]
-        self._subs += [
-            session.declare_subscriber(zenoh_keys.status(cfg.name, f.id), self._on_status)
+        self._status_subs = [
+            session.declare_subscriber(
+                zenoh_keys.status(cfg.name, f.id), zenoh.handlers.RingChannel(STATUS_RING)
+            )
             for f in cfg.followers
         ]
 
@@ -246,33 +258,33 @@ class RunMonitor:
 
         return cb
 
-    def _on_status(self, sample: Any) -> None:
-        try:
-            s = decode_status(sample.payload.to_bytes())
-        except PayloadError:
-            self.dropped += 1
-            return
-        with self._lock:
-            self.status[s.follower] = s
+    def _read_status(self) -> None:
+        for sub in self._status_subs:
+            while (sample := sub.try_recv()) is not None:
+                try:
+                    s = decode_status(sample.payload.to_bytes())
+                except PayloadError:
+                    self.dropped += 1
+                    continue
+                self.status[s.follower] = s
 
     def errors_m(self) -> dict[int, float]:
         """Each follower's |p - p_r - delta| at its latest status."""
+        self._read_status()
         out = {}
-        with self._lock:
-            items = list(self.status.items())
-        for i, s in items:
+        for i, s in self.status.items():
             p_r = self._trajectory.derivatives(s.sample_t_s)[0]
             out[i] = float(np.linalg.norm(s.p_W - p_r - self._offsets[i]))
         return out
 
     def min_step(self) -> int:
-        with self._lock:
-            if len(self.status) < self.cfg.n_followers:
-                return -1
-            return min(s.step for s in self.status.values())
+        self._read_status()
+        if len(self.status) < self.cfg.n_followers:
+            return -1
+        return min(s.step for s in self.status.values())
 
     def close(self) -> None:
-        for s in self._subs:
+        for s in [*self._subs, *self._status_subs]:
             s.undeclare()
 
 
