@@ -19,7 +19,6 @@ Sampled-data semantics (the controller side; the same in ``sim`` and across proc
   tick). In ``sim`` and lockstep it is taken at ``t_k`` and nothing is carried.
 """
 
-import math
 from collections.abc import Mapping, Sequence
 from typing import NamedTuple
 
@@ -38,6 +37,7 @@ from swarm_sitl.follower_law import (
     OUT_Q_C,
     OUT_THRUST,
     TICK_ACC,
+    TICK_FINITE,
     TICK_OUT,
     TICK_STATE,
     ControlGains,
@@ -171,7 +171,7 @@ class FollowerController:
         )
         self.state = res[TICK_STATE]
         out = res[TICK_OUT]
-        if not math.isfinite(out.sum()):
+        if not res[TICK_FINITE]:
             ages = ", ".join(f"{t - r[1]:.3f}" for r in msgs)
             err = SingularCommandError(
                 f"follower {self.id} at t={t:.3f}s: controller output is not finite (the estimator "

@@ -177,7 +177,8 @@ def controller_output(xc, t, msgs, hold, p, v, q_WB, a_given, use_a_given, offse
 TICK_STATE = slice(0, CTRL_SIZE)
 TICK_OUT = slice(CTRL_SIZE, CTRL_SIZE + OUT_SIZE)
 TICK_ACC = slice(CTRL_SIZE + OUT_SIZE, CTRL_SIZE + OUT_SIZE + 3)
-TICK_SIZE = CTRL_SIZE + OUT_SIZE + 3
+TICK_FINITE = CTRL_SIZE + OUT_SIZE + 3  #: 1.0 if every output is finite, else 0.0
+TICK_SIZE = TICK_FINITE + 1
 
 
 @kernel
@@ -187,7 +188,7 @@ def controller_tick(
     """One control tick in one call: ``controller_advance`` from ``t_prev`` to ``t`` (none if
     ``n_sub`` is 0), ``controller_output`` at ``t`` for the sample ``(p, v, q_WB)`` carried by
     ``age`` under ``veh_a`` (0: taken at ``t``), and the acceleration the command gives once the
-    thrust is limited to ``max_thrust_N``. Returns ``[state | output | acceleration]``
+    thrust is limited to ``max_thrust_N``. Returns ``[state | output | acceleration | finite]``
     (``TICK_*``): one call and one array per tick, where a loaded machine charges per call."""
     res = np.empty(TICK_SIZE)
     if n_sub > 0:
@@ -204,5 +205,6 @@ def controller_tick(
     acc[2] -= gains.g_mps2
     res[0:CTRL_SIZE] = x
     res[CTRL_SIZE : CTRL_SIZE + OUT_SIZE] = out
-    res[CTRL_SIZE + OUT_SIZE :] = acc
+    res[CTRL_SIZE + OUT_SIZE : TICK_FINITE] = acc
+    res[TICK_FINITE] = 1.0 if np.isfinite(out).all() else 0.0
     return res
