@@ -31,14 +31,19 @@ def flu_to_frd(v: np.ndarray) -> np.ndarray:
 frd_to_flu = flu_to_frd
 
 
-def _swap_frames(q: np.ndarray) -> np.ndarray:
-    """``Q_NED_ENU (x) q (x) Q_FLU_FRD``, closed form, sign chosen with w >= 0.
+_S_FLOAT = float(_S)
 
-    The same map takes FLU->ENU attitudes to FRD->NED and back (it is its own inverse up to sign).
-    """
-    w, x, y, z = float(q[0]), float(q[1]), float(q[2]), float(q[3])
-    s = _S if w + z >= 0 else -_S
-    return np.array([s * (w + z), s * (x + y), s * (x - y), s * (w - z)])
+
+def swap_frames_wxyz(w: float, x: float, y: float, z: float) -> tuple[float, float, float, float]:
+    """``Q_NED_ENU (x) q (x) Q_FLU_FRD`` for ``q = (w, x, y, z)``, closed form, sign chosen with
+    w >= 0. The same map takes FLU->ENU attitudes to FRD->NED and back (it is its own inverse up
+    to sign). Plain floats in and out: the wire's per-message paths build no array for it."""
+    s = _S_FLOAT if w + z >= 0 else -_S_FLOAT
+    return (s * (w + z), s * (x + y), s * (x - y), s * (w - z))
+
+
+def _swap_frames(q: np.ndarray) -> np.ndarray:
+    return np.array(swap_frames_wxyz(float(q[0]), float(q[1]), float(q[2]), float(q[3])))
 
 
 def q_enu_flu_to_ned_frd(q_WB: np.ndarray) -> np.ndarray:

@@ -19,7 +19,7 @@ from typing import NamedTuple
 import numpy as np
 
 from sim_vehicles.autopilot import AttitudeCommand
-from sim_vehicles.frames import q_enu_flu_to_ned_frd, q_ned_frd_to_enu_flu
+from sim_vehicles.frames import swap_frames_wxyz
 
 
 class AttitudeTargetFields(NamedTuple):
@@ -28,17 +28,24 @@ class AttitudeTargetFields(NamedTuple):
     thrust: float
 
 
+_F32 = [struct.Struct(f"<{n}f") for n in range(9)]
+
+
 def f32(*values: float) -> tuple[float, ...]:
     """Round each value to the nearest float32, as a MAVLink float field does."""
-    fmt = f"<{len(values)}f"
-    return struct.unpack(fmt, struct.pack(fmt, *values))
+    fmt = _F32[len(values)] if len(values) < len(_F32) else struct.Struct(f"<{len(values)}f")
+    return fmt.unpack(fmt.pack(*values))
+
+
+def _floats(v: np.ndarray) -> list[float]:
+    return v.tolist() if isinstance(v, np.ndarray) else [float(x) for x in v]
 
 
 def encode_attitude_target(cmd: AttitudeCommand, max_thrust_N: float) -> AttitudeTargetFields:
-    q = q_enu_flu_to_ned_frd(cmd.q_c)
-    w = cmd.omega_c_B
+    q = swap_frames_wxyz(*_floats(cmd.q_c))
+    wx, wy, wz = _floats(cmd.omega_c_B)
     thrust = min(max(float(cmd.thrust_N) / max_thrust_N, 0.0), 1.0)
-    v = f32(q[0], q[1], q[2], q[3], w[0], -w[1], -w[2], thrust)
+    v = f32(q[0], q[1], q[2], q[3], wx, -wy, -wz, thrust)
     return AttitudeTargetFields((v[0], v[1], v[2], v[3]), (v[4], v[5], v[6]), v[7])
 
 
@@ -49,9 +56,9 @@ def decode_attitude_target(fields: AttitudeTargetFields, max_thrust_N: float) ->
     if not math.isfinite(n) or abs(n - 1.0) > 1e-3:
         raise ValueError(f"attitude target quaternion {fields.q} is not a unit quaternion")
     r = fields.body_rates
-    if not all(math.isfinite(x) for x in r) or not math.isfinite(fields.thrust):
+    if not math.isfinite(r[0] + r[1] + r[2] + fields.thrust):  # float32 values: no overflow
         raise ValueError("attitude target has a non-finite rate or thrust")
-    q = q_ned_frd_to_enu_flu(np.array([q0 / n, q1 / n, q2 / n, q3 / n]))
+    q = np.array(swap_frames_wxyz(q0 / n, q1 / n, q2 / n, q3 / n))
     return AttitudeCommand(
         q_c=q, thrust_N=float(fields.thrust) * max_thrust_N, omega_c_B=np.array([r[0], -r[1], -r[2]])
     )
@@ -64,7 +71,9 @@ def command_roundtrip(cmd: AttitudeCommand, max_thrust_N: float) -> AttitudeComm
 
 def encode_local_position(p_W: np.ndarray, v_W: np.ndarray) -> tuple[float, ...]:
     """``(x, y, z, vx, vy, vz)`` NED float32."""
-    return f32(p_W[1], p_W[0], -p_W[2], v_W[1], v_W[0], -v_W[2])
+    px, py, pz = _floats(p_W)
+    vx, vy, vz = _floats(v_W)
+    return f32(py, px, -pz, vy, vx, -vz)
 
 
 def decode_local_position(fields: tuple[float, ...]) -> tuple[np.ndarray, np.ndarray]:
@@ -74,12 +83,13 @@ def decode_local_position(fields: tuple[float, ...]) -> tuple[np.ndarray, np.nda
 
 def encode_attitude_quaternion(q_WB: np.ndarray, omega_B: np.ndarray) -> tuple[float, ...]:
     """``(q1..q4, rollspeed, pitchspeed, yawspeed)`` NED/FRD float32."""
-    q = q_enu_flu_to_ned_frd(q_WB)
-    return f32(q[0], q[1], q[2], q[3], omega_B[0], -omega_B[1], -omega_B[2])
+    q = swap_frames_wxyz(*_floats(q_WB))
+    wx, wy, wz = _floats(omega_B)
+    return f32(q[0], q[1], q[2], q[3], wx, -wy, -wz)
 
 
 def decode_attitude_quaternion(fields: tuple[float, ...]) -> tuple[np.ndarray, np.ndarray]:
     q0, q1, q2, q3 = fields[0:4]
     n = math.sqrt(q0 * q0 + q1 * q1 + q2 * q2 + q3 * q3)
-    q = q_ned_frd_to_enu_flu(np.array([q0 / n, q1 / n, q2 / n, q3 / n]))
+    q = np.array(swap_frames_wxyz(q0 / n, q1 / n, q2 / n, q3 / n))
     return q, np.array([fields[4], -fields[5], -fields[6]])
