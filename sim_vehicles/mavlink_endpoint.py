@@ -403,11 +403,14 @@ class VehicleEndpoint:
             if self.lockstep_period_s is not None:
                 self.step(self._lockstep_steps)  # the clock still advances; the old command is held
             return
-        cmd = AttitudeCommand(
-            q_c=cur.q_c if mask & IGNORE_ATTITUDE else new.q_c,
-            thrust_N=cur.thrust_N if mask & IGNORE_THROTTLE else new.thrust_N,
-            omega_c_B=np.zeros(3) if mask & IGNORE_RATES == IGNORE_RATES else new.omega_c_B,
-        )
+        if mask & (IGNORE_ATTITUDE | IGNORE_THROTTLE) or mask & IGNORE_RATES == IGNORE_RATES:
+            cmd = AttitudeCommand(
+                q_c=cur.q_c if mask & IGNORE_ATTITUDE else new.q_c,
+                thrust_N=cur.thrust_N if mask & IGNORE_THROTTLE else new.thrust_N,
+                omega_c_B=np.zeros(3) if mask & IGNORE_RATES == IGNORE_RATES else new.omega_c_B,
+            )
+        else:  # every field taken (what a position controller sends)
+            cmd = new
         self.stats.setpoints += 1
         self._last_setpoint_s = ap.time_s
         if self.mode in (MODE_OFFBOARD, MODE_FAILSAFE):

@@ -34,9 +34,10 @@ class RowLog:
         row = self._buf[self._n]
         j = 0
         for v in values:
-            if isinstance(v, np.ndarray):
-                row[j : j + v.size] = v.ravel()
-                j += v.size
+            if type(v) is np.ndarray or isinstance(v, np.ndarray):
+                n = v.size
+                row[j : j + n] = v if v.ndim == 1 else v.ravel()
+                j += n
             else:
                 row[j] = v
                 j += 1
