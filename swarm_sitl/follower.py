@@ -42,6 +42,7 @@ from swarm_sitl.follower_law import (
     TICK_STATE,
     ControlGains,
     controller_tick,
+    gains_vector,
 )
 from swarm_sitl.trajectories import Trajectory
 
@@ -105,6 +106,7 @@ class FollowerController:
         self.offset = np.asarray(offset_m, dtype=float)
         self.in_edges = tuple((int(s), float(w)) for s, w in in_edges)
         self.gains = gains
+        self._gains_v = gains_vector(gains)
         self.dt_s = control_dt_s
         self.substeps = int(substeps)
         self.hold = int(hold)
@@ -136,7 +138,6 @@ class FollowerController:
         """Tick ``k``: ``inbox`` holds the in-neighbours' messages of tick ``k - 1``."""
         t = k * self.dt_s
         msgs = self._rows(inbox)
-        g = self.gains
         prev = self._prev_sample
         before = self.state
         n_sub = 0
@@ -166,7 +167,7 @@ class FollowerController:
             sample.q_WB,
             age,
             self.offset,
-            g,
+            self._gains_v,
             self.max_thrust_N,
         )
         self.state = res[TICK_STATE]

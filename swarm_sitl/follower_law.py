@@ -65,6 +65,20 @@ class ControlGains(NamedTuple):
     g_mps2: float
 
 
+def gains_vector(gains: ControlGains) -> np.ndarray:
+    """``controller_tick``'s form of the gains: an array in ``ControlGains`` field order. A call
+    into compiled code types an array argument about four times faster than a named tuple."""
+    return np.array(gains, dtype=float)
+
+
+@kernel
+def _gains_from(v):
+    return ControlGains(v[0], v[1], v[2], v[3], v[4], v[5], v[6], v[7], v[8], v[9], v[10])
+
+
+assert len(ControlGains._fields) == 11, "_gains_from reads every field of ControlGains"
+
+
 @kernel
 def neighbours_at(msgs, t, hold):
     """Neighbour table (estimator.NB_* layout) at time ``t`` from message rows."""
@@ -183,13 +197,31 @@ TICK_SIZE = TICK_FINITE + 1
 
 @kernel
 def controller_tick(
-    xc, t_prev, t, n_sub, msgs, hold, veh_t, veh_p, veh_v, veh_a, p, v, q_WB, age, offset, gains, max_thrust_N
+    xc,
+    t_prev,
+    t,
+    n_sub,
+    msgs,
+    hold,
+    veh_t,
+    veh_p,
+    veh_v,
+    veh_a,
+    p,
+    v,
+    q_WB,
+    age,
+    offset,
+    gains_v,
+    max_thrust_N,
 ):
     """One control tick in one call: ``controller_advance`` from ``t_prev`` to ``t`` (none if
     ``n_sub`` is 0), ``controller_output`` at ``t`` for the sample ``(p, v, q_WB)`` carried by
     ``age`` under ``veh_a`` (0: taken at ``t``), and the acceleration the command gives once the
     thrust is limited to ``max_thrust_N``. Returns ``[state | output | acceleration | finite]``
-    (``TICK_*``): one call and one array per tick, where a loaded machine charges per call."""
+    (``TICK_*``): one call and one array per tick, where a loaded machine charges per call.
+    ``gains_v`` is ``gains_vector(gains)``."""
+    gains = _gains_from(gains_v)
     res = np.empty(TICK_SIZE)
     if n_sub > 0:
         dt = t - t_prev
