@@ -17,7 +17,7 @@ class Trajectory(Protocol):
 
 def _time(t_s: float | np.ndarray) -> tuple[Any, Any, Any]:
     """``(t, sin, zero)``: scalar math for a float (fast per-tick path), numpy for arrays."""
-    if np.ndim(t_s) == 0:
+    if isinstance(t_s, float | int) or np.ndim(t_s) == 0:  # np.ndim alone costs a dispatch per tick
         return float(t_s), math.sin, 0.0
     t = np.asarray(t_s, dtype=float)
     return t, np.sin, np.zeros_like(t)
