@@ -256,17 +256,19 @@ class VehicleEndpoint:
         return round(self.autopilot.time_s * 1000)
 
     # -- receive ---------------------------------------------------------------------------------
-    def poll(self, at_arrival: Callable[[float], None] | None = None) -> None:
+    def poll(self, at_arrival: Callable[[float], None] | None = None, readable: bool = False) -> None:
         """Handle every datagram waiting on the socket, then send what that produced.
-        ``at_arrival(t)`` runs before each datagram with its arrival [s; ``time.monotonic``]."""
+        ``at_arrival(t)`` runs before each datagram with its arrival [s; ``time.monotonic``].
+        ``readable``: a ``select`` has just said so (the first read needs no check)."""
         try:
-            self._receive(at_arrival)
+            self._receive(at_arrival, readable)
         finally:
             self.flush()
 
-    def _receive(self, at_arrival: Callable[[float], None] | None) -> None:
+    def _receive(self, at_arrival: Callable[[float], None] | None, readable: bool) -> None:
         wall_to_mono = udp_arrival.wall_to_monotonic_s() if self._stamped else 0.0
-        while self._waiting():
+        while readable or self._waiting():
+            readable = False
             try:
                 if self._stamped:
                     data, addr, arrival = udp_arrival.recv(self.sock, wall_to_mono, 4096)
@@ -565,7 +567,7 @@ class VehicleEndpoint:
             if deferred:
                 time.sleep(min(wait, RX_EVERY_S))
             elif select.select([self.sock], [], [], wait)[0]:
-                self.poll(catch_up)
+                self.poll(catch_up, readable=True)
 
     def run_lockstep(self, stop: Callable[[], bool] | None = None) -> None:
         """Serve setpoints until ``stop()``: simulated time moves only with them (see the module doc)."""
@@ -573,4 +575,4 @@ class VehicleEndpoint:
             self.heartbeat_tick(time.monotonic())
             readable, _, _ = select.select([self.sock], [], [], 0.2)
             if readable:
-                self.poll()
+                self.poll(readable=True)
