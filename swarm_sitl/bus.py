@@ -11,8 +11,8 @@ payloads are dropped and counted in ``dropped``.
 """
 
 import json
-from collections.abc import Callable, Iterable, Iterator
-from typing import Any, Protocol, TypeVar
+from collections.abc import Iterable
+from typing import Any, Protocol
 
 import zenoh
 
@@ -23,6 +23,7 @@ from swarm_sitl.bus_codec import (
     decode_estimate,
     decode_start,
     decode_status,
+    decode_waiting,
     encode_estimate,
     encode_start,
     encode_status,
@@ -55,7 +56,6 @@ def _publisher(session: zenoh.Session, key: str) -> zenoh.Publisher:
 
 CHANNEL_CAPACITY = 4096
 RARE_EVERY = 16  #: liveliness and start are read on one ``poll()`` in this many
-T = TypeVar("T")
 
 
 class NodeBus(Protocol):
@@ -133,7 +133,9 @@ class ZenohNodeBus:
                 if cur is None or m.step >= cur.step:
                     self._latest[m.src] = m
         for sub in self._status_subs:
-            for st in self._decoded(sub, decode_status):
+            statuses, bad = decode_waiting(sub, decode_status)
+            self.dropped += bad
+            for st in statuses:
                 self._progress[st.follower] = max(self._progress.get(st.follower, -1), st.step)
         self._polls += 1
         if self._polls % RARE_EVERY and self._epoch is not None:
@@ -145,17 +147,10 @@ class ZenohNodeBus:
                 else:
                     self._lost.discard(src)
         for sub in self._start_sub:
-            for epoch in self._decoded(sub, decode_start):
-                if self._epoch is None:
-                    self._epoch = epoch
-
-    def _decoded(self, sub: Any, decode: Callable[[bytes], T]) -> Iterator[T]:
-        """The payloads waiting on ``sub``, decoded; malformed ones are dropped and counted."""
-        while (sample := sub.try_recv()) is not None:
-            try:
-                yield decode(sample.payload.to_bytes())
-            except PayloadError:
-                self.dropped += 1
+            epochs, bad = decode_waiting(sub, decode_start)
+            self.dropped += bad
+            if epochs and self._epoch is None:
+                self._epoch = epochs[0]
 
     # -- the loop's side -------------------------------------------------------------------------
     def publish(self, msg: EstimateMessage) -> None:

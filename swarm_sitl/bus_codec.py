@@ -10,7 +10,8 @@
 
 import math
 import struct
-from typing import NamedTuple
+from collections.abc import Callable
+from typing import Any, NamedTuple, TypeVar
 
 import numpy as np
 
@@ -24,6 +25,22 @@ _START = struct.Struct("<Bd")
 
 class PayloadError(ValueError):
     """A payload on the bus is malformed."""
+
+
+T = TypeVar("T")
+
+
+def decode_waiting(sub: Any, decode: Callable[[bytes], T]) -> tuple[list[T], int]:
+    """What waits on a zenoh subscriber's channel (``try_recv``), decoded, and how many payloads
+    were malformed (dropped; the caller counts them)."""
+    out: list[T] = []
+    bad = 0
+    while (sample := sub.try_recv()) is not None:
+        try:
+            out.append(decode(sample.payload.to_bytes()))
+        except PayloadError:
+            bad += 1
+    return out, bad
 
 
 class Status(NamedTuple):

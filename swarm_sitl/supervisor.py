@@ -31,7 +31,7 @@ import numpy as np
 from sim_vehicles.lifeline import ENV as PARENT_ENV
 from sim_vehicles.lifeline import settle_heap
 from swarm_sitl import zenoh_keys
-from swarm_sitl.bus_codec import PayloadError, Status, decode_status
+from swarm_sitl.bus_codec import Status, decode_status, decode_waiting
 from swarm_sitl.config import SwarmConfig
 from swarm_sitl.recording import procs_dir, vehicle_truth_path
 
@@ -260,12 +260,9 @@ class RunMonitor:
 
     def _read_status(self) -> None:
         for sub in self._status_subs:
-            while (sample := sub.try_recv()) is not None:
-                try:
-                    s = decode_status(sample.payload.to_bytes())
-                except PayloadError:
-                    self.dropped += 1
-                    continue
+            statuses, bad = decode_waiting(sub, decode_status)
+            self.dropped += bad
+            for s in statuses:
                 self.status[s.follower] = s
 
     def errors_m(self) -> dict[int, float]:

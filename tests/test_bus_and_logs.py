@@ -18,6 +18,7 @@ from swarm_sitl.bus_codec import (
     decode_estimate,
     decode_start,
     decode_status,
+    decode_waiting,
     encode_estimate,
     encode_start,
     encode_status,
@@ -96,6 +97,24 @@ def test_bad_payload_on_an_edge_is_dropped_and_counted():
         bus.close()
     finally:
         session.close()
+
+
+def test_decode_waiting_returns_the_good_payloads_in_order_and_counts_the_bad():
+    class Sample:
+        def __init__(self, data):
+            self.payload = type("P", (), {"to_bytes": lambda _self: data})()
+
+    class Sub:  # a zenoh channel as the bus reads it: try_recv until None
+        def __init__(self, payloads):
+            self.left = [Sample(p) for p in payloads]
+
+        def try_recv(self):
+            return self.left.pop(0) if self.left else None
+
+    st = [encode_status(Status(2, k, 0.01 * k, 0.01 * k, np.zeros(3))) for k in (3, 4)]
+    sub = Sub([st[0], b"junk", st[1], st[1][:-1]])
+    got, bad = decode_waiting(sub, decode_status)
+    assert [s.step for s in got] == [3, 4] and bad == 2 and sub.try_recv() is None
 
 
 def test_forget_before_drops_exactly_the_older_ticks_even_out_of_order():
