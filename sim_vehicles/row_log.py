@@ -34,7 +34,7 @@ class RowLog:
         row = self._buf[self._n]
         j = 0
         for v in values:
-            if type(v) is np.ndarray or isinstance(v, np.ndarray):
+            if isinstance(v, np.ndarray):
                 n = v.size
                 row[j : j + n] = v if v.ndim == 1 else v.ravel()
                 j += n
