@@ -1,6 +1,8 @@
 """The vehicle's clocks, driven over real UDP by a pymavlink client (endpoint in-process)."""
 
+import os
 import socket
+import subprocess
 import sys
 import threading
 import time
@@ -195,3 +197,19 @@ def test_waiting_says_whether_a_datagram_or_an_error_waits():
     finally:
         rx.close()
         tx.close()
+
+
+@pytest.mark.skipif(not hasattr(os, "SCHED_BATCH"), reason="SCHED_BATCH is Linux's")
+def test_a_lockstep_vehicle_asks_for_batch_scheduling_and_a_real_time_one_does_not():
+    policies = {}
+    for lockstep in (True, False):
+        argv = [sys.executable, "-m", "sim_vehicles", "--port", "0", "--duration", "30"]
+        argv += ["--lockstep-period-s", "0.01"] if lockstep else []
+        proc = subprocess.Popen(argv, stdout=subprocess.PIPE, text=True)
+        try:
+            assert "listening" in proc.stdout.readline()
+            policies[lockstep] = os.sched_getscheduler(proc.pid)
+        finally:
+            proc.terminate()
+            proc.wait(timeout=10)
+    assert policies == {True: os.SCHED_BATCH, False: os.sched_getscheduler(0)}  # real time: inherited
