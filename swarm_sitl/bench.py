@@ -10,7 +10,6 @@
 
 import statistics
 import subprocess
-import sys
 import tempfile
 import time
 from pathlib import Path
@@ -22,6 +21,7 @@ from swarm_sitl.assembly import build_autopilot
 from swarm_sitl.config import SwarmConfig, load_config
 from swarm_sitl.controller_node import CONTROLLER_COLUMNS
 from swarm_sitl.recording import controller_rows_path
+from swarm_sitl.supervisor import module_argv
 
 
 def _vehicle_step_cost_us(
@@ -49,9 +49,7 @@ def _sim_wall_s(cfg_path: str, repeats: int) -> list[float]:
             t0 = time.monotonic()
             subprocess.run(
                 [
-                    sys.executable,
-                    "-m",
-                    "swarm_sitl",
+                    *module_argv("swarm_sitl"),
                     "sim",
                     cfg_path,
                     "--quiet",

@@ -131,12 +131,19 @@ def free_tcp_port() -> int:
         return int(s.getsockname()[1])
 
 
+def module_argv(module: str) -> list[str]:
+    """``python -P -m module``: a child imports the modules its parent imported. Without ``-P``
+    ``-m`` puts the working directory first on ``sys.path``, so a run started from a checkout
+    beside an installed package ran its children from the checkout's sources, compiling every
+    kernel again in each child (about 40 s of start-up on a fresh install) where the supervisor
+    had just compiled them for the installed package. ``PYTHONPATH`` still applies."""
+    return [sys.executable, "-P", "-m", module]
+
+
 def vehicle_argv(cfg: SwarmConfig, i: int, run_dir: Path, lockstep: bool, port: int = 0) -> list[str]:
     f, v, g = cfg.follower(i), cfg.vehicle, cfg.gains
     argv = [
-        sys.executable,
-        "-m",
-        "sim_vehicles",
+        *module_argv("sim_vehicles"),
         "--id",
         str(i),
         "--host",
@@ -208,7 +215,7 @@ def node_argv(
 ) -> list[str]:
     """A node's command line; ``hub`` is the supervisor's zenoh endpoint (peer mode) or None
     (client mode: the nodes reach the router the config names)."""
-    argv = [sys.executable, "-m", "swarm_sitl", role, str(cfg_path), "--out", str(run_dir), *extra]
+    argv = [*module_argv("swarm_sitl"), role, str(cfg_path), "--out", str(run_dir), *extra]
     if hub is not None:
         argv += ["--connect", hub]
     return [*argv, "--lockstep"] if lockstep else argv
