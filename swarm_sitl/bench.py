@@ -21,7 +21,7 @@ from swarm_sitl.assembly import build_autopilot
 from swarm_sitl.config import SwarmConfig, load_config
 from swarm_sitl.controller_node import CONTROLLER_COLUMNS
 from swarm_sitl.recording import controller_rows_path
-from swarm_sitl.supervisor import module_argv
+from swarm_sitl.supervisor import RunFailedError, child_env, module_argv
 
 
 def _vehicle_step_cost_us(
@@ -47,7 +47,7 @@ def _sim_wall_s(cfg_path: str, repeats: int) -> list[float]:
     with tempfile.TemporaryDirectory() as tmp:
         for r in range(repeats):
             t0 = time.monotonic()
-            subprocess.run(
+            done = subprocess.run(
                 [
                     *module_argv("swarm_sitl"),
                     "sim",
@@ -56,9 +56,14 @@ def _sim_wall_s(cfg_path: str, repeats: int) -> list[float]:
                     "--out",
                     str(Path(tmp) / f"r{r}"),
                 ],
-                check=True,
                 stdout=subprocess.DEVNULL,
+                stderr=subprocess.PIPE,
+                text=True,
+                env=child_env(),
             )
+            if done.returncode != 0:
+                last = (done.stderr.strip().splitlines() or [""])[-1]
+                raise RunFailedError(f"swarm-sitl sim exited with code {done.returncode}: {last}")
             out.append(time.monotonic() - t0)
     return out
 

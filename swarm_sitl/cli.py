@@ -258,10 +258,15 @@ def cmd_plot(args: argparse.Namespace) -> int:
 
 def cmd_bench(args: argparse.Namespace) -> int:
     from swarm_sitl.bench import run_bench
+    from swarm_sitl.supervisor import RunFailedError
 
     if args.repeats < 1 or not args.realtime_s > 0:
         raise CliError("--repeats must be >= 1 and --realtime-s > 0")
-    return run_bench(args.config, args.scale_config, args.repeats, args.realtime_s)
+    try:
+        return run_bench(args.config, args.scale_config, args.repeats, args.realtime_s)
+    except RunFailedError as e:
+        print(f"swarm-sitl: error: bench: {e}", file=sys.stderr)
+        return 1
 
 
 def _run_outputs(p: argparse.ArgumentParser, kind: str) -> None:

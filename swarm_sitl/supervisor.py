@@ -16,12 +16,13 @@ import contextlib
 import os
 import re
 import signal
+import site
 import socket
 import subprocess
 import sys
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Any
@@ -71,7 +72,7 @@ class Supervisor:
         log_path = log_dir / f"{name}.log"
         log = open(log_path, "wb")  # noqa: SIM115  (closed in close())
         self._logs.append(log)
-        env = {**os.environ, PARENT_ENV: str(os.getpid()), "PYTHONUNBUFFERED": "1"}
+        env = {**child_env(), PARENT_ENV: str(os.getpid()), "PYTHONUNBUFFERED": "1"}
         proc = subprocess.Popen(
             argv,
             stdout=log,
@@ -132,12 +133,27 @@ def free_tcp_port() -> int:
 
 
 def module_argv(module: str) -> list[str]:
-    """``python -P -m module``: a child imports the modules its parent imported. Without ``-P``
-    ``-m`` puts the working directory first on ``sys.path``, so a run started from a checkout
-    beside an installed package ran its children from the checkout's sources, compiling every
-    kernel again in each child (about 40 s of start-up on a fresh install) where the supervisor
-    had just compiled them for the installed package. ``PYTHONPATH`` still applies."""
+    """``python -P -m module``, to run with ``child_env()``: a child imports the modules its parent
+    imported. Without ``-P``, ``-m`` puts the working directory first on ``sys.path``, so a run
+    started from a checkout beside an installed package ran its children from the checkout's
+    sources, compiling every kernel again in each child (about 40 s of start-up on a fresh install)
+    where the supervisor had just compiled them for the installed package."""
     return [sys.executable, "-P", "-m", module]
+
+
+def child_env(base: Mapping[str, str] | None = None) -> dict[str, str]:
+    """``base`` (default ``os.environ``) with the directory this package was imported from first on
+    ``PYTHONPATH``, unless it is a site directory that every child searches anyway (putting one
+    before the standard library would reorder more than our packages). So a child started with
+    ``module_argv`` finds the same ``sim_vehicles`` and ``swarm_sitl`` as this process, installed
+    or run from a checkout without installing."""
+    env = dict(os.environ if base is None else base)
+    root = Path(__file__).resolve().parents[1]
+    sites = [*site.getsitepackages(), site.getusersitepackages()]
+    if any(Path(d).resolve() == root for d in sites if d):
+        return env
+    env["PYTHONPATH"] = os.pathsep.join([str(root), *([env["PYTHONPATH"]] if env.get("PYTHONPATH") else [])])
+    return env
 
 
 def vehicle_argv(cfg: SwarmConfig, i: int, run_dir: Path, lockstep: bool, port: int = 0) -> list[str]:

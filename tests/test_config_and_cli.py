@@ -145,18 +145,19 @@ def test_sim_writes_a_run_directory_and_plot_draws_it(tmp_path):
 
 def test_children_import_what_the_supervisor_imports_not_the_working_directory(tmp_path):
     """A run started from a directory that holds other copies of the packages (a checkout beside
-    an installed package) must not run its children from those copies."""
+    an installed package) must not run its children from those copies; and a run from a checkout
+    that is not installed (no PYTHONPATH either) must still find its own packages in the children."""
     import sim_vehicles
-    from swarm_sitl.supervisor import module_argv
+    from swarm_sitl.supervisor import child_env, module_argv
 
     for pkg in ("sim_vehicles", "swarm_sitl"):
         (tmp_path / pkg).mkdir()
         (tmp_path / pkg / "__init__.py").write_text("raise SystemExit(7)\n")
         (tmp_path / pkg / "__main__.py").write_text("raise SystemExit(7)\n")
     here = str(Path(sim_vehicles.__file__).resolve().parents[1])
-    env = {"PATH": "/usr/bin:/bin", "PYTHONPATH": here}
-    for module in ("sim_vehicles", "swarm_sitl"):
-        r = subprocess.run(
-            [*module_argv(module), "--help"], cwd=tmp_path, env=env, capture_output=True, text=True
-        )
-        assert r.returncode == 0 and "usage" in r.stdout.lower(), (module, r.returncode, r.stderr[-300:])
+    for env in ({"PATH": "/usr/bin:/bin", "PYTHONPATH": here}, child_env({"PATH": "/usr/bin:/bin"})):
+        for module in ("sim_vehicles", "swarm_sitl"):
+            r = subprocess.run(
+                [*module_argv(module), "--help"], cwd=tmp_path, env=env, capture_output=True, text=True
+            )
+            assert r.returncode == 0 and "usage" in r.stdout.lower(), (module, env, r.stderr[-300:])
