@@ -32,7 +32,14 @@ from swarm_sitl.command_attitude import SingularCommandError
 from swarm_sitl.config import SwarmConfig
 from swarm_sitl.follower import EstimateMessage, VehicleSample
 from swarm_sitl.follower_law import CTRL_SIZE, OUT_SIZE
-from swarm_sitl.node_clock import POLL_S, StallError, sleep_until, wait_until, wall_epoch_to_monotonic
+from swarm_sitl.node_clock import (
+    POLL_S,
+    StallError,
+    linger_after_last_tick,
+    sleep_until,
+    wait_until,
+    wall_epoch_to_monotonic,
+)
 from swarm_sitl.vehicle_link import VehicleLink
 
 CONTROLLER_COLUMNS = [
@@ -245,4 +252,6 @@ def run_controller(
         if lockstep and k >= 2:
             bus.forget_before(k - 1)
         k += 1
+    if not lockstep:
+        linger_after_last_tick(io.epoch_mono + n * dt, dt)
     return NodeReport(n + 1, late, max_late, io.resends, bus.dropped + link.rx_bad)

@@ -13,7 +13,7 @@ from swarm_sitl.bus import NodeBus
 from swarm_sitl.config import SwarmConfig
 from swarm_sitl.controller_node import NodeReport, wait_for_start
 from swarm_sitl.follower import EstimateMessage
-from swarm_sitl.node_clock import sleep_until, wait_until, wall_epoch_to_monotonic
+from swarm_sitl.node_clock import linger_after_last_tick, sleep_until, wait_until, wall_epoch_to_monotonic
 
 #: lockstep: how long the leader sleeps when it is ``lockstep_window`` ticks ahead of a follower.
 #: Long enough that it wakes a few times per window, not per tick, and publishes the ticks it may
@@ -51,4 +51,6 @@ def run_leader(cfg: SwarmConfig, bus: NodeBus, lockstep: bool, out_neighbours: l
                 late += 1
         msg: EstimateMessage = leader.step(k)
         bus.publish(msg)
+    if not lockstep:
+        linger_after_last_tick(epoch_mono + n * dt, dt)
     return NodeReport(n + 1, late, 0.0, 0, bus.dropped)

@@ -11,6 +11,8 @@ import time
 from collections.abc import Callable, Sequence
 
 POLL_S = 0.0005  #: longest block between two reads of the bus [s]
+#: real time: how long after the last tick's instant a node that is done keeps its zenoh session [s]
+END_LINGER_S = 0.25
 
 
 class StallError(RuntimeError):
@@ -38,6 +40,14 @@ def sleep_until(deadline_mono_s: float, fds: Sequence[int], read: Callable[[], N
         if left <= 0:
             return
         _block(fds, left)
+
+
+def linger_after_last_tick(last_tick_mono_s: float, dt_s: float) -> None:
+    """Real time: every node's last tick is at the same instant, and closing a zenoh session makes
+    every peer's zenoh threads update their routes. A node that is done waits until the others'
+    last tick is surely done too (``END_LINGER_S``, at least two periods) before it tears down:
+    without this, 8 of 16 followers of a swarm16 run on 2 cores missed their last tick."""
+    time.sleep(max(0.0, last_tick_mono_s + max(END_LINGER_S, 2 * dt_s) - time.monotonic()))
 
 
 def wait_until(
