@@ -14,10 +14,15 @@ def build_leader(cfg: SwarmConfig) -> LeaderNode:
 
 
 def build_controller(
-    cfg: SwarmConfig, i: int, mass_kg: float | None = None, max_thrust_N: float | None = None
+    cfg: SwarmConfig,
+    i: int,
+    mass_kg: float | None = None,
+    max_thrust_N: float | None = None,
+    tick_phase_s: float = 0.0,
 ) -> FollowerController:
     """Follower ``i``'s controller. ``mass_kg``/``max_thrust_N`` default to the config's vehicle
-    (a controller talking to a real autopilot passes what it read from the vehicle's parameters)."""
+    (a controller talking to a real autopilot passes what it read from the vehicle's parameters);
+    ``tick_phase_s``: ``cfg.tick_phase_s`` in a real-time run."""
     f = cfg.follower(i)
     return FollowerController(
         i,
@@ -28,6 +33,7 @@ def build_controller(
         cfg.rates.estimator_substeps,
         cfg.hold,
         cfg.vehicle.max_thrust_N if max_thrust_N is None else max_thrust_N,
+        tick_phase_s,
     )
 
 

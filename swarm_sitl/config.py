@@ -155,6 +155,11 @@ class RunSpec(_Strict):
     lockstep_window: Annotated[int, Field(ge=1)] = 50  #: ticks the leader may run ahead in lockstep
     #: rate a controller asks its vehicle for ATTITUDE and HIGHRES_IMU, which it does not use [Hz]
     other_telemetry_hz: Annotated[float, Field(ge=0)] = 10.0
+    #: real time: when the controllers tick within a period. ``staggered``: follower i at
+    #: ``k * dt + (i - 1) / n * dt``, as flight computers with their own clocks would (on one host the
+    #: controllers then share the CPU across the period instead of all waking at once);
+    #: ``aligned``: all at ``k * dt``. Lockstep is always aligned (it must equal ``sim``).
+    realtime_ticks: Literal["staggered", "aligned"] = "staggered"
 
     @model_validator(mode="after")
     def _window(self) -> "RunSpec":
@@ -206,6 +211,12 @@ class SwarmConfig(_Strict):
 
     def follower(self, i: int) -> FollowerSpec:
         return next(f for f in self.followers if f.id == i)
+
+    def tick_phase_s(self, i: int, lockstep: bool) -> float:
+        """Where follower ``i``'s ticks fall within the control period [s] (``run.realtime_ticks``)."""
+        if lockstep or self.run.realtime_ticks == "aligned":
+            return 0.0
+        return (i - 1) / self.n_followers * self.control_dt_s
 
     def build_graph(self) -> Graph:
         return Graph.from_edges(len(self.followers), [tuple(e) for e in self.graph.edges])

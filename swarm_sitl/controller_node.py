@@ -8,7 +8,8 @@ feeds it. Per tick ``k`` (semantics in ``follower``):
   advances the vehicle one period. A setpoint whose answer does not come is sent again (the vehicle
   answers a repeat with its sample and does not step twice). The run is deterministic and equals
   ``sim``.
-- real time: at ``epoch + t_k`` on the wall clock, step with the latest sample and the latest
+- real time: at ``epoch + t_k`` on the wall clock (``t_k`` includes the follower's tick phase,
+  ``SwarmConfig.tick_phase_s``), step with the latest sample and the latest
   estimate of each in-neighbour; a tick that starts more than one period late is skipped.
   The sample's instant in swarm time is its ``time_boot_ms`` plus the vehicle's clock offset,
   estimated as the smallest (arrival - stamp) seen.
@@ -195,7 +196,8 @@ def run_controller(
     dt = cfg.control_dt_s
     n = cfg.n_control_steps
     link.connect(r.start_timeout_s)
-    ctrl = build_controller(cfg, i, link.params["MASS_KG"], link.params["MAX_THRUST_N"])
+    phase = cfg.tick_phase_s(i, lockstep)
+    ctrl = build_controller(cfg, i, link.params["MASS_KG"], link.params["MAX_THRUST_N"], phase)
     io = _Inputs(who, link, bus, [s for s, _ in ctrl.in_edges], dt)
     _warm_up(cfg, i, link)
     settle_heap()
@@ -210,7 +212,7 @@ def run_controller(
     max_late = 0.0
     k = 0
     while k <= n:
-        t = k * dt
+        t = k * dt + phase
         if lockstep:
             inbox = io.wait_lockstep(k, r.stall_timeout_s)
             boot_s, p, v, q = link.sample()
@@ -221,7 +223,7 @@ def run_controller(
             io.read()
             lateness = time.monotonic() - io.epoch_mono - t
             if lateness > dt:  # a whole period behind: skip to the current tick
-                skip_to = int((time.monotonic() - io.epoch_mono) / dt)
+                skip_to = int((time.monotonic() - io.epoch_mono - phase) / dt)
                 late += skip_to - k
                 k = skip_to
                 continue
@@ -253,5 +255,5 @@ def run_controller(
             bus.forget_before(k - 1)
         k += 1
     if not lockstep:
-        linger_after_last_tick(io.epoch_mono + n * dt, dt)
+        linger_after_last_tick(io.epoch_mono + n * dt + phase, dt)
     return NodeReport(n + 1, late, max_late, io.resends, bus.dropped + link.rx_bad)

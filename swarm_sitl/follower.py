@@ -2,7 +2,8 @@
 
 Sampled-data semantics (the controller side; the same in ``sim`` and across processes):
 
-- The controller ticks at ``control_rate_hz``; tick ``k`` is at ``t_k = k * dt``.
+- The controller ticks at ``control_rate_hz``; tick ``k`` is at ``t_k = k * dt`` (plus the
+  follower's ``tick_phase_s`` in a staggered real-time run, ``config.RunSpec.realtime_ticks``).
 - At tick ``k`` it holds the estimate messages its in-neighbours sent at tick ``k - 1`` (their values
   at ``t_{k-1}``; none at ``k = 0``) and the sample of its own vehicle at ``t_k``. A neighbour with no
   message is left out of the sums (as if the edge were absent for that tick).
@@ -101,6 +102,7 @@ class FollowerController:
         substeps: int,
         hold: int = HOLD_EXTRAPOLATE,
         max_thrust_N: float = float("inf"),
+        tick_phase_s: float = 0.0,
     ):
         self.id = follower_id
         self.offset = np.asarray(offset_m, dtype=float)
@@ -111,6 +113,7 @@ class FollowerController:
         self.substeps = int(substeps)
         self.hold = int(hold)
         self.max_thrust_N = max_thrust_N
+        self.tick_phase_s = float(tick_phase_s)  #: tick k is at k * dt + tick_phase_s
         self.state = np.zeros(CTRL_SIZE)
         self._prev_sample: VehicleSample | None = None
         self._prev_t = 0.0
@@ -136,7 +139,7 @@ class FollowerController:
 
     def step(self, k: int, sample: VehicleSample, inbox: Mapping[int, EstimateMessage]) -> ControllerStep:
         """Tick ``k``: ``inbox`` holds the in-neighbours' messages of tick ``k - 1``."""
-        t = k * self.dt_s
+        t = k * self.dt_s + self.tick_phase_s
         msgs = self._rows(inbox)
         prev = self._prev_sample
         before = self.state

@@ -111,21 +111,28 @@ class Recording:
     offsets: dict[int, np.ndarray]
 
     def with_errors(self, trajectory: Trajectory | None = None) -> "Recording":
-        """Add the error series (idempotent). Where a follower's samples are not at its ticks
-        (``sample_t_s``, real time), ``trajectory`` gives the reference at the sample instants."""
+        """Add the error series (idempotent). Where a follower's samples are not at the leader's
+        ticks (``sample_t_s``, real time), ``trajectory`` gives the reference at the sample
+        instants; where its own ticks are not (``t_s``, staggered real time), at its ticks."""
         L = self.leader
+
+        def reference(t_s: np.ndarray, at_leader_ticks: bool) -> tuple[np.ndarray, ...]:
+            if trajectory is None or at_leader_ticks:
+                return L["p_r"], L["v_r"], L["a_r"]
+            d = trajectory.derivatives(np.nan_to_num(t_s, nan=0.0))
+            missing = np.isnan(t_s)[:, None]
+            return tuple(np.where(missing, np.nan, d[:, j]) for j in range(3))
+
         for i, a in self.followers.items():
-            ts = a.get("sample_t_s")
-            if trajectory is not None and ts is not None and not np.array_equal(ts, a["t_s"], equal_nan=True):
-                d = trajectory.derivatives(np.nan_to_num(ts, nan=0.0))
-                p_r, v_r = np.where(np.isnan(ts)[:, None], np.nan, d[:, 0]), d[:, 1]
-            else:
-                p_r, v_r = L["p_r"], L["v_r"]
+            t = a["t_s"]
+            ts = a.get("sample_t_s", t)
+            p_r, v_r, _ = reference(ts, np.array_equal(ts, L["t_s"], equal_nan=True))
             a["pos_err_m"] = a["p_W"] - p_r - self.offsets[i]
             a["vel_err_mps"] = a["v_W"] - v_r
-            a["est_pos_err_m"] = a["p_hat"] - L["p_r"]
-            a["est_vel_err_mps"] = a["v_hat"] - L["v_r"]
-            a["est_acc_err_mps2"] = a["a_hat"] - L["a_r"]
+            p_r, v_r, a_r = reference(t, np.array_equal(t, L["t_s"], equal_nan=True))
+            a["est_pos_err_m"] = a["p_hat"] - p_r
+            a["est_vel_err_mps"] = a["v_hat"] - v_r
+            a["est_acc_err_mps2"] = a["a_hat"] - a_r
         return self
 
 

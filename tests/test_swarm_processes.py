@@ -117,13 +117,15 @@ def test_realtime_run_reaches_the_formation(tmp_path):
         # ticks recorded: a tick that starts a whole period late is skipped (NaN); on a loaded 2-core
         # machine that can be a fifth of them, and the formation must hold regardless
         assert ok.mean() > 0.5, logs
+        dt = 0.01
+        # staggered ticks (the real-time default): follower i ticks (i - 1) / 4 of a period late
+        assert np.allclose(t[ok] - np.flatnonzero(ok) * dt, (i - 1) / 4 * dt, atol=1e-12), i
         age = t[ok] - s[ok]
         assert np.all(age >= 0), (i, age.min())
         # samples are recent. The vehicle's stream grid has an arbitrary phase against the ticks, so a
         # tick reads the latest sample or, when that one is still in flight, the one before: at most
         # one period plus its delivery delay. A controller reading a stale queue would sit periods
         # behind. The tail is left to the machine's load: a vehicle held off the CPU sends late.
-        dt = 0.01
         assert np.median(age) < dt + 0.005 and np.percentile(age, 90) < 3 * dt, (
             i,
             np.percentile(age, [50, 90, 99, 100]),
