@@ -7,7 +7,8 @@ Layout::
     RUN_DIR/follower_<i>.npz   per-follower time series, one row per control tick (below)
     RUN_DIR/summary.json       final and peak errors, time to converge, invariant checks
 
-Follower arrays (row k is tick k at ``t_s[k] = k * dt``; vectors world ENU unless noted):
+Follower arrays (row k is tick k at ``t_s[k] = k * dt``, plus the follower's tick phase in a
+staggered real-time run; vectors world ENU unless noted):
 
     t_s                         [s] the control tick
     sample_t_s                  [s] instant of the vehicle sample used at that tick (= t_s in sim and
