@@ -5,16 +5,14 @@ import numpy as np
 import pytest
 
 from swarm_sitl.assembly import build_controller
-from swarm_sitl.config import load_config
 from swarm_sitl.follower import EstimateMessage, VehicleSample
 from swarm_sitl.recording import Recording, leader_series
 
 pytestmark = pytest.mark.unit
-PAPER = "configs/paper.yaml"
 
 
-def test_staggered_followers_share_the_period_evenly_and_lockstep_is_aligned():
-    cfg = load_config(PAPER)
+def test_staggered_followers_share_the_period_evenly_and_lockstep_is_aligned(paper_cfg):
+    cfg = paper_cfg
     dt, n = cfg.control_dt_s, cfg.n_followers
     phases = [cfg.tick_phase_s(f.id, lockstep=False) for f in cfg.followers]
     assert cfg.run.realtime_ticks == "staggered"
@@ -25,12 +23,12 @@ def test_staggered_followers_share_the_period_evenly_and_lockstep_is_aligned():
     assert all(aligned.tick_phase_s(f.id, lockstep=False) == 0.0 for f in cfg.followers)
 
 
-def test_a_tick_phase_shifts_the_controllers_time_and_nothing_else():
+def test_a_tick_phase_shifts_the_controllers_time_and_nothing_else(paper_cfg):
     """Controller A ticks at k dt + phi; controller B at k dt is given the same messages and samples
     with every time stamp moved back by phi. The law is time-invariant but for those stamps, so the
     two must compute the same commands and estimates; A ignoring its phase would see every message
     and sample phi younger than it is, and differ."""
-    cfg = load_config(PAPER)
+    cfg = paper_cfg
     dt, phi = cfg.control_dt_s, 0.0075
     traj = cfg.trajectory()
     a = build_controller(cfg, 3, tick_phase_s=phi)
@@ -54,10 +52,10 @@ def test_a_tick_phase_shifts_the_controllers_time_and_nothing_else():
         np.testing.assert_allclose(sa.state, sb.state, rtol=1e-9, atol=1e-9)
 
 
-def test_estimator_errors_are_taken_at_each_followers_own_ticks():
+def test_estimator_errors_are_taken_at_each_followers_own_ticks(paper_cfg):
     """A follower whose estimate is exactly the leader's state at its (staggered) ticks has no
     estimation error; judged at the leader's ticks it would show |v| * phase."""
-    cfg = load_config(PAPER)
+    cfg = paper_cfg
     traj, dt, phi = cfg.trajectory(), cfg.control_dt_s, 0.006
     t_leader = np.arange(101) * dt
     t_f = t_leader + phi
