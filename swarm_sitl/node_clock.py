@@ -43,9 +43,10 @@ def sleep_until(deadline_mono_s: float, fds: Sequence[int], read: Callable[[], N
 
 
 def linger_after_last_tick(last_tick_mono_s: float, dt_s: float) -> None:
-    """Real time: every node's last tick is at the same instant, and closing a zenoh session makes
-    every peer's zenoh threads update their routes. A node that is done waits until the others'
-    last tick is surely done too (``END_LINGER_S``, at least two periods) before it tears down:
+    """Real time: every node's last tick falls within one period (the same instant when ticks are
+    aligned), and closing a zenoh session makes every peer's zenoh threads update their routes. A
+    node that is done waits until the others' last tick is surely done too (``END_LINGER_S``, at
+    least two periods after its own) before it tears down:
     without this, 6-9 of 16 followers of a swarm16 run on 2 cores missed their last tick."""
     time.sleep(max(0.0, last_tick_mono_s + max(END_LINGER_S, 2 * dt_s) - time.monotonic()))
 
