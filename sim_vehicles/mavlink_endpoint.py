@@ -52,17 +52,12 @@ import numpy as np
 from pymavlink.dialects.v20 import common as mav
 
 from sim_vehicles import mavlink_frames as frames
-from sim_vehicles import udp_arrival
+from sim_vehicles import tick_frames, udp_arrival
 from sim_vehicles.autopilot import AttitudeCommand, Autopilot
 from sim_vehicles.quaternion import rotation_matrix
-from sim_vehicles.rigid_body import POS, QUAT, RATE, VEL
+from sim_vehicles.rigid_body import QUAT, RATE
 from sim_vehicles.row_log import RowLog
-from sim_vehicles.wire_format import (
-    AttitudeTargetFields,
-    decode_attitude_target,
-    encode_attitude_quaternion,
-    encode_local_position,
-)
+from sim_vehicles.wire_format import CMD_VALID, command_from_fields, command_of, encode_attitude_quaternion
 
 MODE_HOLD = 0
 MODE_OFFBOARD = 1
@@ -103,18 +98,16 @@ TRUTH_COLUMNS = ["time_boot_s", "px", "py", "pz", "vx", "vy", "vz", "qw", "qx", 
 
 
 class _Setpoint(NamedTuple):
-    """SET_ATTITUDE_TARGET as read off the wire (NED/FRD, thrust 0..1)."""
+    """SET_ATTITUDE_TARGET as read off the wire, its fields converted (``command_from_fields``)."""
 
     time_boot_ms: int
     target_system: int
     target_component: int
     type_mask: int
-    q: tuple[float, ...]
-    body_rates: tuple[float, ...]
-    thrust: float
+    command: np.ndarray  #: ``wire_format.command_from_fields`` (ENU/FLU, thrust [N], valid flag)
 
 
-_FAST_IN = {frames.SET_ATTITUDE_TARGET.msg_id: frames.SET_ATTITUDE_TARGET}
+_SETPOINT = frames.SET_ATTITUDE_TARGET
 
 
 @dataclass
@@ -192,7 +185,7 @@ class VehicleEndpoint:
         }
         self._next_heartbeat_wall = -math.inf
         self._next_any_s = 0.0  #: simulated time of the next telemetry message due
-        self._attq_cache: tuple[int, tuple[float, ...]] | None = None
+        self._out = np.zeros(tick_frames.FRAME_BYTES, np.uint8)
         p = self.autopilot.params
         self.params: dict[str, float] = {
             "MASS_KG": p.mass_kg,
@@ -221,6 +214,24 @@ class VehicleEndpoint:
         """Queue one telemetry message from its field values (``mavlink_frames``: the same bytes
         as ``_send``, without building a message object)."""
         self._sink.frames.append(frames.pack_frame(self.mav, layout, values))
+
+    def _send_sample_part(self, pack: Callable[..., int], layout: frames.Layout, ms: int) -> None:
+        """Queue LOCAL_POSITION_NED or ATTITUDE_QUATERNION of the current state, converted and
+        packed in one compiled call (``tick_frames``). Unsigned, like ``_send_fields``."""
+        if self.mav.signing.sign_outgoing:
+            raise ValueError("the per-tick frames are not signed: send signed frames through pymavlink")
+        n = pack(
+            self._out,
+            self.mav.seq,
+            self.system_id,
+            mav.MAV_COMP_ID_AUTOPILOT1,
+            layout.spec,
+            ms,
+            self.autopilot.state,
+        )
+        frame = self._out[:n].tobytes()
+        frames.sent(self.mav, frame)
+        self._sink.frames.append(frame)
 
     def flush(self) -> None:
         """Send the queued frames to the peer, packed into as few datagrams as fit (as PX4 does):
@@ -283,17 +294,27 @@ class VehicleEndpoint:
             self.peer = addr
             if new_peer:
                 self.send_heartbeat()
-            fast = frames.read_datagram(data, _FAST_IN) if self._parser.signing.secret_key is None else None
+            plain = self._parser.signing.secret_key is None
+            if plain:
+                r = tick_frames.read_setpoint(data, _SETPOINT.spec, self.autopilot.params.max_thrust_N)
+                if r[0]:  # one SET_ATTITUDE_TARGET and nothing else: what a controller sends
+                    self._log(data)
+                    self.stats.rx_messages += 1
+                    sp = _Setpoint(
+                        int(r[tick_frames.SP_TIME_MS]),
+                        int(r[tick_frames.SP_TARGET_SYSTEM]),
+                        int(r[tick_frames.SP_TARGET_COMPONENT]),
+                        int(r[tick_frames.SP_TYPE_MASK]),
+                        r[tick_frames.SP_COMMAND],
+                    )
+                    if self._for_me(sp):
+                        self._on_setpoint(sp)
+                    continue
+            fast = frames.read_datagram(data, {}) if plain else None
             if fast is not None:
-                for _id, _sys, _comp, values, frame in fast:
+                for _id, _sys, _comp, _values, frame in fast:
                     self._log(frame)
                     self.stats.rx_messages += 1
-                    if values is not None:  # SET_ATTITUDE_TARGET
-                        v = values
-                        sp = _Setpoint(v[0], v[1], v[2], v[3], v[4:8], v[8:11], v[11])
-                        if self._for_me(sp):
-                            self._on_setpoint(sp)
-                        continue
                     try:
                         m = self._parser.decode(bytearray(frame))
                     except Exception:  # pymavlink's own errors and struct errors: drop, count
@@ -323,16 +344,12 @@ class VehicleEndpoint:
     def _handle(self, m: Any) -> None:
         t = m.get_type()
         if t == "SET_ATTITUDE_TARGET" and self._for_me(m):
+            fields = np.array(
+                [*m.q, m.body_roll_rate, m.body_pitch_rate, m.body_yaw_rate, m.thrust], dtype=float
+            )
+            decoded = command_from_fields(fields, self.autopilot.params.max_thrust_N)
             self._on_setpoint(
-                _Setpoint(
-                    m.time_boot_ms,
-                    m.target_system,
-                    m.target_component,
-                    m.type_mask,
-                    tuple(m.q),
-                    (m.body_roll_rate, m.body_pitch_rate, m.body_yaw_rate),
-                    m.thrust,
-                )
+                _Setpoint(m.time_boot_ms, m.target_system, m.target_component, m.type_mask, decoded)
             )
         elif t == "COMMAND_LONG" and self._for_me(m):
             self._on_command(m)
@@ -395,16 +412,12 @@ class VehicleEndpoint:
                 return
         cur = ap.command
         mask = m.type_mask
-        try:
-            new = decode_attitude_target(
-                AttitudeTargetFields(m.q, m.body_rates, m.thrust),  # type: ignore[arg-type]
-                ap.params.max_thrust_N,
-            )
-        except ValueError:
+        if not m.command[CMD_VALID]:  # not a rotation, or a non-finite rate or thrust
             self.stats.rx_bad += 1
             if self.lockstep_period_s is not None:
                 self.step(self._lockstep_steps)  # the clock still advances; the old command is held
             return
+        new = command_of(m.command)
         if mask & (IGNORE_ATTITUDE | IGNORE_THROTTLE) or mask & IGNORE_RATES == IGNORE_RATES:
             cmd = AttitudeCommand(
                 q_c=cur.q_c if mask & IGNORE_ATTITUDE else new.q_c,
@@ -482,24 +495,17 @@ class VehicleEndpoint:
             return
         self._next_any_s = min([self._due_at(msg_id, t) for msg_id in self._senders])
 
-    def _attq_fields(self, ms: int) -> tuple[float, ...]:
-        """ATTITUDE_QUATERNION fields of the current state, encoded once per instant."""
-        if self._attq_cache is None or self._attq_cache[0] != self.autopilot.step_index:
-            x = self.autopilot.state
-            self._attq_cache = (self.autopilot.step_index, encode_attitude_quaternion(x[QUAT], x[RATE]))
-        return self._attq_cache[1]
-
     def _send_local_position(self, ms: int) -> None:
-        x = self.autopilot.state
-        self._send_fields(frames.LOCAL_POSITION_NED, (ms, *encode_local_position(x[POS], x[VEL])))
+        self._send_sample_part(tick_frames.pack_local_position, frames.LOCAL_POSITION_NED, ms)
         if self._truth is not None:
-            self._truth.append(self.autopilot.time_s, x)
+            self._truth.append(self.autopilot.time_s, self.autopilot.state)
 
     def _send_attitude_quaternion(self, ms: int) -> None:
-        self._send_fields(frames.ATTITUDE_QUATERNION, (ms, *self._attq_fields(ms)))
+        self._send_sample_part(tick_frames.pack_attitude_quaternion, frames.ATTITUDE_QUATERNION, ms)
 
     def _send_attitude(self, ms: int) -> None:
-        f = self._attq_fields(ms)
+        x = self.autopilot.state
+        f = encode_attitude_quaternion(x[QUAT], x[RATE])
         w, qx, qy, qz = f[0:4]
         roll = math.atan2(2 * (w * qx + qy * qz), 1 - 2 * (qx * qx + qy * qy))
         pitch = math.asin(max(-1.0, min(1.0, 2 * (w * qy - qz * qx))))

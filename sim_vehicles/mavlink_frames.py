@@ -20,20 +20,52 @@ no second copy of the message set:
 
 Signing: ``pack_frame`` refuses (``ValueError``) a ``mav`` that signs outgoing frames, and
 callers must not use ``read_datagram`` on a link that checks signatures; both are pymavlink's job.
+
+The compiled kernels (``pack_into``, ``frame_at``, ``read_into``, ``crc_x25``) do the same in
+nopython code, for callers that convert and pack (or read and convert) a per-tick message in one
+compiled call (``tick_frames``). They take a layout as ``Layout.spec``: one int64 array, row 0
+``[msg_id, crc_extra, payload_size]``, then one row ``[kind, byte offset]`` per declared slot,
+derived from pymavlink's definition like the rest. Values travel as float64: integers are exact
+within +-2**53, which holds every integer field of the messages used (a uint64 ``time_usec`` would
+take 285 years to leave it). Little-endian hosts only, as the wire is.
 """
 
 import operator
 import struct
+import sys
 from collections.abc import Sequence
 from typing import Any
 
+import numpy as np
 from fastcrc import crc16
 from pymavlink.dialects.v20 import common as mav
+
+from sim_vehicles.jit import kernel
+
+if sys.byteorder != "little":  # the kernels write native floats as wire bytes
+    raise ImportError("sim_vehicles.mavlink_frames needs a little-endian host")
 
 MAGIC_V2 = 0xFD
 _HEADER = struct.Struct("<BBBBBBBHB")
 _HEADER_LEN = 10
 _CRC = struct.Struct("<H")
+
+# field kinds of ``Layout.spec`` and their widths [bytes]
+_KINDS = {"f": 0, "d": 1, "B": 2, "b": 3, "H": 4, "h": 5, "I": 6, "i": 7, "Q": 8, "q": 9}
+_WIDTH = (4, 8, 1, 1, 2, 2, 4, 4, 8, 8)
+_SIGNED = (False, False, False, True, False, True, False, True, False, True)
+
+
+def _wire_kinds(fmt: str) -> list[str]:
+    """One struct code per wire slot of a pymavlink ``unpacker`` format (``"<I4f"`` -> I f f f f)."""
+    out, count = [], ""
+    for ch in fmt.lstrip("<"):
+        if ch.isdigit():
+            count += ch
+        else:
+            out += [ch] * int(count or 1)
+            count = ""
+    return out
 
 
 class Layout:
@@ -69,6 +101,14 @@ class Layout:
         self._identity = self.wire_of == tuple(range(len(self.wire_of)))
         self._to_wire = operator.itemgetter(*self.declared_of)
         self._to_declared = operator.itemgetter(*self.wire_of)
+        #: the layout for the compiled kernels (module doc); ``None`` if a field is a char array
+        self.spec: np.ndarray | None = None
+        codes = _wire_kinds(self.struct.format)
+        if all(c in _KINDS for c in codes):
+            offsets = np.cumsum([0] + [_WIDTH[_KINDS[c]] for c in codes])
+            spec = [[self.msg_id, cls.crc_extra, self.struct.size]]
+            spec += [[_KINDS[codes[w]], int(offsets[w]), 0] for w in self.wire_of]
+            self.spec = np.array(spec, dtype=np.int64)
 
     def pack_payload(self, values: Sequence[float]) -> bytes:
         v = tuple(values)
@@ -114,10 +154,15 @@ def pack_frame(link: Any, layout: Layout, values: Sequence[float]) -> bytes:
     )
     frame = header + body
     frame += _CRC.pack(_crc(frame[1:], layout.crc_extra))
+    sent(link, frame)
+    return frame
+
+
+def sent(link: Any, frame: bytes) -> None:
+    """Advance ``link``'s sequence number and counters past a frame packed outside pymavlink."""
     link.seq = (link.seq + 1) % 256
     link.total_packets_sent += 1
     link.total_bytes_sent += len(frame)
-    return frame
 
 
 def _crc_matches(frame: bytes, crc_extra: bytes) -> bool:
@@ -160,3 +205,103 @@ def read_datagram(data: bytes, layouts: dict[int, Layout]) -> list[Frame] | None
             out.append((msg_id, sysid, compid, layout.unpack_payload(frame[_HEADER_LEN:-2]), frame))
         i = end
     return out
+
+
+# -- compiled ------------------------------------------------------------------------------------
+
+
+@kernel
+def crc_x25(buf, start, end, crc_extra):
+    """MAVLink's X.25 CRC of ``buf[start:end]`` followed by the byte ``crc_extra``."""
+    crc = 0xFFFF
+    for j in range(start, end + 1):
+        b = buf[j] if j < end else crc_extra
+        tmp = (b ^ crc) & 0xFF
+        tmp = (tmp ^ (tmp << 4)) & 0xFF
+        crc = ((crc >> 8) ^ (tmp << 8) ^ (tmp << 3) ^ (tmp >> 4)) & 0xFFFF
+    return crc
+
+
+@kernel
+def pack_into(out, at, seq, sysid, compid, spec, values):
+    """Write at ``out[at:]`` the MAVLink 2 frame of ``values`` (declared order, float64; slots past
+    ``len(values)`` are zero) for the layout ``spec``; returns the index after the frame. ``out``
+    must have room for the whole frame (``payload_size + 12`` bytes)."""
+    size = spec[0, 2]
+    p0 = at + _HEADER_LEN
+    out[p0 : p0 + size] = 0
+    word = np.zeros(1, np.float64)
+    raw = word.view(np.uint8)
+    for d in range(values.shape[0]):
+        kind = spec[d + 1, 0]
+        if kind == 0:
+            word.view(np.float32)[0] = values[d]
+        elif kind == 1:
+            word[0] = values[d]
+        else:
+            word.view(np.int64)[0] = np.int64(values[d])  # two's complement, low bytes first
+        off = p0 + spec[d + 1, 1]
+        out[off : off + _WIDTH[kind]] = raw[: _WIDTH[kind]]
+    n = size
+    while n > 1 and out[p0 + n - 1] == 0:  # MAVLink 2 drops the payload's trailing zeros
+        n -= 1
+    msg_id = spec[0, 0]
+    out[at] = MAGIC_V2
+    out[at + 1] = n
+    out[at + 2] = 0
+    out[at + 3] = 0
+    out[at + 4] = seq & 0xFF
+    out[at + 5] = sysid
+    out[at + 6] = compid
+    out[at + 7] = msg_id & 0xFF
+    out[at + 8] = (msg_id >> 8) & 0xFF
+    out[at + 9] = (msg_id >> 16) & 0xFF
+    crc = crc_x25(out, at + 1, p0 + n, spec[0, 1])
+    out[p0 + n] = crc & 0xFF
+    out[p0 + n + 1] = crc >> 8
+    return p0 + n + 2
+
+
+@kernel
+def frame_at(data, at):
+    """The plain MAVLink 2 frame starting at ``data[at]``: ``(msg_id, sysid, compid, end)``, with
+    ``end`` -1 if there is none (not a MAVLink 2 start, signed, or cut short). The CRC is not
+    checked here (``crc_x25`` with the message's CRC extra over ``data[at + 1:end - 2]``)."""
+    n = len(data)
+    if n - at < _HEADER_LEN + 2 or data[at] != MAGIC_V2 or data[at + 2] != 0:
+        return 0, 0, 0, -1
+    end = at + _HEADER_LEN + data[at + 1] + 2
+    if end > n:
+        return 0, 0, 0, -1
+    msg_id = data[at + 7] | (np.int64(data[at + 8]) << 8) | (np.int64(data[at + 9]) << 16)
+    return msg_id, np.int64(data[at + 5]), np.int64(data[at + 6]), end
+
+
+@kernel
+def read_into(data, at, end, spec, values):
+    """Read the frame ``data[at:end]`` of layout ``spec`` into ``values`` (declared order; as many
+    slots as ``values`` holds); the payload is zero-extended as MAVLink 2 requires. Returns whether
+    its CRC is good (``values`` is filled either way)."""
+    p0 = at + _HEADER_LEN
+    plen = end - 2 - p0
+    word = np.zeros(1, np.float64)
+    raw = word.view(np.uint8)
+    for d in range(values.shape[0]):
+        kind = spec[d + 1, 0]
+        w = _WIDTH[kind]
+        off = spec[d + 1, 1]
+        raw[:] = 0
+        for b in range(w):
+            if off + b < plen:
+                raw[b] = data[p0 + off + b]
+        if kind == 0:
+            values[d] = word.view(np.float32)[0]
+        elif kind == 1:
+            values[d] = word[0]
+        elif _SIGNED[kind]:
+            shift = 64 - 8 * w
+            values[d] = (word.view(np.int64)[0] << shift) >> shift
+        else:
+            values[d] = word.view(np.int64)[0]
+    crc = crc_x25(data, at + 1, end - 2, spec[0, 1])
+    return (data[end - 2] | (np.int64(data[end - 1]) << 8)) == crc

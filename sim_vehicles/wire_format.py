@@ -1,15 +1,19 @@
 """What MAVLink can carry: the float32 NED/FRD fields of the messages the swarm uses.
 
-``sim`` passes commands and samples through ``*_roundtrip`` so that, in lockstep, the transport is
-the only difference between an in-process run and a run across processes. The MAVLink endpoint
-and the controller's link use the same ``encode_*``/``decode_*`` functions to fill and read fields.
+``sim`` passes commands and samples through these same conversions (``command_roundtrip``,
+``sample_fields`` then ``sample_from_fields``) so that, in lockstep, the transport is the only
+difference between an in-process run and a run across processes. The MAVLink endpoint and the
+controller's link use them to fill and read fields, through ``tick_frames`` on the per-tick path.
 
 - SET_ATTITUDE_TARGET: ``q`` [w,x,y,z; FRD -> NED], body rates [rad/s; FRD], thrust normalised to
   ``0..1`` of ``max_thrust_N``. ``omegadot_c`` has no field: the vehicle receives zeros.
 - LOCAL_POSITION_NED: position [m] and velocity [m/s], NED.
 - ATTITUDE_QUATERNION: ``q`` [w,x,y,z; FRD -> NED] and body rates [rad/s; FRD].
 
-Float32 rounding is done with ``struct`` exactly as MAVLink packs its float fields.
+The conversions are compiled kernels on float64 arrays, so the per-tick frames can convert and
+pack in one compiled call; the Python functions below wrap them for everything else. Float32
+rounding is the C cast MAVLink's packing does (round to nearest even); the quaternion map is
+``frames.swap_frames_wxyz`` (the same IEEE operations in the same order).
 """
 
 import math
@@ -19,7 +23,14 @@ from typing import NamedTuple
 import numpy as np
 
 from sim_vehicles.autopilot import AttitudeCommand
-from sim_vehicles.frames import swap_frames_wxyz
+from sim_vehicles.jit import kernel
+
+_S = math.sqrt(0.5)
+
+#: ``command_from_fields``: q_c [w,x,y,z; FLU -> ENU], omega_c [rad/s; FLU], thrust [N], valid flag
+CMD_Q, CMD_OMEGA, CMD_THRUST, CMD_VALID = slice(0, 4), slice(4, 7), 7, 8
+#: ``sample_from_fields``: p [m; ENU], v [m/s; ENU], q [w,x,y,z; FLU -> ENU]
+SAMPLE_P, SAMPLE_V, SAMPLE_Q = slice(0, 3), slice(3, 6), slice(6, 10)
 
 
 class AttitudeTargetFields(NamedTuple):
@@ -37,31 +48,140 @@ def f32(*values: float) -> tuple[float, ...]:
     return fmt.unpack(fmt.pack(*values))
 
 
-def _floats(v: np.ndarray) -> list[float]:
-    return v.tolist() if isinstance(v, np.ndarray) else [float(x) for x in v]
+# -- compiled -------------------------------------------------------------------------------------
+
+
+@kernel
+def _round_f32(f):
+    for j in range(f.shape[0]):
+        f[j] = np.float32(f[j])
+    return f
+
+
+@kernel
+def _swap_into(out, at, w, x, y, z):
+    """``frames.swap_frames_wxyz(w, x, y, z)`` written to ``out[at:at + 4]``."""
+    s = _S if w + z >= 0 else -_S
+    out[at] = s * (w + z)
+    out[at + 1] = s * (x + y)
+    out[at + 2] = s * (x - y)
+    out[at + 3] = s * (w - z)
+
+
+@kernel
+def local_position_fields(p_W, v_W):
+    """LOCAL_POSITION_NED ``(x, y, z, vx, vy, vz)``, float32 values."""
+    f = np.empty(6)
+    f[0] = p_W[1]
+    f[1] = p_W[0]
+    f[2] = -p_W[2]
+    f[3] = v_W[1]
+    f[4] = v_W[0]
+    f[5] = -v_W[2]
+    return _round_f32(f)
+
+
+@kernel
+def attitude_quaternion_fields(q_WB, omega_B):
+    """ATTITUDE_QUATERNION ``(q1..q4, rollspeed, pitchspeed, yawspeed)``, float32 values."""
+    f = np.empty(7)
+    _swap_into(f, 0, q_WB[0], q_WB[1], q_WB[2], q_WB[3])
+    f[4] = omega_B[0]
+    f[5] = -omega_B[1]
+    f[6] = -omega_B[2]
+    return _round_f32(f)
+
+
+@kernel
+def sample_fields(x):
+    """Both sample messages' fields of the vehicle state ``x`` (``rigid_body`` layout)."""
+    f = np.empty(13)
+    f[0:6] = local_position_fields(x[0:3], x[3:6])
+    f[6:13] = attitude_quaternion_fields(x[6:10], x[10:13])
+    return f
+
+
+@kernel
+def sample_from_fields(lpos, attq):
+    """``[p_W, v_W, q_WB]`` (``SAMPLE_*``) from LOCAL_POSITION_NED ``(x..vz)`` and the quaternion
+    of ATTITUDE_QUATERNION ``(q1..q4, ...)``, renormalised (float32 leaves it a little off)."""
+    out = np.empty(10)
+    out[0] = lpos[1]
+    out[1] = lpos[0]
+    out[2] = -lpos[2]
+    out[3] = lpos[4]
+    out[4] = lpos[3]
+    out[5] = -lpos[5]
+    q0, q1, q2, q3 = attq[0], attq[1], attq[2], attq[3]
+    n = math.sqrt(q0 * q0 + q1 * q1 + q2 * q2 + q3 * q3)
+    _swap_into(out, 6, q0 / n, q1 / n, q2 / n, q3 / n)
+    return out
+
+
+@kernel
+def attitude_target_fields(q_c, omega_c_B, thrust_N, max_thrust_N):
+    """SET_ATTITUDE_TARGET ``(q[4], body rates[3], thrust)``, float32 values; thrust clipped to
+    ``0..1`` (NaN passes through, to be refused by the receiver)."""
+    f = np.empty(8)
+    _swap_into(f, 0, q_c[0], q_c[1], q_c[2], q_c[3])
+    f[4] = omega_c_B[0]
+    f[5] = -omega_c_B[1]
+    f[6] = -omega_c_B[2]
+    u = thrust_N / max_thrust_N
+    if u < 0.0:
+        u = 0.0
+    elif u > 1.0:
+        u = 1.0
+    f[7] = u
+    return _round_f32(f)
+
+
+@kernel
+def command_from_fields(f, max_thrust_N):
+    """The command a vehicle holds for SET_ATTITUDE_TARGET fields ``(q[4], rates[3], thrust)``
+    (``CMD_*``); ``CMD_VALID`` is 0 for a quaternion that is not a rotation or a non-finite value."""
+    out = np.empty(9)
+    q0, q1, q2, q3 = f[0], f[1], f[2], f[3]
+    n = math.sqrt(q0 * q0 + q1 * q1 + q2 * q2 + q3 * q3)
+    ok = math.isfinite(n) and abs(n - 1.0) <= 1e-3 and math.isfinite(f[4] + f[5] + f[6] + f[7])
+    _swap_into(out, 0, q0 / n, q1 / n, q2 / n, q3 / n)
+    out[4] = f[4]
+    out[5] = -f[5]
+    out[6] = -f[6]
+    out[7] = f[7] * max_thrust_N
+    out[8] = 1.0 if ok else 0.0
+    return out
+
+
+# -- Python ---------------------------------------------------------------------------------------
+
+
+def command_of(decoded: np.ndarray) -> AttitudeCommand:
+    """The ``AttitudeCommand`` of a valid ``command_from_fields`` result (views into it)."""
+    return AttitudeCommand(
+        q_c=decoded[CMD_Q], thrust_N=float(decoded[CMD_THRUST]), omega_c_B=decoded[CMD_OMEGA]
+    )
+
+
+def _vec(v: np.ndarray) -> np.ndarray:
+    return np.ascontiguousarray(v, dtype=np.float64)
 
 
 def encode_attitude_target(cmd: AttitudeCommand, max_thrust_N: float) -> AttitudeTargetFields:
-    q = swap_frames_wxyz(*_floats(cmd.q_c))
-    wx, wy, wz = _floats(cmd.omega_c_B)
-    thrust = min(max(float(cmd.thrust_N) / max_thrust_N, 0.0), 1.0)
-    v = f32(q[0], q[1], q[2], q[3], wx, -wy, -wz, thrust)
-    return AttitudeTargetFields((v[0], v[1], v[2], v[3]), (v[4], v[5], v[6]), v[7])
+    v = attitude_target_fields(_vec(cmd.q_c), _vec(cmd.omega_c_B), float(cmd.thrust_N), float(max_thrust_N))
+    f = v.tolist()
+    return AttitudeTargetFields((f[0], f[1], f[2], f[3]), (f[4], f[5], f[6]), f[7])
 
 
 def decode_attitude_target(fields: AttitudeTargetFields, max_thrust_N: float) -> AttitudeCommand:
     """The command a vehicle holds; raises ``ValueError`` for a quaternion that is not a rotation."""
-    q0, q1, q2, q3 = fields.q
-    n = math.sqrt(q0 * q0 + q1 * q1 + q2 * q2 + q3 * q3)
-    if not math.isfinite(n) or abs(n - 1.0) > 1e-3:
-        raise ValueError(f"attitude target quaternion {fields.q} is not a unit quaternion")
-    r = fields.body_rates
-    if not math.isfinite(r[0] + r[1] + r[2] + fields.thrust):  # float32 values: no overflow
-        raise ValueError("attitude target has a non-finite rate or thrust")
-    q = np.array(swap_frames_wxyz(q0 / n, q1 / n, q2 / n, q3 / n))
-    return AttitudeCommand(
-        q_c=q, thrust_N=float(fields.thrust) * max_thrust_N, omega_c_B=np.array([r[0], -r[1], -r[2]])
-    )
+    f = np.array([*fields.q, *fields.body_rates, fields.thrust], dtype=np.float64)
+    decoded = command_from_fields(f, float(max_thrust_N))
+    if not decoded[CMD_VALID]:
+        raise ValueError(
+            f"attitude target {fields.q} is not a unit quaternion, or a rate or thrust is not finite"
+        )
+    return command_of(decoded)
 
 
 def command_roundtrip(cmd: AttitudeCommand, max_thrust_N: float) -> AttitudeCommand:
@@ -71,25 +191,9 @@ def command_roundtrip(cmd: AttitudeCommand, max_thrust_N: float) -> AttitudeComm
 
 def encode_local_position(p_W: np.ndarray, v_W: np.ndarray) -> tuple[float, ...]:
     """``(x, y, z, vx, vy, vz)`` NED float32."""
-    px, py, pz = _floats(p_W)
-    vx, vy, vz = _floats(v_W)
-    return f32(py, px, -pz, vy, vx, -vz)
-
-
-def decode_local_position(fields: tuple[float, ...]) -> tuple[np.ndarray, np.ndarray]:
-    f = fields
-    return np.array([f[1], f[0], -f[2]]), np.array([f[4], f[3], -f[5]])
+    return tuple(local_position_fields(_vec(p_W), _vec(v_W)).tolist())
 
 
 def encode_attitude_quaternion(q_WB: np.ndarray, omega_B: np.ndarray) -> tuple[float, ...]:
     """``(q1..q4, rollspeed, pitchspeed, yawspeed)`` NED/FRD float32."""
-    q = swap_frames_wxyz(*_floats(q_WB))
-    wx, wy, wz = _floats(omega_B)
-    return f32(q[0], q[1], q[2], q[3], wx, -wy, -wz)
-
-
-def decode_attitude_quaternion(fields: tuple[float, ...]) -> tuple[np.ndarray, np.ndarray]:
-    q0, q1, q2, q3 = fields[0:4]
-    n = math.sqrt(q0 * q0 + q1 * q1 + q2 * q2 + q3 * q3)
-    q = np.array(swap_frames_wxyz(q0 / n, q1 / n, q2 / n, q3 / n))
-    return q, np.array([fields[4], -fields[5], -fields[6]])
+    return tuple(attitude_quaternion_fields(_vec(q_WB), _vec(omega_B)).tolist())

@@ -13,13 +13,13 @@ from collections.abc import Callable
 
 import numpy as np
 
-from sim_vehicles.rigid_body import POS, QUAT, RATE, VEL
 from sim_vehicles.wire_format import (
+    SAMPLE_P,
+    SAMPLE_Q,
+    SAMPLE_V,
     command_roundtrip,
-    decode_attitude_quaternion,
-    decode_local_position,
-    encode_attitude_quaternion,
-    encode_local_position,
+    sample_fields,
+    sample_from_fields,
 )
 from swarm_sitl.assembly import build_autopilot, build_controller, build_leader, reported_vehicle_params
 from swarm_sitl.config import SwarmConfig
@@ -29,9 +29,9 @@ from swarm_sitl.recording import FollowerSeries, Recording, leader_series
 
 def sample_through_wire(t_s: float, state: np.ndarray) -> VehicleSample:
     """The vehicle state as a controller sees it in LOCAL_POSITION_NED and ATTITUDE_QUATERNION."""
-    p, v = decode_local_position(encode_local_position(state[POS], state[VEL]))
-    q, _ = decode_attitude_quaternion(encode_attitude_quaternion(state[QUAT], state[RATE]))
-    return VehicleSample(t_s, p, v, q)
+    f = sample_fields(state)
+    s = sample_from_fields(f[0:6], f[6:10])
+    return VehicleSample(t_s, s[SAMPLE_P], s[SAMPLE_V], s[SAMPLE_Q])
 
 
 def run_sim(

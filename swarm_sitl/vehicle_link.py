@@ -17,7 +17,8 @@ real-time loop need not wake up for each datagram to know it (``stamps_arrivals`
 link it is when ``poll()`` read it.
 
 The per-tick messages (the two sample messages in, SET_ATTITUDE_TARGET out) are read and packed
-with ``sim_vehicles.mavlink_frames``; everything else goes through pymavlink.
+in one compiled call each (``sim_vehicles.tick_frames``); a datagram that is not just the sample
+is split with ``sim_vehicles.mavlink_frames``, and everything else goes through pymavlink.
 """
 
 import math
@@ -31,14 +32,10 @@ import numpy as np
 from pymavlink import mavutil
 
 from sim_vehicles import mavlink_frames as frames
-from sim_vehicles import udp_arrival
+from sim_vehicles import tick_frames, udp_arrival
 from sim_vehicles.autopilot import AttitudeCommand
 from sim_vehicles.mavlink_endpoint import MODE_OFFBOARD
-from sim_vehicles.wire_format import (
-    decode_attitude_quaternion,
-    decode_local_position,
-    encode_attitude_target,
-)
+from sim_vehicles.wire_format import SAMPLE_P, SAMPLE_Q, SAMPLE_V, encode_attitude_target, sample_from_fields
 
 mav = mavutil.mavlink
 COMP_ONBOARD = 191  # MAV_COMP_ID_ONBOARD_COMPUTER
@@ -48,6 +45,7 @@ REQUIRED_PARAMS = ("MASS_KG", "MAX_THRUST_N")
 _LPOS = frames.LOCAL_POSITION_NED
 _ATTQ = frames.ATTITUDE_QUATERNION
 _FAST_IN = {_LPOS.msg_id: _LPOS, _ATTQ.msg_id: _ATTQ}
+_SETPOINT_SPEC = frames.SET_ATTITUDE_TARGET.spec
 #: what ``_handle`` reads besides the sample; other messages (the telemetry a ground station
 #: shows) are only checked and counted, not decoded
 _HANDLED = {mav.MAVLINK_MSG_ID_HEARTBEAT, mav.MAVLINK_MSG_ID_PARAM_VALUE, mav.MAVLINK_MSG_ID_COMMAND_ACK}
@@ -73,7 +71,9 @@ class VehicleLink:
         self.params: dict[str, float] = {}
         self._lpos: tuple = ()  #: LOCAL_POSITION_NED fields, declared order
         self._attq: tuple = ()  #: ATTITUDE_QUATERNION fields, declared order
+        self._sample = np.zeros(10)  #: the latest complete sample (``wire_format.SAMPLE_*``)
         self.sample_ms = -1  #: time_boot_ms of the latest complete sample
+        self._out = np.zeros(tick_frames.FRAME_BYTES, np.uint8)
         self.sample_arrival_mono = math.nan  #: when it arrived [s; time.monotonic]
         self.heartbeat: Any = None
         self.acks: dict[int, int] = {}
@@ -126,6 +126,14 @@ class VehicleLink:
             if not data:
                 return n
             plain = self._datagrams and conn.mav.signing.secret_key is None
+            if plain:
+                s = tick_frames.read_sample(data, self.system_id, COMP_AUTOPILOT, _LPOS.spec, _ATTQ.spec)
+                if s[0]:  # the sample and nothing else: a lockstep tick, most real-time ones
+                    n += 2
+                    ms = int(s[1])
+                    self._lpos = self._attq = (ms,)
+                    self._set_sample(ms, s[2:], arrival)
+                    continue
             fast = frames.read_datagram(data, _FAST_IN) if plain else None
             if fast is not None:
                 for msg_id, sysid, compid, values, frame in fast:
@@ -175,15 +183,20 @@ class VehicleLink:
             self._lpos = fields
         else:
             self._attq = fields
-        if self._lpos and self._attq and self._lpos[0] == self._attq[0]:
-            self.sample_ms = int(self._lpos[0])
-            self.sample_arrival_mono = arrival
+        lpos, attq = self._lpos, self._attq
+        if len(lpos) > 1 and len(attq) > 1 and lpos[0] == attq[0]:
+            decoded = sample_from_fields(np.array(lpos[1:7], dtype=float), np.array(attq[1:5], dtype=float))
+            self._set_sample(int(lpos[0]), decoded, arrival)
+
+    def _set_sample(self, time_boot_ms: int, decoded: np.ndarray, arrival: float) -> None:
+        self._sample = decoded
+        self.sample_ms = time_boot_ms
+        self.sample_arrival_mono = arrival
 
     def sample(self) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
         """``(time_boot_s, p_W, v_W, q_WB)`` of the latest complete sample, in ENU/FLU."""
-        p, v = decode_local_position(self._lpos[1:7])
-        q, _ = decode_attitude_quaternion(self._attq[1:8])
-        return self.sample_ms / 1000.0, p, v, q
+        s = self._sample
+        return self.sample_ms / 1000.0, s[SAMPLE_P], s[SAMPLE_V], s[SAMPLE_Q]
 
     # -- send ------------------------------------------------------------------------------------
     def send_heartbeat_if_due(self) -> None:
@@ -197,13 +210,40 @@ class VehicleLink:
         self.conn.mav.command_long_send(self.system_id, COMP_AUTOPILOT, command, 0, *p)
 
     def send_setpoint(self, cmd: AttitudeCommand, time_boot_ms: int) -> None:
-        f = encode_attitude_target(cmd, self.params["MAX_THRUST_N"])
-        values = (time_boot_ms, self.system_id, COMP_AUTOPILOT, IGNORE_NOTHING, *f.q, *f.body_rates, f.thrust)
         mav_ = self.conn.mav
-        if mav_.signing.sign_outgoing:
-            mav_.set_attitude_target_send(*values[0:4], list(f.q), *f.body_rates, f.thrust)
-        else:
-            self.conn.write(frames.pack_frame(mav_, frames.SET_ATTITUDE_TARGET, values))
+        max_thrust = self.params["MAX_THRUST_N"]
+        if mav_.signing.sign_outgoing:  # pymavlink signs
+            f = encode_attitude_target(cmd, max_thrust)
+            mav_.set_attitude_target_send(
+                time_boot_ms,
+                self.system_id,
+                COMP_AUTOPILOT,
+                IGNORE_NOTHING,
+                list(f.q),
+                *f.body_rates,
+                f.thrust,
+            )
+            return
+        q_c, omega = cmd.q_c, cmd.omega_c_B
+        if not (type(q_c) is np.ndarray and type(omega) is np.ndarray):
+            q_c, omega = np.asarray(q_c, dtype=float), np.asarray(omega, dtype=float)
+        n = tick_frames.pack_setpoint(
+            self._out,
+            mav_.seq,
+            mav_.srcSystem,
+            mav_.srcComponent,
+            _SETPOINT_SPEC,
+            time_boot_ms,
+            self.system_id,
+            COMP_AUTOPILOT,
+            q_c,
+            omega,
+            float(cmd.thrust_N),
+            max_thrust,
+        )
+        frame = self._out[:n].tobytes()
+        frames.sent(mav_, frame)
+        self.conn.write(frame)
 
     # -- the start-up handshake ------------------------------------------------------------------
     def _wait(self, done: Any, what: str, timeout_s: float, resend: Any = None, every_s: float = 0.5) -> None:

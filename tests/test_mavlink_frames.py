@@ -8,6 +8,7 @@ import time
 
 os.environ.setdefault("MAVLINK20", "1")
 
+import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
@@ -24,6 +25,14 @@ LAYOUTS = [
     frames.ATTITUDE_TARGET,
     frames.HIGHRES_IMU,
     frames.SET_ATTITUDE_TARGET,
+]
+#: every other field kind the kernels handle: signed integers (SYS_STATUS, which the vehicle sends,
+#: GPS_GLOBAL_ORIGIN, TIMESYNC), uint64 and float64 arrays (WHEEL_DISTANCE)
+OTHER_KINDS = [
+    frames.Layout(mav.MAVLink_sys_status_message),
+    frames.Layout(mav.MAVLink_gps_global_origin_message),
+    frames.Layout(mav.MAVLink_timesync_message),
+    frames.Layout(mav.MAVLink_wheel_distance_message),
 ]
 
 
@@ -55,9 +64,12 @@ def _values(layout: frames.Layout, draw: st.DrawFn) -> list:
         t = wire_types[layout.wire_of[d]]
         if t == "f":
             out.append(_f32(draw(st.floats(-1e6, 1e6))) if draw(st.booleans()) else 0.0)
+        elif t == "d":
+            out.append(draw(st.floats(-1e300, 1e300)) if draw(st.booleans()) else 0.0)
         else:
-            bits = {"B": 8, "H": 16, "I": 32, "Q": 64}[t]
-            out.append(draw(st.integers(0, 2**bits - 1)) if draw(st.booleans()) else 0)
+            bits = min({"B": 8, "H": 16, "I": 32, "Q": 64}[t.upper()], 53)  # values travel as float64
+            lo, hi = (-(2 ** (bits - 1)), 2 ** (bits - 1) - 1) if t.islower() else (0, 2**bits - 1)
+            out.append(draw(st.integers(lo, hi)) if draw(st.booleans()) else 0)
     return out
 
 
@@ -203,3 +215,36 @@ def test_a_link_checks_the_telemetry_it_ignores_and_counts_what_is_bad():
     finally:
         link.close()
         vehicle.close()
+
+
+@settings(max_examples=150, deadline=None)
+@given(data=st.data(), seq=st.integers(0, 255), sysid=st.integers(1, 255), compid=st.integers(0, 255))
+def test_compiled_frames_are_byte_identical_to_pymavlink_and_read_back_the_same(data, seq, sysid, compid):
+    """``pack_into``/``read_into`` (the kernels of ``tick_frames``) against pymavlink itself."""
+    layout = data.draw(st.sampled_from(LAYOUTS + OTHER_KINDS))
+    values = _values(layout, data.draw)
+    ref = mav.MAVLink(_Sink(), sysid, compid)
+    ref.seq = seq
+    ref.send(_pymavlink_message(layout, values))
+    expected = ref.file.frames[0]
+    out = np.full(layout.struct.size + 16, 0xAA, dtype=np.uint8)  # stale bytes must not leak in
+    at = data.draw(st.integers(0, 4))
+    end = frames.pack_into(out, at, seq, sysid, compid, layout.spec, np.array(values, dtype=float))
+    assert out[at:end].tobytes() == expected
+
+    datagram = b"\x00" * at + expected
+    assert frames.frame_at(datagram, at) == (layout.msg_id, sysid, compid, len(datagram))
+    back = np.empty(len(values))
+    assert frames.read_into(datagram, at, len(datagram), layout.spec, back)
+    assert back.tolist() == values
+    bad = bytearray(datagram)
+    bad[-3] ^= 0x01  # the last payload byte (or a header byte of an empty payload): CRC must fail
+    assert not frames.read_into(bytes(bad), at, len(bad), layout.spec, back)
+
+
+@pytest.mark.parametrize("cut", [1, 5, 11])
+def test_frame_at_refuses_what_is_not_a_whole_plain_frame(cut):
+    lpos, _ = _two_frames()
+    assert frames.frame_at(lpos[:-cut], 0)[3] == -1
+    assert frames.frame_at(b"\xfe" + lpos[1:], 0)[3] == -1  # MAVLink 1
+    assert frames.frame_at(lpos[:2] + b"\x01" + lpos[3:], 0)[3] == -1  # signed

@@ -1,0 +1,128 @@
+"""The MAVLink frames that cross a vehicle link every tick, each converted and packed (or read and
+converted) in one compiled call.
+
+A lockstep tick is a ping-pong: the vehicle sends its sample (LOCAL_POSITION_NED and
+ATTITUDE_QUATERNION), the controller answers with SET_ATTITUDE_TARGET. Done in Python, field by
+field, that costs more than the laws: these kernels do the conversion (``wire_format``) and the
+frame (``mavlink_frames``: the bytes pymavlink would write, tested against it) in one call each.
+
+- ``pack_local_position`` / ``pack_attitude_quaternion`` (vehicle): the message of state ``x``
+  (``rigid_body`` layout) at ``time_boot_ms``, written to ``out``; returns its length.
+- ``read_sample`` (controller): a datagram made of exactly those two frames from
+  ``(sysid, compid)``, of the same ``time_boot_ms`` and with good CRCs, as
+  ``[1, time_boot_ms, p_W, v_W, q_WB]`` (``wire_format.SAMPLE_*`` after the first two); anything
+  else gives ``[0, ...]`` and the caller reads the datagram the general way.
+- ``pack_setpoint`` (controller): SET_ATTITUDE_TARGET of a command, every field taken.
+- ``read_setpoint`` (vehicle): a datagram made of exactly one SET_ATTITUDE_TARGET frame with a
+  good CRC, as ``[1, sysid, compid, time_boot_ms, target_system, target_component, type_mask]``
+  followed by ``wire_format.command_from_fields`` of its fields; else ``[0, ...]``.
+
+``spec`` arguments are ``mavlink_frames.Layout.spec`` of the message named.
+"""
+
+import numpy as np
+
+from sim_vehicles.jit import kernel
+from sim_vehicles.mavlink_frames import frame_at, pack_into, read_into
+from sim_vehicles.wire_format import (
+    attitude_quaternion_fields,
+    attitude_target_fields,
+    command_from_fields,
+    local_position_fields,
+    sample_from_fields,
+)
+
+#: room for any one frame of the messages above (largest payload 39 bytes, plus 12)
+FRAME_BYTES = 64
+SAMPLE_SIZE = 12
+SETPOINT_SIZE = 7 + 9
+SP_SYSID, SP_COMPID, SP_TIME_MS, SP_TARGET_SYSTEM, SP_TARGET_COMPONENT, SP_TYPE_MASK = 1, 2, 3, 4, 5, 6
+SP_COMMAND = slice(7, 16)  #: ``wire_format.command_from_fields``
+
+
+@kernel
+def pack_local_position(out, seq, sysid, compid, spec, time_boot_ms, x):
+    v = np.empty(7)
+    v[0] = time_boot_ms
+    v[1:7] = local_position_fields(x[0:3], x[3:6])
+    return pack_into(out, 0, seq, sysid, compid, spec, v)
+
+
+@kernel
+def pack_attitude_quaternion(out, seq, sysid, compid, spec, time_boot_ms, x):
+    v = np.empty(8)
+    v[0] = time_boot_ms
+    v[1:8] = attitude_quaternion_fields(x[6:10], x[10:13])
+    return pack_into(out, 0, seq, sysid, compid, spec, v)
+
+
+@kernel
+def pack_setpoint(
+    out,
+    seq,
+    sysid,
+    compid,
+    spec,
+    time_boot_ms,
+    target_system,
+    target_component,
+    q_c,
+    omega_c_B,
+    thrust_N,
+    max_thrust_N,
+):
+    f = attitude_target_fields(q_c, omega_c_B, thrust_N, max_thrust_N)
+    v = np.empty(12)
+    v[0] = time_boot_ms
+    v[1] = target_system
+    v[2] = target_component
+    v[3] = 0.0  # type_mask: every field taken
+    v[4:12] = f
+    return pack_into(out, 0, seq, sysid, compid, spec, v)
+
+
+@kernel
+def read_sample(data, sysid, compid, lpos_spec, attq_spec):
+    res = np.zeros(SAMPLE_SIZE)
+    lpos = np.empty(7)
+    attq = np.empty(8)
+    got_lpos = False
+    got_attq = False
+    at = 0
+    while at < len(data):
+        msg_id, s, c, end = frame_at(data, at)
+        if end < 0 or s != sysid or c != compid:
+            return res
+        if msg_id == lpos_spec[0, 0] and not got_lpos:
+            got_lpos = read_into(data, at, end, lpos_spec, lpos)
+            if not got_lpos:
+                return res
+        elif msg_id == attq_spec[0, 0] and not got_attq:
+            got_attq = read_into(data, at, end, attq_spec, attq)
+            if not got_attq:
+                return res
+        else:
+            return res
+        at = end
+    if got_lpos and got_attq and lpos[0] == attq[0]:
+        res[0] = 1.0
+        res[1] = lpos[0]
+        res[2:12] = sample_from_fields(lpos[1:7], attq[1:5])
+    return res
+
+
+@kernel
+def read_setpoint(data, spec, max_thrust_N):
+    res = np.zeros(SETPOINT_SIZE)
+    msg_id, s, c, end = frame_at(data, 0)
+    if end != len(data) or msg_id != spec[0, 0]:
+        return res
+    v = np.empty(12)  # time_boot_ms, target_system, target_component, type_mask, q[4], rates[3], thrust
+    if not read_into(data, 0, end, spec, v):
+        return res
+    res[0] = 1.0
+    res[1] = s
+    res[2] = c
+    res[3:7] = v[0:4]
+    res[7:16] = command_from_fields(v[4:12], max_thrust_N)
+    return res
