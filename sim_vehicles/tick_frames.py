@@ -8,10 +8,13 @@ frame (``mavlink_frames``: the bytes pymavlink would write, tested against it) i
 
 - ``pack_local_position`` / ``pack_attitude_quaternion`` (vehicle): the message of state ``x``
   (``rigid_body`` layout) at ``time_boot_ms``, written to ``out``; returns its length.
-- ``read_sample`` (controller): a datagram made of exactly those two frames from
-  ``(sysid, compid)``, of the same ``time_boot_ms`` and with good CRCs, as
-  ``[1, time_boot_ms, p_W, v_W, q_WB]`` (``wire_format.SAMPLE_*`` after the first two); anything
-  else gives ``[0, ...]`` and the caller reads the datagram the general way.
+- ``read_sample`` (controller): a datagram holding those two frames from ``(sysid, compid)``, of
+  the same ``time_boot_ms`` and with good CRCs, as ``[1, time_boot_ms, p_W, v_W, q_WB, frames,
+  bad]`` (``RS_*``). Other frames may come with them if ``ignored[msg_id]`` gives their CRC extra:
+  the caller does not read those messages, so they are only counted, and ``bad`` of them had a bad
+  CRC (what pymavlink would drop). Anything else (a message the caller reads, an unknown one, a
+  frame that is not plain MAVLink 2) gives ``[0, ...]`` and the caller reads the datagram the
+  general way.
 - ``pack_setpoint`` (controller): SET_ATTITUDE_TARGET of a command, every field taken.
 - ``read_setpoint`` (vehicle): a datagram made of exactly one SET_ATTITUDE_TARGET frame with a
   good CRC, as ``[1, sysid, compid, time_boot_ms, target_system, target_component, type_mask]``
@@ -23,7 +26,7 @@ frame (``mavlink_frames``: the bytes pymavlink would write, tested against it) i
 import numpy as np
 
 from sim_vehicles.jit import kernel
-from sim_vehicles.mavlink_frames import frame_at, pack_into, read_into
+from sim_vehicles.mavlink_frames import crc_x25, frame_at, pack_into, read_into
 from sim_vehicles.wire_format import (
     attitude_quaternion_fields,
     attitude_target_fields,
@@ -34,7 +37,8 @@ from sim_vehicles.wire_format import (
 
 #: room for any one frame of the messages above (largest payload 39 bytes, plus 12)
 FRAME_BYTES = 64
-SAMPLE_SIZE = 12
+RS_OK, RS_TIME_MS, RS_SAMPLE, RS_FRAMES, RS_BAD = 0, 1, slice(2, 12), 12, 13
+SAMPLE_SIZE = 14
 SETPOINT_SIZE = 7 + 9
 SP_SYSID, SP_COMPID, SP_TIME_MS, SP_TARGET_SYSTEM, SP_TARGET_COMPONENT, SP_TYPE_MASK = 1, 2, 3, 4, 5, 6
 SP_COMMAND = slice(7, 16)  #: ``wire_format.command_from_fields``
@@ -82,32 +86,43 @@ def pack_setpoint(
 
 
 @kernel
-def read_sample(data, sysid, compid, lpos_spec, attq_spec):
+def read_sample(data, sysid, compid, lpos_spec, attq_spec, ignored):
     res = np.zeros(SAMPLE_SIZE)
     lpos = np.empty(7)
     attq = np.empty(8)
     got_lpos = False
     got_attq = False
+    n_frames = 0
+    n_bad = 0
     at = 0
     while at < len(data):
         msg_id, s, c, end = frame_at(data, at)
-        if end < 0 or s != sysid or c != compid:
+        if end < 0:
             return res
-        if msg_id == lpos_spec[0, 0] and not got_lpos:
+        n_frames += 1
+        ours = s == sysid and c == compid
+        if ours and msg_id == lpos_spec[0, 0] and not got_lpos:
             got_lpos = read_into(data, at, end, lpos_spec, lpos)
             if not got_lpos:
                 return res
-        elif msg_id == attq_spec[0, 0] and not got_attq:
+        elif ours and msg_id == attq_spec[0, 0] and not got_attq:
             got_attq = read_into(data, at, end, attq_spec, attq)
             if not got_attq:
                 return res
+        elif msg_id < len(ignored) and ignored[msg_id] >= 0:
+            if crc_x25(data, at + 1, end - 2, ignored[msg_id]) != (
+                data[end - 2] | (np.int64(data[end - 1]) << 8)
+            ):
+                n_bad += 1
         else:
             return res
         at = end
     if got_lpos and got_attq and lpos[0] == attq[0]:
-        res[0] = 1.0
-        res[1] = lpos[0]
+        res[RS_OK] = 1.0
+        res[RS_TIME_MS] = lpos[0]
         res[2:12] = sample_from_fields(lpos[1:7], attq[1:5])
+        res[RS_FRAMES] = n_frames
+        res[RS_BAD] = n_bad
     return res
 
 

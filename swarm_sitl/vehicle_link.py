@@ -49,6 +49,12 @@ _SETPOINT_SPEC = frames.SET_ATTITUDE_TARGET.spec
 #: what ``_handle`` reads besides the sample; other messages (the telemetry a ground station
 #: shows) are only checked and counted, not decoded
 _HANDLED = {mav.MAVLINK_MSG_ID_HEARTBEAT, mav.MAVLINK_MSG_ID_PARAM_VALUE, mav.MAVLINK_MSG_ID_COMMAND_ACK}
+#: ``tick_frames.read_sample``'s table of the messages only checked and counted: CRC extra by id,
+#: -1 for those read (the sample, ``_HANDLED``) and for ids the common set does not have
+_IGNORED = np.full(max(mav.mavlink_map) + 1, -1, dtype=np.int64)
+for _id, _cls in mav.mavlink_map.items():
+    if _id not in _HANDLED and _id not in _FAST_IN:
+        _IGNORED[_id] = _cls.crc_extra
 
 
 class LinkError(RuntimeError):
@@ -127,12 +133,15 @@ class VehicleLink:
                 return n
             plain = self._datagrams and conn.mav.signing.secret_key is None
             if plain:
-                s = tick_frames.read_sample(data, self.system_id, COMP_AUTOPILOT, _LPOS.spec, _ATTQ.spec)
-                if s[0]:  # the sample and nothing else: a lockstep tick, most real-time ones
-                    n += 2
-                    ms = int(s[1])
+                s = tick_frames.read_sample(
+                    data, self.system_id, COMP_AUTOPILOT, _LPOS.spec, _ATTQ.spec, _IGNORED
+                )
+                if s[tick_frames.RS_OK]:  # the sample, and telemetry that is only counted
+                    n += int(s[tick_frames.RS_FRAMES])
+                    self.rx_bad += int(s[tick_frames.RS_BAD])
+                    ms = int(s[tick_frames.RS_TIME_MS])
                     self._lpos = self._attq = (ms,)
-                    self._set_sample(ms, s[2:], arrival)
+                    self._set_sample(ms, s[tick_frames.RS_SAMPLE], arrival)
                     continue
             fast = frames.read_datagram(data, _FAST_IN) if plain else None
             if fast is not None:

@@ -22,6 +22,10 @@ pytestmark = pytest.mark.unit
 
 LPOS, ATTQ, SETPOINT = frames.LOCAL_POSITION_NED, frames.ATTITUDE_QUATERNION, frames.SET_ATTITUDE_TARGET
 time_ms = st.integers(0, 2**32 - 1)
+#: a reader that reads the sample and HEARTBEAT, and only counts ATTITUDE and HIGHRES_IMU
+IGNORED = np.full(200, -1, dtype=np.int64)
+for _cls in (mav.MAVLink_attitude_message, mav.MAVLink_highres_imu_message):
+    IGNORED[_cls.id] = _cls.crc_extra
 
 
 class _Sink:
@@ -63,33 +67,44 @@ def test_sample_frames_are_pymavlinks_and_read_back_as_the_float32_state(p, v, q
     assert out[:n].tobytes() == ref_attq
 
     for datagram in (ref_lpos + ref_attq, ref_attq + ref_lpos):
-        got = tf.read_sample(datagram, 3, 1, LPOS.spec, ATTQ.spec)
-        assert got[0] == 1 and got[1] == ms
-        assert got[2:8].tolist() == [*_f32(*x[0:6])]  # NED and back: exact, at float32
-        q_back = got[8:12]
+        got = tf.read_sample(datagram, 3, 1, LPOS.spec, ATTQ.spec, IGNORED)
+        assert got[tf.RS_OK] == 1 and got[tf.RS_TIME_MS] == ms
+        assert (got[tf.RS_FRAMES], got[tf.RS_BAD]) == (2, 0)
+        sample = got[tf.RS_SAMPLE]
+        assert sample[0:6].tolist() == [*_f32(*x[0:6])]  # NED and back: exact, at float32
+        q_back = sample[6:10]
         assert abs(np.linalg.norm(q_back) - 1) < 1e-15
         assert min(np.abs(q_back - q).max(), np.abs(q_back + q).max()) < 1e-6
 
 
-def test_read_sample_leaves_anything_but_exactly_the_sample_to_the_general_path():
+def test_read_sample_counts_the_telemetry_it_ignores_and_leaves_the_rest_to_the_general_path():
     x = _state(np.array([1.0, 2.0, 3.0]), np.zeros(3), np.array([1.0, 0, 0, 0]), np.zeros(3))
     lpos, attq = _reference_sample_frames(x, 40, 0)
     later, _ = _reference_sample_frames(x, 50, 2)
-    hb = mav.MAVLink(_Sink(), 3, 1)
-    hb.heartbeat_send(mav.MAV_TYPE_QUADROTOR, mav.MAV_AUTOPILOT_GENERIC, 0, 0, 0)
+    other = mav.MAVLink(_Sink(), 3, 1)
+    other.heartbeat_send(mav.MAV_TYPE_QUADROTOR, mav.MAV_AUTOPILOT_GENERIC, 0, 0, 0)
+    other.attitude_send(40, 0.1, 0.2, 0.3, 0.0, 0.0, 0.0)
+    other.sys_status_send(0, 0, 0, 0, 12000, -1, -1, 0, 0, 0, 0, 0, 0)  # not in IGNORED: unknown here
+    hb, attitude, unknown = other.file.frames
+    bad_attitude = attitude[:-1] + bytes([attitude[-1] ^ 0xFF])
     corrupt = bytearray(lpos)
     corrupt[12] ^= 0x10
 
-    def read(datagram: bytes, sysid: int = 3) -> float:
-        return float(tf.read_sample(datagram, sysid, 1, LPOS.spec, ATTQ.spec)[0])
+    def read(datagram: bytes, sysid: int = 3) -> tuple[float, float, float]:
+        got = tf.read_sample(datagram, sysid, 1, LPOS.spec, ATTQ.spec, IGNORED)
+        return got[tf.RS_OK], got[tf.RS_FRAMES], got[tf.RS_BAD]
 
-    assert read(lpos + attq) == 1
-    assert read(lpos + attq, sysid=4) == 0  # another vehicle's
-    assert read(lpos) == 0 and read(attq) == 0  # half a sample
-    assert read(later + attq) == 0  # two instants
-    assert read(lpos + attq + hb.file.frames[0]) == 0  # more than the sample
-    assert read(bytes(corrupt) + attq) == 0  # bad CRC
-    assert read((lpos + attq)[:-1]) == 0 and read(b"") == 0
+    assert read(lpos + attq) == (1, 2, 0)
+    assert read(attitude + lpos + attq) == (1, 3, 0)  # counted, not read
+    assert read(lpos + bad_attitude + attq) == (1, 3, 1)  # counted as bad
+    assert read(lpos + attq, sysid=4)[0] == 0  # another vehicle's
+    assert read(lpos)[0] == 0 and read(attq)[0] == 0  # half a sample
+    assert read(later + attq)[0] == 0  # two instants
+    assert read(lpos + attq + hb)[0] == 0  # a message the reader reads
+    assert read(lpos + attq + unknown)[0] == 0  # one it does not know
+    assert read(lpos + attq + lpos)[0] == 0  # a second sample message
+    assert read(bytes(corrupt) + attq)[0] == 0  # bad CRC of the sample
+    assert read((lpos + attq)[:-1])[0] == 0 and read(b"")[0] == 0
 
 
 @settings(max_examples=200, deadline=None)
