@@ -93,6 +93,13 @@ class TelemetryRates:
 
 MAX_DATAGRAM = 1200  #: bytes; below any loopback or Ethernet MTU
 RX_EVERY_S = 0.01  #: real time, offboard: longest a datagram waits to be read [s]
+LOCKSTEP_WAIT_S = 0.2  #: lockstep: longest wait for a datagram before the heartbeat is checked [s]
+
+
+def _timeval(seconds: float) -> bytes:
+    """A ``struct timeval`` for ``SO_RCVTIMEO``."""
+    return struct.pack("@ll", int(seconds), round((seconds % 1.0) * 1e6))
+
 
 TRUTH_COLUMNS = ["time_boot_s", "px", "py", "pz", "vx", "vy", "vz", "qw", "qx", "qy", "qz", "wx", "wy", "wz"]
 
@@ -167,6 +174,7 @@ class VehicleEndpoint:
         self.mode = MODE_HOLD
         self.stats = EndpointStats()
         self._last_setpoint_s = -math.inf
+        #: simulated time each stream is next due (0: now; inf: off), in the order they are sent
         self._next_send: dict[int, float] = {}
         self._tlog: BinaryIO | None = open(self.tlog_path, "wb") if self.tlog_path else None  # noqa: SIM115
         self._truth = RowLog(self.truth_path, TRUTH_COLUMNS) if self.truth_path else None
@@ -175,6 +183,7 @@ class VehicleEndpoint:
             for msg_id in (mav.MAVLINK_MSG_ID_LOCAL_POSITION_NED, mav.MAVLINK_MSG_ID_ATTITUDE_QUATERNION):
                 self._defaults[msg_id] = max(self._defaults[msg_id], 1.0 / self.lockstep_period_s)
         self._rate_hz = dict(self._defaults)
+        self._next_send = dict.fromkeys(self._defaults, 0.0)
         self._senders: dict[int, Callable[[int], None]] = {
             mav.MAVLINK_MSG_ID_LOCAL_POSITION_NED: self._send_local_position,
             mav.MAVLINK_MSG_ID_ATTITUDE: self._send_attitude,
@@ -290,50 +299,54 @@ class VehicleEndpoint:
                 return
             if at_arrival is not None:
                 at_arrival(arrival)
-            new_peer = addr != self.peer
-            self.peer = addr
-            if new_peer:
-                self.send_heartbeat()
-            plain = self._parser.signing.secret_key is None
-            if plain:
-                r = tick_frames.read_setpoint(data, _SETPOINT.spec, self.autopilot.params.max_thrust_N)
-                if r[0]:  # one SET_ATTITUDE_TARGET and nothing else: what a controller sends
-                    self._log(data)
-                    self.stats.rx_messages += 1
-                    sp = _Setpoint(
-                        int(r[tick_frames.SP_TIME_MS]),
-                        int(r[tick_frames.SP_TARGET_SYSTEM]),
-                        int(r[tick_frames.SP_TARGET_COMPONENT]),
-                        int(r[tick_frames.SP_TYPE_MASK]),
-                        r[tick_frames.SP_COMMAND],
-                    )
-                    if self._for_me(sp):
-                        self._on_setpoint(sp)
-                    continue
-            fast = frames.read_datagram(data, {}) if plain else None
-            if fast is not None:
-                for _id, _sys, _comp, _values, frame in fast:
-                    self._log(frame)
-                    self.stats.rx_messages += 1
-                    try:
-                        m = self._parser.decode(bytearray(frame))
-                    except Exception:  # pymavlink's own errors and struct errors: drop, count
-                        self.stats.rx_bad += 1
-                        continue
-                    self._handle(m)
-                continue
-            try:
-                msgs = self._parser.parse_buffer(data) or []
-            except Exception:  # pymavlink raises its own and struct errors on garbage: drop, count
-                self.stats.rx_bad += 1
-                continue
-            for m in msgs:
-                self._log(m.get_msgbuf())
+            self._datagram(data, addr)
+
+    def _datagram(self, data: bytes, addr: Any) -> None:
+        """Handle one datagram from ``addr`` (what it makes the vehicle send waits for ``flush``)."""
+        new_peer = addr != self.peer
+        self.peer = addr
+        if new_peer:
+            self.send_heartbeat()
+        plain = self._parser.signing.secret_key is None
+        if plain:
+            r = tick_frames.read_setpoint(data, _SETPOINT.spec, self.autopilot.params.max_thrust_N)
+            if r[0]:  # one SET_ATTITUDE_TARGET and nothing else: what a controller sends
+                self._log(data)
                 self.stats.rx_messages += 1
-                if m.get_type() == "BAD_DATA":
+                sp = _Setpoint(
+                    int(r[tick_frames.SP_TIME_MS]),
+                    int(r[tick_frames.SP_TARGET_SYSTEM]),
+                    int(r[tick_frames.SP_TARGET_COMPONENT]),
+                    int(r[tick_frames.SP_TYPE_MASK]),
+                    r[tick_frames.SP_COMMAND],
+                )
+                if self._for_me(sp):
+                    self._on_setpoint(sp)
+                return
+        fast = frames.read_datagram(data, {}) if plain else None
+        if fast is not None:
+            for _id, _sys, _comp, _values, frame in fast:
+                self._log(frame)
+                self.stats.rx_messages += 1
+                try:
+                    m = self._parser.decode(bytearray(frame))
+                except Exception:  # pymavlink's own errors and struct errors: drop, count
                     self.stats.rx_bad += 1
                     continue
                 self._handle(m)
+            return
+        try:
+            msgs = self._parser.parse_buffer(data) or []
+        except Exception:  # pymavlink raises its own and struct errors on garbage: drop, count
+            self.stats.rx_bad += 1
+            return
+        for m in msgs:
+            self._log(m.get_msgbuf())
+            self.stats.rx_messages += 1
+            if m.get_type() == "BAD_DATA":
+                self.stats.rx_bad += 1
+                continue
+            self._handle(m)
 
     def _for_me(self, m: Any) -> bool:
         return m.target_system in (0, self.system_id) and m.target_component in (
@@ -385,7 +398,7 @@ class VehicleEndpoint:
             self._rate_hz[msg_id] = (
                 self._defaults[msg_id] if us == 0 else (0.0 if us < 0 else 1e6 / max(us, 1.0))
             )
-            self._next_send.pop(msg_id, None)
+            self._next_send[msg_id] = 0.0
             self._next_any_s = 0.0
         elif m.command == mav.MAV_CMD_REQUEST_MESSAGE and int(m.param1) in self._senders:
             self._ack(m.command, result)  # the ack first, then the message, as PX4 does
@@ -456,19 +469,6 @@ class VehicleEndpoint:
         self._stream()
         self.flush()
 
-    def _due_at(self, msg_id: int, t: float) -> float:
-        """When stream ``msg_id`` is next due (inf: off); if it is due at ``t``, send it first.
-        Each stream is sent on its own grid of multiples of its period in boot time, so streams
-        of the same rate (LOCAL_POSITION_NED and ATTITUDE_QUATERNION) always share their instants."""
-        rate_hz = self._rate_hz[msg_id]
-        if rate_hz <= 0:
-            return math.inf
-        at = self._next_send.get(msg_id, 0.0)
-        if t + 1e-9 >= at:
-            at = self._next_send[msg_id] = (math.floor(t * rate_hz + 1e-6) + 1) / rate_hz
-            self._senders[msg_id](round(t * 1000))
-        return at
-
     def send_heartbeat(self) -> None:
         base = mav.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | (mav.MAV_MODE_FLAG_SAFETY_ARMED if self.armed else 0)
         status = (
@@ -490,10 +490,22 @@ class VehicleEndpoint:
             self.flush()
 
     def _stream(self) -> None:
+        """Send the streams due now. Each is sent on its own grid of multiples of its period in
+        boot time, so streams of the same rate (LOCAL_POSITION_NED and ATTITUDE_QUATERNION)
+        always share their instants."""
         t = self.autopilot.time_s
         if t + 1e-9 < self._next_any_s:
             return
-        self._next_any_s = min([self._due_at(msg_id, t) for msg_id in self._senders])
+        next_send = self._next_send
+        for msg_id, at in next_send.items():  # values replaced in place: no key is added
+            if t + 1e-9 >= at:
+                rate_hz = self._rate_hz[msg_id]
+                if rate_hz <= 0:
+                    next_send[msg_id] = math.inf
+                    continue
+                next_send[msg_id] = (math.floor(t * rate_hz + 1e-6) + 1) / rate_hz
+                self._senders[msg_id](round(t * 1000))
+        self._next_any_s = min(next_send.values())
 
     def _send_local_position(self, ms: int) -> None:
         self._send_sample_part(tick_frames.pack_local_position, frames.LOCAL_POSITION_NED, ms)
@@ -576,9 +588,24 @@ class VehicleEndpoint:
                 self.poll(catch_up, readable=True)
 
     def run_lockstep(self, stop: Callable[[], bool] | None = None) -> None:
-        """Serve setpoints until ``stop()``: simulated time moves only with them (see the module doc)."""
-        while stop is None or not stop():
-            self.heartbeat_tick(time.monotonic())
-            readable, _, _ = select.select([self.sock], [], [], 0.2)
-            if readable:
-                self.poll(readable=True)
+        """Serve setpoints until ``stop()``: simulated time moves only with them (see the module doc).
+
+        One datagram per wake-up, read by a blocking ``recvfrom`` that gives up after
+        ``LOCKSTEP_WAIT_S`` (``SO_RCVTIMEO``) so the heartbeat and ``stop()`` still get their turn:
+        one system call where a ``select`` and a drain would take three."""
+        self.sock.setblocking(True)
+        self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVTIMEO, _timeval(LOCKSTEP_WAIT_S))
+        try:
+            while stop is None or not stop():
+                self.heartbeat_tick(time.monotonic())
+                try:
+                    data, addr = self.sock.recvfrom(4096)
+                except OSError:  # the wait ran out (EAGAIN), or an ICMP error
+                    continue
+                try:
+                    self._datagram(data, addr)
+                finally:
+                    self.flush()
+        finally:
+            self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVTIMEO, _timeval(0.0))
+            self.sock.setblocking(False)
