@@ -18,6 +18,7 @@ Every tick is written to ``procs/controller_<i>.rows`` (``row_log``) as it happe
 """
 
 import math
+import select
 import time
 from typing import NamedTuple
 
@@ -55,6 +56,9 @@ CONTROLLER_COLUMNS = [
     *[f"out_{j}" for j in range(OUT_SIZE)],
 ]
 RESEND_AFTER_S = 0.25
+#: lockstep: how long a tick blocks for its vehicle sample before it reads its inputs [s] (the rest
+#: of the wait, resends and stall checks included, is ``wait_until``'s)
+SAMPLE_WAIT_S = 0.05
 #: lockstep: how long a tick still waits for an estimate from a node whose liveliness token has gone
 #: (its last messages may come after the token's removal) before the run is called stalled
 LOST_GRACE_S = 1.0
@@ -115,8 +119,8 @@ class _Inputs:
         self.bus.poll()
         self.read_link()
 
-    def read_link(self) -> None:
-        self.link.poll()
+    def read_link(self, readable: bool = False) -> None:
+        self.link.poll(readable)
         if self.link.sample_ms != self._last_ms:
             self._last_ms = self.link.sample_ms
             arrival = self.link.sample_arrival_mono - self.epoch_mono
@@ -168,7 +172,16 @@ class _Inputs:
     def wait_lockstep(self, k: int, timeout_s: float) -> dict[int, EstimateMessage]:
         self.k, self.t_ms = k, round(k * self.dt * 1000)
         self.need = self.sources if k > 0 else []
-        wait_until(self.ready, self.read, self.fds, timeout_s, self.missing, self.idle, block_s=self.block_s)
+        if self.link.sample_ms != self.t_ms:
+            # the vehicle answers the setpoint just sent: a read before its datagram comes finds
+            # nothing, so block for it first, then read both inputs once
+            readable = bool(select.select(self.fds, [], [], SAMPLE_WAIT_S)[0])
+            self.bus.poll()
+            self.read_link(readable)
+        if not self.ready():
+            wait_until(
+                self.ready, self.read, self.fds, timeout_s, self.missing, self.idle, block_s=self.block_s
+            )
         return {s: m for s in self.need if (m := self.bus.estimate(s, k - 1)) is not None}
 
     def send(self, cmd: AttitudeCommand, time_boot_ms: int) -> None:

@@ -105,9 +105,9 @@ class VehicleLink:
         self.conn.close()
 
     # -- receive ---------------------------------------------------------------------------------
-    def _recv(self, wall_to_mono: float) -> tuple[bytes, float]:
-        """One datagram (``b""`` if none) and its arrival time."""
-        if self._waiting is not None and not self._waiting():
+    def _recv(self, wall_to_mono: float, readable: bool = False) -> tuple[bytes, float]:
+        """One datagram (``b""`` if none) and its arrival time; ``readable``: one waits."""
+        if not readable and self._waiting is not None and not self._waiting():
             return b"", math.nan
         if not self.stamps_arrivals:
             return self.conn.recv(), time.monotonic()
@@ -117,18 +117,20 @@ class VehicleLink:
             return b"", math.nan
         return data, arrival
 
-    def poll(self) -> int:
-        """Read everything waiting; returns the number of messages handled. Bytes go straight to
-        the parsers (``mavlink_frames``, else ``mav.parse_buffer``): mavutil's per-message
-        bookkeeping, which this link does not use, costs as much as the parsing."""
+    def poll(self, readable: bool = False) -> int:
+        """Read everything waiting; returns the number of messages handled. ``readable``: a
+        ``select`` on ``fileno()`` has just said so (the first read needs no check). Bytes go
+        straight to the parsers (``tick_frames``, ``mavlink_frames``, else ``mav.parse_buffer``):
+        mavutil's per-message bookkeeping, which this link does not use, costs as much as the parsing."""
         n = 0
         conn = self.conn
         wall_to_mono = udp_arrival.wall_to_monotonic_s() if self.stamps_arrivals else 0.0
         while True:
             try:
-                data, arrival = self._recv(wall_to_mono)
+                data, arrival = self._recv(wall_to_mono, readable)
             except OSError:
                 return n
+            readable = False
             if not data:
                 return n
             plain = self._datagrams and conn.mav.signing.secret_key is None
