@@ -510,7 +510,7 @@ class VehicleEndpoint:
     def _send_local_position(self, ms: int) -> None:
         self._send_sample_part(tick_frames.pack_local_position, frames.LOCAL_POSITION_NED, ms)
         if self._truth is not None:
-            self._truth.append(self.autopilot.time_s, self.autopilot.state)
+            self._truth.append((self.autopilot.time_s,), self.autopilot.state)
 
     def _send_attitude_quaternion(self, ms: int) -> None:
         self._send_sample_part(tick_frames.pack_attitude_quaternion, frames.ATTITUDE_QUATERNION, ms)

@@ -29,20 +29,13 @@ class RowLog:
         self._f.write(MAGIC + json.dumps({"columns": self.columns}).encode() + b"\n")
         self._f.flush()
 
-    def append(self, *values: float | np.ndarray) -> None:
-        """One row; values are scalars or arrays, concatenated in column order."""
-        row = self._buf[self._n]
-        j = 0
-        for v in values:
-            if isinstance(v, np.ndarray):
-                n = v.size
-                row[j : j + n] = v if v.ndim == 1 else v.ravel()
-                j += n
-            else:
-                row[j] = v
-                j += 1
-        if j != self.width:
-            raise ValueError(f"{self.path.name}: row has {j} values, expected {self.width}")
+    def append(self, *parts: "np.ndarray | tuple[float, ...]") -> None:
+        """One row: ``parts`` (1-D arrays, or tuples of floats) concatenated in column order."""
+        try:
+            np.concatenate(parts, out=self._buf[self._n])
+        except ValueError:
+            n = sum(np.size(p) for p in parts)
+            raise ValueError(f"{self.path.name}: row has {n} values, expected {self.width}") from None
         self._n += 1
         if self._n == len(self._buf):
             self.flush()

@@ -261,7 +261,7 @@ def run_controller(
                 late += 1
             max_late = max(max_late, done)
         if rows is not None:
-            rows.append(float(k), t, boot_s, sample_t, lateness, done, p, v, q, step.state, step.output)
+            rows.append((k, t, boot_s, sample_t, lateness, done), p, v, q, step.state, step.output)
         if k % r.status_every == 0 or k == n:
             bus.publish_status(Status(i, k, t, sample_t, p))
         if lockstep and k >= 2:

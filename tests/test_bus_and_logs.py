@@ -149,7 +149,9 @@ def test_row_log_survives_a_cut_mid_row(tmp_path):
     path = tmp_path / "x.rows"
     log = RowLog(path, ["a", "b", "c"], flush_rows=2)
     for k in range(5):
-        log.append(float(k), np.array([k + 0.5, -k]))
+        log.append((float(k),), np.array([k + 0.5, -k]))
+    with pytest.raises(ValueError, match="row has 2 values, expected 3"):
+        log.append((1.0,), np.array([2.0]))
     log.flush()
     with open(path, "ab") as f:
         f.write(b"\x00" * 12)  # a writer killed mid-row
