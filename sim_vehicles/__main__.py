@@ -11,6 +11,7 @@ import sys
 
 import numpy as np
 
+from sim_vehicles import tick_frames
 from sim_vehicles.autopilot import Autopilot
 from sim_vehicles.lifeline import batch_scheduling, hold_on, profiled, settle_heap
 from sim_vehicles.mavlink_endpoint import VehicleEndpoint
@@ -20,12 +21,14 @@ from sim_vehicles.wire_format import command_roundtrip
 
 
 def _warm_up(params: VehicleParams, gains: AttitudeGains, attitude_hz: float) -> None:
-    """Load the compiled kernel for both argument types it will see (the hover command's read-only
-    zero rates, then a command from the wire), so the first setpoints are not held up by it."""
+    """Load the compiled kernels for the argument types they will see (the plant's for the hover
+    command's read-only zero rates, then a command from the wire; the per-tick frames'), so the
+    first setpoints are not held up by it."""
     ap = Autopilot(params, gains, make_state([0.0, 0.0, 0.0]), 1.0 / attitude_hz)
     ap.advance(1)
     ap.set_command(command_roundtrip(ap.command, params.max_thrust_N))
     ap.advance(1)
+    tick_frames.warm_up()
 
 
 def main(argv: list[str] | None = None) -> int:
