@@ -142,7 +142,7 @@ class VehicleLink:
                     n += int(s[tick_frames.RS_FRAMES])
                     self.rx_bad += int(s[tick_frames.RS_BAD])
                     ms = int(s[tick_frames.RS_TIME_MS])
-                    self._lpos = self._attq = (ms,)
+                    self._lpos = self._attq = (ms,)  # this instant is complete: no half to wait for
                     self._set_sample(ms, s[tick_frames.RS_SAMPLE], arrival)
                     continue
             fast = frames.read_datagram(data, _FAST_IN) if plain else None
