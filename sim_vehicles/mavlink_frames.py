@@ -2,9 +2,9 @@
 
 pymavlink parses byte by byte into a message object per frame and builds an object to pack one;
 on the per-tick path (a telemetry sample one way, a setpoint the other) that is most of what a tick
-costs in Python. ``Layout`` packs and reads the payload of one message with one precompiled
-``struct`` taken from pymavlink's own definition (wire order, array lengths, CRC extra), so there is
-no second copy of the message set:
+costs in Python. ``Layout`` describes one message from pymavlink's own definition (wire order,
+array lengths, CRC extra; its precompiled ``struct`` reads a payload, ``spec`` drives the compiled
+packer), so there is no second copy of the message set:
 
 - ``pack_frame(mav, layout, values)`` builds the frame pymavlink would build, byte for byte
   (MAVLink 2, trailing zeros of the payload dropped, X.25 CRC with the CRC extra), with the
@@ -94,12 +94,7 @@ class Layout:
         self.wire_of: tuple[int, ...] = tuple(
             wire_start[n] + j for n in cls.fieldnames for j in range(width[n])
         )
-        #: wire slot w -> declared slot
-        self.declared_of: tuple[int, ...] = tuple(
-            sorted(range(len(self.wire_of)), key=lambda d: self.wire_of[d])
-        )
         self._identity = self.wire_of == tuple(range(len(self.wire_of)))
-        self._to_wire = operator.itemgetter(*self.declared_of)
         self._to_declared = operator.itemgetter(*self.wire_of)
         #: the layout for the compiled kernels (module doc); ``None`` if a field is a char array
         self.spec: np.ndarray | None = None
@@ -109,14 +104,6 @@ class Layout:
             spec = [[self.msg_id, cls.crc_extra, self.struct.size]]
             spec += [[_KINDS[codes[w]], int(offsets[w]), 0] for w in self.wire_of]
             self.spec = np.array(spec, dtype=np.int64)
-
-    def pack_payload(self, values: Sequence[float]) -> bytes:
-        v = tuple(values)
-        if len(v) < len(self.names):
-            v += (0,) * (len(self.names) - len(v))
-        if not self._identity:
-            v = self._to_wire(v)
-        return self.struct.pack(*v)
 
     def unpack_payload(self, payload: bytes) -> tuple:
         size = self.struct.size
@@ -146,14 +133,11 @@ def pack_frame(link: Any, layout: Layout, values: Sequence[float]) -> bytes:
     """The MAVLink 2 frame pymavlink's ``link.send`` would write for these field values."""
     if link.signing.sign_outgoing:
         raise ValueError("pack_frame does not sign: send signed frames through pymavlink")
-    payload = layout.pack_payload(values)
-    body = payload.rstrip(b"\0") or payload[:1]
-    msg_id = layout.msg_id
-    header = _HEADER.pack(
-        MAGIC_V2, len(body), 0, 0, link.seq, link.srcSystem, link.srcComponent, msg_id & 0xFFFF, msg_id >> 16
-    )
-    frame = header + body
-    frame += _CRC.pack(_crc(frame[1:], layout.crc_extra))
+    if layout.spec is None:
+        raise ValueError(f"pack_frame cannot pack {layout.name}: it has a char field")
+    out = np.empty(layout.struct.size + _HEADER_LEN + 2, np.uint8)
+    n = pack_into(out, 0, link.seq, link.srcSystem, link.srcComponent, layout.spec, np.asarray(values, float))
+    frame = out[:n].tobytes()
     sent(link, frame)
     return frame
 

@@ -189,11 +189,6 @@ def command_roundtrip(cmd: AttitudeCommand, max_thrust_N: float) -> AttitudeComm
     return decode_attitude_target(encode_attitude_target(cmd, max_thrust_N), max_thrust_N)
 
 
-def encode_local_position(p_W: np.ndarray, v_W: np.ndarray) -> tuple[float, ...]:
-    """``(x, y, z, vx, vy, vz)`` NED float32."""
-    return tuple(local_position_fields(_vec(p_W), _vec(v_W)).tolist())
-
-
 def encode_attitude_quaternion(q_WB: np.ndarray, omega_B: np.ndarray) -> tuple[float, ...]:
     """``(q1..q4, rollspeed, pitchspeed, yawspeed)`` NED/FRD float32."""
     return tuple(attitude_quaternion_fields(_vec(q_WB), _vec(omega_B)).tolist())
