@@ -238,9 +238,7 @@ class VehicleEndpoint:
             ms,
             self.autopilot.state,
         )
-        frame = self._out[:n].tobytes()
-        frames.sent(self.mav, frame)
-        self._sink.frames.append(frame)
+        self._sink.frames.append(frames.take_frame(self.mav, self._out, n))
 
     def flush(self) -> None:
         """Send the queued frames to the peer, packed into as few datagrams as fit (as PX4 does):

@@ -137,16 +137,17 @@ def pack_frame(link: Any, layout: Layout, values: Sequence[float]) -> bytes:
         raise ValueError(f"pack_frame cannot pack {layout.name}: it has a char field")
     out = np.empty(layout.struct.size + _HEADER_LEN + 2, np.uint8)
     n = pack_into(out, 0, link.seq, link.srcSystem, link.srcComponent, layout.spec, np.asarray(values, float))
+    return take_frame(link, out, n)
+
+
+def take_frame(link: Any, out: np.ndarray, n: int) -> bytes:
+    """The frame a kernel packed into ``out[:n]`` with ``link``'s sequence number, as bytes;
+    advances ``link``'s sequence number and counters past it, as pymavlink's send would."""
     frame = out[:n].tobytes()
-    sent(link, frame)
-    return frame
-
-
-def sent(link: Any, frame: bytes) -> None:
-    """Advance ``link``'s sequence number and counters past a frame packed outside pymavlink."""
     link.seq = (link.seq + 1) % 256
     link.total_packets_sent += 1
-    link.total_bytes_sent += len(frame)
+    link.total_bytes_sent += n
+    return frame
 
 
 def _crc_matches(frame: bytes, crc_extra: bytes) -> bool:

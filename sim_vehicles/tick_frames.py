@@ -26,7 +26,15 @@ frame (``mavlink_frames``: the bytes pymavlink would write, tested against it) i
 import numpy as np
 
 from sim_vehicles.jit import kernel
-from sim_vehicles.mavlink_frames import crc_x25, frame_at, pack_into, read_into
+from sim_vehicles.mavlink_frames import (
+    ATTITUDE_QUATERNION,
+    LOCAL_POSITION_NED,
+    SET_ATTITUDE_TARGET,
+    crc_x25,
+    frame_at,
+    pack_into,
+    read_into,
+)
 from sim_vehicles.wire_format import (
     attitude_quaternion_fields,
     attitude_target_fields,
@@ -147,8 +155,6 @@ def warm_up() -> None:
     """Call each kernel once with the argument types a link uses, so loading them from numba's
     cache (milliseconds each, and 16 processes at once on a small machine) happens at start-up
     and not at the first tick: without this a real-time swarm16 run lost its first 180 ms."""
-    from sim_vehicles.mavlink_frames import ATTITUDE_QUATERNION, LOCAL_POSITION_NED, SET_ATTITUDE_TARGET
-
     out = np.zeros(FRAME_BYTES, np.uint8)
     x = np.zeros(13)
     x[6] = 1.0

@@ -252,9 +252,7 @@ class VehicleLink:
             float(cmd.thrust_N),
             max_thrust,
         )
-        frame = self._out[:n].tobytes()
-        frames.sent(mav_, frame)
-        self.conn.write(frame)
+        self.conn.write(frames.take_frame(mav_, self._out, n))
 
     # -- the start-up handshake ------------------------------------------------------------------
     def _wait(self, done: Any, what: str, timeout_s: float, resend: Any = None, every_s: float = 0.5) -> None:
