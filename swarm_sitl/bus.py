@@ -2,7 +2,9 @@
 
 ``NodeBus`` is the interface the leader and controller loops use; ``ZenohNodeBus`` implements it
 on an embedded zenoh session (keys in ``zenoh_keys``, payloads in ``bus_codec``). Faults (loss,
-delay, partitions) belong in wrappers of this interface, not in the loops.
+delay, partitions) are a wrapper of this interface (``bus_faults.FaultyBus``), not in the loops:
+every estimate a ``ZenohNodeBus`` decodes goes through ``deliver``, which files it (``file``) or,
+under a wrapper, hands it to the fault stage that files it when the plan lets it through.
 
 Received samples wait in zenoh's own FIFO channels (on the Rust side) until the loop calls
 ``poll()``, which decodes and files them on the loop's thread: no Python callback thread, so no GIL
@@ -11,7 +13,7 @@ payloads are dropped and counted in ``dropped``.
 """
 
 import json
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from typing import Any, Protocol
 
 import zenoh
@@ -59,13 +61,27 @@ RARE_EVERY = 16  #: liveliness and start are read on one ``poll()`` in this many
 
 
 class NodeBus(Protocol):
-    dropped: int
+    @property
+    def dropped(self) -> int:
+        """Payloads that did not decode, dropped and counted."""
+        ...
 
     def poll(self) -> None: ...
     def publish(self, msg: EstimateMessage) -> None: ...
     def publish_status(self, status: Status) -> None: ...
-    def estimate(self, src: int, step: int) -> EstimateMessage | None: ...
-    def latest(self, src: int) -> EstimateMessage | None: ...
+    def settled(self, src: int, step: int) -> bool:
+        """Lockstep: whether ``src``'s estimate of ``step`` has come, or will not (a fault plan
+        says so): what a tick waits for."""
+        ...
+
+    def estimate(self, src: int, step: int) -> EstimateMessage | None:
+        """``src``'s estimate of ``step``, if it has come and may be used now."""
+        ...
+
+    def latest(self, src: int) -> EstimateMessage | None:
+        """The newest estimate of ``src`` that may be used now."""
+        ...
+
     def forget_before(self, step: int) -> None: ...
     def progress(self, follower: int) -> int: ...
     def start_epoch(self) -> float | None: ...
@@ -98,6 +114,8 @@ class ZenohNodeBus:
         self._epoch: float | None = None
         self._token: Any = None
         self._polls = 0
+        #: where each decoded estimate goes: ``file`` (a fault wrapper puts its stage here)
+        self.deliver: Callable[[EstimateMessage], None] = self.file
         self._pubs = [_publisher(session, zenoh_keys.edge(swarm, node, d)) for d in out_dests]
         self._status_pub = _publisher(session, zenoh_keys.status(swarm, node)) if node > 0 else None
 
@@ -128,10 +146,7 @@ class ZenohNodeBus:
                 except PayloadError:
                     self.dropped += 1
                     continue
-                self._estimates.setdefault(m.src, {})[m.step] = m
-                cur = self._latest.get(m.src)
-                if cur is None or m.step >= cur.step:
-                    self._latest[m.src] = m
+                self.deliver(m)
         for sub in self._status_subs:
             statuses, bad = decode_waiting(sub, decode_status)
             self.dropped += bad
@@ -152,6 +167,13 @@ class ZenohNodeBus:
             if epochs and self._epoch is None:
                 self._epoch = epochs[0]
 
+    def file(self, m: EstimateMessage) -> None:
+        """Make ``m`` available to the loop (``estimate``, ``latest``)."""
+        self._estimates.setdefault(m.src, {})[m.step] = m
+        cur = self._latest.get(m.src)
+        if cur is None or m.step >= cur.step:
+            self._latest[m.src] = m
+
     # -- the loop's side -------------------------------------------------------------------------
     def publish(self, msg: EstimateMessage) -> None:
         payload = encode_estimate(msg)
@@ -161,6 +183,9 @@ class ZenohNodeBus:
     def publish_status(self, status: Status) -> None:
         if self._status_pub is not None:
             self._status_pub.put(encode_status(status))
+
+    def settled(self, src: int, step: int) -> bool:
+        return step in self._estimates.get(src, {})
 
     def estimate(self, src: int, step: int) -> EstimateMessage | None:
         return self._estimates.get(src, {}).get(step)

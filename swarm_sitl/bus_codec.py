@@ -1,7 +1,8 @@
 """Byte layouts of what crosses the zenoh bus (little-endian, fixed size, versioned).
 
-- estimate: ``u8 version, u16 src, u32 step, f64 t_s, 12 x f64 p_hat v_hat a_hat a_hat_dot``
-  (float64: nothing is rounded, so lockstep runs equal ``sim``)
+- estimate: ``u8 version, u16 src, u32 step, f64 t_s, 12 x f64 p_hat v_hat a_hat a_hat_dot,
+  u32 crc32`` (float64: nothing is rounded, so lockstep runs equal ``sim``; the CRC-32 of the
+  bytes before it, so a corrupted estimate is dropped, not flown)
 - status: ``u8 version, u16 follower, u32 step, f64 t_s, f64 sample_t_s, 3 x f64 p_W``
 - start: ``u8 version, f64 epoch_unix_s`` (real time: tick 0 happens at this instant)
 
@@ -10,6 +11,7 @@
 
 import math
 import struct
+import zlib
 from collections.abc import Callable
 from typing import Any, NamedTuple, TypeVar
 
@@ -17,8 +19,9 @@ import numpy as np
 
 from swarm_sitl.follower import EstimateMessage
 
-VERSION = 1
-_EST = struct.Struct("<BHId12d")
+VERSION = 2
+_EST = struct.Struct("<BHId12dI")
+_EST_BODY = _EST.size - 4
 _STATUS = struct.Struct("<BHIdd3d")
 _START = struct.Struct("<Bd")
 
@@ -51,14 +54,15 @@ class Status(NamedTuple):
     p_W: np.ndarray  #: vehicle position as sampled [m; ENU]
 
 
-def _check(data: bytes, layout: struct.Struct, what: str, first_float: int) -> tuple:
-    """The fields of ``data``; every field from ``first_float`` on is a float and must be finite."""
+def _check(data: bytes, layout: struct.Struct, what: str, first_float: int, n_floats: int = 99) -> tuple:
+    """The fields of ``data``; the ``n_floats`` fields from ``first_float`` on (default: all) are
+    floats and must be finite."""
     if len(data) != layout.size:
         raise PayloadError(f"{what} payload has {len(data)} bytes, expected {layout.size}")
     fields = layout.unpack(data)
     if fields[0] != VERSION:
         raise PayloadError(f"{what} payload version {fields[0]}, expected {VERSION}")
-    if not all(map(math.isfinite, fields[first_float:])):
+    if not all(map(math.isfinite, fields[first_float : first_float + n_floats])):
         raise PayloadError(f"{what} payload has a non-finite value")
     return fields
 
@@ -66,11 +70,14 @@ def _check(data: bytes, layout: struct.Struct, what: str, first_float: int) -> t
 def encode_estimate(m: EstimateMessage) -> bytes:
     # ``tolist``: one call per array instead of a numpy scalar per element
     values = (*m.p_hat.tolist(), *m.v_hat.tolist(), *m.a_hat.tolist(), *m.a_hat_dot.tolist())
-    return _EST.pack(VERSION, m.src, m.step, m.t_s, *values)
+    body = _EST.pack(VERSION, m.src, m.step, m.t_s, *values, 0)[:_EST_BODY]
+    return body + zlib.crc32(body).to_bytes(4, "little")
 
 
 def decode_estimate(data: bytes) -> EstimateMessage:
-    f = _check(data, _EST, "estimate", 3)
+    f = _check(data, _EST, "estimate", 3, 13)
+    if zlib.crc32(data[:_EST_BODY]) != f[-1]:
+        raise PayloadError("estimate payload fails its checksum")
     v = np.array(f[4:16])
     return EstimateMessage(f[1], f[2], f[3], v[0:3], v[3:6], v[6:9], v[9:12])
 

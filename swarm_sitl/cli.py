@@ -5,6 +5,7 @@ Every user mistake ends with one line on stderr (``swarm-sitl: error: ...``) and
 
 import argparse
 import json
+import math
 import sys
 import time
 from collections.abc import Sequence
@@ -16,9 +17,11 @@ from swarm_sitl.command_attitude import SingularCommandError
 from swarm_sitl.config import ConfigError, SwarmConfig, load_config
 from swarm_sitl.graph import GraphError
 from swarm_sitl.node_main import add_node_parsers
-from swarm_sitl.recording import Recording, RunDirError
+from swarm_sitl.recording import RunDirError
 
+EXIT_FAILED = 1  #: a process of the run failed
 EXIT_USAGE = 2
+EXIT_DEGRADED = 3  #: the run completed, and a follower broke run.max_formation_error_m
 
 
 class CliError(Exception):
@@ -36,9 +39,12 @@ def _default_run_dir(cfg: SwarmConfig, kind: str) -> Path:
 def _with_duration(cfg: SwarmConfig, duration_s: float | None) -> SwarmConfig:
     if duration_s is None:
         return cfg
-    if not duration_s > 0:
-        raise CliError(f"--duration must be > 0, got {duration_s}")
-    return cfg.model_copy(update={"duration_s": float(duration_s)})
+    if not 0 < duration_s < math.inf:
+        raise CliError(f"--duration must be a number of seconds > 0, got {duration_s}")
+    from swarm_sitl.config import parse_config
+
+    # validated again: a fault plan's times must fall within the new duration
+    return parse_config({**cfg.model_dump(mode="json"), "duration_s": float(duration_s)}, "--duration")
 
 
 def cmd_check(args: argparse.Namespace) -> int:
@@ -77,14 +83,11 @@ def _summary_lines(summary: dict) -> list[str]:
     return lines
 
 
-def write_outputs(cfg: SwarmConfig, rec: Recording, run_dir: Path) -> dict:
-    from swarm_sitl.metrics import summarize
-    from swarm_sitl.recording import write_run
-
-    masses = {f.id: cfg.vehicle.mass_kg for f in cfg.followers}
-    summary = summarize(rec, cfg.gain_dict(), masses, cfg.gravity_mps2)
-    write_run(run_dir, cfg.to_yaml(), rec, summary)
-    return summary
+def _held_to_bound(failures: list[str]) -> int:
+    """``EXIT_DEGRADED`` with one line per follower past ``run.max_formation_error_m``, else 0."""
+    for line in failures:
+        print(f"swarm-sitl: error: {line}", file=sys.stderr)
+    return EXIT_DEGRADED if failures else 0
 
 
 def cmd_sim(args: argparse.Namespace) -> int:
@@ -108,13 +111,16 @@ def cmd_sim(args: argparse.Namespace) -> int:
 
             rec = run_sim(cfg, progress=progress)
     wall = time.monotonic() - t0
+    from swarm_sitl.metrics import bound_failures
+    from swarm_sitl.run_outputs import write_outputs
+
     summary = write_outputs(cfg, rec, run_dir)
     print(
         f"sim {cfg.name}: {cfg.duration_s:g} s simulated in {wall:.2f} s wall "
         f"({cfg.duration_s / wall:.1f}x real time) -> {run_dir}"
     )
     print("\n".join(_summary_lines(summary)))
-    return 0
+    return _held_to_bound(bound_failures(summary, cfg.run.max_formation_error_m))
 
 
 class _RunProgress:
@@ -152,51 +158,66 @@ class _RunProgress:
 def _run_and_record(
     cfg: SwarmConfig, run_dir: Path, lockstep: bool, quiet: bool, mavlink: dict[int, str] | None, kind: str
 ) -> int:
-    from swarm_sitl.run_merge import merge_run
-    from swarm_sitl.supervisor import RunFailedError, run_swarm
+    from swarm_sitl.run_outputs import record_run
 
     clock = "lockstep" if lockstep else "real time"
     progress = _RunProgress(cfg, f"{kind} {cfg.name} ({clock})", quiet)
-    failure: str | None = None
-    interrupted = False
-    result = None
     try:
-        result = run_swarm(cfg, run_dir, lockstep, mavlink, progress)
-    except RunFailedError as e:
-        failure = str(e)
-    except KeyboardInterrupt:
-        interrupted = True
+        out = record_run(cfg, run_dir, lockstep, mavlink, progress)
     finally:
         progress.close()
-    # whatever happened, what the processes recorded is merged and written
-    summary = write_outputs(cfg, merge_run(cfg, run_dir), run_dir)
-    if failure is not None:
+    if out.failure is not None:
         print(
-            f"swarm-sitl: error: {failure} (partial run in {run_dir}, logs in {run_dir / 'logs'})",
+            f"swarm-sitl: error: {out.failure} (partial run in {run_dir}, logs in {run_dir / 'logs'})",
             file=sys.stderr,
         )
-        return 1
-    if interrupted:
+        return EXIT_FAILED
+    if out.interrupted:
         print(f"swarm-sitl: interrupted; partial run in {run_dir}", file=sys.stderr)
         return 130
-    assert result is not None
     print(
-        f"{kind} {cfg.name} ({clock}): {cfg.duration_s:g} s simulated in {result.run_wall_s:.2f} s wall "
-        f"({cfg.duration_s / result.run_wall_s:.1f}x real time; start-up {result.startup_wall_s:.1f} s) "
+        f"{kind} {cfg.name} ({clock}): {cfg.duration_s:g} s simulated in {out.run_wall_s:.2f} s wall "
+        f"({cfg.duration_s / out.run_wall_s:.1f}x real time; start-up {out.startup_wall_s:.1f} s) "
         f"-> {run_dir}"
     )
-    print("\n".join(_summary_lines(summary)))
-    return 0
+    print("\n".join(_summary_lines(out.summary)))
+    for line in _degraded_lines(out.summary):
+        print(line)
+    return _held_to_bound(out.bound_failures)
+
+
+def _degraded_lines(summary: dict) -> list[str]:
+    """What the controllers reported of late, old or missing inputs, one line per follower."""
+    out = []
+    from swarm_sitl.metrics import describe_inputs
+
+    for i, rep in sorted(summary.get("inputs", {}).items(), key=lambda kv: int(kv[0])):
+        why = describe_inputs(rep)
+        if why:
+            out.append(f"  follower {i} degraded inputs: {why}")
+    for edge, st in sorted(summary.get("links", {}).items()):
+        if st.get("received"):
+            out.append(
+                f"  edge {edge}: {st['delivered']} of {st['received']} delivered, {st['lost']} lost, "
+                f"{st['corrupt']} corrupt, {st['delayed']} delayed, {st['duplicated']} duplicated"
+            )
+    return out
+
+
+def _with_fault_file(cfg: SwarmConfig, path: str | None) -> SwarmConfig:
+    from swarm_sitl.config import with_faults
+
+    return cfg if path is None else with_faults(cfg, path)
 
 
 def cmd_run(args: argparse.Namespace) -> int:
-    cfg = _with_duration(_load(args.config), args.duration)
+    cfg = _with_fault_file(_with_duration(_load(args.config), args.duration), args.faults)
     run_dir = Path(args.out) if args.out else _default_run_dir(cfg, "run")
     return _run_and_record(cfg, run_dir, not args.realtime, args.quiet, None, "run")
 
 
 def cmd_controllers(args: argparse.Namespace) -> int:
-    cfg = _with_duration(_load(args.config), args.duration)
+    cfg = _with_fault_file(_with_duration(_load(args.config), args.duration), args.faults)
     if len(args.mavlink) != cfg.n_followers:
         raise CliError(
             f"--mavlink needs one connection string per follower ({cfg.n_followers}, in id order), "
@@ -293,6 +314,7 @@ def build_parser() -> argparse.ArgumentParser:
     r = sub.add_parser("run", help="run the swarm as processes: vehicles, controllers, leader, zenoh")
     r.add_argument("config")
     r.add_argument("--realtime", action="store_true", help="wall clock, as in flight (default: lockstep)")
+    r.add_argument("--faults", metavar="FILE", help="fault plan (YAML: seed, plan) in place of the config's")
     _run_outputs(r, "run")
     r.set_defaults(func=cmd_run)
 
@@ -317,6 +339,7 @@ def build_parser() -> argparse.ArgumentParser:
     cs.add_argument(
         "--lockstep", action="store_true", help="the vehicles step in lockstep (default: real time)"
     )
+    cs.add_argument("--faults", metavar="FILE", help="fault plan (YAML: seed, plan) in place of the config's")
     _run_outputs(cs, "controllers")
     cs.set_defaults(func=cmd_controllers)
 

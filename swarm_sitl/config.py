@@ -14,6 +14,7 @@ import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from sim_vehicles.params import AttitudeGains, VehicleParams
+from swarm_sitl.fault_plan import FaultPlan
 from swarm_sitl.follower_law import HOLD_EXTRAPOLATE, HOLD_ZERO_ORDER, ControlGains
 from swarm_sitl.graph import Graph, GraphError
 from swarm_sitl.trajectories import FigureEight, Helix, Line, Trajectory
@@ -131,6 +132,9 @@ class GainsSpec(_Strict):
 class EstimatorSpec(_Strict):
     sign_boundary_layer: Annotated[float, Field(ge=0)] = 0.0  #: 0 = paper's sgn; >0 saturation width
     neighbour_hold: Literal["extrapolate", "zero_order"] = "extrapolate"
+    #: a neighbour's latest estimate is used, carried by its age, while it is at most this old [s];
+    #: past it the neighbour is left out of the sums until a newer one comes (a lost or cut edge)
+    staleness_s: Positive = 0.5
 
 
 class ZenohSpec(_Strict):
@@ -160,6 +164,10 @@ class RunSpec(_Strict):
     #: controllers then share the CPU across the period instead of all waking at once);
     #: ``aligned``: all at ``k * dt``. Lockstep is always aligned (it must equal ``sim``).
     realtime_ticks: Literal["staggered", "aligned"] = "staggered"
+    #: pass/fail bound: a follower whose formation error exceeds this after ``settle_s`` fails the
+    #: run (exit 3, naming it and its stale inputs) [m]; none by default
+    max_formation_error_m: Positive | None = None
+    settle_s: Annotated[float, Field(ge=0)] = 20.0  #: the bound and the summary's peaks count from here [s]
 
     @model_validator(mode="after")
     def _window(self) -> "RunSpec":
@@ -184,6 +192,7 @@ class SwarmConfig(_Strict):
     estimator: EstimatorSpec = EstimatorSpec()
     zenoh: ZenohSpec = ZenohSpec()
     run: RunSpec = RunSpec()
+    faults: FaultPlan = FaultPlan()  #: what fails, how and when (``fault_plan``)
 
     @model_validator(mode="after")
     def _cross(self) -> "SwarmConfig":
@@ -197,6 +206,7 @@ class SwarmConfig(_Strict):
             self.build_graph()
         except GraphError as e:
             raise ValueError(f"graph: {e}") from None
+        self.faults.check_against(self.graph_edges(), n, self.duration_s)
         if not self.vehicle.max_thrust_N > self.vehicle.mass_kg * self.gravity_mps2:
             raise ValueError(
                 f"vehicle.max_thrust_N ({self.vehicle.max_thrust_N}) must exceed the weight "
@@ -220,6 +230,10 @@ class SwarmConfig(_Strict):
 
     def build_graph(self) -> Graph:
         return Graph.from_edges(len(self.followers), [tuple(e) for e in self.graph.edges])
+
+    def graph_edges(self) -> list[tuple[int, int]]:
+        """``(src, dst)`` of every edge, in config order."""
+        return [(int(e[0]), int(e[1])) for e in self.graph.edges]
 
     def trajectory(self) -> Trajectory:
         return self.leader.trajectory.build()
@@ -296,16 +310,37 @@ def parse_config(data: object, source: str = "config") -> SwarmConfig:
         raise ConfigError(f"{source}: {_describe(err)}") from None
 
 
-def load_config(path: str | Path) -> SwarmConfig:
-    p = Path(path)
+def _read_yaml(p: Path) -> object:
     try:
         text = p.read_text()
     except OSError as e:
         raise ConfigError(f"{p}: cannot read ({e.strerror})") from None
+    except UnicodeDecodeError:
+        raise ConfigError(f"{p}: not a text file") from None
     try:
-        data = yaml.safe_load(text)
+        return yaml.safe_load(text)
     except yaml.YAMLError as e:
         mark = getattr(e, "problem_mark", None)
         where = f" at line {mark.line + 1}" if mark is not None else ""
         raise ConfigError(f"{p}: not valid YAML{where}") from None
-    return parse_config(data, str(p))
+
+
+def load_config(path: str | Path) -> SwarmConfig:
+    p = Path(path)
+    return parse_config(_read_yaml(p), str(p))
+
+
+def with_faults(cfg: SwarmConfig, path: str | Path) -> SwarmConfig:
+    """``cfg`` with the fault plan of the YAML file ``path`` (the mapping that goes under
+    ``faults:``, with or without that key) in place of its own, validated against it."""
+    p = Path(path)
+    data = _read_yaml(p)
+    if isinstance(data, dict) and set(data) == {"faults"}:
+        data = data["faults"]
+    if not isinstance(data, dict):
+        raise ConfigError(f"{p}: expected a fault plan (seed, plan) at the top level")
+    merged = {**cfg.model_dump(mode="json"), "faults": data}
+    try:
+        return SwarmConfig.model_validate(merged)
+    except ValidationError as err:
+        raise ConfigError(f"{p}: {_describe(err)}") from None

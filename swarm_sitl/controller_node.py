@@ -4,13 +4,19 @@ The step function is ``FollowerController.step``, the same one ``sim`` runs; thi
 feeds it. Per tick ``k`` (semantics in ``follower``):
 
 - lockstep: wait for the vehicle's sample stamped ``t_k`` and for every in-neighbour's estimate of
-  tick ``k - 1``; step; publish the estimate; send SET_ATTITUDE_TARGET stamped ``t_k``, which
-  advances the vehicle one period. A setpoint whose answer does not come is sent again (the vehicle
-  answers a repeat with its sample and does not step twice). The run is deterministic and equals
-  ``sim``.
+  tick ``k - 1`` to have come (``NodeBus.settled``: a fault plan may then hide or hold it); step
+  with the newest estimate of each (``neighbour_inbox``); publish the estimate; send
+  SET_ATTITUDE_TARGET stamped ``t_k``, which advances the vehicle one period. A setpoint whose
+  answer does not come is sent again (the vehicle answers a repeat with its sample and does not
+  step twice). The run is deterministic and equals ``sim``.
 - real time: at ``epoch + t_k`` on the wall clock (``t_k`` includes the follower's tick phase,
   ``SwarmConfig.tick_phase_s``), step with the latest sample and the latest
-  estimate of each in-neighbour; a tick that starts more than one period late is skipped.
+  estimate of each in-neighbour (``neighbour_inbox``); a tick that starts more than one period
+  late is skipped.
+
+Either way an in-neighbour whose newest estimate is older than ``estimator.staleness_s`` is left
+out of the sums until it speaks again (riding through a lost or cut edge), and a sample older than
+a control period is counted (``NodeReport``).
   The sample's instant in swarm time is its ``time_boot_ms`` plus the vehicle's clock offset,
   estimated as the smallest (arrival - stamp) seen.
 
@@ -33,10 +39,13 @@ from swarm_sitl.bus import NodeBus
 from swarm_sitl.bus_codec import Status
 from swarm_sitl.command_attitude import SingularCommandError
 from swarm_sitl.config import SwarmConfig
+from swarm_sitl.events import EventLog
 from swarm_sitl.follower import EstimateMessage, VehicleSample
 from swarm_sitl.follower_law import CTRL_SIZE, OUT_SIZE
+from swarm_sitl.neighbour_inbox import NeighbourInbox
 from swarm_sitl.node_clock import (
     POLL_S,
+    RunClock,
     StallError,
     linger_after_last_tick,
     sleep_until,
@@ -71,6 +80,9 @@ class NodeReport(NamedTuple):
     max_late_s: float
     resends: int
     dropped_payloads: int
+    old_samples: int = 0  #: ticks whose vehicle sample was older than a control period
+    max_sample_age_s: float = 0.0
+    stale_estimates: int = 0  #: (tick, in-neighbour) pairs left out: its estimate past staleness
 
 
 def wait_for_start(bus: NodeBus, link: VehicleLink | None, timeout_s: float, who: str) -> float:
@@ -130,7 +142,7 @@ class _Inputs:
     # -- lockstep --------------------------------------------------------------------------------
     def _lacking(self) -> list[int]:
         """The in-neighbours whose estimate of tick ``k - 1`` has not come."""
-        return [s for s in self.need if self.bus.estimate(s, self.k - 1) is None]
+        return [s for s in self.need if not self.bus.settled(s, self.k - 1)]
 
     def ready(self) -> bool:
         return self.link.sample_ms == self.t_ms and not self._lacking()
@@ -170,7 +182,17 @@ class _Inputs:
             return min(RESEND_AFTER_S, 0.05)
         return POLL_S
 
-    def wait_lockstep(self, k: int, timeout_s: float) -> dict[int, EstimateMessage]:
+    def newest_lockstep(self, src: int) -> EstimateMessage | None:
+        """The in-neighbour's estimate of tick ``k - 1``, or (a fault plan hid or held it) the
+        newest it may use now."""
+        m = self.bus.estimate(src, self.k - 1)
+        if m is None:
+            m = self.bus.latest(src)
+            if m is not None and m.step >= self.k:
+                return None
+        return m
+
+    def wait_lockstep(self, k: int, timeout_s: float) -> None:
         self.k, self.t_ms = k, round(k * self.dt * 1000)
         self.need = self.sources if k > 0 else []
         if self.link.sample_ms != self.t_ms:
@@ -183,7 +205,6 @@ class _Inputs:
             wait_until(
                 self.ready, self.read, self.fds, timeout_s, self.missing, self.idle, block_s=self.block_s
             )
-        return {s: m for s in self.need if (m := self.bus.estimate(s, k - 1)) is not None}
 
     def send(self, cmd: AttitudeCommand, time_boot_ms: int) -> None:
         self.last_cmd = cmd
@@ -205,16 +226,29 @@ def _warm_up(cfg: SwarmConfig, i: int, link: VehicleLink) -> None:
 
 
 def run_controller(
-    cfg: SwarmConfig, i: int, link: VehicleLink, bus: NodeBus, lockstep: bool, rows: RowLog | None
+    cfg: SwarmConfig,
+    i: int,
+    link: VehicleLink,
+    bus: NodeBus,
+    lockstep: bool,
+    rows: RowLog | None,
+    clock: RunClock | None = None,
+    events: EventLog | None = None,
 ) -> NodeReport:
+    """Follower ``i``'s loop; ``clock`` is where the run is for ``bus``'s wrappers (it is set
+    here), ``events`` takes what the follower sees happen (lost and regained neighbours)."""
     who = f"follower {i}"
     r = cfg.run
     dt = cfg.control_dt_s
     n = cfg.n_control_steps
+    clock = RunClock(lockstep, dt) if clock is None else clock
+    events = EventLog(None, f"controller_{i}") if events is None else events
     link.connect(r.start_timeout_s)
     phase = cfg.tick_phase_s(i, lockstep)
     ctrl = build_controller(cfg, i, link.params["MASS_KG"], link.params["MAX_THRUST_N"], phase)
-    io = _Inputs(who, link, bus, [s for s, _ in ctrl.in_edges], dt)
+    sources = [s for s, _ in ctrl.in_edges]
+    io = _Inputs(who, link, bus, sources, dt)
+    inbox_of = NeighbourInbox(i, sources, cfg.estimator.staleness_s, events)
     _warm_up(cfg, i, link)
     settle_heap()
     link.request_rates(dt, r.other_telemetry_hz, r.start_timeout_s)
@@ -222,15 +256,20 @@ def run_controller(
         link.arm_offboard(r.start_timeout_s)
         link.request_sample(r.start_timeout_s)
     io.epoch_mono = wall_epoch_to_monotonic(wait_for_start(bus, link, r.start_timeout_s, who))
+    clock.epoch_mono = io.epoch_mono
     if not lockstep:
         link.arm_offboard(r.start_timeout_s)
     late = 0
     max_late = 0.0
+    old_samples = 0
+    max_age = 0.0
     k = 0
     while k <= n:
         t = k * dt + phase
+        clock.tick = k
         if lockstep:
-            inbox = io.wait_lockstep(k, r.stall_timeout_s)
+            io.wait_lockstep(k, r.stall_timeout_s)
+            inbox = inbox_of.gather(t, io.newest_lockstep) if k > 0 else {}
             boot_s, p, v, q = link.sample()
             sample_t = t
             lateness = 0.0
@@ -245,9 +284,13 @@ def run_controller(
                 continue
             if link.sample_ms < 0:
                 raise StallError(f"{who}: no vehicle sample at tick {k}")
-            inbox = {s: m for s in io.sources if (m := bus.latest(s)) is not None}
+            inbox = inbox_of.gather(t, bus.latest)
             boot_s, p, v, q = link.sample()
             sample_t = min(boot_s + io.offset_s, t)
+            age = t - sample_t
+            if age > dt:
+                old_samples += 1
+                max_age = max(max_age, age)
         try:
             step = ctrl.step(k, VehicleSample(sample_t, p, v, q), inbox)
         except SingularCommandError as e:
@@ -272,4 +315,13 @@ def run_controller(
         k += 1
     if not lockstep:
         linger_after_last_tick(io.epoch_mono + n * dt + phase, dt)
-    return NodeReport(n + 1, late, max_late, io.resends, bus.dropped + link.rx_bad)
+    return NodeReport(
+        n + 1,
+        late,
+        max_late,
+        io.resends,
+        bus.dropped + link.rx_bad,
+        old_samples,
+        max_age,
+        sum(inbox_of.stale_ticks.values()),
+    )

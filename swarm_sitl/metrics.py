@@ -80,3 +80,42 @@ def summarize(
     worst["settle_from_s"] = settle_from_s
     out["swarm"] = worst
     return out
+
+
+def bound_failures(summary: dict, bound_m: float | None) -> list[str]:
+    """One line per follower whose formation error after the settling time exceeds ``bound_m``
+    (``run.max_formation_error_m``), naming its degraded inputs where the run recorded them."""
+    if bound_m is None:
+        return []
+    settle = summary["swarm"]["settle_from_s"]
+    inputs = summary.get("inputs", {})
+    out = []
+    for i, f in sorted(summary["followers"].items(), key=lambda kv: int(kv[0])):
+        peak = f.get("peak_pos_err_after_settle_m")
+        if peak is None:
+            if f.get("recorded_ticks", 0) == 0 or settle > 0:
+                out.append(f"follower {i}: nothing recorded after {settle:g} s to hold to the bound")
+            continue
+        if peak > bound_m:
+            line = (
+                f"follower {i}: formation error {peak:.3g} m after {settle:g} s exceeds "
+                f"run.max_formation_error_m = {bound_m:g} m"
+            )
+            why = describe_inputs(inputs.get(i, {}))
+            out.append(line + (f"; stale inputs: {why}" if why else ""))
+    return out
+
+
+def describe_inputs(report: dict) -> str:
+    """A controller's degraded inputs (``controller_node.NodeReport`` as a dict) in words, "" if none."""
+    parts = []
+    if report.get("old_samples"):
+        parts.append(
+            f"{report['old_samples']} vehicle samples older than a control period "
+            f"(max {report['max_sample_age_s']:.3f} s)"
+        )
+    if report.get("stale_estimates"):
+        parts.append(f"{report['stale_estimates']} neighbour estimates past staleness")
+    if report.get("late_ticks"):
+        parts.append(f"{report['late_ticks']} late ticks")
+    return ", ".join(parts)

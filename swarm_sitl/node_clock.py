@@ -6,6 +6,7 @@ loop blocks in ``select`` on its file descriptors (the MAVLink link) for at most
 time and drains its bus in between, all on one thread: no lock and no GIL hand-over per message.
 """
 
+import math
 import select
 import time
 from collections.abc import Callable, Sequence
@@ -13,6 +14,26 @@ from collections.abc import Callable, Sequence
 POLL_S = 0.0005  #: longest block between two reads of the bus [s]
 #: real time: how long after the last tick's instant a node that is done keeps its zenoh session [s]
 END_LINGER_S = 0.25
+
+
+class RunClock:
+    """Where a node's run is, for the wrappers that act in time (a fault plan's stages): in
+    lockstep the tick being run (the node's loop sets ``tick``), in real time the run seconds since
+    the start epoch (the loop sets ``epoch_mono`` once the start signal has come)."""
+
+    def __init__(self, lockstep: bool, period_s: float):
+        self.lockstep = lockstep
+        self.period_s = period_s
+        self.tick = 0
+        self.epoch_mono = math.nan
+
+    def now(self) -> float:
+        """Lockstep: the tick (a count); real time: run seconds."""
+        return float(self.tick) if self.lockstep else time.monotonic() - self.epoch_mono
+
+    def now_s(self) -> float:
+        """Run seconds: simulated in lockstep, on the wall clock in real time."""
+        return self.tick * self.period_s if self.lockstep else time.monotonic() - self.epoch_mono
 
 
 class StallError(RuntimeError):

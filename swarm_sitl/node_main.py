@@ -6,6 +6,7 @@ started by hand (another host, a debugger). Each prints one line when it is done
 """
 
 import argparse
+import json
 import signal
 import sys
 from pathlib import Path
@@ -52,43 +53,74 @@ def _guarded(name: str, body: Any, lockstep: bool) -> int:
     return 0
 
 
+def _write_stats(path: Path, stats: dict[str, Any]) -> None:
+    """A node's figures at its end, for the run's summary (``run_merge``)."""
+    tmp = path.with_suffix(".tmp")
+    tmp.write_text(json.dumps(stats, indent=1, sort_keys=True) + "\n")
+    tmp.replace(path)
+
+
 def cmd_controller(cfg: SwarmConfig, args: argparse.Namespace) -> int:
     from sim_vehicles.row_log import RowLog
-    from swarm_sitl.bus import ZenohNodeBus
+    from swarm_sitl.bus import NodeBus, ZenohNodeBus
+    from swarm_sitl.bus_faults import FaultyBus, acts_on
     from swarm_sitl.controller_node import CONTROLLER_COLUMNS, run_controller
-    from swarm_sitl.recording import controller_rows_path
+    from swarm_sitl.events import EventLog
+    from swarm_sitl.metrics import describe_inputs
+    from swarm_sitl.node_clock import RunClock
+    from swarm_sitl.recording import controller_events_path, controller_rows_path, controller_stats_path
     from swarm_sitl.vehicle_link import VehicleLink
 
     i = args.id
     if i not in {f.id for f in cfg.followers}:
         raise ValueError(f"--id {i} is not a follower of {cfg.name} (ids 1..{cfg.n_followers})")
     graph = cfg.build_graph()
+    edges = cfg.graph_edges()
 
     def body() -> str:
-        rows = None
-        link = session = bus = None
+        rows = events = link = session = None
+        bus: Any = None
+        out = Path(args.out) if args.out else None
         try:
-            if args.out:
-                path = controller_rows_path(Path(args.out), i)
+            if out is not None:
+                path = controller_rows_path(out, i)
                 path.parent.mkdir(parents=True, exist_ok=True)
                 rows = RowLog(path, CONTROLLER_COLUMNS)
+            events = EventLog(controller_events_path(out, i) if out else None, f"controller_{i}")
             link = VehicleLink(args.mavlink, i, stamp_arrivals=not args.lockstep)
             session = _session(cfg, args.connect)
-            bus = ZenohNodeBus(
+            clock = RunClock(args.lockstep, cfg.control_dt_s)
+            bus = zbus = ZenohNodeBus(
                 session,
                 cfg.name,
                 i,
                 [s for s, _ in graph.in_neighbours(i)],
                 list(graph.out_neighbours(i)),
             )
-            rep = run_controller(cfg, i, link, bus, args.lockstep, rows)
+            faulty = None
+            if acts_on(cfg.faults, i, edges):
+                faulty = FaultyBus(zbus, cfg.faults, i, edges, clock, cfg.duration_s)
+            node_bus: NodeBus = zbus if faulty is None else faulty
+            bus = node_bus
+            rep = run_controller(cfg, i, link, node_bus, args.lockstep, rows, clock, events)
+            if out is not None:
+                _write_stats(
+                    controller_stats_path(out, i),
+                    {
+                        "follower": i,
+                        "report": rep._asdict(),
+                        "in_edges": {str(s): st for s, st in (faulty.edge_stats() if faulty else {}).items()},
+                    },
+                )
+            degraded = describe_inputs(rep._asdict())
             return (
                 f"follower {i}: {rep.ticks} ticks, {rep.late_ticks} late "
                 f"(max {rep.max_late_s * 1e3:.2f} ms), "
                 f"{rep.resends} setpoints resent, {rep.dropped_payloads} bad inputs dropped"
+                + (f"; degraded inputs: {degraded}" if degraded else "")
             )
         finally:
-            for thing in (rows, bus, link, session):
+            for thing in (rows, events, bus, link, session):
                 if thing is not None:
                     thing.close()
 

@@ -27,10 +27,11 @@ Load with ``numpy.load(path)``; ``load_run(RUN_DIR)`` gives them all. ``swarm-si
 writes ``logs/``, ``tlogs/`` and ``procs/`` (each process's own rows, as they happen).
 """
 
+import io
 import json
+import zipfile
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, cast
 
 import numpy as np
 
@@ -142,14 +143,22 @@ def leader_series(trajectory: Trajectory, t_s: np.ndarray) -> dict[str, np.ndarr
     return {"t_s": t_s, "p_r": d[:, 0], "v_r": d[:, 1], "a_r": d[:, 2]}
 
 
+def save_npz(path: Path, arrays: dict[str, np.ndarray]) -> None:
+    """``numpy.savez`` with fixed member dates, so the same arrays give the same bytes (numpy
+    stamps each member with the time of writing); ``numpy.load`` reads it as any .npz."""
+    with zipfile.ZipFile(path, "w", zipfile.ZIP_STORED, allowZip64=True) as z:
+        for name, a in arrays.items():
+            buf = io.BytesIO()
+            np.lib.format.write_array(buf, np.asanyarray(a), allow_pickle=False)
+            z.writestr(zipfile.ZipInfo(f"{name}.npy", date_time=(1980, 1, 1, 0, 0, 0)), buf.getvalue())
+
+
 def write_run(run_dir: Path, config_yaml: str, rec: Recording, summary: dict) -> None:
     run_dir.mkdir(parents=True, exist_ok=True)
     (run_dir / "config.yaml").write_text(config_yaml)
-    np.savez(run_dir / "leader.npz", **cast(dict[str, Any], rec.leader))
+    save_npz(run_dir / "leader.npz", rec.leader)
     for i, arrays in rec.followers.items():
-        np.savez(
-            run_dir / f"follower_{i}.npz", **cast(dict[str, Any], {"offset_m": rec.offsets[i], **arrays})
-        )
+        save_npz(run_dir / f"follower_{i}.npz", {"offset_m": rec.offsets[i], **arrays})
     (run_dir / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
 
 
@@ -191,3 +200,11 @@ def controller_rows_path(run_dir: Path, i: int) -> Path:
 
 def vehicle_truth_path(run_dir: Path, i: int) -> Path:
     return procs_dir(run_dir) / f"vehicle_{i}.truth"
+
+
+def controller_events_path(run_dir: Path, i: int) -> Path:
+    return procs_dir(run_dir) / f"controller_{i}.events"
+
+
+def controller_stats_path(run_dir: Path, i: int) -> Path:
+    return procs_dir(run_dir) / f"controller_{i}.stats.json"

@@ -7,7 +7,9 @@ every LOCAL_POSITION_NED it sent). Row ``k`` of follower ``i`` takes the true st
 (float32 as received, no body rates). Ticks nobody recorded stay NaN.
 """
 
+import json
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -16,11 +18,14 @@ from sim_vehicles.rigid_body import POS, QUAT, VEL
 from sim_vehicles.row_log import RowLogError, read_rows
 from swarm_sitl.config import SwarmConfig
 from swarm_sitl.controller_node import CONTROLLER_COLUMNS
+from swarm_sitl.events import merge_events
 from swarm_sitl.follower_law import CTRL_SIZE, OUT_SIZE
 from swarm_sitl.recording import (
     FollowerSeries,
     Recording,
+    controller_events_path,
     controller_rows_path,
+    controller_stats_path,
     leader_series,
     vehicle_truth_path,
 )
@@ -73,3 +78,31 @@ def merge_run(cfg: SwarmConfig, run_dir: Path) -> Recording:
     t_s = np.arange(n + 1) * dt
     trajectory = cfg.trajectory()
     return Recording(leader_series(trajectory, t_s), followers, offsets).with_errors(trajectory)
+
+
+def _stats(run_dir: Path, i: int) -> dict[str, Any]:
+    try:
+        s = json.loads(controller_stats_path(run_dir, i).read_text())
+    except (OSError, ValueError):
+        return {}
+    return s if isinstance(s, dict) else {}
+
+
+def inputs_and_links(cfg: SwarmConfig, run_dir: Path) -> tuple[dict[str, Any], dict[str, Any]]:
+    """What each controller reported of its inputs (``NodeReport``), and per edge what its
+    receiver counted under the fault plan (``bus_faults.EdgeStats``; edges without a fault on
+    them deliver what arrives). A controller that did not finish reports nothing."""
+    inputs: dict[str, Any] = {}
+    links: dict[str, Any] = {}
+    for f in cfg.followers:
+        s = _stats(run_dir, f.id)
+        if "report" in s:
+            inputs[str(f.id)] = s["report"]
+        for src, st in s.get("in_edges", {}).items():
+            links[f"{src}->{f.id}"] = st
+    return inputs, links
+
+
+def run_events(cfg: SwarmConfig, run_dir: Path) -> list[dict[str, Any]]:
+    """The plan's fault intervals and every process's events, in time order."""
+    return merge_events(cfg, [controller_events_path(run_dir, f.id) for f in cfg.followers])

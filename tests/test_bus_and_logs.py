@@ -3,6 +3,7 @@
 import math
 import struct
 import time
+import zlib
 
 import numpy as np
 import pytest
@@ -48,13 +49,22 @@ def test_status_and_start_roundtrip():
     assert decode_start(encode_start(1.7e9)) == 1.7e9
 
 
+def _with_crc(body: bytes, flip: int | None = None) -> bytes:
+    """An estimate payload with its CRC-32; ``flip``: then one byte inverted (a corruption)."""
+    data = bytearray(body + zlib.crc32(body).to_bytes(4, "little"))
+    if flip is not None:
+        data[flip] ^= 0xFF
+    return bytes(data)
+
+
 @pytest.mark.parametrize(
     "payload, match",
     [
         (b"", "0 bytes"),
         (b"\x01" * 10, "10 bytes"),
-        (b"\x02" + encode_estimate(EstimateMessage(1, 1, 0.0, *[np.zeros(3)] * 4))[1:], "version 2"),
-        (struct.pack("<BHId12d", 1, 1, 1, math.nan, *[0.0] * 12), "non-finite"),
+        (b"\x01" + encode_estimate(EstimateMessage(1, 1, 0.0, *[np.zeros(3)] * 4))[1:], "version 1"),
+        (_with_crc(struct.pack("<BHId12d", 2, 1, 1, math.nan, *[0.0] * 12)), "non-finite"),
+        (_with_crc(struct.pack("<BHId12d", 2, 1, 1, 0.0, *[0.0] * 12), flip=40), "checksum"),
     ],
 )
 def test_malformed_estimates_are_refused_with_one_line(payload, match):

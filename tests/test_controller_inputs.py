@@ -19,6 +19,9 @@ class _Bus:
     def estimate(self, src: int, step: int) -> EstimateMessage | None:
         return self.estimates.get((src, step))
 
+    def settled(self, src: int, step: int) -> bool:
+        return (src, step) in self.estimates
+
     def lost(self) -> set[int]:
         return set(self.gone)
 

@@ -1,0 +1,193 @@
+"""A fault plan acting on a node's in-edges: ``FaultyBus`` wraps a ``ZenohNodeBus``.
+
+Every estimate the wrapped bus decodes comes here first (its ``deliver``). The plan's fate for it
+(``fault_plan.fate``: lost, corrupted, delayed, duplicated) decides whether and when the loop may
+use it; the wrapped bus files it then. Nothing in the loop or the laws knows about faults: a lost
+estimate is one the loop does not get, and it rides through on the last one it has
+(``neighbour_inbox``).
+
+Why at the receiver. Zenoh's reliable transport turns packet loss into delays, not lost
+messages, so loss is injected where messages are received. In lockstep the estimate still crosses
+zenoh and the receiver waits for it as always (``settled``: it has *arrived*), then the plan hides
+it, holds it or lets it through. A tick therefore never waits for a message that will not come,
+and what the loop sees depends only on the plan, its seed and the steps of the messages: the same
+plan gives the same run, bit for bit.
+
+Time, for delays and for the plan's ``from_s``/``until_s``:
+
+- lockstep: a message of step ``s`` is on time at tick ``s + 1``; a delay of ``d`` seconds makes it
+  usable from tick ``s + 1 + ceil(d / dt)``; the plan's window is read at the message's own time;
+- real time: from its arrival (run seconds since the start epoch) plus the delay.
+"""
+
+import heapq
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+from swarm_sitl.bus import ZenohNodeBus
+from swarm_sitl.bus_codec import PayloadError, Status, decode_estimate, encode_estimate
+from swarm_sitl.fault_plan import FaultPlan, FaultSpec, fate, uniform
+from swarm_sitl.fault_plan import edge_channel as channel_of
+from swarm_sitl.follower import EstimateMessage
+from swarm_sitl.node_clock import RunClock
+
+_CORRUPT_BYTE = 3  #: salt of the draw that picks the byte a corruption flips
+
+
+@dataclass
+class EdgeStats:
+    """What one in-edge carried, counted at its receiver."""
+
+    received: int = 0  #: estimates that arrived over zenoh
+    delivered: int = 0  #: handed to the loop (a duplicate counts twice)
+    lost: int = 0  #: hidden by the plan (drop, loss)
+    corrupt: int = 0  #: corrupted by the plan, and dropped by the checksum
+    delayed: int = 0  #: delivered later than on time (delay, stall, reorder)
+    duplicated: int = 0  #: delivered a second time
+    delays_s: list[float] = field(default_factory=list)  #: how much later each delayed one came [s]
+
+    def as_dict(self) -> dict[str, Any]:
+        d = sorted(self.delays_s)
+        out: dict[str, Any] = {
+            k: getattr(self, k) for k in ("received", "delivered", "lost", "corrupt", "delayed", "duplicated")
+        }
+        if d:
+            out["delay_s"] = {
+                "median": d[len(d) // 2],
+                "p99": d[min(len(d) - 1, math.ceil(0.99 * len(d)) - 1)],
+                "max": d[-1],
+            }
+        return out
+
+
+class FaultyBus:
+    """``inner`` under the plan's faults on the edges into ``node`` (a ``NodeBus``)."""
+
+    def __init__(
+        self,
+        inner: ZenohNodeBus,
+        plan: FaultPlan,
+        node: int,
+        graph_edges: list[tuple[int, int]],
+        clock: RunClock,
+        end_s: float,
+    ):
+        self.inner = inner
+        self.plan = plan
+        self.node = node
+        self.clock = clock
+        self.end_s = end_s
+        sources = sorted({s for s, d in graph_edges if d == node})
+        self.rules: dict[int, list[tuple[int, FaultSpec]]] = {
+            s: plan.on_edge(s, node, graph_edges) for s in sources
+        }
+        self.stats = {s: EdgeStats() for s in sources}
+        self._arrived: dict[int, int] = {}
+        self._pending: list[tuple[float, int, EstimateMessage]] = []  #: heap of (due, order, message)
+        self._order = 0
+        inner.deliver = self._admit
+
+    # -- the plan ------------------------------------------------------------------------------------
+    def _admit(self, m: EstimateMessage) -> None:
+        src = m.src
+        st = self.stats.get(src)
+        if st is None:  # not one of our in-edges (the wrapped bus subscribes to no other)
+            return
+        self._arrived[src] = max(self._arrived.get(src, -1), m.step)
+        st.received += 1
+        clock = self.clock
+        dt = clock.period_s
+        at = m.t_s if clock.lockstep else clock.now_s()
+        f = fate(self.plan.seed, self.rules[src], channel_of(src, self.node), m.step, at, self.end_s, dt)
+        if f.lost:
+            st.lost += 1
+            return
+        if f.corrupt:
+            data = bytearray(encode_estimate(m))
+            j = int(uniform(self.plan.seed, channel_of(src, self.node), m.step, _CORRUPT_BYTE) * len(data))
+            data[j] ^= 0xFF
+            try:
+                m = decode_estimate(bytes(data))
+            except PayloadError:
+                st.corrupt += 1
+                self.inner.dropped += 1
+                return
+        due: float
+        if clock.lockstep:
+            due = m.step + 1 + (math.ceil(f.delay_s / dt - 1e-9) if f.delay_s > 0 else 0)
+            again = 1.0
+        else:
+            due = clock.now_s() + f.delay_s
+            again = dt
+        if f.delay_s > 0:
+            st.delayed += 1
+            st.delays_s.append(f.delay_s)
+        self._push(due, m)
+        if f.duplicate:
+            st.duplicated += 1
+            self._push(due + again, m)
+
+    def _push(self, due: float, m: EstimateMessage) -> None:
+        self._order += 1
+        heapq.heappush(self._pending, (due, self._order, m))
+
+    def _release(self) -> None:
+        pending = self._pending
+        if not pending:
+            return
+        now = self.clock.now()
+        while pending and pending[0][0] <= now:
+            _, _, m = heapq.heappop(pending)
+            self.stats[m.src].delivered += 1
+            self.inner.file(m)
+
+    # -- NodeBus -------------------------------------------------------------------------------------
+    @property
+    def dropped(self) -> int:
+        return self.inner.dropped
+
+    def poll(self) -> None:
+        self.inner.poll()
+        self._release()
+
+    def settled(self, src: int, step: int) -> bool:
+        return self._arrived.get(src, -1) >= step
+
+    def estimate(self, src: int, step: int) -> EstimateMessage | None:
+        return self.inner.estimate(src, step)
+
+    def latest(self, src: int) -> EstimateMessage | None:
+        return self.inner.latest(src)
+
+    def publish(self, msg: EstimateMessage) -> None:
+        self.inner.publish(msg)
+
+    def publish_status(self, status: Status) -> None:
+        self.inner.publish_status(status)
+
+    def forget_before(self, step: int) -> None:
+        self.inner.forget_before(step)
+
+    def progress(self, follower: int) -> int:
+        return self.inner.progress(follower)
+
+    def start_epoch(self) -> float | None:
+        return self.inner.start_epoch()
+
+    def lost(self) -> set[int]:
+        return self.inner.lost()
+
+    def set_ready(self) -> None:
+        self.inner.set_ready()
+
+    def close(self) -> None:
+        self.inner.close()
+
+    def edge_stats(self) -> dict[int, dict[str, Any]]:
+        return {s: st.as_dict() for s, st in self.stats.items()}
+
+
+def acts_on(plan: FaultPlan, node: int, graph_edges: list[tuple[int, int]]) -> bool:
+    """Whether ``plan`` has an entry on an edge into ``node`` (else the bus needs no wrapper)."""
+    return any(plan.on_edge(s, d, graph_edges) for s, d in graph_edges if d == node)

@@ -1,0 +1,80 @@
+"""What happened during a run, as events: one JSON object per line, each with its time.
+
+A process appends its events to ``procs/<process>.events`` as they happen (flushed per event, so a
+killed process keeps what it wrote); the run's ``events.jsonl`` merges them with the fault plan's
+own intervals, in time order. Every event has ``t_s`` (simulated seconds in lockstep, run seconds
+in real time), ``kind`` and ``source`` (the process that saw it), plus fields of its kind:
+
+    fault_start, fault_end     fault (plan entry), what, how          (from the plan)
+    neighbour_lost             follower, neighbour, age_s             (its estimate is past staleness)
+    neighbour_regained         follower, neighbour, age_s
+    no_live_in_edge            follower                               (its estimator runs on its own)
+"""
+
+import json
+from pathlib import Path
+from typing import IO, Any
+
+from swarm_sitl.config import SwarmConfig
+
+
+class EventLog:
+    """Appends events to a file (or nowhere, with ``path=None``), one flushed line each."""
+
+    def __init__(self, path: Path | None, source: str):
+        self.source = source
+        self._f: IO[str] | None = open(path, "w") if path is not None else None  # noqa: SIM115
+        self.count = 0
+
+    def add(self, t_s: float, kind: str, **fields: Any) -> None:
+        self.count += 1
+        if self._f is not None:
+            self._f.write(
+                json.dumps({"t_s": round(t_s, 9), "kind": kind, "source": self.source, **fields}) + "\n"
+            )
+            self._f.flush()
+
+    def close(self) -> None:
+        if self._f is not None:
+            self._f.close()
+            self._f = None
+
+
+def plan_events(cfg: SwarmConfig) -> list[dict[str, Any]]:
+    """The start and end of every entry of the config's fault plan."""
+    out = []
+    for j, f in enumerate(cfg.faults.plan):
+        common = {"source": "plan", "fault": j, "what": f.what, "how": f.how}
+        out.append({"t_s": f.from_s, "kind": "fault_start", **common})
+        out.append({"t_s": cfg.duration_s if f.until_s is None else f.until_s, "kind": "fault_end", **common})
+    return out
+
+
+def read_events(path: Path) -> list[dict[str, Any]]:
+    """The complete lines of an event file (a line cut short by a kill is left out)."""
+    out: list[dict[str, Any]] = []
+    try:
+        text = path.read_text()
+    except OSError:
+        return out
+    for line in text.splitlines():
+        try:
+            e = json.loads(line)
+        except ValueError:
+            continue
+        if isinstance(e, dict) and isinstance(e.get("t_s"), int | float) and "kind" in e:
+            out.append(e)
+    return out
+
+
+def merge_events(cfg: SwarmConfig, files: list[Path]) -> list[dict[str, Any]]:
+    """The plan's events and every file's, in time order (ties: plan first, then by source)."""
+    events = plan_events(cfg)
+    for p in sorted(files):
+        events += read_events(p)
+    events.sort(key=lambda e: (e["t_s"], e.get("source") != "plan", str(e.get("source")), e["kind"]))
+    return events
+
+
+def write_events(path: Path, events: list[dict[str, Any]]) -> None:
+    path.write_text("".join(json.dumps(e, sort_keys=True) + "\n" for e in events))

@@ -1,0 +1,231 @@
+"""The fault plan of a run: what fails x how x when, validated at load.
+
+A plan is the ``faults:`` section of a config, or a file given with ``swarm-sitl run --faults FILE``
+(the same mapping, which replaces the config's)::
+
+    faults:
+      seed: 7                 # every random choice of the plan derives from it
+      plan:
+        - {edge: [1, 4], loss: 0.5}                             # half the estimates 1 -> 4 are lost
+        - {edge: [0, 1], drop: true, from_s: 20, until_s: 30}   # the edge is cut for 10 s
+        - {into: 4, delay_s: 0.05, jitter_s: 0.02}              # every edge into follower 4
+        - {out_of: 2, duplicate: 0.1}                           # every edge out of follower 2
+        - {leader_edges: true, stall: true, from_s: 5, until_s: 6}
+
+One entry names one *what*, one *how* and optionally *when*:
+
+- what (links): ``edge: [src, dst]`` (an edge of the graph), ``into: i`` / ``out_of: i`` (every edge
+  into or out of follower i), ``leader_edges: true`` (every edge out of node 0);
+- how (links): ``drop: true`` (every message), ``loss: p``, ``delay_s: d`` (plus ``jitter_s: j``,
+  uniform in [0, j]), ``stall: true`` (held from ``from_s`` and released in one burst at
+  ``until_s``), ``duplicate: p`` (delivered again a period later), ``reorder: p`` (held one period,
+  so it comes after the next one), ``corrupt: p`` (one byte flipped: the receiver's checksum drops
+  and counts it);
+- when: ``from_s`` (default 0) and ``until_s`` (default: the end of the run): simulated seconds
+  in lockstep (the time the message was sent for), run seconds in real time (its arrival).
+
+Probabilities are drawn per message from a hash of (seed, entry, edge, step): the same plan and
+seed give the same fate to every message, whatever the machine does (``fate``). Faults act where
+messages are received (``bus_faults``), so a lockstep receiver always knows a message's fate
+without waiting for something that will not come.
+"""
+
+from collections.abc import Iterable
+from typing import Annotated, Literal, NamedTuple
+
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+Probability = Annotated[float, Field(gt=0, le=1)]
+NonNegative = Annotated[float, Field(ge=0)]
+
+LINK_WHAT = ("edge", "into", "out_of", "leader_edges")
+LINK_HOW = ("drop", "loss", "delay_s", "stall", "duplicate", "reorder", "corrupt")
+
+
+class FaultSpec(BaseModel):
+    """One entry of a fault plan: one what, one how, and when."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    edge: tuple[int, int] | None = None  #: [src, dst], an edge of the graph
+    into: Annotated[int, Field(ge=1)] | None = None  #: every edge into this follower
+    out_of: Annotated[int, Field(ge=1)] | None = None  #: every edge out of this follower
+    leader_edges: Literal[True] | None = None  #: every edge out of the leader
+
+    drop: Literal[True] | None = None  #: every message is lost
+    loss: Probability | None = None  #: each message is lost with this probability
+    delay_s: NonNegative | None = None  #: each message comes this much later [s]
+    jitter_s: NonNegative = 0.0  #: plus a uniform draw in [0, jitter_s] [s] (with delay_s)
+    stall: Literal[True] | None = None  #: held until ``until_s``, then released at once
+    duplicate: Probability | None = None  #: delivered again one period later, with this probability
+    reorder: Probability | None = None  #: held back one period (after the next), with this probability
+    corrupt: Probability | None = None  #: one byte flipped, with this probability
+
+    from_s: NonNegative = 0.0  #: the fault starts [s]
+    until_s: Annotated[float, Field(gt=0)] | None = None  #: and ends [s] (default: the end of the run)
+
+    @model_validator(mode="after")
+    def _one_of_each(self) -> "FaultSpec":
+        what = [k for k in LINK_WHAT if getattr(self, k) is not None]
+        how = [k for k in LINK_HOW if getattr(self, k) is not None]
+        if len(what) != 1:
+            raise ValueError(f"name exactly one of {', '.join(LINK_WHAT)} (what fails); got {what or 'none'}")
+        if len(how) != 1:
+            raise ValueError(f"name exactly one of {', '.join(LINK_HOW)} (how it fails); got {how or 'none'}")
+        if self.jitter_s and self.delay_s is None:
+            raise ValueError("jitter_s goes with delay_s")
+        if self.stall and self.until_s is None:
+            raise ValueError("a stall needs until_s (when the held messages are released)")
+        if self.until_s is not None and self.until_s <= self.from_s:
+            raise ValueError(f"until_s ({self.until_s:g}) must be after from_s ({self.from_s:g})")
+        return self
+
+    @property
+    def what(self) -> str:
+        if self.edge is not None:
+            return f"edge {self.edge[0]}->{self.edge[1]}"
+        if self.into is not None:
+            return f"edges into {self.into}"
+        if self.out_of is not None:
+            return f"edges out of {self.out_of}"
+        return "leader's edges"
+
+    @property
+    def how(self) -> str:
+        if self.drop:
+            return "drop"
+        if self.stall:
+            return "stall"
+        if self.delay_s is not None:
+            return f"delay {self.delay_s:g} s" + (f" + U(0, {self.jitter_s:g}) s" if self.jitter_s else "")
+        for k in ("loss", "duplicate", "reorder", "corrupt"):
+            p = getattr(self, k)
+            if p is not None:
+                return f"{k} {p:g}"
+        raise AssertionError("validated: one how")
+
+    def edges(self, graph_edges: Iterable[tuple[int, int]]) -> list[tuple[int, int]]:
+        """The graph's edges this entry names."""
+        es = list(graph_edges)
+        if self.edge is not None:
+            return [e for e in es if e == tuple(self.edge)]
+        if self.into is not None:
+            return [e for e in es if e[1] == self.into]
+        if self.out_of is not None:
+            return [e for e in es if e[0] == self.out_of]
+        return [e for e in es if e[0] == 0]
+
+    def active(self, t_s: float, end_s: float) -> bool:
+        return self.from_s <= t_s < (end_s if self.until_s is None else self.until_s)
+
+
+class FaultPlan(BaseModel):
+    """``faults:`` of a config: the plan's entries and the seed of its random draws."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    seed: Annotated[int, Field(ge=0, lt=2**63)] = 0
+    plan: list[FaultSpec] = []
+
+    def check_against(self, graph_edges: list[tuple[int, int]], n_followers: int, duration_s: float) -> None:
+        """Cross-checks with the rest of the config; raises ``ValueError`` naming the entry."""
+        for j, f in enumerate(self.plan):
+            where = f"faults.plan.{j}"
+            for key in ("into", "out_of"):
+                node = getattr(f, key)
+                if node is not None and not 1 <= node <= n_followers:
+                    raise ValueError(f"{where}.{key}: follower {node} is not 1..{n_followers}")
+            if not f.edges(graph_edges):
+                raise ValueError(f"{where}: {f.what} is not in the graph")
+            if f.from_s >= duration_s:
+                raise ValueError(
+                    f"{where}.from_s: {f.from_s:g} s is not within the run (0..{duration_s:g} s)"
+                )
+            if f.until_s is not None and f.until_s > duration_s:
+                raise ValueError(
+                    f"{where}.until_s: {f.until_s:g} s is past the end of the run ({duration_s:g} s)"
+                )
+
+    def on_edge(self, src: int, dst: int, graph_edges: list[tuple[int, int]]) -> list[tuple[int, FaultSpec]]:
+        """``(entry index, entry)`` of every entry acting on the edge ``src -> dst``, in plan order."""
+        return [(j, f) for j, f in enumerate(self.plan) if (src, dst) in f.edges(graph_edges)]
+
+
+# -- the fate of one message ---------------------------------------------------------------------
+_MASK = (1 << 64) - 1
+
+
+def _mix(x: int) -> int:
+    """splitmix64's finaliser: a 64-bit integer hash with every input bit reaching every output bit."""
+    x = (x + 0x9E3779B97F4A7C15) & _MASK
+    x = ((x ^ (x >> 30)) * 0xBF58476D1CE4E5B9) & _MASK
+    x = ((x ^ (x >> 27)) * 0x94D049BB133111EB) & _MASK
+    return x ^ (x >> 31)
+
+
+def uniform(seed: int, *keys: int) -> float:
+    """A draw in [0, 1) that depends only on ``seed`` and ``keys`` (non-negative integers)."""
+    h = _mix(seed)
+    for k in keys:
+        h = _mix(h ^ k)
+    return (h >> 11) / float(1 << 53)
+
+
+class Fate(NamedTuple):
+    """What the plan does to one message."""
+
+    lost: bool = False
+    corrupt: bool = False
+    delay_s: float = 0.0  #: how much later than on time it is delivered [s]
+    duplicate: bool = False  #: delivered a second time, one period after the first
+    faults: tuple[int, ...] = ()  #: the plan entries that acted on it
+
+
+ON_TIME = Fate()
+
+#: salts of the independent draws one entry makes for one message
+_DRAW, _JITTER = 1, 2
+
+
+def fate(
+    seed: int,
+    rules: list[tuple[int, FaultSpec]],
+    channel: int,
+    key: int,
+    t_s: float,
+    end_s: float,
+    period_s: float,
+) -> Fate:
+    """The fate of message ``key`` (its step) on ``channel`` at time ``t_s``, under ``rules``
+    (``FaultPlan.on_edge``): entries act in plan order, a loss ends it."""
+    lost = corrupt = duplicate = False
+    delay = 0.0
+    acted: list[int] = []
+    for j, f in rules:
+        if not f.active(t_s, end_s):
+            continue
+        draw = uniform(seed, j, channel, key, _DRAW)
+        if f.drop or (f.loss is not None and draw < f.loss):
+            return Fate(True, False, 0.0, False, (*acted, j))
+        if f.corrupt is not None and draw < f.corrupt:
+            corrupt = True
+        elif f.delay_s is not None:
+            delay += f.delay_s + f.jitter_s * uniform(seed, j, channel, key, _JITTER)
+        elif f.stall:
+            assert f.until_s is not None
+            delay += f.until_s - t_s
+        elif f.reorder is not None and draw < f.reorder:
+            delay += period_s
+        elif f.duplicate is not None and draw < f.duplicate:
+            duplicate = True
+        else:
+            continue
+        acted.append(j)
+    if not acted:
+        return ON_TIME
+    return Fate(lost, corrupt, delay, duplicate, tuple(acted))
+
+
+def edge_channel(src: int, dst: int) -> int:
+    """The channel number of an edge in ``fate``'s draws."""
+    return (src << 16) | dst

@@ -1,0 +1,212 @@
+"""The fault stage on a node's in-edges (``FaultyBus``) over an in-memory bus, and riding through
+silent neighbours (``NeighbourInbox``): what the loop may use, and when, under each fault."""
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from swarm_sitl.bus_codec import PayloadError, decode_estimate, encode_estimate
+from swarm_sitl.bus_faults import FaultyBus
+from swarm_sitl.events import EventLog
+from swarm_sitl.fault_plan import FaultPlan
+from swarm_sitl.follower import EstimateMessage
+from swarm_sitl.neighbour_inbox import NeighbourInbox
+from swarm_sitl.node_clock import RunClock
+
+pytestmark = pytest.mark.integration
+
+DT = 0.01
+EDGES = [(0, 1), (0, 2), (1, 4), (2, 4)]
+
+
+class MemoryBus:
+    """The part of ``ZenohNodeBus`` a fault stage uses, in memory: ``arrive`` puts an estimate on
+    the wire, ``poll`` decodes what arrived through ``deliver``."""
+
+    def __init__(self) -> None:
+        self.deliver = self.file
+        self.dropped = 0
+        self.wire: list[EstimateMessage] = []
+        self.table: dict[tuple[int, int], EstimateMessage] = {}
+        self.newest: dict[int, EstimateMessage] = {}
+
+    def arrive(self, src: int, step: int) -> None:
+        v = np.full(3, float(step))
+        self.wire.append(EstimateMessage(src, step, step * DT, v, v, v, v))
+
+    def poll(self) -> None:
+        while self.wire:
+            self.deliver(self.wire.pop(0))
+
+    def file(self, m: EstimateMessage) -> None:
+        self.table[m.src, m.step] = m
+        if m.src not in self.newest or m.step >= self.newest[m.src].step:
+            self.newest[m.src] = m
+
+    def estimate(self, src: int, step: int) -> EstimateMessage | None:
+        return self.table.get((src, step))
+
+    def latest(self, src: int) -> EstimateMessage | None:
+        return self.newest.get(src)
+
+
+def _bus(*entries: dict, seed: int = 0, lockstep: bool = True) -> tuple[FaultyBus, MemoryBus, RunClock]:
+    inner = MemoryBus()
+    clock = RunClock(lockstep, DT)
+    plan = FaultPlan(seed=seed, plan=list(entries))
+    return FaultyBus(inner, plan, 4, EDGES, clock, 60.0), inner, clock  # type: ignore[arg-type]
+
+
+def _lockstep_ticks(bus: FaultyBus, inner: MemoryBus, clock: RunClock, n: int) -> dict[int, set[int]]:
+    """Run ticks 1..n: before tick k both in-neighbours' estimates of k - 1 arrive; returns, per
+    tick, the steps of source 1 usable then (the loop asks ``estimate(src, k - 1)``, ``latest``)."""
+    seen: dict[int, set[int]] = {}
+    for k in range(1, n + 1):
+        clock.tick = k
+        inner.arrive(1, k - 1)
+        inner.arrive(2, k - 1)
+        bus.poll()
+        assert bus.settled(1, k - 1) and bus.settled(2, k - 1)  # a tick never waits on the plan
+        seen[k] = {s for (src, s) in inner.table if src == 1}
+    return seen
+
+
+def test_lost_estimates_are_settled_but_never_used():
+    bus, inner, clock = _bus({"edge": [1, 4], "loss": 0.5}, seed=5)
+    seen = _lockstep_ticks(bus, inner, clock, 400)
+    used = seen[400]
+    st_ = bus.stats[1]
+    assert st_.received == 400 and st_.lost + st_.delivered == 400 and 140 < st_.lost < 260
+    assert len(used) == st_.delivered
+    assert bus.stats[2].lost == 0 and bus.stats[2].delivered == 400  # the other edge is untouched
+    for k in range(1, 401):  # what is delivered is delivered on time
+        assert ((k - 1) in seen[k]) == ((k - 1) in used)
+    again, inner2, clock2 = _bus({"edge": [1, 4], "loss": 0.5}, seed=5)
+    assert _lockstep_ticks(again, inner2, clock2, 400)[400] == used  # the same plan, the same run
+
+
+def test_a_delay_holds_an_estimate_whole_ticks_in_lockstep():
+    bus, inner, clock = _bus({"edge": [1, 4], "delay_s": 0.025})  # 2.5 periods: used 3 ticks late
+    seen = _lockstep_ticks(bus, inner, clock, 50)
+    for k in range(1, 51):
+        assert max(seen[k], default=-1) == max(k - 1 - 3, -1)
+    assert bus.stats[1].delayed == 50 and bus.stats[1].delays_s[0] == pytest.approx(0.025)
+
+
+def test_a_stall_releases_what_it_held_in_one_burst():
+    bus, inner, clock = _bus({"edge": [1, 4], "stall": True, "from_s": 0.2, "until_s": 0.5})
+    seen = _lockstep_ticks(bus, inner, clock, 80)
+    assert max(seen[20]) == 19 and max(seen[50]) == 19  # held from t = 0.2 s
+    assert set(range(20, 50)) <= seen[51] and max(seen[51]) == 50  # all at once, then on time
+
+
+def test_duplicates_reorders_and_corruptions():
+    bus, inner, clock = _bus({"edge": [1, 4], "duplicate": 1.0})
+    _lockstep_ticks(bus, inner, clock, 20)
+    assert bus.stats[1].duplicated == 20 and bus.stats[1].delivered == 39  # the last copy is due at 21
+    bus, inner, clock = _bus({"edge": [1, 4], "reorder": 1.0})
+    seen = _lockstep_ticks(bus, inner, clock, 20)
+    assert all(max(seen[k], default=-1) == k - 2 for k in range(1, 21))  # one period late
+    bus, inner, clock = _bus({"edge": [1, 4], "corrupt": 1.0})
+    _lockstep_ticks(bus, inner, clock, 20)
+    assert bus.stats[1].corrupt == 20 and inner.dropped == 20 and not any(s == 1 for s, _ in inner.table)
+
+
+def test_in_real_time_a_delay_counts_from_arrival():
+    now = [0.0]
+
+    class Clock(RunClock):
+        def now(self) -> float:
+            return now[0]
+
+        def now_s(self) -> float:
+            return now[0]
+
+    inner = MemoryBus()
+    bus = FaultyBus(
+        inner, FaultPlan(plan=[{"edge": [1, 4], "delay_s": 0.1}]), 4, EDGES, Clock(False, DT), 60.0
+    )  # type: ignore[arg-type]
+    now[0] = 5.0
+    inner.arrive(1, 3)  # its own time (0.03 s) does not matter in real time: its arrival does
+    bus.poll()
+    assert bus.latest(1) is None
+    now[0] = 5.099
+    bus.poll()
+    assert bus.latest(1) is None
+    now[0] = 5.1
+    bus.poll()
+    assert bus.latest(1) is not None and bus.latest(1).step == 3
+
+
+@given(st.integers(0, 110), st.integers(1, 255))
+def test_any_corrupted_byte_of_an_estimate_is_caught_by_its_checksum(pos, flip):
+    v = np.array([1.5, -2.0, 3.25])
+    data = bytearray(encode_estimate(EstimateMessage(2, 77, 0.77, v, v, v, v)))
+    data[pos % len(data)] ^= flip
+    with pytest.raises(PayloadError):
+        decode_estimate(bytes(data))
+
+
+# -- riding through ------------------------------------------------------------------------------
+def _msg(src: int, step: int) -> EstimateMessage:
+    v = np.zeros(3)
+    return EstimateMessage(src, step, step * DT, v, v, v, v)
+
+
+class Events(EventLog):
+    def __init__(self) -> None:
+        super().__init__(None, "test")
+        self.seen: list[tuple[float, str, dict]] = []
+
+    def add(self, t_s: float, kind: str, **fields: object) -> None:
+        self.seen.append((t_s, kind, fields))
+
+
+def test_on_time_estimates_are_exactly_those_of_the_tick_before():
+    inbox = NeighbourInbox(4, [1, 2], 0.5, Events())
+    for k in range(1, 100):
+        got = inbox.gather(k * DT, lambda s, k=k: _msg(s, k - 1))
+        assert {s: m.step for s, m in got.items()} == {1: k - 1, 2: k - 1}
+    assert inbox.stale_ticks == {1: 0, 2: 0} and inbox.max_age_s[1] == pytest.approx(DT)
+
+
+def test_a_silent_neighbour_is_carried_until_stale_then_left_out_and_regained():
+    ev = Events()
+    inbox = NeighbourInbox(4, [1, 2], 0.1, ev)
+    last = {1: 9, 2: 19}  # 1 falls silent after step 9, 2 after step 19; both come back at 60
+
+    def newest(s: int, k: int) -> EstimateMessage | None:
+        return _msg(s, k - 1) if k - 1 <= last[s] or k - 1 >= 60 else None
+
+    used = {}
+    for k in range(1, 70):
+        used[k] = {s: m.step for s, m in inbox.gather(k * DT, lambda s, k=k: newest(s, k)).items()}
+    assert used[15] == {1: 9, 2: 14}  # carried: 0.06 s old
+    assert used[19] == {1: 9, 2: 18} and used[20] == {2: 19}  # 9 is 0.11 s old at tick 20: out
+    assert used[31] == {} and used[61] == {1: 60, 2: 60}
+    kinds = [(round(t / DT), kind, f.get("neighbour")) for t, kind, f in ev.seen]
+    assert kinds == [
+        (20, "neighbour_lost", 1),
+        (30, "neighbour_lost", 2),
+        (30, "no_live_in_edge", None),
+        (61, "neighbour_regained", 1),
+        (61, "neighbour_regained", 2),
+    ]
+    assert ev.seen[0][2]["age_s"] == pytest.approx(0.11)
+    assert inbox.stale_ticks == {1: 41, 2: 31}
+
+
+def test_an_older_estimate_never_replaces_a_newer_one():
+    inbox = NeighbourInbox(4, [1], 1.0, Events())
+    inbox.gather(0.1, lambda s: _msg(1, 9))
+    assert inbox.gather(0.11, lambda s: _msg(1, 5))[1].step == 9  # a reordered straggler
+
+
+def test_a_neighbour_never_heard_from_is_left_out_without_an_event():
+    ev = Events()
+    inbox = NeighbourInbox(4, [1], 0.1, ev)
+    assert all(inbox.gather(k * DT, lambda s: None) == {} for k in range(50))
+    assert ev.seen == [] and not math.isnan(inbox.max_age_s[1])

@@ -1,0 +1,163 @@
+"""The fault plan: validated at load with one-line errors, and the fate of each message a pure,
+seeded function with the statistics the plan asks for."""
+
+import math
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+import yaml
+
+from swarm_sitl.config import ConfigError, parse_config, with_faults
+from swarm_sitl.fault_plan import FaultPlan, FaultSpec, edge_channel, fate, uniform
+from tests.conftest import CONFIGS
+
+pytestmark = pytest.mark.unit
+
+
+def _paper(faults: object) -> dict:
+    data = yaml.safe_load((CONFIGS / "paper.yaml").read_text())
+    data["faults"] = faults
+    return data
+
+
+@pytest.mark.parametrize(
+    "plan, message",
+    [
+        ([{"edge": [1, 4], "los": 0.5}], r"faults\.plan\.0\.los: unknown key"),
+        ([{"edge": [1, 4]}], r"faults\.plan\.0: name exactly one of drop, .* \(how it fails\); got none"),
+        ([{"edge": [1, 4], "into": 4, "drop": True}], r"name exactly one of edge, .* got \['edge', 'into'\]"),
+        ([{"edge": [1, 4], "drop": True, "loss": 0.1}], r"got \['drop', 'loss'\]"),
+        ([{"edge": [3, 4], "drop": True}], r"faults\.plan\.0: edge 3->4 is not in the graph"),
+        ([{"edge": [1, 4], "drop": True}, {"into": 9, "drop": True}], r"faults\.plan\.1\.into: follower 9"),
+        ([{"edge": [1, 4], "drop": True, "from_s": 60}], r"faults\.plan\.0\.from_s: 60 s is not within"),
+        ([{"edge": [1, 4], "drop": True, "until_s": 61}], r"faults\.plan\.0\.until_s: 61 s is past the end"),
+        ([{"edge": [1, 4], "drop": True, "from_s": 5, "until_s": 5}], r"until_s \(5\) must be after from_s"),
+        ([{"edge": [1, 4], "stall": True}], r"a stall needs until_s"),
+        ([{"edge": [1, 4], "loss": 0.1, "jitter_s": 0.1}], r"jitter_s goes with delay_s"),
+        ([{"edge": [1, 4], "loss": 1.5}], r"faults\.plan\.0\.loss: .*less than or equal to 1"),
+        ([{"edge": [1, 4], "loss": 0.5, "from_s": -1}], r"faults\.plan\.0\.from_s: .*greater than or equal"),
+    ],
+)
+def test_a_bad_plan_is_one_line_naming_the_entry(plan, message):
+    with pytest.raises(ConfigError, match=message) as e:
+        parse_config(_paper({"plan": plan}), "paper.yaml")
+    assert "\n" not in str(e.value)
+
+
+def test_the_plan_names_what_how_and_when():
+    cfg = parse_config(
+        _paper(
+            {
+                "seed": 9,
+                "plan": [
+                    {"edge": [0, 1], "drop": True, "from_s": 20, "until_s": 30},
+                    {"into": 4, "delay_s": 0.05, "jitter_s": 0.02},
+                    {"out_of": 2, "duplicate": 0.1},
+                    {"leader_edges": True, "stall": True, "from_s": 5, "until_s": 6},
+                ],
+            }
+        )
+    )
+    p, edges = cfg.faults, cfg.graph_edges()
+    assert p.seed == 9
+    assert [f.edges(edges) for f in p.plan] == [
+        [(0, 1)],
+        [(1, 4), (2, 4)],
+        [(2, 4)],
+        [(0, 1), (0, 2), (0, 3)],
+    ]
+    assert [j for j, _ in p.on_edge(2, 4, edges)] == [1, 2]
+    assert p.plan[1].how == "delay 0.05 s + U(0, 0.02) s" and p.plan[3].what == "leader's edges"
+
+
+def test_a_fault_file_replaces_the_plan_and_is_checked_against_the_config(tmp_path, paper_cfg):
+    f = tmp_path / "plan.yaml"
+    f.write_text("faults:\n  seed: 4\n  plan:\n    - {edge: [2, 4], loss: 0.25}\n")
+    assert with_faults(paper_cfg, f).faults.plan[0].loss == 0.25
+    f.write_text("plan:\n  - {edge: [2, 3], loss: 0.25}\n")
+    with pytest.raises(ConfigError, match=r"plan\.yaml: faults\.plan\.0: edge 2->3 is not in the graph"):
+        with_faults(paper_cfg, f)
+    f.write_bytes(b"\x00\xff\xfe garbage")
+    with pytest.raises(ConfigError, match=r"plan\.yaml"):
+        with_faults(paper_cfg, f)
+
+
+def test_the_cli_refuses_a_bad_fault_file_in_one_line(tmp_path):
+    f = tmp_path / "plan.yaml"
+    f.write_text("plan:\n  - {edge: [1, 4], loss: 0.5, until_s: 99}\n")
+    r = subprocess.run(
+        [sys.executable, "-m", "swarm_sitl", "run", str(CONFIGS / "paper.yaml"), "--faults", str(f)],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert r.returncode == 2
+    assert r.stderr.strip().count("\n") == 0
+    assert "until_s: 99 s is past the end of the run (60 s)" in r.stderr
+
+
+def _rules(*entries: dict) -> list[tuple[int, FaultSpec]]:
+    return list(enumerate(FaultSpec(**e) for e in entries))
+
+
+def test_a_fate_depends_only_on_seed_entry_edge_and_step():
+    rules = _rules({"edge": [1, 4], "loss": 0.5}, {"edge": [1, 4], "delay_s": 0.01, "jitter_s": 0.02})
+    ch = edge_channel(1, 4)
+    a = [fate(7, rules, ch, k, k * 0.01, 60.0, 0.01) for k in range(500)]
+    assert a == [fate(7, rules, ch, k, k * 0.01, 60.0, 0.01) for k in range(500)]
+    b = [fate(8, rules, ch, k, k * 0.01, 60.0, 0.01) for k in range(500)]
+    assert [f.lost for f in a] != [f.lost for f in b]  # another seed, another draw
+    c = [fate(7, rules, edge_channel(2, 4), k, k * 0.01, 60.0, 0.01) for k in range(500)]
+    assert [f.lost for f in a] != [f.lost for f in c]  # and each edge its own
+
+
+@pytest.mark.parametrize("p", [0.02, 0.2, 0.5, 0.9])
+def test_loss_happens_at_its_probability(p):
+    rules = _rules({"edge": [1, 4], "loss": p})
+    n = 20000
+    lost = sum(fate(3, rules, 5, k, 0.0, 1.0, 0.01).lost for k in range(n))
+    sigma = math.sqrt(n * p * (1 - p))
+    assert abs(lost - n * p) < 5 * sigma, (lost, n * p)
+
+
+def test_delays_are_the_fixed_part_plus_a_uniform_jitter():
+    rules = _rules({"edge": [1, 4], "delay_s": 0.05, "jitter_s": 0.02})
+    d = np.array([fate(1, rules, 5, k, 0.0, 1.0, 0.01).delay_s for k in range(20000)])
+    assert d.min() >= 0.05 and d.max() < 0.07
+    assert abs(d.mean() - 0.06) < 5 * 0.02 / math.sqrt(12 * len(d))  # mean of U(0.05, 0.07)
+    assert np.histogram(d, bins=4, range=(0.05, 0.07))[0].min() > 4500  # spread over the range
+
+
+def test_a_window_bounds_the_fault_and_a_stall_releases_at_its_end():
+    rules = _rules({"edge": [1, 4], "stall": True, "from_s": 1.0, "until_s": 1.5})
+    assert fate(0, rules, 5, 1, 0.99, 60.0, 0.01).delay_s == 0.0
+    assert fate(0, rules, 5, 2, 1.0, 60.0, 0.01).delay_s == pytest.approx(0.5)
+    assert fate(0, rules, 5, 3, 1.2, 60.0, 0.01).delay_s == pytest.approx(0.3)
+    assert fate(0, rules, 5, 4, 1.5, 60.0, 0.01).delay_s == 0.0
+    drop_later = _rules({"edge": [1, 4], "drop": True, "from_s": 30})
+    assert not fate(0, drop_later, 5, 0, 29.9, 60.0, 0.01).lost
+    assert fate(0, drop_later, 5, 0, 30.0, 60.0, 0.01).lost  # until_s defaults to the end of the run
+
+
+def test_entries_act_in_plan_order_and_a_loss_ends_it():
+    rules = _rules({"edge": [1, 4], "delay_s": 0.1}, {"edge": [1, 4], "drop": True})
+    f = fate(0, rules, 5, 0, 0.0, 1.0, 0.01)
+    assert f.lost and f.faults == (0, 1)
+    rules = _rules({"edge": [1, 4], "reorder": 1.0}, {"edge": [1, 4], "duplicate": 1.0})
+    f = fate(0, rules, 5, 0, 0.0, 1.0, 0.01)
+    assert (f.lost, f.delay_s, f.duplicate, f.faults) == (False, 0.01, True, (0, 1))
+
+
+def test_uniform_draws_are_in_the_unit_interval_and_flat():
+    u = np.array([uniform(11, 2, k) for k in range(50000)])
+    assert u.min() >= 0.0 and u.max() < 1.0
+    assert abs(u.mean() - 0.5) < 5 * math.sqrt(1 / 12 / len(u))
+    counts = np.histogram(u, bins=10, range=(0, 1))[0]
+    chi2 = ((counts - 5000) ** 2 / 5000).sum()
+    assert chi2 < 40  # 9 degrees of freedom: p < 1e-5 of exceeding by chance
+
+
+def test_an_empty_plan_is_the_default(paper_cfg):
+    assert paper_cfg.faults == FaultPlan()
