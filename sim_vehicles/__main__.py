@@ -13,6 +13,7 @@ import numpy as np
 
 from sim_vehicles import tick_frames
 from sim_vehicles.autopilot import Autopilot
+from sim_vehicles.failsafe import ACTIONS
 from sim_vehicles.lifeline import batch_scheduling, hold_on, profiled, settle_heap
 from sim_vehicles.mavlink_endpoint import VehicleEndpoint
 from sim_vehicles.params import AttitudeGains, VehicleParamError, VehicleParams
@@ -63,6 +64,13 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--l-q", type=float, default=16.0)
     p.add_argument("--k-q", type=float, default=16.0)
     p.add_argument("--setpoint-timeout-s", type=float, default=0.5)
+    p.add_argument(
+        "--failsafe-action",
+        choices=sorted(ACTIONS),
+        default="hold",
+        help="what the vehicle flies when its setpoints stop (PX4's COM_OBL_ACT): hold position or land",
+    )
+    p.add_argument("--events", help="write failsafe events (JSON lines) to this file")
     p.add_argument("--attitude-hz", type=float, default=1000.0)
     p.add_argument("--tlog", help="write the MAVLink traffic to this .tlog")
     p.add_argument("--truth", help="write the true state at every LOCAL_POSITION_NED to this row log")
@@ -99,6 +107,8 @@ def main(argv: list[str] | None = None) -> int:
             tlog_path=a.tlog,
             lockstep_period_s=a.lockstep_period_s,
             truth_path=a.truth,
+            failsafe_action=ACTIONS[a.failsafe_action],
+            events_path=a.events,
         )
     except (VehicleParamError, ValueError) as e:
         print(f"sim_vehicles: error: {e}", file=sys.stderr)

@@ -5,8 +5,10 @@ It behaves as a MAVLink tool expects of an autopilot (the PX4 SITL habits):
 - HEARTBEAT at 1 Hz: type MAV_TYPE_QUADROTOR, autopilot MAV_AUTOPILOT_GENERIC, system id = follower
   id, component MAV_COMP_ID_AUTOPILOT1; ``base_mode`` carries SAFETY_ARMED and CUSTOM_MODE_ENABLED;
   ``custom_mode`` is ``MODE_HOLD`` (0, ignores setpoints), ``MODE_OFFBOARD`` (1, follows
-  SET_ATTITUDE_TARGET) or ``MODE_FAILSAFE`` (2, setpoint lost: level attitude, hover thrust), and
-  ``system_status`` is MAV_STATE_CRITICAL in failsafe.
+  SET_ATTITUDE_TARGET) or ``MODE_FAILSAFE`` (2, setpoints lost for SP_TIMEOUT_S: the vehicle flies
+  its own failsafe, a position hold at the point of loss or a landing, ``failsafe``; a valid
+  setpoint brings it back to offboard), and ``system_status`` is MAV_STATE_CRITICAL in failsafe.
+  Entering and leaving failsafe is a STATUSTEXT and an event (``events_path``).
 - Telemetry at configurable rates: LOCAL_POSITION_NED, ATTITUDE, ATTITUDE_QUATERNION,
   ATTITUDE_TARGET, HIGHRES_IMU (specific force, body FRD), SYS_STATUS; ``time_boot_ms`` is the
   vehicle's simulated time.
@@ -54,6 +56,8 @@ from pymavlink.dialects.v20 import common as mav
 from sim_vehicles import mavlink_frames as frames
 from sim_vehicles import tick_frames, udp_arrival
 from sim_vehicles.autopilot import AttitudeCommand, Autopilot
+from sim_vehicles.event_log import EventLog
+from sim_vehicles.failsafe import ACTION_HOLD, FAILSAFE_PERIOD_S, failsafe_command, hold_at
 from sim_vehicles.quaternion import rotation_matrix
 from sim_vehicles.rigid_body import QUAT, RATE
 from sim_vehicles.row_log import RowLog
@@ -146,6 +150,8 @@ class VehicleEndpoint:
     tlog_path: Path | None = None
     lockstep_period_s: float | None = None  #: None: real time; else simulated time per setpoint
     truth_path: Path | None = None  #: write the true state at every LOCAL_POSITION_NED instant
+    failsafe_action: int = ACTION_HOLD  #: ``failsafe.ACTION_*`` (parameter COM_OBL_ACT)
+    events_path: Path | None = None  #: write failsafe events here (``event_log``)
 
     def __post_init__(self) -> None:
         self._lockstep_steps = 0
@@ -203,7 +209,12 @@ class VehicleEndpoint:
             "INERTIA_Z": p.inertia_kgm2[2],
             "MAX_THRUST_N": p.max_thrust_N,
             "SP_TIMEOUT_S": self.setpoint_timeout_s,
+            "COM_OBL_ACT": float(self.failsafe_action),
         }
+        self.events = EventLog(self.events_path, f"vehicle_{self.system_id}")
+        self._hold = hold_at(self.autopilot.state, 0.0)
+        self._fs_steps = max(1, round(FAILSAFE_PERIOD_S / self.autopilot.dt_s))
+        self._fs_next = 0  #: attitude step at which the failsafe's position loop runs next
 
     # -- I/O -------------------------------------------------------------------------------------
     def _log(self, frame: bytes) -> None:
@@ -262,6 +273,7 @@ class VehicleEndpoint:
 
     def close(self) -> None:
         self.sock.close()
+        self.events.close()
         if self._tlog is not None:
             self._tlog.close()
             self._tlog = None
@@ -439,6 +451,9 @@ class VehicleEndpoint:
             cmd = new
         self.stats.setpoints += 1
         self._last_setpoint_s = ap.time_s
+        if self.mode == MODE_FAILSAFE:
+            self._event("failsafe_exit", vehicle=self.system_id)
+            self._statustext(mav.MAV_SEVERITY_NOTICE, "Failsafe cleared: offboard setpoints back")
         if self.mode in (MODE_OFFBOARD, MODE_FAILSAFE):
             self.mode = MODE_OFFBOARD
             ap.set_command(cmd)
@@ -446,24 +461,44 @@ class VehicleEndpoint:
             self.step(self._lockstep_steps)
 
     # -- simulate --------------------------------------------------------------------------------
+    def _event(self, kind: str, **fields: Any) -> None:
+        """An event at the vehicle's boot time, with the UNIX time for a real-time run's clock."""
+        self.events.add(self.autopilot.time_s, kind, unix_s=time.time(), **fields)
+
+    def _statustext(self, severity: int, text: str) -> None:
+        self._send(self.mav.statustext_encode(severity, text.encode()[:50]))
+
     def _failsafe_check(self) -> None:
         ap = self.autopilot
         if self.mode == MODE_OFFBOARD and ap.time_s - self._last_setpoint_s > self.setpoint_timeout_s:
             self.mode = MODE_FAILSAFE
-            x_w = rotation_matrix(ap.state[QUAT])[:, 0]
-            yaw = math.atan2(x_w[1], x_w[0])  # keep heading, level the vehicle
-            q = np.array([math.cos(yaw / 2), 0.0, 0.0, math.sin(yaw / 2)])
-            ap.set_command(AttitudeCommand(q_c=q, thrust_N=ap.params.hover_thrust_N))
+            self._hold = hold_at(ap.state, ap.time_s)
+            self._fs_next = ap.step_index
+            action = "land" if self.failsafe_action != ACTION_HOLD else "hold"
+            self._event("failsafe_enter", vehicle=self.system_id, action=action, p_W=self._hold.p_W.tolist())
+            self._statustext(mav.MAV_SEVERITY_WARNING, f"Failsafe: offboard setpoints lost, {action}")
 
     def step(self, n_steps: int = 1) -> None:
         """Advance ``n_steps`` attitude steps under the held command (held still while disarmed),
-        check the setpoint timeout, then stream what is due."""
+        checking the setpoint timeout; in failsafe the failsafe's position loop sets the command
+        every ``FAILSAFE_PERIOD_S``. Then stream what is due."""
         ap = self.autopilot
-        if self.armed:
-            ap.advance(n_steps)
-        else:
+        if not self.armed:
             ap.step_index += n_steps
-        self._failsafe_check()
+            self._failsafe_check()
+        left = n_steps if self.armed else 0
+        while left > 0:
+            chunk = left
+            if self.mode == MODE_FAILSAFE:
+                if ap.step_index >= self._fs_next:
+                    ap.set_command(
+                        failsafe_command(ap.state, self._hold, ap.time_s, self.failsafe_action, ap.params)
+                    )
+                    self._fs_next = ap.step_index + self._fs_steps
+                chunk = min(left, self._fs_next - ap.step_index)
+            ap.advance(chunk)
+            left -= chunk
+            self._failsafe_check()
         self._stream()
         self.flush()
 

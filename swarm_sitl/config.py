@@ -98,6 +98,9 @@ class VehicleSpec(_Strict):
     inertia_kgm2: tuple[Positive, Positive, Positive]
     max_thrust_N: Positive
     setpoint_timeout_s: Positive = 0.5  #: failsafe after this long without a valid setpoint
+    #: what the vehicle flies in failsafe (PX4's COM_OBL_ACT): a position hold at the point of
+    #: loss, or a landing (descending at 0.7 m/s holding its horizontal position)
+    failsafe_action: Literal["hold", "land"] = "hold"
 
 
 class FollowerSpec(_Strict):

@@ -9,35 +9,21 @@ in real time), ``kind`` and ``source`` (the process that saw it), plus fields of
     neighbour_lost             follower, neighbour, age_s             (its estimate is past staleness)
     neighbour_regained         follower, neighbour, age_s
     no_live_in_edge            follower                               (its estimator runs on its own)
+    failsafe_enter             vehicle, action, p_W                   (its setpoints stopped)
+    failsafe_exit              vehicle                                (a valid setpoint came)
+
+A vehicle stamps its events with its boot time and the UNIX time; in real time the merge puts
+them on the run's clock (``t_s`` = UNIX time - the start epoch).
 """
 
 import json
 from pathlib import Path
-from typing import IO, Any
+from typing import Any
 
+from sim_vehicles.event_log import EventLog
 from swarm_sitl.config import SwarmConfig
 
-
-class EventLog:
-    """Appends events to a file (or nowhere, with ``path=None``), one flushed line each."""
-
-    def __init__(self, path: Path | None, source: str):
-        self.source = source
-        self._f: IO[str] | None = open(path, "w") if path is not None else None  # noqa: SIM115
-        self.count = 0
-
-    def add(self, t_s: float, kind: str, **fields: Any) -> None:
-        self.count += 1
-        if self._f is not None:
-            self._f.write(
-                json.dumps({"t_s": round(t_s, 9), "kind": kind, "source": self.source, **fields}) + "\n"
-            )
-            self._f.flush()
-
-    def close(self) -> None:
-        if self._f is not None:
-            self._f.close()
-            self._f = None
+__all__ = ["EventLog", "merge_events", "plan_events", "read_events", "write_events"]
 
 
 def plan_events(cfg: SwarmConfig) -> list[dict[str, Any]]:
@@ -67,11 +53,20 @@ def read_events(path: Path) -> list[dict[str, Any]]:
     return out
 
 
-def merge_events(cfg: SwarmConfig, files: list[Path]) -> list[dict[str, Any]]:
-    """The plan's events and every file's, in time order (ties: plan first, then by source)."""
+def merge_events(
+    cfg: SwarmConfig, files: list[Path], epoch_unix_s: float | None = None
+) -> list[dict[str, Any]]:
+    """The plan's events and every file's, in time order (ties: plan first, then by source).
+    ``epoch_unix_s``: a real-time run's start, which puts events stamped with the UNIX time
+    (``unix_s``, a vehicle's) on the run's clock; the UNIX time is dropped either way, so a
+    lockstep run's events are the same twice."""
     events = plan_events(cfg)
     for p in sorted(files):
-        events += read_events(p)
+        for e in read_events(p):
+            unix_s = e.pop("unix_s", None)
+            if epoch_unix_s is not None and isinstance(unix_s, int | float):
+                e["t_s"] = round(unix_s - epoch_unix_s, 6)
+            events.append(e)
     events.sort(key=lambda e: (e["t_s"], e.get("source") != "plan", str(e.get("source")), e["kind"]))
     return events
 

@@ -208,3 +208,20 @@ def controller_events_path(run_dir: Path, i: int) -> Path:
 
 def controller_stats_path(run_dir: Path, i: int) -> Path:
     return procs_dir(run_dir) / f"controller_{i}.stats.json"
+
+
+def vehicle_events_path(run_dir: Path, i: int) -> Path:
+    return procs_dir(run_dir) / f"vehicle_{i}.events"
+
+
+def start_path(run_dir: Path) -> Path:
+    """The start signal of a multi-process run: ``{"epoch_unix_s": ..., "lockstep": ...}``."""
+    return procs_dir(run_dir) / "start.json"
+
+
+def read_start(run_dir: Path) -> dict | None:
+    try:
+        d = json.loads(start_path(run_dir).read_text())
+    except (OSError, ValueError):
+        return None
+    return d if isinstance(d, dict) and isinstance(d.get("epoch_unix_s"), int | float) else None

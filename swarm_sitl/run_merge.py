@@ -27,6 +27,8 @@ from swarm_sitl.recording import (
     controller_rows_path,
     controller_stats_path,
     leader_series,
+    read_start,
+    vehicle_events_path,
     vehicle_truth_path,
 )
 
@@ -105,4 +107,8 @@ def inputs_and_links(cfg: SwarmConfig, run_dir: Path) -> tuple[dict[str, Any], d
 
 def run_events(cfg: SwarmConfig, run_dir: Path) -> list[dict[str, Any]]:
     """The plan's fault intervals and every process's events, in time order."""
-    return merge_events(cfg, [controller_events_path(run_dir, f.id) for f in cfg.followers])
+    files = [controller_events_path(run_dir, f.id) for f in cfg.followers]
+    files += [vehicle_events_path(run_dir, f.id) for f in cfg.followers]
+    start = read_start(run_dir)
+    realtime = start is not None and not start.get("lockstep", True)
+    return merge_events(cfg, files, start["epoch_unix_s"] if start is not None and realtime else None)

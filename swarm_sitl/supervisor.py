@@ -13,6 +13,7 @@ runs, and the merge of what each process recorded.
 """
 
 import contextlib
+import json
 import os
 import re
 import signal
@@ -34,7 +35,7 @@ from sim_vehicles.lifeline import settle_heap
 from swarm_sitl import zenoh_keys
 from swarm_sitl.bus_codec import Status, decode_status, decode_waiting
 from swarm_sitl.config import SwarmConfig
-from swarm_sitl.recording import procs_dir, vehicle_truth_path
+from swarm_sitl.recording import procs_dir, start_path, vehicle_events_path, vehicle_truth_path
 
 TERM_GRACE_S = 5.0
 SUPERVISE_EVERY_S = 0.05  #: how often a run looks at its children (each look polls every one of them)
@@ -186,6 +187,10 @@ def vehicle_argv(cfg: SwarmConfig, i: int, run_dir: Path, lockstep: bool, port: 
         repr(g.k_q),
         "--setpoint-timeout-s",
         repr(v.setpoint_timeout_s),
+        "--failsafe-action",
+        v.failsafe_action,
+        "--events",
+        str(vehicle_events_path(run_dir, i)),
         "--attitude-hz",
         repr(cfg.rates.attitude_hz),
         "--tlog",
@@ -358,6 +363,7 @@ def run_swarm(
             time.sleep(0.02)
         startup = time.monotonic() - t_spawn
         epoch = time.time() + (0.0 if lockstep else 0.5)
+        start_path(run_dir).write_text(json.dumps({"epoch_unix_s": epoch, "lockstep": lockstep}) + "\n")
         t_start = time.monotonic()
         next_start_put = 0.0
         next_progress = 0.0

@@ -113,9 +113,29 @@ def test_pymavlink_client_arms_tilts_north_and_sees_it(vehicle):
     assert abs(lp.y - start.y) < 0.3 * north and abs(lp.z - start.z) < 0.3
     assert att.q1 == pytest.approx(q[0], abs=5e-3) and att.q3 == pytest.approx(q[2], abs=5e-3)
 
-    # setpoint loss: the vehicle levels and reports failsafe
+    # setpoint loss: the vehicle reports failsafe and holds where its setpoints stopped (its own
+    # position loop), where the open-loop hover of old drifted on at the speed it had
+    text = _wait(conn, "STATUSTEXT", timeout=4, cond=lambda m: "Failsafe" in m.text)
+    assert "hold" in text.text
     hb = _wait(conn, "HEARTBEAT", timeout=4, cond=lambda m: m.get_srcSystem() == 3 and m.custom_mode == 2)
     assert hb.system_status == mavutil.mavlink.MAV_STATE_CRITICAL
+    time.sleep(4.0)  # it was doing about 4 m/s north: stopped within its 30-degree tilt limit
+    a = _latest(conn, "LOCAL_POSITION_NED")
+    time.sleep(1.0)
+    b = _latest(conn, "LOCAL_POSITION_NED")
+    assert math.dist((a.x, a.y, a.z), (b.x, b.y, b.z)) < 0.05 and math.hypot(b.vx, b.vy, b.vz) < 0.05
+    assert abs(b.z - start.z) < 0.5
+    # a valid setpoint stream takes it back to offboard
+    back = set()
+    end = time.monotonic() + 2.5
+    while time.monotonic() < end and 1 not in back:
+        conn.mav.set_attitude_target_send(
+            0, 3, 1, 0b0000_0111, [1.0, 0.0, 0.0, 0.0], 0, 0, 0, 0.85 * 9.81 / 25
+        )
+        time.sleep(0.02)
+        while (m := conn.recv_match(type="HEARTBEAT", blocking=False)) is not None:
+            back.add(m.custom_mode)
+    assert 1 in back
     conn.close()
     proc.terminate()  # SIGTERM: the vehicle closes its .tlog before exiting
     assert proc.wait(timeout=10) == 0
