@@ -36,3 +36,34 @@ def test_a_cut_edge_costs_formation_and_the_swarm_recovers(swarm):
     lost = r.events_of("neighbour_lost")
     assert [(e["follower"], e["neighbour"]) for e in lost] == [(1, 0)]
     assert 20 < lost[0]["t_s"] <= 20 + 0.5 + 0.011  # once its last estimate is past staleness
+
+
+def test_a_killed_controller_is_restarted_and_flies_back_into_formation(swarm):
+    """Controller 2 is killed at 20 s and started again at 22 s: its vehicle holds on its own in
+    between (failsafe), and follower 2 is back in formation well within 20 s of the restart."""
+    r = swarm(
+        PAPER, duration_s=45, faults=[{"controller": 2, "kill": True, "from_s": 20, "restart_after_s": 2}]
+    )
+    assert r.ok, r.failure
+    fs = [
+        (e["kind"], e["t_s"]) for e in r.events if e.get("vehicle") == 2 and e["kind"].startswith("failsafe")
+    ]
+    assert fs == [("failsafe_enter", 20.5), ("failsafe_exit", 22.0)]  # 0.5 s: its setpoint timeout
+    assert [e["kind"] for e in r.events if e.get("process") == "controller_2"] == [
+        "process_killed",
+        "process_restarted",
+    ]
+    assert r.followers[2].max_formation_error_m(after_s=22 + 20) < 0.05
+    assert r.followers[2].max_formation_error_m(after_s=30) < 0.05  # in fact within 8 s
+    assert max(r.followers[i].max_formation_error_m(after_s=20) for i in (1, 3)) < 0.01
+
+
+def test_a_lost_aircraft_is_recorded_and_the_rest_fly_on(swarm):
+    """Vehicle 1 is lost at 20 s, and its controller with it: follower 4 still hears follower 2."""
+    r = swarm(PAPER, duration_s=35, faults=[{"vehicle": 1, "kill": True, "from_s": 20}])
+    assert r.ok, r.failure
+    assert r.summary["lost"] == [1] and r.events_of("vehicle_lost")[0]["t_s"] == 20.0
+    assert r.max_formation_error_m(after_s=20, followers=[2, 3, 4]) < 0.05
+    assert r.followers[1].max_formation_error_m(after_s=20) != r.followers[1].max_formation_error_m(
+        after_s=20
+    )  # NaN: none recorded

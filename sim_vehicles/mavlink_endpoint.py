@@ -31,7 +31,11 @@ Two clocks:
   SET_ATTITUDE_TARGET stamped with the vehicle's current ``time_boot_ms`` arrives; the vehicle then
   applies it (if armed and in offboard) and advances exactly one period, and streams its telemetry.
   A setpoint stamped earlier (a retransmission) makes it send its current LOCAL_POSITION_NED and
-  ATTITUDE_QUATERNION again and nothing else; one stamped later is refused and counted. The run is
+  ATTITUDE_QUATERNION again and nothing else; one stamped later is refused and counted, except a
+  *clock-only* setpoint (every field ignored: type_mask ``IGNORE_ALL``), which advances the vehicle
+  to its stamp, period by period, under what it holds (its failsafe, once its setpoints have been
+  missing for SP_TIMEOUT_S of simulated time), and counts as no setpoint: how a controller that
+  was down (a planned kill and restart) takes its vehicle up again at its restart tick. The run is
   deterministic: the same setpoints give the same trajectory, bit for bit. LOCAL_POSITION_NED and
   ATTITUDE_QUATERNION default to once per period. The heartbeat runs on
   the wall clock in both modes (it says the link is alive), and a new peer gets one at once.
@@ -70,6 +74,8 @@ MODE_FAILSAFE = 2
 IGNORE_RATES = 0b0000_0111
 IGNORE_THROTTLE = 0b0100_0000
 IGNORE_ATTITUDE = 0b1000_0000
+IGNORE_ALL = IGNORE_RATES | IGNORE_THROTTLE | IGNORE_ATTITUDE  #: a lockstep clock-only setpoint
+MAX_CLOCK_STEP_S = 3600.0  #: the furthest a clock-only setpoint may move a lockstep vehicle [s]
 
 
 @dataclass(frozen=True)
@@ -401,6 +407,8 @@ class VehicleEndpoint:
         if m.command == mav.MAV_CMD_COMPONENT_ARM_DISARM:
             self.armed = m.param1 >= 0.5
         elif m.command == mav.MAV_CMD_DO_SET_MODE and int(m.param2) in (MODE_HOLD, MODE_OFFBOARD):
+            if self.mode == MODE_FAILSAFE:
+                self._event("failsafe_exit", vehicle=self.system_id)
             self.mode = int(m.param2)
             self._last_setpoint_s = self.autopilot.time_s if self.mode == MODE_OFFBOARD else -math.inf
         elif m.command == mav.MAV_CMD_SET_MESSAGE_INTERVAL and int(m.param1) in self._rate_hz:
@@ -425,10 +433,18 @@ class VehicleEndpoint:
         ap = self.autopilot
         if self.lockstep_period_s is not None:
             now_ms = self.time_boot_ms
-            if m.time_boot_ms < now_ms:  # a retransmission: the sample it waits for was lost
+            if m.time_boot_ms < now_ms or (m.type_mask == IGNORE_ALL and m.time_boot_ms == now_ms):
+                # a retransmission (the sample it waits for was lost), or a clock already there
                 self.stats.lockstep_resends += 1
                 self._send_local_position(now_ms)
                 self._send_attitude_quaternion(now_ms)
+                return
+            if m.type_mask == IGNORE_ALL:  # clock only: catch up to the stamp, period by period
+                if m.time_boot_ms - now_ms > MAX_CLOCK_STEP_S * 1000:
+                    self.stats.rx_bad += 1
+                    return
+                while self.time_boot_ms < m.time_boot_ms:
+                    self.step(self._lockstep_steps)
                 return
             if m.time_boot_ms > now_ms:
                 self.stats.rx_bad += 1

@@ -102,7 +102,10 @@ class ZenohNodeBus:
         in_sources: Iterable[int],
         out_dests: Iterable[int],
         watch_status: Iterable[int] = (),
+        watch_alive: Iterable[int] = (),
     ):
+        """``watch_alive``: nodes besides the in-neighbours whose liveliness to follow
+        (``alive_puts``: how often each has declared itself ready, a restart counting again)."""
         self.session = session
         self.swarm = swarm
         self.node = node
@@ -111,6 +114,7 @@ class ZenohNodeBus:
         self._latest: dict[int, EstimateMessage] = {}
         self._progress: dict[int, int] = {}
         self._lost: set[int] = set()
+        self._puts: dict[int, int] = {}
         self._epoch: float | None = None
         self._token: Any = None
         self._polls = 0
@@ -128,7 +132,7 @@ class ZenohNodeBus:
         ]
         self._alive_subs = [
             (s, session.liveliness().declare_subscriber(zenoh_keys.alive(swarm, s), fifo(), history=True))
-            for s in sources
+            for s in dict.fromkeys([*sources, *watch_alive])
         ]
         self._status_subs = [
             session.declare_subscriber(zenoh_keys.status(swarm, f), fifo()) for f in watch_status
@@ -161,6 +165,7 @@ class ZenohNodeBus:
                     self._lost.add(src)
                 else:
                     self._lost.discard(src)
+                    self._puts[src] = self._puts.get(src, 0) + 1
         for sub in self._start_sub:
             epochs, bad = decode_waiting(sub, decode_start)
             self.dropped += bad
@@ -212,6 +217,16 @@ class ZenohNodeBus:
 
     def lost(self) -> set[int]:
         return set(self._lost)
+
+    def alive_puts(self, node: int) -> int:
+        """How many times ``node`` (an in-neighbour or one of ``watch_alive``) has declared itself
+        ready: once per incarnation of its process."""
+        return self._puts.get(node, 0)
+
+    def poll_liveliness(self) -> None:
+        """Read liveliness changes now (``poll`` reads them one call in ``RARE_EVERY``)."""
+        self._polls = -1
+        self.poll()
 
     def set_ready(self) -> None:
         if self._token is None:

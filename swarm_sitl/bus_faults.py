@@ -13,6 +13,13 @@ it, holds it or lets it through. A tick therefore never waits for a message that
 and what the loop sees depends only on the plan, its seed and the steps of the messages: the same
 plan gives the same run, bit for bit.
 
+Process faults, in lockstep. A node the plan kills at tick ``k`` kills itself (SIGKILL) when it
+is about to publish tick ``k``; a receiver counts the ticks its in-neighbour is down as settled
+(nothing will come), and rides through. A restarted node resumes at its restart tick, and a node
+publishes a tick at or after a neighbour's restart only once that neighbour's new incarnation has
+declared itself ready (its liveliness token: its subscriptions are in place), so it misses
+nothing it needs. The leader's window ignores a follower while it is down (``progress``).
+
 Time, for delays and for the plan's ``from_s``/``until_s``:
 
 - lockstep: a message of step ``s`` is on time at tick ``s + 1``; a delay of ``d`` seconds makes it
@@ -22,15 +29,18 @@ Time, for delays and for the plan's ``from_s``/``until_s``:
 
 import heapq
 import math
+import os
+import signal
+import time
 from dataclasses import dataclass, field
 from typing import Any
 
 from swarm_sitl.bus import ZenohNodeBus
 from swarm_sitl.bus_codec import PayloadError, Status, decode_estimate, encode_estimate
-from swarm_sitl.fault_plan import FaultPlan, FaultSpec, fate, uniform
+from swarm_sitl.fault_plan import FaultPlan, FaultSpec, down_at, fate, uniform
 from swarm_sitl.fault_plan import edge_channel as channel_of
 from swarm_sitl.follower import EstimateMessage
-from swarm_sitl.node_clock import RunClock
+from swarm_sitl.node_clock import POLL_S, RunClock, StallError
 
 _CORRUPT_BYTE = 3  #: salt of the draw that picks the byte a corruption flips
 
@@ -72,13 +82,30 @@ class FaultyBus:
         graph_edges: list[tuple[int, int]],
         clock: RunClock,
         end_s: float,
+        stall_timeout_s: float = math.inf,
     ):
         self.inner = inner
         self.plan = plan
         self.node = node
         self.clock = clock
         self.end_s = end_s
+        self.stall_timeout_s = stall_timeout_s
         sources = sorted({s for s, d in graph_edges if d == node})
+        dests = sorted({d for s, d in graph_edges if s == node})
+        # lockstep process faults: who is down when, what this node waits for before publishing
+        outages = plan.outages(clock.period_s) if clock.lockstep else {}
+        self.outages = {n: o for n, o in outages.items() if n in sources or n in dests}
+        self.own_outages = outages.get(node, [])
+        self._coming_back = {n for n, o in self.outages.items() if any(back is not None for _, back in o)}
+        #: (from step, out-neighbour, what it must have done): its first tick after its restart
+        #: (a status at or past that tick: its subscriptions are in place), or, after our own
+        #: restart, its liveliness token seen (the new session knows where it is)
+        self._gates: list[tuple[int, int, bool]] = []
+        for d in dests:
+            self._gates += [(back, d, True) for _, back in self.outages.get(d, []) if back is not None]
+        for _, back in self.own_outages:
+            if back is not None:
+                self._gates += [(back, d, False) for d in dests]
         self.rules: dict[int, list[tuple[int, FaultSpec]]] = {
             s: plan.on_edge(s, node, graph_edges) for s in sources
         }
@@ -152,7 +179,10 @@ class FaultyBus:
         self._release()
 
     def settled(self, src: int, step: int) -> bool:
-        return self._arrived.get(src, -1) >= step
+        if self._arrived.get(src, -1) >= step:
+            return True
+        down = self.outages.get(src)
+        return down is not None and down_at(down, step)
 
     def estimate(self, src: int, step: int) -> EstimateMessage | None:
         return self.inner.estimate(src, step)
@@ -161,7 +191,32 @@ class FaultyBus:
         return self.inner.latest(src)
 
     def publish(self, msg: EstimateMessage) -> None:
+        if self.own_outages and down_at(self.own_outages, msg.step):
+            # the plan kills this node here: as a crash would, with what it has not flushed
+            os.kill(os.getpid(), signal.SIGKILL)
+        if self._gates:
+            self._await_readers(msg.step)
         self.inner.publish(msg)
+
+    def _await_readers(self, step: int) -> None:
+        """Before publishing ``step``: every out-neighbour restarted by then has done its first
+        tick again, so it hears this and everything after (and after our own restart, we have
+        seen every out-neighbour's liveliness)."""
+        due = [g for g in self._gates if g[0] <= step]
+        if not due:
+            return
+        self._gates = [g for g in self._gates if g[0] > step]
+        start = time.monotonic()
+        inner = self.inner
+        for back, d, restarted in due:
+            while (inner.progress(d) < back) if restarted else (inner.alive_puts(d) < 1):
+                if time.monotonic() - start > self.stall_timeout_s:
+                    raise StallError(
+                        f"node {self.node} at tick {step}: node {d} did not come back after its restart "
+                        f"(waited {time.monotonic() - start:.1f} s)"
+                    )
+                time.sleep(POLL_S)
+                self.inner.poll_liveliness()
 
     def publish_status(self, status: Status) -> None:
         self.inner.publish_status(status)
@@ -170,13 +225,21 @@ class FaultyBus:
         self.inner.forget_before(step)
 
     def progress(self, follower: int) -> int:
-        return self.inner.progress(follower)
+        """A follower's last reported tick; one that is down (or has not yet come back from a
+        restart) does not hold the leader's window."""
+        real = self.inner.progress(follower)
+        for _, back in self.outages.get(follower, []):
+            if back is None or real < back:
+                return 1 << 62
+        return real
 
     def start_epoch(self) -> float | None:
         return self.inner.start_epoch()
 
     def lost(self) -> set[int]:
-        return self.inner.lost()
+        """Nodes whose liveliness is gone, but for those the plan restarts: their absence is
+        planned, and the stall timeout still bounds the wait for them."""
+        return self.inner.lost() - self._coming_back
 
     def set_ready(self) -> None:
         self.inner.set_ready()
@@ -189,5 +252,14 @@ class FaultyBus:
 
 
 def acts_on(plan: FaultPlan, node: int, graph_edges: list[tuple[int, int]]) -> bool:
-    """Whether ``plan`` has an entry on an edge into ``node`` (else the bus needs no wrapper)."""
+    """Whether ``plan`` has an entry on an edge into ``node`` or a process fault (else the bus
+    needs no wrapper)."""
+    if any(f.is_process for f in plan.plan):
+        return True
     return any(plan.on_edge(s, d, graph_edges) for s, d in graph_edges if d == node)
+
+
+def watched(plan: FaultPlan, node: int, graph_edges: list[tuple[int, int]]) -> list[int]:
+    """The out-neighbours whose liveliness and status a node's bus must follow for the plan's
+    restarts (lockstep)."""
+    return sorted({d for s, d in graph_edges if s == node}) if any(f.kill for f in plan.plan) else []

@@ -195,8 +195,10 @@ def _degraded_lines(summary: dict) -> list[str]:
         why = describe_inputs(rep)
         if why:
             out.append(f"  follower {i} degraded inputs: {why}")
+    for i in summary.get("lost", []):
+        out.append(f"  vehicle {i} lost (a fault plan's): its follower is recorded up to the loss")
     for edge, st in sorted(summary.get("links", {}).items()):
-        if st.get("received"):
+        if st.get("lost") or st.get("corrupt") or st.get("delayed") or st.get("duplicated"):
             out.append(
                 f"  edge {edge}: {st['delivered']} of {st['received']} delivered, {st['lost']} lost, "
                 f"{st['corrupt']} corrupt, {st['delayed']} delayed, {st['duplicated']} duplicated"

@@ -171,6 +171,9 @@ class RunSpec(_Strict):
     #: run (exit 3, naming it and its stale inputs) [m]; none by default
     max_formation_error_m: Positive | None = None
     settle_s: Annotated[float, Field(ge=0)] = 20.0  #: the bound and the summary's peaks count from here [s]
+    #: a vehicle lost (a fault plan's kill) ends the run (exit 1 naming it); by default the rest
+    #: of the swarm flies on and the loss is recorded
+    stop_on_loss: bool = False
 
     @model_validator(mode="after")
     def _window(self) -> "RunSpec":

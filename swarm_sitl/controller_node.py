@@ -66,6 +66,8 @@ CONTROLLER_COLUMNS = [
     *[f"out_{j}" for j in range(OUT_SIZE)],
 ]
 RESEND_AFTER_S = 0.25
+#: real time: how long before its first tick a controller arms and switches its vehicle to offboard [s]
+ARM_LEAD_S = 0.1
 #: lockstep: how long a tick blocks for its vehicle sample before it reads its inputs [s] (the rest
 #: of the wait, resends and stall checks included, is ``wait_until``'s)
 SAMPLE_WAIT_S = 0.05
@@ -122,7 +124,9 @@ class _Inputs:
         self.last_cmd: AttitudeCommand | None = None
         self.sent_at = math.inf
         self.resends = 0
-        # lockstep: the tick being waited for
+        # lockstep: the tick being waited for; the first one (0, or where a restart resumes) waits
+        # for no estimate
+        self.first = 0
         self.k = 0
         self.t_ms = 0
         self.need: list[int] = []
@@ -194,7 +198,7 @@ class _Inputs:
 
     def wait_lockstep(self, k: int, timeout_s: float) -> None:
         self.k, self.t_ms = k, round(k * self.dt * 1000)
-        self.need = self.sources if k > 0 else []
+        self.need = self.sources if k > self.first else []
         if self.link.sample_ms != self.t_ms:
             # the vehicle answers the setpoint just sent: a read before its datagram comes finds
             # nothing, so block for it first, then read both inputs once
@@ -234,9 +238,13 @@ def run_controller(
     rows: RowLog | None,
     clock: RunClock | None = None,
     events: EventLog | None = None,
+    resume_tick: int = 0,
 ) -> NodeReport:
     """Follower ``i``'s loop; ``clock`` is where the run is for ``bus``'s wrappers (it is set
-    here), ``events`` takes what the follower sees happen (lost and regained neighbours)."""
+    here), ``events`` takes what the follower sees happen (lost and regained neighbours).
+    ``resume_tick``: a controller restarted by a fault plan in lockstep takes its vehicle up at
+    this tick (its clock moved there first, through the gap it flew on its own), with a fresh
+    state, like tick 0 (in real time a restarted controller joins at the current tick anyway)."""
     who = f"follower {i}"
     r = cfg.run
     dt = cfg.control_dt_s
@@ -252,24 +260,29 @@ def run_controller(
     _warm_up(cfg, i, link)
     settle_heap()
     link.request_rates(dt, r.other_telemetry_hz, r.start_timeout_s)
+    if lockstep and resume_tick:
+        link.advance_to(round(resume_tick * dt * 1000), r.start_timeout_s)
     if lockstep:
         link.arm_offboard(r.start_timeout_s)
         link.request_sample(r.start_timeout_s)
     io.epoch_mono = wall_epoch_to_monotonic(wait_for_start(bus, link, r.start_timeout_s, who))
     clock.epoch_mono = io.epoch_mono
     if not lockstep:
+        # offboard only just before the setpoints start: the start signal comes half a second
+        # ahead, and offboard without setpoints for SP_TIMEOUT_S is the vehicle's failsafe
+        sleep_until(io.epoch_mono + phase - ARM_LEAD_S, io.tick_fds, io.read_link)
         link.arm_offboard(r.start_timeout_s)
     late = 0
     max_late = 0.0
     old_samples = 0
     max_age = 0.0
-    k = 0
+    k = io.first = resume_tick if lockstep else 0
     while k <= n:
         t = k * dt + phase
         clock.tick = k
         if lockstep:
             io.wait_lockstep(k, r.stall_timeout_s)
-            inbox = inbox_of.gather(t, io.newest_lockstep) if k > 0 else {}
+            inbox = inbox_of.gather(t, io.newest_lockstep) if k > io.first else {}
             boot_s, p, v, q = link.sample()
             sample_t = t
             lateness = 0.0
@@ -308,7 +321,7 @@ def run_controller(
             max_late = max(max_late, done)
         if rows is not None:
             rows.append((k, t, boot_s, sample_t, lateness, done), p, v, q, step.state, step.output)
-        if k % r.status_every == 0 or k == n:
+        if k % r.status_every == 0 or k == n or k == io.first:
             bus.publish_status(Status(i, k, t, sample_t, p))
         if lockstep and k >= 2:
             bus.forget_before(k - 1)
@@ -316,7 +329,7 @@ def run_controller(
     if not lockstep:
         linger_after_last_tick(io.epoch_mono + n * dt + phase, dt)
     return NodeReport(
-        n + 1,
+        n + 1 - io.first,
         late,
         max_late,
         io.resends,

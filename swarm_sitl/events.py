@@ -31,8 +31,10 @@ def plan_events(cfg: SwarmConfig) -> list[dict[str, Any]]:
     out = []
     for j, f in enumerate(cfg.faults.plan):
         common = {"source": "plan", "fault": j, "what": f.what, "how": f.how}
+        lasts = f.restart_after_s or f.freeze_s
+        end = f.until_s if f.until_s is not None else (f.from_s + lasts if lasts else cfg.duration_s)
         out.append({"t_s": f.from_s, "kind": "fault_start", **common})
-        out.append({"t_s": cfg.duration_s if f.until_s is None else f.until_s, "kind": "fault_end", **common})
+        out.append({"t_s": end, "kind": "fault_end", **common})
     return out
 
 

@@ -11,6 +11,9 @@ A plan is the ``faults:`` section of a config, or a file given with ``swarm-sitl
         - {into: 4, delay_s: 0.05, jitter_s: 0.02}              # every edge into follower 4
         - {out_of: 2, duplicate: 0.1}                           # every edge out of follower 2
         - {leader_edges: true, stall: true, from_s: 5, until_s: 6}
+        - {controller: 2, kill: true, from_s: 20, restart_after_s: 2}   # SIGKILL, then started again
+        - {controller: 3, freeze_s: 2, from_s: 10}              # SIGSTOP for 2 s
+        - {vehicle: 1, kill: true, from_s: 20}                  # a lost aircraft (its controller too)
 
 One entry names one *what*, one *how* and optionally *when*:
 
@@ -21,8 +24,20 @@ One entry names one *what*, one *how* and optionally *when*:
   ``until_s``), ``duplicate: p`` (delivered again a period later), ``reorder: p`` (held one period,
   so it comes after the next one), ``corrupt: p`` (one byte flipped: the receiver's checksum drops
   and counts it);
+- what (processes): ``controller: i``, ``vehicle: i``, ``leader: true``;
+- how (processes): ``kill: true`` (SIGKILL; ``restart_after_s: d`` starts it again d seconds
+  later; a vehicle is a lost aircraft and never restarts, and its controller, the companion
+  computer it carries, is lost with it unless ``with_controller: false``), ``freeze_s: d``
+  (SIGSTOP, SIGCONT d seconds later);
 - when: ``from_s`` (default 0) and ``until_s`` (default: the end of the run): simulated seconds
   in lockstep (the time the message was sent for), run seconds in real time (its arrival).
+  A process fault happens at ``from_s``.
+
+In lockstep a process fault happens at a tick: a node planned to die at tick k kills itself with
+SIGKILL when it gets there, before it publishes tick k (``bus_faults``), so the swarm sees the
+same run every time; the supervisor restarts it, and it takes up its vehicle at the restart tick
+(the vehicle flies its failsafe through the gap, in simulated time). A freeze in lockstep only
+costs wall time (no simulated time passes while a process is stopped).
 
 Probabilities are drawn per message from a hash of (seed, entry, edge, step): the same plan and
 seed give the same fate to every message, whatever the machine does (``fate``). Faults act where
@@ -30,6 +45,7 @@ messages are received (``bus_faults``), so a lockstep receiver always knows a me
 without waiting for something that will not come.
 """
 
+import math
 from collections.abc import Iterable
 from typing import Annotated, Literal, NamedTuple
 
@@ -40,6 +56,8 @@ NonNegative = Annotated[float, Field(ge=0)]
 
 LINK_WHAT = ("edge", "into", "out_of", "leader_edges")
 LINK_HOW = ("drop", "loss", "delay_s", "stall", "duplicate", "reorder", "corrupt")
+PROCESS_WHAT = ("controller", "vehicle", "leader")
+PROCESS_HOW = ("kill", "freeze_s")
 
 
 class FaultSpec(BaseModel):
@@ -61,17 +79,40 @@ class FaultSpec(BaseModel):
     reorder: Probability | None = None  #: held back one period (after the next), with this probability
     corrupt: Probability | None = None  #: one byte flipped, with this probability
 
+    controller: Annotated[int, Field(ge=1)] | None = None  #: this follower's controller process
+    vehicle: Annotated[int, Field(ge=1)] | None = None  #: this follower's vehicle process
+    leader: Literal[True] | None = None  #: the leader's process
+    kill: Literal[True] | None = None  #: SIGKILL
+    restart_after_s: Annotated[float, Field(gt=0)] | None = None  #: started again this much later [s]
+    with_controller: bool = True  #: a lost vehicle takes its controller with it
+    freeze_s: Annotated[float, Field(gt=0)] | None = None  #: SIGSTOP, then SIGCONT this much later [s]
+
     from_s: NonNegative = 0.0  #: the fault starts [s]
     until_s: Annotated[float, Field(gt=0)] | None = None  #: and ends [s] (default: the end of the run)
 
     @model_validator(mode="after")
     def _one_of_each(self) -> "FaultSpec":
-        what = [k for k in LINK_WHAT if getattr(self, k) is not None]
-        how = [k for k in LINK_HOW if getattr(self, k) is not None]
+        all_what, all_how = LINK_WHAT + PROCESS_WHAT, LINK_HOW + PROCESS_HOW
+        what = [k for k in all_what if getattr(self, k) is not None]
+        how = [k for k in all_how if getattr(self, k) is not None]
         if len(what) != 1:
-            raise ValueError(f"name exactly one of {', '.join(LINK_WHAT)} (what fails); got {what or 'none'}")
+            raise ValueError(f"name exactly one of {', '.join(all_what)} (what fails); got {what or 'none'}")
         if len(how) != 1:
-            raise ValueError(f"name exactly one of {', '.join(LINK_HOW)} (how it fails); got {how or 'none'}")
+            raise ValueError(f"name exactly one of {', '.join(all_how)} (how it fails); got {how or 'none'}")
+        if (what[0] in PROCESS_WHAT) != (how[0] in PROCESS_HOW):
+            kind = "a process" if what[0] in PROCESS_WHAT else "a link"
+            allowed = PROCESS_HOW if what[0] in PROCESS_WHAT else LINK_HOW
+            raise ValueError(f"{what[0]} is {kind}: it fails by {', '.join(allowed)}, not {how[0]}")
+        if self.restart_after_s is not None and not self.kill:
+            raise ValueError("restart_after_s goes with kill")
+        if self.restart_after_s is not None and self.vehicle is not None:
+            raise ValueError("a killed vehicle is a lost aircraft: it does not restart")
+        if not self.with_controller and self.vehicle is None:
+            raise ValueError("with_controller goes with vehicle")
+        if self.is_process and self.until_s is not None:
+            raise ValueError(
+                "a process fault happens at from_s (use restart_after_s or freeze_s for how long)"
+            )
         if self.jitter_s and self.delay_s is None:
             raise ValueError("jitter_s goes with delay_s")
         if self.stall and self.until_s is None:
@@ -81,7 +122,22 @@ class FaultSpec(BaseModel):
         return self
 
     @property
+    def is_process(self) -> bool:
+        return self.kill is not None or self.freeze_s is not None
+
+    @property
+    def process(self) -> str:
+        """The process this entry acts on, as the supervisor names it (``controller_2``, ``leader``)."""
+        if self.controller is not None:
+            return f"controller_{self.controller}"
+        if self.vehicle is not None:
+            return f"vehicle_{self.vehicle}"
+        return "leader" if self.leader else ""
+
+    @property
     def what(self) -> str:
+        if self.is_process:
+            return self.process
         if self.edge is not None:
             return f"edge {self.edge[0]}->{self.edge[1]}"
         if self.into is not None:
@@ -92,6 +148,12 @@ class FaultSpec(BaseModel):
 
     @property
     def how(self) -> str:
+        if self.kill:
+            if self.vehicle is not None:
+                return "lost" + (" with its controller" if self.with_controller else "")
+            return "kill" + (f", restart after {self.restart_after_s:g} s" if self.restart_after_s else "")
+        if self.freeze_s is not None:
+            return f"freeze {self.freeze_s:g} s"
         if self.drop:
             return "drop"
         if self.stall:
@@ -105,8 +167,10 @@ class FaultSpec(BaseModel):
         raise AssertionError("validated: one how")
 
     def edges(self, graph_edges: Iterable[tuple[int, int]]) -> list[tuple[int, int]]:
-        """The graph's edges this entry names."""
+        """The graph's edges this entry names (none for a process fault)."""
         es = list(graph_edges)
+        if self.is_process:
+            return []
         if self.edge is not None:
             return [e for e in es if e == tuple(self.edge)]
         if self.into is not None:
@@ -114,6 +178,12 @@ class FaultSpec(BaseModel):
         if self.out_of is not None:
             return [e for e in es if e[0] == self.out_of]
         return [e for e in es if e[0] == 0]
+
+    def victims(self) -> list[str]:
+        """The processes this entry stops (a lost vehicle: its controller too, unless not)."""
+        if self.vehicle is not None and self.kill and self.with_controller:
+            return [self.process, f"controller_{self.vehicle}"]
+        return [self.process] if self.is_process else []
 
     def active(self, t_s: float, end_s: float) -> bool:
         return self.from_s <= t_s < (end_s if self.until_s is None else self.until_s)
@@ -131,12 +201,17 @@ class FaultPlan(BaseModel):
         """Cross-checks with the rest of the config; raises ``ValueError`` naming the entry."""
         for j, f in enumerate(self.plan):
             where = f"faults.plan.{j}"
-            for key in ("into", "out_of"):
+            for key in ("into", "out_of", "controller", "vehicle"):
                 node = getattr(f, key)
                 if node is not None and not 1 <= node <= n_followers:
                     raise ValueError(f"{where}.{key}: follower {node} is not 1..{n_followers}")
-            if not f.edges(graph_edges):
+            if not f.is_process and not f.edges(graph_edges):
                 raise ValueError(f"{where}: {f.what} is not in the graph")
+            end = f.from_s + (f.restart_after_s or f.freeze_s or 0.0)
+            if f.is_process and end >= duration_s:
+                raise ValueError(
+                    f"{where}: {f.what} is back at {end:g} s, not within the run (0..{duration_s:g} s)"
+                )
             if f.from_s >= duration_s:
                 raise ValueError(
                     f"{where}.from_s: {f.from_s:g} s is not within the run (0..{duration_s:g} s)"
@@ -145,6 +220,33 @@ class FaultPlan(BaseModel):
                 raise ValueError(
                     f"{where}.until_s: {f.until_s:g} s is past the end of the run ({duration_s:g} s)"
                 )
+
+        killed: dict[str, float] = {}
+        for j, f in sorted(enumerate(self.plan), key=lambda jf: jf[1].from_s):
+            if f.kill:
+                for name in f.victims():
+                    if name in killed and not f.from_s > killed[name]:
+                        raise ValueError(f"faults.plan.{j}: {name} is killed again before it is back")
+                    killed[name] = math.inf if f.restart_after_s is None else f.from_s + f.restart_after_s
+
+    def outages(self, period_s: float) -> dict[int, list[tuple[int, int | None]]]:
+        """Lockstep: per node (0 the leader, i a follower's controller) the ticks it is down,
+        ``(first, back)`` with ``back`` the tick it resumes at (None: never)."""
+        out: dict[int, list[tuple[int, int | None]]] = {}
+        for f in self.plan:
+            if not f.kill:
+                continue
+            node = 0 if f.leader else (f.controller if f.controller is not None else f.vehicle)
+            if f.vehicle is not None and not f.with_controller:
+                continue  # its controller lives on
+            assert node is not None
+            k = tick_of(f.from_s, period_s)
+            back = None if f.restart_after_s is None else k + round(f.restart_after_s / period_s)
+            out.setdefault(node, []).append((k, back))
+        return out
+
+    def process_faults(self) -> list[tuple[int, FaultSpec]]:
+        return [(j, f) for j, f in enumerate(self.plan) if f.is_process]
 
     def on_edge(self, src: int, dst: int, graph_edges: list[tuple[int, int]]) -> list[tuple[int, FaultSpec]]:
         """``(entry index, entry)`` of every entry acting on the edge ``src -> dst``, in plan order."""
@@ -224,6 +326,16 @@ def fate(
     if not acted:
         return ON_TIME
     return Fate(lost, corrupt, delay, duplicate, tuple(acted))
+
+
+def tick_of(t_s: float, period_s: float) -> int:
+    """The first control tick at or after ``t_s``."""
+    return math.ceil(t_s / period_s - 1e-9)
+
+
+def down_at(outages: list[tuple[int, int | None]], step: int) -> bool:
+    """Whether ``step`` falls in one of a node's ``outages``."""
+    return any(k <= step and (back is None or step < back) for k, back in outages)
 
 
 def edge_channel(src: int, dst: int) -> int:

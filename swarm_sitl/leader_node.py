@@ -5,6 +5,7 @@ allow, at most ``run.lockstep_window`` ticks ahead of the slowest of them (their
 say where they are), so a follower never has an unbounded backlog.
 """
 
+import math
 import time
 
 from sim_vehicles.lifeline import settle_heap
@@ -13,7 +14,13 @@ from swarm_sitl.bus import NodeBus
 from swarm_sitl.config import SwarmConfig
 from swarm_sitl.controller_node import NodeReport, wait_for_start
 from swarm_sitl.follower import EstimateMessage
-from swarm_sitl.node_clock import linger_after_last_tick, sleep_until, wait_until, wall_epoch_to_monotonic
+from swarm_sitl.node_clock import (
+    RunClock,
+    linger_after_last_tick,
+    sleep_until,
+    wait_until,
+    wall_epoch_to_monotonic,
+)
 
 #: lockstep: how long the leader sleeps when it is ``lockstep_window`` ticks ahead of a follower.
 #: Long enough that it wakes a few times per window, not per tick, and publishes the ticks it may
@@ -23,14 +30,24 @@ from swarm_sitl.node_clock import linger_after_last_tick, sleep_until, wait_unti
 LEADER_POLL_S = 0.01
 
 
-def run_leader(cfg: SwarmConfig, bus: NodeBus, lockstep: bool, out_neighbours: list[int]) -> NodeReport:
-    """Node 0: the reference at every tick, on the wall clock or a window ahead of the followers."""
+def run_leader(
+    cfg: SwarmConfig,
+    bus: NodeBus,
+    lockstep: bool,
+    out_neighbours: list[int],
+    clock: RunClock | None = None,
+    resume_tick: int = 0,
+) -> NodeReport:
+    """Node 0: the reference at every tick, on the wall clock or a window ahead of the followers.
+    ``resume_tick``: a leader restarted by a fault plan in lockstep resumes there."""
+    clock = RunClock(lockstep, cfg.control_dt_s) if clock is None else clock
     leader = build_leader(cfg)
     settle_heap()
     r = cfg.run
     dt = cfg.control_dt_s
     n = cfg.n_control_steps
     epoch_mono = wall_epoch_to_monotonic(wait_for_start(bus, None, r.start_timeout_s, "leader"))
+    clock.epoch_mono = epoch_mono
     late = 0
     step = [0]
 
@@ -41,8 +58,10 @@ def run_leader(cfg: SwarmConfig, bus: NodeBus, lockstep: bool, out_neighbours: l
         at = [bus.progress(j) for j in out_neighbours]
         return f"leader at tick {step[0]}: followers {out_neighbours} report no progress (at ticks {at})"
 
-    for k in range(n + 1):
-        step[0] = k
+    # real time: a leader started again by a fault plan joins at the current tick
+    first = resume_tick if lockstep else max(0, math.ceil((time.monotonic() - epoch_mono) / dt))
+    for k in range(first, n + 1):
+        step[0] = clock.tick = k
         if lockstep:
             wait_until(ahead_ok, bus.poll, [], r.stall_timeout_s, behind, block_s=lambda: LEADER_POLL_S)
         else:

@@ -89,8 +89,11 @@ def bound_failures(summary: dict, bound_m: float | None) -> list[str]:
         return []
     settle = summary["swarm"]["settle_from_s"]
     inputs = summary.get("inputs", {})
+    lost = set(summary.get("lost", []))  # a lost aircraft is recorded, not held to the bound
     out = []
     for i, f in sorted(summary["followers"].items(), key=lambda kv: int(kv[0])):
+        if int(i) in lost:
+            continue
         peak = f.get("peak_pos_err_after_settle_m")
         if peak is None:
             if f.get("recorded_ticks", 0) == 0 or settle > 0:

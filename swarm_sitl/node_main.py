@@ -63,7 +63,7 @@ def _write_stats(path: Path, stats: dict[str, Any]) -> None:
 def cmd_controller(cfg: SwarmConfig, args: argparse.Namespace) -> int:
     from sim_vehicles.row_log import RowLog
     from swarm_sitl.bus import NodeBus, ZenohNodeBus
-    from swarm_sitl.bus_faults import FaultyBus, acts_on
+    from swarm_sitl.bus_faults import FaultyBus, acts_on, watched
     from swarm_sitl.controller_node import CONTROLLER_COLUMNS, run_controller
     from swarm_sitl.events import EventLog
     from swarm_sitl.metrics import describe_inputs
@@ -83,29 +83,34 @@ def cmd_controller(cfg: SwarmConfig, args: argparse.Namespace) -> int:
         out = Path(args.out) if args.out else None
         try:
             if out is not None:
-                path = controller_rows_path(out, i)
+                path = controller_rows_path(out, i, args.incarnation)
                 path.parent.mkdir(parents=True, exist_ok=True)
                 rows = RowLog(path, CONTROLLER_COLUMNS)
-            events = EventLog(controller_events_path(out, i) if out else None, f"controller_{i}")
+            events = EventLog(
+                controller_events_path(out, i, args.incarnation) if out else None, f"controller_{i}"
+            )
             link = VehicleLink(args.mavlink, i, stamp_arrivals=not args.lockstep)
             session = _session(cfg, args.connect)
             clock = RunClock(args.lockstep, cfg.control_dt_s)
+            watch = watched(cfg.faults, i, edges)
             bus = zbus = ZenohNodeBus(
                 session,
                 cfg.name,
                 i,
                 [s for s, _ in graph.in_neighbours(i)],
                 list(graph.out_neighbours(i)),
+                watch_status=watch,
+                watch_alive=watch,
             )
             faulty = None
             if acts_on(cfg.faults, i, edges):
-                faulty = FaultyBus(zbus, cfg.faults, i, edges, clock, cfg.duration_s)
+                faulty = FaultyBus(zbus, cfg.faults, i, edges, clock, cfg.duration_s, cfg.run.stall_timeout_s)
             node_bus: NodeBus = zbus if faulty is None else faulty
             bus = node_bus
-            rep = run_controller(cfg, i, link, node_bus, args.lockstep, rows, clock, events)
+            rep = run_controller(cfg, i, link, node_bus, args.lockstep, rows, clock, events, args.resume_tick)
             if out is not None:
                 _write_stats(
-                    controller_stats_path(out, i),
+                    controller_stats_path(out, i, args.incarnation),
                     {
                         "follower": i,
                         "report": rep._asdict(),
@@ -128,18 +133,31 @@ def cmd_controller(cfg: SwarmConfig, args: argparse.Namespace) -> int:
 
 
 def cmd_leader(cfg: SwarmConfig, args: argparse.Namespace) -> int:
-    from swarm_sitl.bus import ZenohNodeBus
+    from swarm_sitl.bus import NodeBus, ZenohNodeBus
+    from swarm_sitl.bus_faults import FaultyBus, acts_on, watched
     from swarm_sitl.leader_node import run_leader
+    from swarm_sitl.node_clock import RunClock
 
     graph = cfg.build_graph()
     outs = list(graph.out_neighbours(0))
+    edges = cfg.graph_edges()
 
     def body() -> str:
-        session = bus = None
+        session = None
+        bus: Any = None
         try:
             session = _session(cfg, args.connect)
-            bus = ZenohNodeBus(session, cfg.name, 0, [], outs, watch_status=outs)
-            rep = run_leader(cfg, bus, args.lockstep, outs)
+            clock = RunClock(args.lockstep, cfg.control_dt_s)
+            zbus = ZenohNodeBus(
+                session, cfg.name, 0, [], outs, watch_status=outs, watch_alive=watched(cfg.faults, 0, edges)
+            )
+            node_bus: NodeBus = zbus
+            if acts_on(cfg.faults, 0, edges):
+                node_bus = FaultyBus(
+                    zbus, cfg.faults, 0, edges, clock, cfg.duration_s, cfg.run.stall_timeout_s
+                )
+            bus = node_bus
+            rep = run_leader(cfg, node_bus, args.lockstep, outs, clock, args.resume_tick)
             return f"leader: {rep.ticks} ticks published to {outs}, {rep.late_ticks} late"
         finally:
             for thing in (bus, session):
@@ -169,3 +187,12 @@ def _common(p: argparse.ArgumentParser) -> None:
     p.add_argument("--connect", action="append", default=[], help="extra zenoh endpoint to connect to")
     p.add_argument("--out", help="run directory to record into")
     p.add_argument("--duration", type=float, help="override duration_s [s]")
+    p.add_argument(
+        "--resume-tick",
+        type=int,
+        default=0,
+        help="lockstep: a node restarted by a fault plan resumes at this tick",
+    )
+    p.add_argument(
+        "--incarnation", type=int, default=0, help="how often this node was restarted (names its files)"
+    )

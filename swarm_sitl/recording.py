@@ -171,6 +171,8 @@ def load_run(run_dir: str | Path) -> Recording:
 
     d = Path(run_dir)
     if not (d / "leader.npz").is_file():
+        if (d / "config.yaml").is_file() and procs_dir(d).is_dir():
+            return _merged_from_procs(d)
         raise RunDirError(f"{d}: not a run directory (no leader.npz)")
     leader = dict(np.load(d / "leader.npz"))
     followers: dict[int, dict[str, np.ndarray]] = {}
@@ -189,25 +191,62 @@ def load_run(run_dir: str | Path) -> Recording:
     return Recording(leader, followers, offsets).with_errors(trajectory)
 
 
+def _merged_from_procs(d: Path) -> Recording:
+    """A run whose supervisor died before it wrote the arrays (SIGKILL): what every process
+    recorded, merged now."""
+    from swarm_sitl.config import ConfigError, load_config
+    from swarm_sitl.run_merge import merge_run
+
+    try:
+        cfg = load_config(d / "config.yaml")
+    except ConfigError as e:
+        raise RunDirError(f"{d}: no leader.npz, and its config.yaml is unreadable ({e})") from None
+    return merge_run(cfg, d)
+
+
 # -- what the processes of ``swarm-sitl run`` write as they go (merged by ``run_merge``) ---------
 def procs_dir(run_dir: Path) -> Path:
     return run_dir / "procs"
 
 
-def controller_rows_path(run_dir: Path, i: int) -> Path:
-    return procs_dir(run_dir) / f"controller_{i}.rows"
+def _incarnated(name: str, incarnation: int) -> str:
+    """A process's file stem: ``controller_2``, then ``controller_2.1`` once restarted, ..."""
+    return name if incarnation == 0 else f"{name}.{incarnation}"
+
+
+def controller_rows_path(run_dir: Path, i: int, incarnation: int = 0) -> Path:
+    return procs_dir(run_dir) / f"{_incarnated(f'controller_{i}', incarnation)}.rows"
+
+
+def controller_incarnations(run_dir: Path, i: int, suffix: str) -> list[Path]:
+    """Follower ``i``'s controller files of kind ``suffix`` (``.rows``, ``.events``,
+    ``.stats.json``) that exist, one per incarnation (each has its rows from the start), in order.
+    A killed incarnation wrote no ``.stats.json``: its counts died with it."""
+    found = []
+    for n in range(1000):
+        stem = procs_dir(run_dir) / _incarnated(f"controller_{i}", n)
+        if not stem.with_name(stem.name + ".rows").is_file():
+            break
+        p = stem.with_name(stem.name + suffix)
+        if p.is_file():
+            found.append(p)
+    return found
 
 
 def vehicle_truth_path(run_dir: Path, i: int) -> Path:
     return procs_dir(run_dir) / f"vehicle_{i}.truth"
 
 
-def controller_events_path(run_dir: Path, i: int) -> Path:
-    return procs_dir(run_dir) / f"controller_{i}.events"
+def controller_events_path(run_dir: Path, i: int, incarnation: int = 0) -> Path:
+    return procs_dir(run_dir) / f"{_incarnated(f'controller_{i}', incarnation)}.events"
 
 
-def controller_stats_path(run_dir: Path, i: int) -> Path:
-    return procs_dir(run_dir) / f"controller_{i}.stats.json"
+def controller_stats_path(run_dir: Path, i: int, incarnation: int = 0) -> Path:
+    return procs_dir(run_dir) / f"{_incarnated(f'controller_{i}', incarnation)}.stats.json"
+
+
+def supervisor_events_path(run_dir: Path) -> Path:
+    return procs_dir(run_dir) / "supervisor.events"
 
 
 def vehicle_events_path(run_dir: Path, i: int) -> Path:

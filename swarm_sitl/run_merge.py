@@ -23,11 +23,10 @@ from swarm_sitl.follower_law import CTRL_SIZE, OUT_SIZE
 from swarm_sitl.recording import (
     FollowerSeries,
     Recording,
-    controller_events_path,
-    controller_rows_path,
-    controller_stats_path,
+    controller_incarnations,
     leader_series,
     read_start,
+    supervisor_events_path,
     vehicle_events_path,
     vehicle_truth_path,
 )
@@ -56,7 +55,9 @@ def merge_run(cfg: SwarmConfig, run_dir: Path) -> Recording:
     for f in cfg.followers:
         i = f.id
         series = FollowerSeries(n + 1)
-        ctrl = _rows(controller_rows_path(run_dir, i), len(CONTROLLER_COLUMNS))
+        width = len(CONTROLLER_COLUMNS)
+        parts = [_rows(p, width) for p in controller_incarnations(run_dir, i, ".rows")]
+        ctrl = np.concatenate(parts) if parts else np.empty((0, width))
         truth = _rows(vehicle_truth_path(run_dir, i), len(TRUTH_COLUMNS))
         by_ms: dict[int, int] = {}
         for j, ms in enumerate(np.round(truth[:, 0] * 1000).astype(np.int64)):
@@ -82,33 +83,49 @@ def merge_run(cfg: SwarmConfig, run_dir: Path) -> Recording:
     return Recording(leader_series(trajectory, t_s), followers, offsets).with_errors(trajectory)
 
 
-def _stats(run_dir: Path, i: int) -> dict[str, Any]:
+def _stats(path: Path) -> dict[str, Any]:
     try:
-        s = json.loads(controller_stats_path(run_dir, i).read_text())
+        s = json.loads(path.read_text())
     except (OSError, ValueError):
         return {}
     return s if isinstance(s, dict) else {}
 
 
+def _add(into: dict[str, Any], more: dict[str, Any]) -> None:
+    """Counts added, ``max_*`` figures maxed, anything else (a delay distribution) the latest."""
+    for key, v in more.items():
+        if key not in into:
+            into[key] = v
+        elif key.startswith("max_") and isinstance(v, int | float):
+            into[key] = max(into[key], v)
+        elif isinstance(v, int | float) and not isinstance(v, bool):
+            into[key] = into[key] + v
+        else:
+            into[key] = v
+
+
 def inputs_and_links(cfg: SwarmConfig, run_dir: Path) -> tuple[dict[str, Any], dict[str, Any]]:
     """What each controller reported of its inputs (``NodeReport``), and per edge what its
     receiver counted under the fault plan (``bus_faults.EdgeStats``; edges without a fault on
-    them deliver what arrives). A controller that did not finish reports nothing."""
+    them deliver what arrives), summed over a restarted controller's incarnations. A controller
+    that did not finish reports nothing."""
     inputs: dict[str, Any] = {}
     links: dict[str, Any] = {}
     for f in cfg.followers:
-        s = _stats(run_dir, f.id)
-        if "report" in s:
-            inputs[str(f.id)] = s["report"]
-        for src, st in s.get("in_edges", {}).items():
-            links[f"{src}->{f.id}"] = st
+        for path in controller_incarnations(run_dir, f.id, ".stats.json"):
+            s = _stats(path)
+            if "report" in s:
+                _add(inputs.setdefault(str(f.id), {}), s["report"])
+            for src, st in s.get("in_edges", {}).items():
+                _add(links.setdefault(f"{src}->{f.id}", {}), st)
     return inputs, links
 
 
 def run_events(cfg: SwarmConfig, run_dir: Path) -> list[dict[str, Any]]:
     """The plan's fault intervals and every process's events, in time order."""
-    files = [controller_events_path(run_dir, f.id) for f in cfg.followers]
+    files = [p for f in cfg.followers for p in controller_incarnations(run_dir, f.id, ".events")]
     files += [vehicle_events_path(run_dir, f.id) for f in cfg.followers]
+    files.append(supervisor_events_path(run_dir))
     start = read_start(run_dir)
     realtime = start is not None and not start.get("lockstep", True)
     return merge_events(cfg, files, start["epoch_unix_s"] if start is not None and realtime else None)

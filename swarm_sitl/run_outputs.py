@@ -36,6 +36,7 @@ def write_outputs(cfg: SwarmConfig, rec: Recording, run_dir: Path, processes: bo
             "plan": [f"{f.what}: {f.how}" for f in cfg.faults.plan],
             "events": len(events),
         }
+        summary["lost"] = sorted(e["vehicle"] for e in events if e["kind"] == "vehicle_lost")
     write_run(run_dir, cfg.to_yaml(), rec, summary)
     return summary
 

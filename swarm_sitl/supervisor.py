@@ -14,6 +14,7 @@ runs, and the merge of what each process recorded.
 
 import contextlib
 import json
+import math
 import os
 import re
 import signal
@@ -35,7 +36,13 @@ from sim_vehicles.lifeline import settle_heap
 from swarm_sitl import zenoh_keys
 from swarm_sitl.bus_codec import Status, decode_status, decode_waiting
 from swarm_sitl.config import SwarmConfig
-from swarm_sitl.recording import procs_dir, start_path, vehicle_events_path, vehicle_truth_path
+from swarm_sitl.recording import (
+    procs_dir,
+    start_path,
+    supervisor_events_path,
+    vehicle_events_path,
+    vehicle_truth_path,
+)
 
 TERM_GRACE_S = 5.0
 SUPERVISE_EVERY_S = 0.05  #: how often a run looks at its children (each look polls every one of them)
@@ -46,12 +53,26 @@ class RunFailedError(RuntimeError):
     """A process of the run failed; the message names it."""
 
 
+STOPPED_GRACE_S = 0.5  #: a child stopped (SIGSTOP) this long, unplanned, fails the run [s]
+
+
 @dataclass
 class Child:
     name: str
     proc: subprocess.Popen
     log_path: Path
     must_finish: bool  #: leader/controllers end by themselves; vehicles run until torn down
+    process: str = ""  #: the process it is an incarnation of (``controller_2`` for ``controller_2.1``)
+    retired: bool = False  #: gone as the fault plan said (killed, or replaced by a restart)
+    stopped_since: float = math.inf  #: when it was first seen stopped [monotonic s]
+
+    def stopped(self) -> bool:
+        """Whether the process is stopped (SIGSTOP, or a debugger), from ``/proc`` (Linux)."""
+        try:
+            stat = Path(f"/proc/{self.proc.pid}/stat").read_text()
+        except OSError:
+            return False
+        return stat.rsplit(")", 1)[-1].split()[0] in ("T", "t")
 
     def last_line(self) -> str:
         try:
@@ -66,8 +87,17 @@ class Supervisor:
     run_dir: Path
     children: list[Child] = field(default_factory=list)
     _logs: list[IO[bytes]] = field(default_factory=list)
+    #: whether a child's exit (with its code) is one a fault plan made (``process_faults``)
+    planned_exit: Callable[[Child, int], bool] = lambda child, code: False
+    #: whether a stopped child was stopped by the plan
+    planned_stop: Callable[[str], bool] = lambda process: False
 
-    def spawn(self, name: str, argv: list[str], must_finish: bool) -> Child:
+    def child(self, process: str) -> Child | None:
+        """The live incarnation of ``process``, if any."""
+        live = [c for c in self.children if c.process == process and not c.retired]
+        return live[-1] if live else None
+
+    def spawn(self, name: str, argv: list[str], must_finish: bool, process: str | None = None) -> Child:
         log_dir = self.run_dir / "logs"
         log_dir.mkdir(parents=True, exist_ok=True)
         log_path = log_dir / f"{name}.log"
@@ -82,27 +112,47 @@ class Supervisor:
             env=env,
             start_new_session=True,
         )
-        child = Child(name, proc, log_path, must_finish)
+        child = Child(name, proc, log_path, must_finish, process or name)
         self.children.append(child)
         return child
 
     def check(self) -> None:
-        """Raise ``RunFailedError`` if a child failed, or a vehicle stopped while it was needed."""
+        """Raise ``RunFailedError`` if a child failed, or a vehicle stopped while it was needed,
+        or a child is stopped (SIGSTOP) that the plan did not stop: named first, since the others
+        are only waiting on it."""
+        now = time.monotonic()
         for c in self.children:
+            if c.retired or c.proc.poll() is not None:
+                continue
+            if not c.stopped() or self.planned_stop(c.process):
+                c.stopped_since = math.inf
+                continue
+            c.stopped_since = min(c.stopped_since, now)
+            if now - c.stopped_since > STOPPED_GRACE_S:
+                raise RunFailedError(
+                    f"{c.name} is stopped (SIGSTOP or a debugger) and no fault plan stopped it; "
+                    "the others wait on it"
+                )
+        for c in self.children:
+            if c.retired:
+                continue
             code = c.proc.poll()
             if code is None:
                 continue
             if code != 0 or not c.must_finish:
+                if self.planned_exit(c, code):
+                    continue
                 why = c.last_line()
                 raise RunFailedError(f"{c.name} exited with code {code}" + (f": {why}" if why else ""))
 
     def finished(self) -> bool:
-        return all(c.proc.poll() == 0 for c in self.children if c.must_finish)
+        return all(c.proc.poll() == 0 for c in self.children if c.must_finish and not c.retired)
 
     def close(self) -> None:
         alive = [c for c in self.children if c.proc.poll() is None]
         for c in alive:
             with contextlib.suppress(ProcessLookupError):
+                c.proc.send_signal(signal.SIGCONT)  # a stopped process takes SIGTERM only once it runs
                 c.proc.send_signal(signal.SIGTERM)
         end = time.monotonic() + TERM_GRACE_S
         for c in alive:
@@ -302,11 +352,14 @@ class RunMonitor:
             out[i] = float(np.linalg.norm(s.p_W - p_r - self._offsets[i]))
         return out
 
-    def min_step(self) -> int:
+    def min_step(self, leave_out: set[int] | None = None) -> int:
+        """The slowest follower's tick (-1 until every one has reported), ``leave_out``: those
+        that are down (a fault plan's)."""
         self._read_status()
-        if len(self.status) < self.cfg.n_followers:
+        ids = [f.id for f in self.cfg.followers if not leave_out or f.id not in leave_out]
+        if any(i not in self.status for i in ids):
             return -1
-        return min(s.step for s in self.status.values())
+        return min((self.status[i].step for i in ids), default=-1)
 
     def close(self) -> None:
         for s in [*self._subs, *self._status_subs]:
@@ -329,7 +382,10 @@ def run_swarm(
 ) -> RunResult:
     """Run the swarm; vehicles are spawned unless ``mavlink`` gives each follower's endpoint."""
     from swarm_sitl.bus import open_session, publish_start
+    from swarm_sitl.process_faults import LostAircraftError, ProcessFaults, check_lockstep
 
+    if lockstep:
+        check_lockstep(cfg)
     run_dir.mkdir(parents=True, exist_ok=True)
     compile_kernels(cfg)
     cfg_path = run_dir / "config.yaml"
@@ -344,16 +400,26 @@ def run_swarm(
         hub = None
         session = open_session(cfg.zenoh)
     monitor = RunMonitor(session, cfg)
+    faults = ProcessFaults(cfg, sup, lockstep, supervisor_events_path(run_dir)) if cfg.faults.plan else None
     try:
         endpoints = start_vehicles(sup, cfg, lockstep) if mavlink is None else dict(mavlink)
-        sup.spawn("leader", node_argv(cfg_path, "leader", lockstep, hub, run_dir, []), True)
+        node_args = {"leader": ["leader"]}
         for f in cfg.followers:
             url = endpoints[f.id]
             url = "udpout:" + url.removeprefix("udp:") if mavlink is None else url
-            extra = ["--id", str(f.id), "--mavlink", url]
-            sup.spawn(
-                f"controller_{f.id}", node_argv(cfg_path, "controller", lockstep, hub, run_dir, extra), True
-            )
+            node_args[f"controller_{f.id}"] = ["controller", "--id", str(f.id), "--mavlink", url]
+
+        def argv(process: str, incarnation: int = 0, resume_tick: int = 0) -> list[str]:
+            role, *extra = node_args[process]
+            if incarnation:
+                extra += ["--incarnation", str(incarnation), "--resume-tick", str(resume_tick)]
+            return node_argv(cfg_path, role, lockstep, hub, run_dir, extra)
+
+        if faults is not None:
+            faults.set_restart(argv)
+            sup.planned_stop = faults.frozen
+        for process in node_args:
+            sup.spawn(process, argv(process), True)
         end = time.monotonic() + cfg.run.start_timeout_s
         while len(monitor.ready) < cfg.n_followers + 1:
             sup.check()
@@ -368,6 +434,11 @@ def run_swarm(
         next_start_put = 0.0
         next_progress = 0.0
         while not sup.finished():
+            if faults is not None:
+                try:
+                    faults.act(time.time() - epoch, monitor.min_step(faults.down | faults.lost))
+                except LostAircraftError as e:
+                    raise RunFailedError(str(e)) from None
             sup.check()
             now = time.monotonic()
             if now >= next_start_put:  # again and again: a late subscriber still gets it
@@ -382,6 +453,8 @@ def run_swarm(
             on_progress(cfg.n_control_steps, monitor.errors_m())
         return RunResult(run_wall, startup, endpoints)
     finally:
+        if faults is not None:
+            faults.close()
         monitor.close()
         sup.close()
         session.close()

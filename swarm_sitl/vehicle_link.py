@@ -34,7 +34,7 @@ from pymavlink import mavutil
 from sim_vehicles import mavlink_frames as frames
 from sim_vehicles import tick_frames, udp_arrival
 from sim_vehicles.autopilot import AttitudeCommand
-from sim_vehicles.mavlink_endpoint import MODE_OFFBOARD
+from sim_vehicles.mavlink_endpoint import IGNORE_ALL, MODE_OFFBOARD
 from sim_vehicles.wire_format import SAMPLE_P, SAMPLE_Q, SAMPLE_V, encode_attitude_target, sample_from_fields
 
 mav = mavutil.mavlink
@@ -293,6 +293,23 @@ class VehicleLink:
         self._command_acked(mav.MAV_CMD_COMPONENT_ARM_DISARM, timeout_s, 1.0)
         self._command_acked(
             mav.MAV_CMD_DO_SET_MODE, timeout_s, float(mav.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED), MODE_OFFBOARD
+        )
+
+    def advance_to(self, time_boot_ms: int, timeout_s: float) -> None:
+        """Lockstep: move the vehicle's clock to ``time_boot_ms`` without a new setpoint (a
+        clock-only SET_ATTITUDE_TARGET, every field ignored: it flies what it holds, its failsafe
+        once its setpoints are overdue) and wait for its sample there."""
+
+        def ask() -> None:
+            self.conn.mav.set_attitude_target_send(
+                time_boot_ms, self.system_id, COMP_AUTOPILOT, IGNORE_ALL, [1.0, 0.0, 0.0, 0.0], 0, 0, 0, 0
+            )
+
+        self._wait(
+            lambda: self.sample_ms >= time_boot_ms,
+            f"the vehicle's clock at {time_boot_ms} ms",
+            timeout_s,
+            ask,
         )
 
     def request_sample(self, timeout_s: float) -> None:

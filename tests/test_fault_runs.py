@@ -4,6 +4,8 @@ every kind of link fault, a bound that fails a degraded run, and riding through 
 (The user-style lockstep scenarios, a lossy edge and a cut edge, are in ``examples/``.)"""
 
 import json
+import os
+import signal
 import subprocess
 import sys
 import time
@@ -12,7 +14,16 @@ import numpy as np
 import pytest
 import yaml
 
+from swarm_sitl.recording import load_run
 from tests.conftest import CONFIGS
+from tests.test_swarm_processes import (
+    _cmdline,
+    _processes_mentioning,
+    _start_run,
+    _udp_free,
+    _vehicle_ports,
+    _wait_running,
+)
 
 pytestmark = pytest.mark.system
 
@@ -28,6 +39,7 @@ EVERY_KIND = {
         {"edge": [0, 3], "stall": True, "from_s": 2, "until_s": 3},
         {"edge": [0, 2], "reorder": 0.3},
         {"edge": [0, 1], "drop": True, "from_s": 4, "until_s": 5},
+        {"controller": 3, "kill": True, "from_s": 3, "restart_after_s": 1},
     ],
 }
 SAME_BYTES = ["config.yaml", "summary.json", "events.jsonl", "leader.npz"] + [
@@ -71,7 +83,13 @@ def test_a_lockstep_run_under_every_link_fault_is_the_same_twice_and_never_stall
     assert {"fault_start", "fault_end"} <= kinds
     for i in range(1, 5):
         a = np.load(outs[0] / f"follower_{i}.npz")
-        assert np.isfinite(a["p_W"]).all() and len(a["t_s"]) == 801
+        ok = np.isfinite(a["p_W"]).all(axis=1)
+        assert len(ok) == 801
+        if i != 3:
+            assert ok.all(), i
+    # controller 3 was down from tick 300 to 400; rows it had not flushed (every 256) died with it
+    ok = np.isfinite(np.load(outs[0] / "follower_3.npz")["p_W"]).all(axis=1)
+    assert ok[:256].all() and not ok[300:400].any() and ok[400:].all()
 
 
 def test_a_run_past_its_bound_exits_non_zero_naming_the_follower_and_its_stale_input(tmp_path):
@@ -108,3 +126,65 @@ def test_real_time_rides_through_half_an_edge_lost(tmp_path):
         a = np.load(out / f"follower_{i}.npz")
         e = np.linalg.norm(a["pos_err_m"], axis=1)
         assert np.nanmax(e[a["t_s"] >= 20]) < 0.1, i
+
+
+def test_a_frozen_controller_puts_its_vehicle_in_failsafe_and_rejoins(tmp_path):
+    """Real time: controller 3 stopped (SIGSTOP) for 2 s by the plan."""
+    cfg = yaml.safe_load((CONFIGS / "paper.yaml").read_text())
+    cfg["faults"] = {"plan": [{"controller": 3, "freeze_s": 2, "from_s": 8}]}
+    path = tmp_path / "freeze.yaml"
+    path.write_text(yaml.safe_dump(cfg))
+    out = tmp_path / "rt"
+    r, _ = _run(path, out, "--realtime", "--duration", 18)
+    assert r.returncode == 0, r.stderr + r.stdout
+    ev = [json.loads(x) for x in (out / "events.jsonl").read_text().splitlines()]
+    frozen = [e["t_s"] for e in ev if e["kind"] == "process_frozen"]
+    thawed = [e["t_s"] for e in ev if e["kind"] == "process_thawed"]
+    fs = [(e["kind"], e["t_s"]) for e in ev if e.get("vehicle") == 3]
+    assert len(frozen) == len(thawed) == 1 and 1.9 < thawed[0] - frozen[0] < 2.3
+    # its vehicle noticed the silence after its setpoint timeout, and took the stream back
+    assert [k for k, _ in fs] == ["failsafe_enter", "failsafe_exit"], fs
+    assert 0.4 < fs[0][1] - frozen[0] < 0.7 and thawed[0] - 0.1 < fs[1][1] < thawed[0] + 0.5
+    a = np.load(out / "follower_3.npz")
+    e = np.linalg.norm(a["pos_err_m"], axis=1)
+    assert np.nanmax(e[(a["t_s"] > 10) & (a["t_s"] < 11)]) > 0.2  # it did drift while held
+    assert np.nanmax(e[a["t_s"] >= 16]) < 0.05  # and is back
+
+
+def test_an_unplanned_stop_fails_the_run_naming_the_stopped_process(tmp_path):
+    out = tmp_path / "stop"
+    proc = _start_run(out, "--duration", 60)
+    _wait_running(out)
+    victim = [
+        p
+        for p in _processes_mentioning(str(out))
+        if "--id 3" in _cmdline(p) and " controller " in _cmdline(p)
+    ]
+    assert len(victim) == 1
+    os.kill(victim[0], signal.SIGSTOP)
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 1
+    assert "controller_3 is stopped (SIGSTOP or a debugger) and no fault plan stopped it" in err, err
+    assert not _processes_mentioning(str(tmp_path))
+
+
+def test_a_killed_supervisor_leaves_a_readable_run_and_nothing_running(tmp_path):
+    out = tmp_path / "orphan"
+    proc = _start_run(out, "--realtime", "--duration", 60)
+    _wait_running(out)
+    ports = _vehicle_ports(out)
+    proc.kill()  # SIGKILL to the supervisor alone: its children are in sessions of their own
+    proc.wait(timeout=10)
+    end = time.monotonic() + 15
+    while _processes_mentioning(str(tmp_path)) and time.monotonic() < end:
+        time.sleep(0.2)
+    assert not _processes_mentioning(str(tmp_path))
+    assert all(_udp_free(p) for p in ports)
+    assert not (out / "leader.npz").exists()  # the supervisor never got to write the arrays
+    rec = load_run(out)  # what the processes recorded, merged on reading
+    for i in range(1, 5):
+        t = rec.followers[i]["t_s"]
+        assert np.isfinite(t).sum() > 100 and np.isfinite(rec.followers[i]["pos_err_m"][np.isfinite(t)]).all()
+    r = subprocess.run([*CLI, "plot", str(out)], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    assert (out / "plots" / "position_error.png").is_file()

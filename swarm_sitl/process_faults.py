@@ -1,0 +1,198 @@
+"""The supervisor's side of a fault plan: killing, freezing and restarting processes, and telling
+a planned exit from a failure.
+
+Real time: at the plan's run second the supervisor sends SIGKILL (every victim: a lost vehicle's
+controller too, unless ``with_controller: false``) or SIGSTOP (then SIGCONT ``freeze_s`` later),
+and starts a killed controller or leader again ``restart_after_s`` later; the new process joins at
+the current tick.
+
+Lockstep: a controller or the leader the plan kills at tick k kills itself when it gets there
+(``bus_faults``: the run is then the same every time); the supervisor sees it exit with SIGKILL,
+knows it was planned, starts it again at once with ``--resume-tick`` (its restart tick) if the plan
+restarts it, and kills a lost aircraft's vehicle with it. A freeze stops a process for ``freeze_s``
+of wall time once the swarm has reached ``from_s``: no simulated time passes meanwhile.
+
+Every action is an event in ``procs/supervisor.events`` (``process_killed``, ``process_restarted``,
+``process_frozen``, ``process_thawed``, ``vehicle_lost``), at the plan's time in lockstep and at the
+run second it happened in real time. A lost vehicle ends the run if ``run.stop_on_loss``.
+"""
+
+import contextlib
+import os
+import signal
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from sim_vehicles.event_log import EventLog
+from swarm_sitl.config import ConfigError, SwarmConfig
+from swarm_sitl.fault_plan import FaultSpec, tick_of
+
+if TYPE_CHECKING:
+    from swarm_sitl.supervisor import Child, Supervisor
+
+
+class LostAircraftError(RuntimeError):
+    """A vehicle was lost and ``run.stop_on_loss`` says the run ends with it."""
+
+
+@dataclass
+class _Action:
+    entry: int
+    spec: FaultSpec
+    at_s: float  #: when it happens [s]: simulated (lockstep) or run seconds (real time)
+    kind: str  #: "kill", "freeze", "thaw", "restart"
+    done: bool = False
+
+
+def check_lockstep(cfg: SwarmConfig) -> None:
+    """What a lockstep run cannot do, as a one-line ``ConfigError``."""
+    for j, f in enumerate(cfg.faults.plan):
+        if f.vehicle is not None and f.kill and not f.with_controller:
+            raise ConfigError(
+                f"faults.plan.{j}: in lockstep a lost vehicle takes its controller with it (its controller "
+                "would wait for samples that never come); lose a vehicle alone in a real-time run"
+            )
+
+
+class ProcessFaults:
+    """Carries out the plan's process faults on ``sup``'s children (``supervisor.Supervisor``)."""
+
+    def __init__(self, cfg: SwarmConfig, sup: "Supervisor", lockstep: bool, events_path: Path):
+        self.cfg = cfg
+        self.sup = sup
+        self.lockstep = lockstep
+        self.events = EventLog(events_path, "supervisor")
+        self.incarnation: dict[str, int] = {}
+        self.lost: set[int] = set()  #: followers whose vehicle is lost
+        self.down: set[int] = set()  #: followers whose controller is down now
+        self._frozen: dict[str, float] = {}  #: process -> when it is thawed [monotonic s]
+        self._actions: list[_Action] = []
+        self._restart_argv: Callable[[str, int, int], list[str]] | None = None
+        dt = cfg.control_dt_s
+        for j, f in cfg.faults.process_faults():
+            if f.kill:
+                self._actions.append(_Action(j, f, f.from_s, "kill"))
+            else:
+                self._actions.append(_Action(j, f, f.from_s, "freeze"))
+        self._dt = dt
+        sup.planned_exit = self._planned_exit
+
+    def set_restart(self, argv: Callable[[str, int, int], list[str]]) -> None:
+        """``argv(process, incarnation, resume_tick)``: how to start a process again."""
+        self._restart_argv = argv
+
+    # -- acting --------------------------------------------------------------------------------
+    def act(self, run_s: float, min_step: int) -> None:
+        """Real time: what is due at run second ``run_s``. Lockstep: the freezes due once every
+        live follower has reached ``min_step``; kills are the nodes' own."""
+        now = time.monotonic()
+        for name, until in list(self._frozen.items()):
+            if now >= until:
+                del self._frozen[name]
+                self._signal(name, signal.SIGCONT)
+                self._event("process_thawed", name, run_s)
+        for a in self._actions:
+            if a.done:
+                continue
+            if self.lockstep:
+                if a.kind != "freeze" or min_step < tick_of(a.at_s, self._dt):
+                    continue
+            elif run_s < a.at_s:
+                continue
+            a.done = True
+            if a.kind == "freeze":
+                assert a.spec.freeze_s is not None
+                self._frozen[a.spec.process] = now + a.spec.freeze_s
+                self._signal(a.spec.process, signal.SIGSTOP)
+                self._event(
+                    "process_frozen",
+                    a.spec.process,
+                    a.at_s if self.lockstep else run_s,
+                    freeze_s=a.spec.freeze_s,
+                )
+            elif a.kind == "kill":
+                for name in a.spec.victims():
+                    self._kill(name, a.spec, run_s)
+            elif a.kind == "restart":
+                self._restart(a.spec.process, a.spec, run_s)
+
+    def _kill(self, name: str, spec: FaultSpec, run_s: float) -> None:
+        child = self.sup.child(name)
+        if child is None:
+            return
+        child.retired = True
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(child.proc.pid, signal.SIGKILL)
+        self._after_death(name, spec, run_s)
+
+    def _after_death(self, name: str, spec: FaultSpec, t_s: float) -> None:
+        self._event("process_killed", name, t_s)
+        node = _follower_of(name)
+        if name.startswith("vehicle_") and node is not None:
+            self.lost.add(node)
+            self._event("vehicle_lost", name, t_s, vehicle=node)
+            if self.cfg.run.stop_on_loss:
+                raise LostAircraftError(f"{name} lost at {t_s:g} s (run.stop_on_loss)")
+        if name.startswith("controller_") and node is not None:
+            self.down.add(node)
+        if spec.restart_after_s is not None and name == spec.process:
+            if self.lockstep:
+                self._restart(name, spec, spec.from_s + spec.restart_after_s)
+            else:
+                self._actions.append(_Action(-1, spec, t_s + spec.restart_after_s, "restart"))
+
+    def _restart(self, name: str, spec: FaultSpec, t_s: float) -> None:
+        assert self._restart_argv is not None and spec.restart_after_s is not None
+        n = self.incarnation.get(name, 0) + 1
+        self.incarnation[name] = n
+        resume = tick_of(spec.from_s, self._dt) + round(spec.restart_after_s / self._dt)
+        self.sup.spawn(f"{name}.{n}", self._restart_argv(name, n, resume if self.lockstep else 0), True, name)
+        self._event("process_restarted", name, t_s)
+        node = _follower_of(name)
+        if node is not None:
+            self.down.discard(node)
+
+    def _planned_exit(self, child: "Child", code: int) -> bool:
+        """Whether ``child``'s exit with ``code`` is one the plan made (else it is a failure)."""
+        if child.retired:
+            return True
+        if not self.lockstep or code != -signal.SIGKILL:
+            return False
+        for a in self._actions:  # a node that killed itself at its planned tick
+            if a.kind == "kill" and not a.done and child.process in a.spec.victims():
+                a.done = True
+                child.retired = True
+                t_s = tick_of(a.spec.from_s, self._dt) * self._dt
+                self._after_death(child.process, a.spec, t_s)
+                for other in a.spec.victims():  # a lost aircraft: its vehicle goes with it
+                    if other != child.process:
+                        self._kill(other, a.spec, t_s)
+                return True
+        return False
+
+    def frozen(self, name: str) -> bool:
+        return name in self._frozen
+
+    # -- helpers -------------------------------------------------------------------------------
+    def _signal(self, name: str, sig: signal.Signals) -> None:
+        child = self.sup.child(name)
+        if child is not None:
+            with contextlib.suppress(ProcessLookupError):
+                os.killpg(child.proc.pid, sig)
+
+    def _event(self, kind: str, name: str, t_s: float, **fields: object) -> None:
+        self.events.add(round(t_s, 3), kind, process=name, **fields)
+
+    def close(self) -> None:
+        for name in list(self._frozen):  # never leave a stopped process behind
+            self._signal(name, signal.SIGCONT)
+        self._frozen.clear()
+        self.events.close()
+
+
+def _follower_of(name: str) -> int | None:
+    head, _, num = name.partition("_")
+    return int(num) if head in ("controller", "vehicle") and num.isdigit() else None
