@@ -115,6 +115,12 @@ class ZenohNodeBus:
         self._progress: dict[int, int] = {}
         self._lost: set[int] = set()
         self._puts: dict[int, int] = {}
+        self.received: dict[int, int] = {}  #: estimates decoded per in-neighbour
+        #: lockstep: the steps ``received`` counts (None: all), those the node waits for; whether
+        #: another one comes before the node exits, or before a restarted node subscribes, is a race,
+        #: and the counts must be the same every run
+        self.counted_steps: range | None = None
+        self.published = 0  #: estimates published (each on every out-edge)
         self._epoch: float | None = None
         self._token: Any = None
         self._polls = 0
@@ -140,6 +146,10 @@ class ZenohNodeBus:
         self._start_sub = [session.declare_subscriber(zenoh_keys.start(swarm), fifo())]
 
     # -- receive ---------------------------------------------------------------------------------
+    def counts(self, step: int) -> bool:
+        """Whether an estimate of ``step`` is counted (``counted_steps``)."""
+        return self.counted_steps is None or step in self.counted_steps
+
     def poll(self) -> None:
         """File everything that has arrived (liveliness and the start signal every few calls: this
         runs on every wake-up of a loop and costs it most in Python overhead)."""
@@ -150,6 +160,8 @@ class ZenohNodeBus:
                 except PayloadError:
                     self.dropped += 1
                     continue
+                if self.counts(m.step):
+                    self.received[m.src] = self.received.get(m.src, 0) + 1
                 self.deliver(m)
         for sub in self._status_subs:
             statuses, bad = decode_waiting(sub, decode_status)
@@ -182,6 +194,7 @@ class ZenohNodeBus:
     # -- the loop's side -------------------------------------------------------------------------
     def publish(self, msg: EstimateMessage) -> None:
         payload = encode_estimate(msg)
+        self.published += 1
         for p in self._pubs:
             p.put(payload)
 

@@ -122,6 +122,8 @@ class FaultyBus:
         if st is None:  # not one of our in-edges (the wrapped bus subscribes to no other)
             return
         self._arrived[src] = max(self._arrived.get(src, -1), m.step)
+        if not self.inner.counts(m.step):
+            st = EdgeStats()  # it meets its fate, uncounted (``ZenohNodeBus.counted_steps``)
         st.received += 1
         clock = self.clock
         dt = clock.period_s
@@ -166,7 +168,8 @@ class FaultyBus:
         now = self.clock.now()
         while pending and pending[0][0] <= now:
             _, _, m = heapq.heappop(pending)
-            self.stats[m.src].delivered += 1
+            if self.inner.counts(m.step):
+                self.stats[m.src].delivered += 1
             self.inner.file(m)
 
     # -- NodeBus -------------------------------------------------------------------------------------

@@ -200,7 +200,8 @@ def _degraded_lines(summary: dict) -> list[str]:
     for edge, st in sorted(summary.get("links", {}).items()):
         if st.get("lost") or st.get("corrupt") or st.get("delayed") or st.get("duplicated"):
             out.append(
-                f"  edge {edge}: {st['delivered']} of {st['received']} delivered, {st['lost']} lost, "
+                f"  {edge if edge.startswith('mavlink') else 'edge ' + edge}: "
+                f"{st['delivered']} of {st['received']} delivered, {st['lost']} lost, "
                 f"{st['corrupt']} corrupt, {st['delayed']} delayed, {st['duplicated']} duplicated"
             )
     return out
@@ -268,13 +269,23 @@ def cmd_plot(args: argparse.Namespace) -> int:
 
     run_dir = Path(args.run_dir)
     rec = load_run(run_dir)
-    bounds = None
+    bounds = summary = edges = None
     summary_path = run_dir / "summary.json"
     if summary_path.is_file():
-        s = json.loads(summary_path.read_text())
-        bounds = {int(i): f["thrust_bound_N"] for i, f in s["followers"].items()}
+        summary = json.loads(summary_path.read_text())
+        bounds = {int(i): f["thrust_bound_N"] for i, f in summary["followers"].items()}
+    events = []
+    if (run_dir / "events.jsonl").is_file():
+        from swarm_sitl.events import read_events
+
+        events = read_events(run_dir / "events.jsonl")
+    if "links" in (summary or {}):
+        try:
+            edges = load_config(run_dir / "config.yaml").graph_edges()
+        except ConfigError:
+            edges = None
     out = Path(args.out) if args.out else run_dir / "plots"
-    for p in plot_run(rec, out, bounds):
+    for p in plot_run(rec, out, bounds, events, summary, edges):
         print(p)
     return 0
 

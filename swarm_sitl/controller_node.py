@@ -149,13 +149,13 @@ class _Inputs:
         return [s for s in self.need if not self.bus.settled(s, self.k - 1)]
 
     def ready(self) -> bool:
-        return self.link.sample_ms == self.t_ms and not self._lacking()
+        return self.link.sample_settled(self.t_ms) and not self._lacking()
 
     def missing(self) -> str:
         k = self.k
         lacking = self._lacking()
         what = [f"estimate of node {s} for tick {k - 1}" for s in lacking]
-        if self.link.sample_ms != self.t_ms:
+        if not self.link.sample_settled(self.t_ms):
             what.append(f"vehicle sample at {self.t_ms} ms (latest {self.link.sample_ms} ms)")
         gone = self.bus.lost() & set(lacking)
         tail = f"; node(s) {sorted(gone)} went away" if gone else ""
@@ -164,7 +164,7 @@ class _Inputs:
     def idle(self) -> None:
         if (
             self.last_cmd is not None
-            and self.link.sample_ms < self.t_ms
+            and not self.link.sample_settled(self.t_ms)
             and time.monotonic() - self.sent_at > RESEND_AFTER_S
         ):  # the setpoint or its answer was lost: send it again, the vehicle will not step twice
             self.link.send_setpoint(self.last_cmd, self.t_ms - round(self.dt * 1000))
@@ -285,6 +285,10 @@ def run_controller(
             inbox = inbox_of.gather(t, io.newest_lockstep) if k > io.first else {}
             boot_s, p, v, q = link.sample()
             sample_t = t
+            if link.sample_ms != io.t_ms:  # a fault plan lost it: the one before, carried
+                sample_t = boot_s
+                old_samples += 1
+                max_age = max(max_age, t - boot_s)
             lateness = 0.0
         else:
             sleep_until(io.epoch_mono + t, io.tick_fds, io.read_link)  # the bus is read at the tick

@@ -24,6 +24,11 @@ One entry names one *what*, one *how* and optionally *when*:
   ``until_s``), ``duplicate: p`` (delivered again a period later), ``reorder: p`` (held one period,
   so it comes after the next one), ``corrupt: p`` (one byte flipped: the receiver's checksum drops
   and counts it);
+- what (a vehicle link): ``mavlink: i`` (follower i's link to its vehicle) with ``direction: up``
+  (setpoints), ``down`` (telemetry) or ``both`` (the default); it fails by the same hows, applied to
+  datagrams where the controller sends and receives them. In lockstep it fails by ``drop``,
+  ``loss`` and ``corrupt`` only: a lost setpoint is a period the vehicle flies on what it holds (a
+  clock-only setpoint goes in its place), a lost sample a tick that carries the one before;
 - what (processes): ``controller: i``, ``vehicle: i``, ``leader: true``;
 - how (processes): ``kill: true`` (SIGKILL; ``restart_after_s: d`` starts it again d seconds
   later; a vehicle is a lost aircraft and never restarts, and its controller, the companion
@@ -54,7 +59,7 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 Probability = Annotated[float, Field(gt=0, le=1)]
 NonNegative = Annotated[float, Field(ge=0)]
 
-LINK_WHAT = ("edge", "into", "out_of", "leader_edges")
+LINK_WHAT = ("edge", "into", "out_of", "leader_edges", "mavlink")
 LINK_HOW = ("drop", "loss", "delay_s", "stall", "duplicate", "reorder", "corrupt")
 PROCESS_WHAT = ("controller", "vehicle", "leader")
 PROCESS_HOW = ("kill", "freeze_s")
@@ -69,6 +74,9 @@ class FaultSpec(BaseModel):
     into: Annotated[int, Field(ge=1)] | None = None  #: every edge into this follower
     out_of: Annotated[int, Field(ge=1)] | None = None  #: every edge out of this follower
     leader_edges: Literal[True] | None = None  #: every edge out of the leader
+    mavlink: Annotated[int, Field(ge=1)] | None = None  #: this follower's MAVLink link to its vehicle
+    #: which way, with ``mavlink``: ``up`` (setpoints, to the vehicle), ``down`` (telemetry), ``both``
+    direction: Literal["up", "down", "both"] | None = None
 
     drop: Literal[True] | None = None  #: every message is lost
     loss: Probability | None = None  #: each message is lost with this probability
@@ -107,6 +115,8 @@ class FaultSpec(BaseModel):
             raise ValueError("restart_after_s goes with kill")
         if self.restart_after_s is not None and self.vehicle is not None:
             raise ValueError("a killed vehicle is a lost aircraft: it does not restart")
+        if self.direction is not None and self.mavlink is None:
+            raise ValueError("direction goes with mavlink")
         if not self.with_controller and self.vehicle is None:
             raise ValueError("with_controller goes with vehicle")
         if self.is_process and self.until_s is not None:
@@ -140,6 +150,9 @@ class FaultSpec(BaseModel):
             return self.process
         if self.edge is not None:
             return f"edge {self.edge[0]}->{self.edge[1]}"
+        if self.mavlink is not None:
+            way = {"up": "uplink", "down": "downlink"}.get(self.direction or "both", "both ways")
+            return f"MAVLink of vehicle {self.mavlink}, {way}"
         if self.into is not None:
             return f"edges into {self.into}"
         if self.out_of is not None:
@@ -169,7 +182,7 @@ class FaultSpec(BaseModel):
     def edges(self, graph_edges: Iterable[tuple[int, int]]) -> list[tuple[int, int]]:
         """The graph's edges this entry names (none for a process fault)."""
         es = list(graph_edges)
-        if self.is_process:
+        if self.is_process or self.mavlink is not None:
             return []
         if self.edge is not None:
             return [e for e in es if e == tuple(self.edge)]
@@ -201,11 +214,11 @@ class FaultPlan(BaseModel):
         """Cross-checks with the rest of the config; raises ``ValueError`` naming the entry."""
         for j, f in enumerate(self.plan):
             where = f"faults.plan.{j}"
-            for key in ("into", "out_of", "controller", "vehicle"):
+            for key in ("into", "out_of", "controller", "vehicle", "mavlink"):
                 node = getattr(f, key)
                 if node is not None and not 1 <= node <= n_followers:
                     raise ValueError(f"{where}.{key}: follower {node} is not 1..{n_followers}")
-            if not f.is_process and not f.edges(graph_edges):
+            if not f.is_process and f.mavlink is None and not f.edges(graph_edges):
                 raise ValueError(f"{where}: {f.what} is not in the graph")
             end = f.from_s + (f.restart_after_s or f.freeze_s or 0.0)
             if f.is_process and end >= duration_s:
@@ -244,6 +257,15 @@ class FaultPlan(BaseModel):
             back = None if f.restart_after_s is None else k + round(f.restart_after_s / period_s)
             out.setdefault(node, []).append((k, back))
         return out
+
+    def on_mavlink(self, vehicle: int, uplink: bool) -> list[tuple[int, FaultSpec]]:
+        """``(entry index, entry)`` of every entry acting on ``vehicle``'s MAVLink link, one way."""
+        way = "up" if uplink else "down"
+        return [
+            (j, f)
+            for j, f in enumerate(self.plan)
+            if f.mavlink == vehicle and (f.direction or "both") in (way, "both")
+        ]
 
     def process_faults(self) -> list[tuple[int, FaultSpec]]:
         return [(j, f) for j, f in enumerate(self.plan) if f.is_process]
@@ -336,6 +358,11 @@ def tick_of(t_s: float, period_s: float) -> int:
 def down_at(outages: list[tuple[int, int | None]], step: int) -> bool:
     """Whether ``step`` falls in one of a node's ``outages``."""
     return any(k <= step and (back is None or step < back) for k, back in outages)
+
+
+def mavlink_channel(vehicle: int, uplink: bool) -> int:
+    """The channel number of one way of a vehicle's MAVLink link in ``fate``'s draws."""
+    return ((1 if uplink else 2) << 32) | vehicle
 
 
 def edge_channel(src: int, dst: int) -> int:

@@ -66,6 +66,7 @@ def cmd_controller(cfg: SwarmConfig, args: argparse.Namespace) -> int:
     from swarm_sitl.bus_faults import FaultyBus, acts_on, watched
     from swarm_sitl.controller_node import CONTROLLER_COLUMNS, run_controller
     from swarm_sitl.events import EventLog
+    from swarm_sitl.link_faults import MavlinkFaults
     from swarm_sitl.metrics import describe_inputs
     from swarm_sitl.node_clock import RunClock
     from swarm_sitl.recording import controller_events_path, controller_rows_path, controller_stats_path
@@ -89,9 +90,12 @@ def cmd_controller(cfg: SwarmConfig, args: argparse.Namespace) -> int:
             events = EventLog(
                 controller_events_path(out, i, args.incarnation) if out else None, f"controller_{i}"
             )
-            link = VehicleLink(args.mavlink, i, stamp_arrivals=not args.lockstep)
-            session = _session(cfg, args.connect)
             clock = RunClock(args.lockstep, cfg.control_dt_s)
+            link_faults = None
+            if cfg.faults.on_mavlink(i, True) or cfg.faults.on_mavlink(i, False):
+                link_faults = MavlinkFaults(cfg.faults, i, clock, cfg.duration_s)
+            link = VehicleLink(args.mavlink, i, stamp_arrivals=not args.lockstep, faults=link_faults)
+            session = _session(cfg, args.connect)
             watch = watched(cfg.faults, i, edges)
             bus = zbus = ZenohNodeBus(
                 session,
@@ -102,6 +106,8 @@ def cmd_controller(cfg: SwarmConfig, args: argparse.Namespace) -> int:
                 watch_status=watch,
                 watch_alive=watch,
             )
+            if args.lockstep:
+                zbus.counted_steps = range(args.resume_tick, cfg.n_control_steps)
             faulty = None
             if acts_on(cfg.faults, i, edges):
                 faulty = FaultyBus(zbus, cfg.faults, i, edges, clock, cfg.duration_s, cfg.run.stall_timeout_s)
@@ -114,7 +120,16 @@ def cmd_controller(cfg: SwarmConfig, args: argparse.Namespace) -> int:
                     {
                         "follower": i,
                         "report": rep._asdict(),
-                        "in_edges": {str(s): st for s, st in (faulty.edge_stats() if faulty else {}).items()},
+                        "published": zbus.published,
+                        "in_edges": {
+                            str(s): st
+                            for s, st in (
+                                faulty.edge_stats()
+                                if faulty
+                                else {s: {"received": n, "delivered": n} for s, n in zbus.received.items()}
+                            ).items()
+                        },
+                        "mavlink": link_faults.link_stats() if link_faults else {},
                     },
                 )
             degraded = describe_inputs(rep._asdict())
@@ -137,6 +152,7 @@ def cmd_leader(cfg: SwarmConfig, args: argparse.Namespace) -> int:
     from swarm_sitl.bus_faults import FaultyBus, acts_on, watched
     from swarm_sitl.leader_node import run_leader
     from swarm_sitl.node_clock import RunClock
+    from swarm_sitl.recording import leader_stats_path
 
     graph = cfg.build_graph()
     outs = list(graph.out_neighbours(0))
@@ -158,6 +174,10 @@ def cmd_leader(cfg: SwarmConfig, args: argparse.Namespace) -> int:
                 )
             bus = node_bus
             rep = run_leader(cfg, node_bus, args.lockstep, outs, clock, args.resume_tick)
+            if args.out:
+                _write_stats(
+                    leader_stats_path(Path(args.out), args.incarnation), {"published": zbus.published}
+                )
             return f"leader: {rep.ticks} ticks published to {outs}, {rep.late_ticks} late"
         finally:
             for thing in (bus, session):

@@ -50,6 +50,11 @@ class _Action:
 def check_lockstep(cfg: SwarmConfig) -> None:
     """What a lockstep run cannot do, as a one-line ``ConfigError``."""
     for j, f in enumerate(cfg.faults.plan):
+        if f.mavlink is not None and f.how.split()[0] not in ("drop", "loss", "corrupt"):
+            raise ConfigError(
+                f"faults.plan.{j}: in lockstep a MAVLink link fails by drop, loss or corrupt "
+                f"(a lost setpoint or sample is a period on what was there); {f.how} it in a real-time run"
+            )
         if f.vehicle is not None and f.kill and not f.with_controller:
             raise ConfigError(
                 f"faults.plan.{j}: in lockstep a lost vehicle takes its controller with it (its controller "

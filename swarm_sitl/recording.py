@@ -245,6 +245,10 @@ def controller_stats_path(run_dir: Path, i: int, incarnation: int = 0) -> Path:
     return procs_dir(run_dir) / f"{_incarnated(f'controller_{i}', incarnation)}.stats.json"
 
 
+def leader_stats_path(run_dir: Path, incarnation: int = 0) -> Path:
+    return procs_dir(run_dir) / f"{_incarnated('leader', incarnation)}.stats.json"
+
+
 def supervisor_events_path(run_dir: Path) -> Path:
     return procs_dir(run_dir) / "supervisor.events"
 

@@ -25,6 +25,7 @@ from swarm_sitl.recording import (
     Recording,
     controller_incarnations,
     leader_series,
+    leader_stats_path,
     read_start,
     supervisor_events_path,
     vehicle_events_path,
@@ -104,6 +105,12 @@ def _add(into: dict[str, Any], more: dict[str, Any]) -> None:
             into[key] = v
 
 
+#: report fields that count what the machine's load did, not what the run did: a setpoint resent
+#: after a wall-clock timeout. They stay in ``procs/`` and the controller's log, out of the summary,
+#: which a lockstep run keeps byte for byte the same.
+WALL_CLOCK_ONLY = ("resends",)
+
+
 def inputs_and_links(cfg: SwarmConfig, run_dir: Path) -> tuple[dict[str, Any], dict[str, Any]]:
     """What each controller reported of its inputs (``NodeReport``), and per edge what its
     receiver counted under the fault plan (``bus_faults.EdgeStats``; edges without a fault on
@@ -111,13 +118,26 @@ def inputs_and_links(cfg: SwarmConfig, run_dir: Path) -> tuple[dict[str, Any], d
     that did not finish reports nothing."""
     inputs: dict[str, Any] = {}
     links: dict[str, Any] = {}
+    published: dict[int, int] = {}
+    for n in range(100):  # the leader and its restarts
+        s = _stats(leader_stats_path(run_dir, n))
+        if not s:
+            break
+        published[0] = published.get(0, 0) + s.get("published", 0)
     for f in cfg.followers:
         for path in controller_incarnations(run_dir, f.id, ".stats.json"):
             s = _stats(path)
+            published[f.id] = published.get(f.id, 0) + s.get("published", 0)
             if "report" in s:
-                _add(inputs.setdefault(str(f.id), {}), s["report"])
+                report = {k: v for k, v in s["report"].items() if k not in WALL_CLOCK_ONLY}
+                _add(inputs.setdefault(str(f.id), {}), report)
             for src, st in s.get("in_edges", {}).items():
                 _add(links.setdefault(f"{src}->{f.id}", {}), st)
+            for way, st in s.get("mavlink", {}).items():
+                _add(links.setdefault(f"mavlink {f.id} {way}", {}), st)
+    for src, dst in cfg.graph_edges():  # what each sender published, killed incarnations aside
+        if f"{src}->{dst}" in links and src in published:
+            links[f"{src}->{dst}"]["sent"] = published[src]
     return inputs, links
 
 

@@ -62,9 +62,11 @@ class LinkError(RuntimeError):
 
 
 class VehicleLink:
-    def __init__(self, url: str, system_id: int, stamp_arrivals: bool = True):
+    def __init__(self, url: str, system_id: int, stamp_arrivals: bool = True, faults: Any = None):
         """``stamp_arrivals``: ask the kernel for arrival stamps where it can (a real-time loop
-        needs them; a lockstep one does not, and reads its datagrams more cheaply without)."""
+        needs them; a lockstep one does not, and reads its datagrams more cheaply without).
+        ``faults``: a fault plan on this link (``link_faults.MavlinkFaults``), wrapping the
+        datagrams it sends and receives."""
         try:
             self.conn: Any = mavutil.mavlink_connection(
                 url, source_system=system_id, source_component=COMP_ONBOARD, dialect="common"
@@ -74,6 +76,8 @@ class VehicleLink:
         self.conn.mav.robust_parsing = True  # garbage becomes BAD_DATA, counted, not an exception
         self.url = url
         self.system_id = system_id
+        self.faults = faults
+        self._queued: list[tuple[bytes, float]] = []  #: datagrams a fault held, now due
         self.params: dict[str, float] = {}
         self._lpos: tuple = ()  #: LOCAL_POSITION_NED fields, declared order
         self._attq: tuple = ()  #: ATTITUDE_QUATERNION fields, declared order
@@ -106,7 +110,23 @@ class VehicleLink:
 
     # -- receive ---------------------------------------------------------------------------------
     def _recv(self, wall_to_mono: float, readable: bool = False) -> tuple[bytes, float]:
-        """One datagram (``b""`` if none) and its arrival time; ``readable``: one waits."""
+        """One datagram (``b""`` if none) and its arrival time; ``readable``: one waits. Under a
+        fault plan, what the plan lets through (``faults``)."""
+        if self.faults is None:
+            return self._recv_raw(wall_to_mono, readable)
+        if not self._queued:
+            self._queued = [(d, time.monotonic()) for d in self.faults.release(self.conn.write)]
+        while not self._queued:
+            data, arrival = self._recv_raw(wall_to_mono, readable)
+            readable = False
+            if not data:
+                return data, arrival
+            passed = self.faults.receive(data)
+            if passed is not None:
+                return passed, arrival
+        return self._queued.pop(0)
+
+    def _recv_raw(self, wall_to_mono: float, readable: bool = False) -> tuple[bytes, float]:
         if not readable and self._waiting is not None and not self._waiting():
             return b"", math.nan
         if not self.stamps_arrivals:
@@ -200,9 +220,17 @@ class VehicleLink:
             self._set_sample(int(lpos[0]), decoded, arrival)
 
     def _set_sample(self, time_boot_ms: int, decoded: np.ndarray, arrival: float) -> None:
+        if time_boot_ms < self.sample_ms:  # a sample a fault held back, older than the one we have
+            return
         self._sample = decoded
         self.sample_ms = time_boot_ms
         self.sample_arrival_mono = arrival
+
+    def sample_settled(self, time_boot_ms: int) -> bool:
+        """Lockstep: whether the sample of ``time_boot_ms`` has come, or a fault plan lost it."""
+        if self.sample_ms == time_boot_ms:
+            return True
+        return self.faults is not None and self.faults.lost_ms == time_boot_ms
 
     def sample(self) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
         """``(time_boot_s, p_W, v_W, q_WB)`` of the latest complete sample, in ENU/FLU."""
@@ -252,7 +280,18 @@ class VehicleLink:
             float(cmd.thrust_N),
             max_thrust,
         )
-        self.conn.write(frames.take_frame(mav_, self._out, n))
+        frame = frames.take_frame(mav_, self._out, n)
+        if self.faults is None:
+            self.conn.write(frame)
+        else:
+            self.faults.send(frame, time_boot_ms, self.conn.write, self.send_clock_only)
+
+    def send_clock_only(self, time_boot_ms: int) -> None:
+        """Lockstep: a clock-only SET_ATTITUDE_TARGET (every field ignored): the vehicle moves its
+        clock to ``time_boot_ms`` on what it holds, and sends its sample there."""
+        self.conn.mav.set_attitude_target_send(
+            time_boot_ms, self.system_id, COMP_AUTOPILOT, IGNORE_ALL, [1.0, 0.0, 0.0, 0.0], 0, 0, 0, 0
+        )
 
     # -- the start-up handshake ------------------------------------------------------------------
     def _wait(self, done: Any, what: str, timeout_s: float, resend: Any = None, every_s: float = 0.5) -> None:
@@ -300,16 +339,11 @@ class VehicleLink:
         clock-only SET_ATTITUDE_TARGET, every field ignored: it flies what it holds, its failsafe
         once its setpoints are overdue) and wait for its sample there."""
 
-        def ask() -> None:
-            self.conn.mav.set_attitude_target_send(
-                time_boot_ms, self.system_id, COMP_AUTOPILOT, IGNORE_ALL, [1.0, 0.0, 0.0, 0.0], 0, 0, 0, 0
-            )
-
         self._wait(
             lambda: self.sample_ms >= time_boot_ms,
             f"the vehicle's clock at {time_boot_ms} ms",
             timeout_s,
-            ask,
+            lambda: self.send_clock_only(time_boot_ms),
         )
 
     def request_sample(self, timeout_s: float) -> None:

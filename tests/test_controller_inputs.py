@@ -33,6 +33,9 @@ class _Link:
     def fileno(self) -> int:
         return -1
 
+    def sample_settled(self, time_boot_ms: int) -> bool:
+        return self.sample_ms == time_boot_ms
+
 
 def _waiting_at_tick_10(bus: _Bus) -> _Inputs:
     io = _Inputs("follower 4", _Link(), bus, [1, 2], 0.01)  # type: ignore[arg-type]

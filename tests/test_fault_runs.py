@@ -40,6 +40,8 @@ EVERY_KIND = {
         {"edge": [0, 2], "reorder": 0.3},
         {"edge": [0, 1], "drop": True, "from_s": 4, "until_s": 5},
         {"controller": 3, "kill": True, "from_s": 3, "restart_after_s": 1},
+        {"mavlink": 2, "direction": "up", "loss": 0.2},
+        {"mavlink": 2, "direction": "down", "corrupt": 0.1},
     ],
 }
 SAME_BYTES = ["config.yaml", "summary.json", "events.jsonl", "leader.npz"] + [
@@ -73,10 +75,12 @@ def test_a_lockstep_run_under_every_link_fault_is_the_same_twice_and_never_stall
     s = json.loads((outs[0] / "summary.json").read_text())
     links = s["links"]
     assert links["1->4"]["lost"] > 0.2 * links["1->4"]["received"]
-    # every estimate into 4 is delayed but the last one, sent at the end of the plan's window
-    assert links["2->4"]["duplicated"] > 0 and links["2->4"]["delayed"] == links["2->4"]["received"] - 1
+    # every estimate into 4 is delayed; the counts are of the 800 steps 4 waits for (0 to 799)
+    assert links["2->4"]["duplicated"] > 0 and links["2->4"]["delayed"] == links["2->4"]["received"] == 800
     assert all(links[f"0->{i}"]["corrupt"] > 0 for i in (1, 2, 3))
     assert links["0->1"]["lost"] == 100  # the cut: 4 s to 5 s, every message
+    up, down = links["mavlink 2 up"], links["mavlink 2 down"]
+    assert 0.1 < up["lost"] / up["received"] < 0.3 and 0.03 < down["corrupt"] / down["received"] < 0.2
     d = links["1->4"]["delay_s"]
     assert 0.02 <= d["median"] <= d["p99"] <= d["max"] <= 0.05
     kinds = {e["kind"] for e in (json.loads(x) for x in (outs[0] / "events.jsonl").read_text().splitlines())}
@@ -111,9 +115,9 @@ def test_a_run_past_its_bound_exits_non_zero_naming_the_follower_and_its_stale_i
     assert s["inputs"]["1"]["stale_estimates"] > 500
 
 
-def test_real_time_rides_through_half_an_edge_lost(tmp_path):
+def test_real_time_rides_through_half_an_edge_and_a_fifth_of_a_mavlink_link_lost(tmp_path):
     cfg = yaml.safe_load((CONFIGS / "paper.yaml").read_text())
-    cfg["faults"] = {"seed": 2, "plan": [{"edge": [1, 4], "loss": 0.5}]}
+    cfg["faults"] = {"seed": 2, "plan": [{"edge": [1, 4], "loss": 0.5}, {"mavlink": 3, "loss": 0.2}]}
     path = tmp_path / "loss.yaml"
     path.write_text(yaml.safe_dump(cfg))
     out = tmp_path / "rt"
@@ -122,6 +126,10 @@ def test_real_time_rides_through_half_an_edge_lost(tmp_path):
     s = json.loads((out / "summary.json").read_text())
     link = s["links"]["1->4"]
     assert 0.4 < link["lost"] / link["received"] < 0.6
+    for way in ("up", "down"):  # each direction of vehicle 3's link
+        m = s["links"][f"mavlink 3 {way}"]
+        assert 0.15 < m["lost"] / m["received"] < 0.25, (way, m)
+    assert s["inputs"]["3"]["old_samples"] > 100
     for i in range(1, 5):
         a = np.load(out / f"follower_{i}.npz")
         e = np.linalg.norm(a["pos_err_m"], axis=1)
@@ -188,3 +196,38 @@ def test_a_killed_supervisor_leaves_a_readable_run_and_nothing_running(tmp_path)
     r = subprocess.run([*CLI, "plot", str(out)], capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, r.stderr
     assert (out / "plots" / "position_error.png").is_file()
+
+
+def test_a_ground_station_slowing_a_vehicles_stream_fails_the_run_naming_the_stale_samples(tmp_path):
+    """Another client asks vehicle 3 for its position at 1 Hz during a real-time run (the vehicle
+    has one stream table for every client): follower 3's samples go stale, its formation breaks,
+    and the run says so instead of passing."""
+    from pymavlink import mavutil
+
+    cfg = yaml.safe_load((CONFIGS / "paper.yaml").read_text())
+    cfg["run"] = {"max_formation_error_m": 0.05, "settle_s": 9.0}
+    path = tmp_path / "gcs.yaml"
+    path.write_text(yaml.safe_dump(cfg))
+    out = tmp_path / "gcs"
+    proc = subprocess.Popen(
+        [*CLI, "run", str(path), "--realtime", "--duration", "14", "--out", str(out), "--quiet"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        start_new_session=True,
+    )
+    _wait_running(out)
+    time.sleep(2.0)
+    port = _vehicle_ports(out)[2]
+    gcs = mavutil.mavlink_connection(f"udpout:127.0.0.1:{port}", source_system=255)
+    msg_id, one_hz_us = mavutil.mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED, 1e6
+    gcs.mav.command_long_send(
+        3, 1, mavutil.mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, 0, msg_id, one_hz_us, 0, 0, 0, 0, 0
+    )
+    gcs.close()
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 3, err
+    named = [ln for ln in err.splitlines() if ln.startswith("swarm-sitl: error: follower 3:")]
+    assert named and "vehicle samples older than a control period" in named[0], err
+    s = json.loads((out / "summary.json").read_text())
+    assert s["inputs"]["3"]["max_sample_age_s"] > 0.5

@@ -1,0 +1,158 @@
+"""A fault plan on a vehicle's MAVLink link, each way apart: a wrapper of the datagrams the
+controller's ``VehicleLink`` sends (uplink: setpoints) and receives (downlink: telemetry).
+
+Each datagram's fate is ``fault_plan.fate`` under the plan's ``mavlink: i`` entries.
+
+- Real time: a lost datagram is not sent (uplink) or not read (downlink); a corrupted one goes on
+  with one byte flipped, for the receiver's CRC check to drop and count; a delayed or duplicated one
+  is held and goes out (or in) at the controller's first wake-up after it is due (it wakes at least
+  once per control period). The plan's window is in run seconds.
+- Lockstep (drop, loss, corrupt only): fates are keyed by the sample's or setpoint's
+  ``time_boot_ms``, so the run is the same every time. A lost setpoint is a period the vehicle flies
+  on what it holds: a clock-only SET_ATTITUDE_TARGET, stamped one period on, goes in its place (a
+  corrupted one is sent too, and dropped by the vehicle). A lost sample is settled
+  (``lost_ms``): the tick carries the sample before it by its age. Only the per-tick traffic is
+  counted, each time once: a setpoint resent after a wall-clock timeout, the vehicle's repeated
+  answer and the start-up traffic meet the same fate uncounted, so the counts are the same every run.
+"""
+
+import heapq
+import itertools
+from collections.abc import Callable
+from typing import Any
+
+from swarm_sitl.bus_faults import EdgeStats
+from swarm_sitl.fault_plan import FaultPlan, fate, mavlink_channel, uniform
+from swarm_sitl.node_clock import RunClock
+
+_LOCAL_POSITION_NED = 32
+_CORRUPT_BYTE = 3
+
+
+def sample_ms(datagram: bytes) -> int | None:
+    """The ``time_boot_ms`` of a datagram whose first frame is LOCAL_POSITION_NED (MAVLink 2), the
+    start of a vehicle's sample; None for any other datagram."""
+    if len(datagram) < 14 or datagram[0] != 0xFD:
+        return None
+    if int.from_bytes(datagram[7:10], "little") != _LOCAL_POSITION_NED:
+        return None
+    return int.from_bytes(datagram[10:14], "little")
+
+
+def _flipped(data: bytes, seed: int, *keys: int) -> bytes:
+    b = bytearray(data)
+    b[int(uniform(seed, *keys, _CORRUPT_BYTE) * len(b))] ^= 0xFF
+    return bytes(b)
+
+
+class MavlinkFaults:
+    def __init__(self, plan: FaultPlan, vehicle: int, clock: RunClock, end_s: float):
+        self.seed = plan.seed
+        self.clock = clock
+        self.end_s = end_s
+        self.rules = {way: plan.on_mavlink(vehicle, way == "up") for way in ("up", "down")}
+        self.channel = {way: mavlink_channel(vehicle, way == "up") for way in ("up", "down")}
+        self.stats = {way: EdgeStats() for way in ("up", "down")}
+        self.lost_ms = -1  #: lockstep: the latest sample time whose datagram the plan lost
+        self._period_ms = round(clock.period_s * 1000)
+        self._held: list[tuple[float, int, str, bytes]] = []  #: real time: (due, order, way, data)
+        self._order = itertools.count()
+        self._counted_ms = {"up": -1, "down": -1}  #: lockstep: the newest time each way counted
+
+    def _stats(self, way: str, key_ms: int | None = None) -> EdgeStats:
+        """Where this datagram is counted: lockstep counts each tick's once, the rest nowhere."""
+        if not self.clock.lockstep:
+            return self.stats[way]
+        if key_ms is None or key_ms <= self._counted_ms[way]:
+            return EdgeStats()
+        self._counted_ms[way] = key_ms
+        return self.stats[way]
+
+    def _fate(self, way: str, key: int, t_s: float) -> Any:
+        return fate(self.seed, self.rules[way], self.channel[way], key, t_s, self.end_s, self.clock.period_s)
+
+    # -- uplink ----------------------------------------------------------------------------------
+    def send(
+        self, frame: bytes, stamp_ms: int, write: Callable[[bytes], None], clock_only: Callable[[int], None]
+    ) -> None:
+        """Send ``frame`` (a setpoint stamped ``stamp_ms``) through ``write`` as the plan says;
+        ``clock_only(ms)`` sends a lockstep clock-only setpoint."""
+        lockstep = self.clock.lockstep
+        key = stamp_ms if lockstep else next(self._order)
+        st = self._stats("up", stamp_ms)
+        st.received += 1
+        f = self._fate("up", key, stamp_ms / 1000 if lockstep else self.clock.now_s())
+        if f.lost or f.corrupt:
+            if f.corrupt:
+                st.corrupt += 1
+                write(_flipped(frame, self.seed, self.channel["up"], key))
+            else:
+                st.lost += 1
+            if lockstep:
+                clock_only(stamp_ms + self._period_ms)
+            return
+        if f.delay_s > 0:
+            st.delayed += 1
+            st.delays_s.append(f.delay_s)
+            self._hold(f.delay_s, "up", frame)
+        else:
+            st.delivered += 1
+            write(frame)
+        if f.duplicate:
+            st.duplicated += 1
+            self._hold(f.delay_s + self.clock.period_s, "up", frame)
+
+    # -- downlink --------------------------------------------------------------------------------
+    def receive(self, data: bytes) -> bytes | None:
+        """The datagram to read now in place of ``data`` (None: none)."""
+        if self.clock.lockstep:
+            ms = sample_ms(data)
+            if ms is None:  # start-up traffic: only the per-tick samples fail in lockstep
+                return data
+            key, t = ms, ms / 1000
+        else:
+            key, t = next(self._order), self.clock.now_s()
+        st = self._stats("down", key)
+        st.received += 1
+        f = self._fate("down", key, t)
+        if f.lost or f.corrupt:
+            if self.clock.lockstep:
+                self.lost_ms = key
+            if f.lost:
+                st.lost += 1
+                return None
+            st.corrupt += 1
+            return _flipped(data, self.seed, self.channel["down"], key)
+        if f.duplicate:
+            st.duplicated += 1
+            self._hold(f.delay_s + self.clock.period_s, "down", data)
+        if f.delay_s > 0:
+            st.delayed += 1
+            st.delays_s.append(f.delay_s)
+            self._hold(f.delay_s, "down", data)
+            return None
+        st.delivered += 1
+        return data
+
+    # -- real time: what was held ----------------------------------------------------------------
+    def _hold(self, delay_s: float, way: str, data: bytes) -> None:
+        heapq.heappush(self._held, (self.clock.now_s() + delay_s, next(self._order), way, data))
+
+    def release(self, write: Callable[[bytes], None]) -> list[bytes]:
+        """Send the held uplink datagrams that are due; return the downlink ones to read."""
+        held = self._held
+        if not held:
+            return []
+        now = self.clock.now_s()
+        out = []
+        while held and held[0][0] <= now:
+            _, _, way, data = heapq.heappop(held)
+            self.stats[way].delivered += 1
+            if way == "up":
+                write(data)
+            else:
+                out.append(data)
+        return out
+
+    def link_stats(self) -> dict[str, dict[str, Any]]:
+        return {way: st.as_dict() for way, st in self.stats.items()}
