@@ -7,8 +7,15 @@
   share of control ticks that are late (skipped, or whose setpoint goes out after the next tick's
   instant) and the distribution of when setpoints go out;
 - one vehicle's plant and attitude loop, CPU per 1 kHz step.
+
+``swarm-sitl bench --against DIR`` instead compares this checkout's lockstep ``run`` with another
+source tree's (for example ``git worktree add /tmp/old REV``), runs alternated, each side's run
+phase as its own CLI reports it.
 """
 
+import os
+import re
+import resource
 import statistics
 import subprocess
 import tempfile
@@ -143,3 +150,57 @@ def run_bench(cfg_path: str, scale_cfg_path: str, repeats: int = 3, realtime_s: 
         f"{short_us:.2f} us in calls of 10 steps as the sim makes them (target: < 10 us)"
     )
     return 0 if np.isfinite(best) else 1
+
+
+_RUN_WALL = re.compile(r"simulated in ([0-9.]+) s wall")
+
+
+def _lockstep_run_wall_s(cfg_path: str, tree: Path, out: Path) -> tuple[float, float]:
+    """The run phase (start signal to last tick) of ``swarm-sitl run CONFIG`` in lockstep, with the
+    packages of source tree ``tree``, as that CLI prints it; and the CPU seconds of every process
+    of that run, start-up included."""
+    cpu0 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    env = child_env()
+    env["PYTHONPATH"] = os.pathsep.join([str(tree), env.get("PYTHONPATH", "")])
+    done = subprocess.run(
+        [*module_argv("swarm_sitl"), "run", cfg_path, "--quiet", "--out", str(out)],
+        capture_output=True,
+        text=True,
+        env=env,
+        cwd=tree,
+    )
+    m = _RUN_WALL.search(done.stdout)
+    if done.returncode != 0 or m is None:
+        last = (done.stderr.strip().splitlines() or [""])[-1]
+        raise RunFailedError(f"run from {tree} exited with code {done.returncode}: {last}")
+    cpu1 = resource.getrusage(resource.RUSAGE_CHILDREN)  # the CLI waited for every process it ran
+    return float(m.group(1)), (cpu1.ru_utime + cpu1.ru_stime) - (cpu0.ru_utime + cpu0.ru_stime)
+
+
+def compare_trees(cfg_path: str, other: Path, pairs: int) -> int:
+    """Lockstep ``run`` of ``cfg_path`` from this checkout and from ``other``, alternated ``pairs``
+    times after one untimed run of each (compiled kernels cached); prints both and their ratio."""
+    here = Path(__file__).resolve().parents[1]
+    other = other.resolve()
+    cfg = Path(cfg_path).resolve()
+    got: dict[Path, list[tuple[float, float]]] = {here: [], other: []}
+    with tempfile.TemporaryDirectory() as tmp:
+        for r in range(pairs + 1):
+            order = (here, other) if r % 2 == 0 else (other, here)
+            for j, tree in enumerate(order):
+                w = _lockstep_run_wall_s(str(cfg), tree, Path(tmp) / f"r{r}_{j}")
+                if r > 0:
+                    got[tree].append(w)
+    print(f"lockstep run of {cfg_path}, {pairs} pairs alternated:")
+    for what, col in (("run phase wall, as each CLI prints it", 0), ("CPU of every process", 1)):
+        new, old = [x[col] for x in got[here]], [x[col] for x in got[other]]
+        ratios = [a / b for a, b in zip(new, old, strict=True)]
+        print(
+            f"  {what}: this checkout best {min(new):.2f} s, median {statistics.median(new):.2f} s; "
+            f"{other} best {min(old):.2f} s, median {statistics.median(old):.2f} s"
+        )
+        print(
+            f"    this / other: median of pair ratios {statistics.median(ratios):.3f}, ratio of bests "
+            f"{min(new) / min(old):.3f} (pairs: {', '.join(f'{x:.3f}' for x in ratios)})"
+        )
+    return 0

@@ -296,7 +296,13 @@ def cmd_bench(args: argparse.Namespace) -> int:
 
     if args.repeats < 1 or not args.realtime_s > 0:
         raise CliError("--repeats must be >= 1 and --realtime-s > 0")
+    if args.against and not (Path(args.against) / "swarm_sitl" / "__init__.py").is_file():
+        raise CliError(f"--against {args.against}: not a swarm-sitl source tree (no swarm_sitl/__init__.py)")
     try:
+        if args.against:
+            from swarm_sitl.bench import compare_trees
+
+            return compare_trees(args.config, Path(args.against), args.repeats)
         return run_bench(args.config, args.scale_config, args.repeats, args.realtime_s)
     except RunFailedError as e:
         print(f"swarm-sitl: error: bench: {e}", file=sys.stderr)
@@ -370,6 +376,11 @@ def build_parser() -> argparse.ArgumentParser:
         "--scale-config", default=str(Path("configs") / "swarm16.yaml"), help="real-time scale run"
     )
     b.add_argument("--realtime-s", type=float, default=20.0, help="duration of the real-time scale run [s]")
+    b.add_argument(
+        "--against",
+        metavar="DIR",
+        help="only compare the lockstep run with another source tree's, alternated --repeats times",
+    )
     b.set_defaults(func=cmd_bench)
     return p
 

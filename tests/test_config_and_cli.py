@@ -84,6 +84,8 @@ def test_unreadable_and_malformed_files(tmp_path, capsys):
     assert "one connection string per follower (4, in id order), got 1" in capsys.readouterr().err
     assert main(["vehicles", paper, "--base-port", "70000"]) == 2
     assert "--base-port" in capsys.readouterr().err
+    assert main(["bench", "--against", str(tmp_path)]) == 2
+    assert "not a swarm-sitl source tree" in capsys.readouterr().err
 
 
 def test_check_passes_paper_and_names_failures_on_ring(capsys):
