@@ -122,7 +122,8 @@ class FaultyBus:
         if st is None:  # not one of our in-edges (the wrapped bus subscribes to no other)
             return
         self._arrived[src] = max(self._arrived.get(src, -1), m.step)
-        if not self.inner.counts(m.step):
+        counted = self.inner.counts(m.step)
+        if not counted:
             st = EdgeStats()  # it meets its fate, uncounted (``ZenohNodeBus.counted_steps``)
         st.received += 1
         clock = self.clock
@@ -140,7 +141,7 @@ class FaultyBus:
                 m = decode_estimate(bytes(data))
             except PayloadError:
                 st.corrupt += 1
-                self.inner.dropped += 1
+                self.inner.dropped += counted
                 return
         due: float
         if clock.lockstep:

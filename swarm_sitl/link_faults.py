@@ -13,7 +13,8 @@ Each datagram's fate is ``fault_plan.fate`` under the plan's ``mavlink: i`` entr
   corrupted one is sent too, and dropped by the vehicle). A lost sample is settled
   (``lost_ms``): the tick carries the sample before it by its age. Only the per-tick traffic is
   counted, each time once: a setpoint resent after a wall-clock timeout, the vehicle's repeated
-  answer and the start-up traffic meet the same fate uncounted, so the counts are the same every run.
+  answer and the start-up traffic meet the same fate uncounted (a corrupted repeat is dropped, not
+  passed on again), so the counts, the receivers' included, are the same every run.
 """
 
 import heapq
@@ -59,12 +60,14 @@ class MavlinkFaults:
         self._order = itertools.count()
         self._counted_ms = {"up": -1, "down": -1}  #: lockstep: the newest time each way counted
 
-    def _stats(self, way: str, key_ms: int | None = None) -> EdgeStats:
-        """Where this datagram is counted: lockstep counts each tick's once, the rest nowhere."""
+    def _stats(self, way: str, key_ms: int) -> EdgeStats | None:
+        """Where this datagram is counted; None: lockstep, a repeat of a tick's datagram already
+        counted (it meets the same fate, but a corrupted repeat is not passed on again: the
+        receiver's count of bad frames must not depend on how many repeats the load caused)."""
         if not self.clock.lockstep:
             return self.stats[way]
-        if key_ms is None or key_ms <= self._counted_ms[way]:
-            return EdgeStats()
+        if key_ms <= self._counted_ms[way]:
+            return None
         self._counted_ms[way] = key_ms
         return self.stats[way]
 
@@ -79,11 +82,12 @@ class MavlinkFaults:
         ``clock_only(ms)`` sends a lockstep clock-only setpoint."""
         lockstep = self.clock.lockstep
         key = stamp_ms if lockstep else next(self._order)
-        st = self._stats("up", stamp_ms)
+        counted = self._stats("up", stamp_ms)
+        st = counted or EdgeStats()
         st.received += 1
         f = self._fate("up", key, stamp_ms / 1000 if lockstep else self.clock.now_s())
         if f.lost or f.corrupt:
-            if f.corrupt:
+            if f.corrupt and counted:
                 st.corrupt += 1
                 write(_flipped(frame, self.seed, self.channel["up"], key))
             else:
@@ -112,13 +116,14 @@ class MavlinkFaults:
             key, t = ms, ms / 1000
         else:
             key, t = next(self._order), self.clock.now_s()
-        st = self._stats("down", key)
+        counted = self._stats("down", key)
+        st = counted or EdgeStats()
         st.received += 1
         f = self._fate("down", key, t)
         if f.lost or f.corrupt:
             if self.clock.lockstep:
                 self.lost_ms = key
-            if f.lost:
+            if f.lost or not counted:
                 st.lost += 1
                 return None
             st.corrupt += 1

@@ -102,6 +102,10 @@ def test_only_the_steps_a_node_waits_for_are_counted_and_the_rest_still_meet_the
     assert st_.received == 200 and st_.lost + st_.delivered == 200
     delivered = {s for (src, s) in inner.table if src == 1}
     assert any(s < 100 for s in delivered) and len(delivered) > st_.delivered  # passed, uncounted
+    bus, inner, clock = _bus({"edge": [1, 4], "corrupt": 1.0})
+    inner.counted_steps = range(100, 300)
+    _lockstep_ticks(bus, inner, clock, 301)
+    assert bus.stats[1].corrupt == inner.dropped == 200  # a payload dropped is counted with its step
 
 
 def test_a_delay_holds_an_estimate_whole_ticks_in_lockstep():
@@ -264,6 +268,18 @@ def test_a_lockstep_mavlink_loss_sends_a_clock_only_setpoint_and_settles_a_lost_
     lf.send(b"setpoint", 9990, sent.append, clock_only.append)
     assert (up.as_dict(), lf.stats["down"].as_dict()) == counts
     assert len(sent) + len(clock_only) == n + 1 + up.lost
+
+
+def test_a_corrupted_sample_repeated_in_lockstep_reaches_the_receiver_once():
+    from swarm_sitl.link_faults import MavlinkFaults
+
+    lf = MavlinkFaults(
+        FaultPlan(plan=[{"mavlink": 2, "direction": "down", "corrupt": 1.0}]), 2, RunClock(True, DT), 60.0
+    )
+    first = lf.receive(_lpos_datagram(100))
+    assert first is not None and first != _lpos_datagram(100) and lf.lost_ms == 100
+    assert lf.receive(_lpos_datagram(100)) is None and lf.lost_ms == 100  # the vehicle's repeat
+    assert lf.stats["down"].corrupt == lf.stats["down"].received == 1
 
 
 def test_a_real_time_mavlink_delay_holds_datagrams_until_due():
