@@ -155,7 +155,8 @@ def test_a_frozen_controller_puts_its_vehicle_in_failsafe_and_rejoins(tmp_path):
     ev = [json.loads(x) for x in (out / "events.jsonl").read_text().splitlines()]
     frozen = [e["t_s"] for e in ev if e["kind"] == "process_frozen"]
     thawed = [e["t_s"] for e in ev if e["kind"] == "process_thawed"]
-    fs = [(e["kind"], e["t_s"]) for e in ev if e.get("vehicle") == 3]
+    # during the run (once its controller has finished, a vehicle left running fails safe too)
+    fs = [(e["kind"], e["t_s"]) for e in ev if e.get("vehicle") == 3 and e["t_s"] < 17.5]
     assert len(frozen) == len(thawed) == 1 and 1.9 < thawed[0] - frozen[0] < 2.3
     # its vehicle noticed the silence after its setpoint timeout, and took the stream back
     assert [k for k, _ in fs] == ["failsafe_enter", "failsafe_exit"], fs
