@@ -1,9 +1,37 @@
-"""The one place that decides how numerical kernels are compiled."""
+"""The one place that decides how numerical kernels are compiled.
 
+Kernels are cached on disk, in a directory named after the sources of every module that defines
+one (``_cache_dir``): numba checks a cached kernel against its own file only, so a kernel that
+calls one from another file (``tick_frames.read_setpoint`` calls ``wire_format``'s) kept the old
+callee after that file changed, and an upgraded install would have flown stale code.
+"""
+
+import hashlib
+import os
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
+import numba
 from numba import njit as _njit
+
+_PACKAGES = ("sim_vehicles", "swarm_sitl")
+
+
+def _cache_dir() -> Path:
+    """``$NUMBA_CACHE_DIR`` (default ``~/.cache/swarm-sitl/numba``) / a hash of the kernel sources."""
+    root = Path(__file__).resolve().parent.parent
+    h = hashlib.sha256(numba.__version__.encode())
+    for package in _PACKAGES:
+        for path in sorted((root / package).glob("*.py")):
+            text = path.read_bytes()
+            if b"@kernel" in text:
+                h.update(path.name.encode() + b"\0" + text)
+    base = os.environ.get("NUMBA_CACHE_DIR") or str(Path.home() / ".cache" / "swarm-sitl" / "numba")
+    return Path(base) / h.hexdigest()[:16]
+
+
+numba.config.CACHE_DIR = str(_cache_dir())  # type: ignore[attr-defined]
 
 
 def kernel(fn: Callable[..., Any]) -> Any:
