@@ -6,8 +6,11 @@ SIGINT closes the .tlog and the truth log and exits 0.
 """
 
 import argparse
+import dataclasses
+import json
 import signal
 import sys
+from pathlib import Path
 
 import numpy as np
 
@@ -16,7 +19,8 @@ from sim_vehicles.autopilot import Autopilot
 from sim_vehicles.failsafe import ACTIONS
 from sim_vehicles.lifeline import batch_scheduling, hold_on, profiled, settle_heap
 from sim_vehicles.mavlink_endpoint import VehicleEndpoint
-from sim_vehicles.params import AttitudeGains, VehicleParamError, VehicleParams
+from sim_vehicles.mavlink_signing import read_key
+from sim_vehicles.params import MAX_RATE_DEFAULT_RPS, AttitudeGains, VehicleParamError, VehicleParams
 from sim_vehicles.rigid_body import make_state
 from sim_vehicles.wire_format import command_roundtrip
 
@@ -61,6 +65,14 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--mass-kg", type=float, default=0.85)
     p.add_argument("--inertia-kgm2", type=float, nargs=3, default=[4.856e-2, 4.856e-2, 8.801e-2])
     p.add_argument("--max-thrust-n", type=float, default=25.0)
+    p.add_argument(
+        "--max-rate-rps",
+        type=float,
+        nargs=3,
+        default=[MAX_RATE_DEFAULT_RPS] * 3,
+        metavar=("ROLL", "PITCH", "YAW"),
+        help="commanded body rates are clipped to +- these [rad/s] (PX4's MC_*RATE_MAX)",
+    )
     p.add_argument("--l-q", type=float, default=16.0)
     p.add_argument("--k-q", type=float, default=16.0)
     p.add_argument("--setpoint-timeout-s", type=float, default=0.5)
@@ -71,6 +83,12 @@ def main(argv: list[str] | None = None) -> int:
         help="what the vehicle flies when its setpoints stop (PX4's COM_OBL_ACT): hold position or land",
     )
     p.add_argument("--events", help="write failsafe events (JSON lines) to this file")
+    p.add_argument(
+        "--signing-key-file",
+        help="MAVLink 2 signing: a file whose first line is the passphrase (key = its SHA-256, as "
+        "MAVProxy and QGroundControl derive it); unsigned and wrongly signed messages are refused",
+    )
+    p.add_argument("--stats", help="write what the vehicle received and refused (JSON) to this file at exit")
     p.add_argument("--attitude-hz", type=float, default=1000.0)
     p.add_argument("--tlog", help="write the MAVLink traffic to this .tlog")
     p.add_argument("--truth", help="write the true state at every LOCAL_POSITION_NED to this row log")
@@ -97,7 +115,10 @@ def main(argv: list[str] | None = None) -> int:
     if a.lockstep_period_s is not None:
         batch_scheduling()
     try:
-        params = VehicleParams(a.mass_kg, tuple(a.inertia_kgm2), a.max_thrust_n, a.gravity_mps2)
+        key = read_key(a.signing_key_file) if a.signing_key_file else None
+        params = VehicleParams(
+            a.mass_kg, tuple(a.inertia_kgm2), a.max_thrust_n, a.gravity_mps2, tuple(a.max_rate_rps)
+        )
         gains = AttitudeGains(a.l_q, a.k_q)
         ep = VehicleEndpoint(
             Autopilot(params, gains, make_state(a.position, a.velocity, q), 1.0 / a.attitude_hz),
@@ -109,6 +130,7 @@ def main(argv: list[str] | None = None) -> int:
             truth_path=a.truth,
             failsafe_action=ACTIONS[a.failsafe_action],
             events_path=a.events,
+            signing_key=key,
         )
     except (VehicleParamError, ValueError) as e:
         print(f"sim_vehicles: error: {e}", file=sys.stderr)
@@ -133,6 +155,8 @@ def main(argv: list[str] | None = None) -> int:
         pass
     finally:
         ep.close()
+        if a.stats:
+            Path(a.stats).write_text(json.dumps(dataclasses.asdict(ep.stats), indent=1) + "\n")
     return 0
 
 

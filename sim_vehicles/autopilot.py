@@ -7,7 +7,8 @@ Sampled-data semantics (the vehicle side):
   integrated over the step with RK4. Time is ``k * dt_s``.
 - Between two commands the vehicle holds the last command: attitude ``q_c``, body rates
   ``omega_c``, their derivative ``omegadot_c`` (zero when the sender cannot give it, as over
-  MAVLink) and thrust. Thrust is clipped to ``[0, max_thrust_N]``.
+  MAVLink) and thrust. Thrust is clipped to ``[0, max_thrust_N]``, body rates to
+  ``+-max_rate_rps`` (PX4's MC_*RATE_MAX).
 - ``q_c`` and ``-q_c`` are the same attitude; the loop takes the one in the hemisphere of the current
   attitude so it never unwinds a full turn (identical to the paper's law whenever the error scalar
   part is non-negative, which is the paper's operating region).
@@ -54,12 +55,16 @@ def advance_kernel(
     l_q,
     k_q,
     max_thrust_N,
+    max_rate,
     dt_s,
     n_steps,
 ):
-    """Advance the state ``n_steps`` attitude-loop steps under one held command."""
+    """Advance the state ``n_steps`` attitude-loop steps under one held command (thrust clipped to
+    ``0..max_thrust_N``, body rates to ``+-max_rate``)."""
     T = min(max(thrust_N, 0.0), max_thrust_N)
     qc_neg = -q_c
+    if np.any(np.abs(omega_c) > max_rate):
+        omega_c = np.minimum(np.maximum(omega_c, -max_rate), max_rate)
     for _ in range(n_steps):
         q = x[6:10]
         dot = q[0] * q_c[0] + q[1] * q_c[1] + q[2] * q_c[2] + q[3] * q_c[3]
@@ -93,6 +98,8 @@ class Autopilot:
         self.state[QUAT] /= np.linalg.norm(self.state[QUAT])
         self.step_index = 0
         self._inertia = params.inertia
+        #: the body-rate limit in force [rad/s], from ``params.max_rate_rps`` (a PARAM_SET may change it)
+        self.max_rate_rps = np.array(params.max_rate_rps, dtype=float)
         self.set_command(AttitudeCommand.hover(params, self.state[QUAT].copy()))
 
     @property
@@ -125,6 +132,7 @@ class Autopilot:
             self.gains.l_q,
             self.gains.k_q,
             p.max_thrust_N,
+            self.max_rate_rps,
             self.dt_s,
             int(n_steps),
         )

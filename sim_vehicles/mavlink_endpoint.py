@@ -17,10 +17,13 @@ It behaves as a MAVLink tool expects of an autopilot (the PX4 SITL habits):
   (``wire_format``), thrust 0..1 of MAX_THRUST_N.
 - COMMAND_LONG MAV_CMD_COMPONENT_ARM_DISARM and MAV_CMD_DO_SET_MODE (param2 = custom mode), each
   answered with COMMAND_ACK.
-- Parameters MASS_KG, INERTIA_X/Y/Z, MAX_THRUST_N, SP_TIMEOUT_S over the parameter protocol.
+- Parameters MASS_KG, INERTIA_X/Y/Z, MAX_THRUST_N, SP_TIMEOUT_S, COM_OBL_ACT and MC_ROLLRATE_MAX,
+  MC_PITCHRATE_MAX, MC_YAWRATE_MAX [deg/s] over the parameter protocol; PARAM_SET changes those
+  that may change in flight (``SETTABLE``).
 - MAV_CMD_SET_MESSAGE_INTERVAL (param1 message id, param2 interval [us]; -1 stops, 0 restores the
   default) and MAV_CMD_REQUEST_MESSAGE (param1 message id: sent once, now) for the telemetry above.
-- Every message in and out written to a ``.tlog`` (8-byte big-endian microseconds, then the frame).
+- Every message in and out written to a ``.tlog`` (8-byte big-endian microseconds, then the frame;
+  on a signed link the frame within its signature, readable without the key).
 - Optionally the true state (float64, ENU/FLU) at every LOCAL_POSITION_NED instant, written to a
   ``row_log`` file: what a bench records and a real autopilot cannot give.
 
@@ -41,7 +44,27 @@ Two clocks:
   the wall clock in both modes (it says the link is alive), and a new peer gets one at once.
 
 While disarmed the vehicle is held where it is (as if on a stand); physics runs once armed.
-Bad bytes are dropped and counted (``stats``); nothing a peer sends stops the vehicle.
+
+Hostile input (``stats`` counts each kind; nothing anyone sends stops the vehicle or moves it):
+
+- One peer: telemetry goes to the first address that sent it a well-formed message addressed to
+  it (its controller), and what
+  any other address sends is refused and counted (``rx_refused``) until that peer has been silent
+  for ``PEER_SILENT_S`` of wall time (its controller died: a new one may take the link). Under
+  MAVLink 2 signing (``mavlink_signing``) only correctly signed datagrams are heard, from anyone
+  holding the key (their commands are taken); the link moves at once to one that speaks as the
+  vehicle's companion computer (a restarted controller), and telemetry stays with the peer.
+- Bytes that are not MAVLink, cut short or with a bad CRC: ``rx_bad``. A message for another
+  system or component: ``rx_refused``. A message the vehicle does not handle: ``rx_unhandled``.
+- Values it refuses (``rx_invalid``; the vehicle keeps its last valid setpoint): a setpoint whose
+  quaternion is not a rotation, with a non-finite rate or a thrust outside 0..1; a command whose
+  parameters are not finite or not what the command takes (COMMAND_ACK ``MAV_RESULT_DENIED``); a
+  PARAM_SET outside the parameter's range (answered with the value it keeps).
+- Commanded body rates are clipped to the vehicle's MC_ROLLRATE_MAX, MC_PITCHRATE_MAX and
+  MC_YAWRATE_MAX (``VehicleParams.max_rate_rps``), so the plant's state stays finite.
+- A disarm while armed is refused unless forced (param2 = 21196), as PX4 refuses one in flight.
+- A handler that fails on a message it accepted is a bug: counted in ``handler_errors`` with its
+  last error, never a stopped vehicle.
 """
 
 import math
@@ -62,6 +85,7 @@ from sim_vehicles import tick_frames, udp_arrival
 from sim_vehicles.autopilot import AttitudeCommand, Autopilot
 from sim_vehicles.event_log import EventLog
 from sim_vehicles.failsafe import ACTION_HOLD, FAILSAFE_PERIOD_S, failsafe_command, hold_at
+from sim_vehicles.mavlink_signing import Signer, Verifier
 from sim_vehicles.quaternion import rotation_matrix
 from sim_vehicles.rigid_body import QUAT, RATE
 from sim_vehicles.row_log import RowLog
@@ -76,6 +100,17 @@ IGNORE_THROTTLE = 0b0100_0000
 IGNORE_ATTITUDE = 0b1000_0000
 IGNORE_ALL = IGNORE_RATES | IGNORE_THROTTLE | IGNORE_ATTITUDE  #: a lockstep clock-only setpoint
 MAX_CLOCK_STEP_S = 3600.0  #: the furthest a clock-only setpoint may move a lockstep vehicle [s]
+COMPONENT = mav.MAV_COMP_ID_AUTOPILOT1
+COMPANION = mav.MAV_COMP_ID_ONBOARD_COMPUTER  #: how the vehicle's controller speaks (its system id)
+RATE_MAX_PARAMS = ("MC_ROLLRATE_MAX", "MC_PITCHRATE_MAX", "MC_YAWRATE_MAX")  #: [deg/s], PX4's names
+#: parameters a PARAM_SET may change, and their ranges (the others are what the vehicle is)
+SETTABLE = {
+    "SP_TIMEOUT_S": (0.05, 60.0),
+    "COM_OBL_ACT": (0.0, 1.0),  # failsafe.ACTION_LAND, failsafe.ACTION_HOLD
+    **dict.fromkeys(RATE_MAX_PARAMS, (1.0, 1800.0)),  # [deg/s], as PX4 gives them
+}
+PEER_SILENT_S = 3.0  #: wall time a peer must be silent before another address may take the link [s]
+FORCE_DISARM = 21196  #: MAV_CMD_COMPONENT_ARM_DISARM param2 that forces a disarm (PX4's magic number)
 
 
 @dataclass(frozen=True)
@@ -129,8 +164,15 @@ _SETPOINT = frames.SET_ATTITUDE_TARGET
 
 @dataclass
 class EndpointStats:
+    """What the vehicle received and what it did with it (the module doc says what each counts)."""
+
     rx_messages: int = 0
-    rx_bad: int = 0  #: frames that failed to parse or were refused
+    rx_bad: int = 0  #: bytes that are not a MAVLink frame, or fail its CRC or signature
+    rx_refused: int = 0  #: from an address that is not the peer, unsigned, or for another system
+    rx_invalid: int = 0  #: well-formed, with values the vehicle refuses
+    rx_unhandled: int = 0  #: messages the vehicle does not handle
+    handler_errors: int = 0  #: a handler failed on an accepted message (a bug)
+    last_handler_error: str = ""
     tx_messages: int = 0
     setpoints: int = 0
     lockstep_resends: int = 0  #: retransmitted setpoints answered with the current sample
@@ -158,6 +200,7 @@ class VehicleEndpoint:
     truth_path: Path | None = None  #: write the true state at every LOCAL_POSITION_NED instant
     failsafe_action: int = ACTION_HOLD  #: ``failsafe.ACTION_*`` (parameter COM_OBL_ACT)
     events_path: Path | None = None  #: write failsafe events here (``event_log``)
+    signing_key: bytes | None = None  #: MAVLink 2 signing on this link (``mavlink_signing``)
 
     def __post_init__(self) -> None:
         self._lockstep_steps = 0
@@ -182,6 +225,11 @@ class VehicleEndpoint:
         self._parser = mav.MAVLink(None, srcSystem=255, srcComponent=0)
         self._parser.robust_parsing = True
         self.peer: tuple[str, int] | None = None
+        self._signer = Signer(self.signing_key) if self.signing_key else None
+        self._verifier = Verifier(self.signing_key) if self.signing_key else None
+        self._peer_heard_wall = -math.inf  #: when the peer last sent [s; time.monotonic]
+        self._accepted = 0  #: well-formed messages addressed to this vehicle, from anyone heard
+        self._accepted_from = (0, 0)  #: (system, component) of the last of them
         self.armed = False
         self.mode = MODE_HOLD
         self.stats = EndpointStats()
@@ -216,6 +264,7 @@ class VehicleEndpoint:
             "MAX_THRUST_N": p.max_thrust_N,
             "SP_TIMEOUT_S": self.setpoint_timeout_s,
             "COM_OBL_ACT": float(self.failsafe_action),
+            **{name: math.degrees(w) for name, w in zip(RATE_MAX_PARAMS, p.max_rate_rps, strict=True)},
         }
         self.events = EventLog(self.events_path, f"vehicle_{self.system_id}")
         self._hold = hold_at(self.autopilot.state, 0.0)
@@ -268,6 +317,8 @@ class VehicleEndpoint:
             self._tlog.write(b"".join([stamp + frame for frame in frames]))
         if self.peer is not None:
             self.stats.tx_messages += len(frames)
+            if self._signer is not None:
+                frames = [self._signer.seal(frame) for frame in frames]
             packet = b""
             for frame in frames:
                 if len(packet) + len(frame) > MAX_DATAGRAM:
@@ -275,7 +326,7 @@ class VehicleEndpoint:
                     packet = b""
                 packet += frame
             self.sock.sendto(packet, self.peer)
-        frames.clear()
+        self._sink.frames.clear()
 
     def close(self) -> None:
         self.sock.close()
@@ -317,12 +368,54 @@ class VehicleEndpoint:
                 at_arrival(arrival)
             self._datagram(data, addr)
 
+    def _may_speak(self, addr: Any) -> bool:
+        """Whether a datagram from ``addr`` is heard: from the peer, or from anyone while there is
+        none or it has been silent for ``PEER_SILENT_S``."""
+        if addr == self.peer or time.monotonic() - self._peer_heard_wall > PEER_SILENT_S:
+            return True
+        self.stats.rx_refused += 1
+        return False
+
+    def _heard(self, addr: Any, signed: bool) -> None:
+        """``addr`` sent a well-formed message addressed to the vehicle. The peer it is, or becomes
+        (with a heartbeat) if there is none or it has been silent ``PEER_SILENT_S``; on a signed
+        link also if it speaks as the vehicle's companion computer (a restarted controller). Any
+        other signed sender is heard, and its commands taken, but the telemetry stays with the peer."""
+        now = time.monotonic()
+        if addr != self.peer:
+            companion = self._accepted_from == (self.system_id, COMPANION)
+            if now - self._peer_heard_wall <= PEER_SILENT_S and not (signed and companion):
+                return
+            self.peer = addr
+            self.send_heartbeat()
+        self._peer_heard_wall = now
+
     def _datagram(self, data: bytes, addr: Any) -> None:
         """Handle one datagram from ``addr`` (what it makes the vehicle send waits for ``flush``)."""
-        new_peer = addr != self.peer
-        self.peer = addr
-        if new_peer:
-            self.send_heartbeat()
+        if self._verifier is not None:  # signed: whoever holds the key may speak
+            v = self._verifier
+            bad = v.bad
+            opened = v.open(data)
+            if opened is None:
+                if v.bad > bad:
+                    self.stats.rx_bad += 1
+                else:  # unsigned, or a replay
+                    self.stats.rx_refused += 1
+                return
+            data = opened
+        elif not self._may_speak(addr):
+            return
+        if not data:  # an empty datagram is no frame
+            self.stats.rx_bad += 1
+            return
+        accepted = self._accepted
+        try:
+            self._frames(data)
+        finally:
+            if self._accepted > accepted:
+                self._heard(addr, self._verifier is not None)
+
+    def _frames(self, data: bytes) -> None:
         plain = self._parser.signing.secret_key is None
         if plain:
             r = tick_frames.read_setpoint(data, _SETPOINT.spec, self.autopilot.params.max_thrust_N)
@@ -337,7 +430,11 @@ class VehicleEndpoint:
                     r[tick_frames.SP_COMMAND],
                 )
                 if self._for_me(sp):
+                    self._accepted += 1
+                    self._accepted_from = (int(r[tick_frames.SP_SYSID]), int(r[tick_frames.SP_COMPID]))
                     self._on_setpoint(sp)
+                else:
+                    self.stats.rx_refused += 1
                 return
         fast = frames.read_datagram(data, {}) if plain else None
         if fast is not None:
@@ -349,30 +446,47 @@ class VehicleEndpoint:
                 except Exception:  # pymavlink's own errors and struct errors: drop, count
                     self.stats.rx_bad += 1
                     continue
-                self._handle(m)
+                self._handle_safely(m)
             return
         try:
             msgs = self._parser.parse_buffer(data) or []
         except Exception:  # pymavlink raises its own and struct errors on garbage: drop, count
+            msgs = None
+        if msgs is None or self._parser.buf_len():  # garbage, or a frame cut short by its datagram
             self.stats.rx_bad += 1
-            return
+            frames.reset_parser(self._parser)  # a datagram ends every frame in it: nothing carries over
+            if msgs is None:
+                return
         for m in msgs:
             self._log(m.get_msgbuf())
             self.stats.rx_messages += 1
             if m.get_type() == "BAD_DATA":
                 self.stats.rx_bad += 1
                 continue
-            self._handle(m)
+            self._handle_safely(m)
 
     def _for_me(self, m: Any) -> bool:
-        return m.target_system in (0, self.system_id) and m.target_component in (
-            0,
-            mav.MAV_COMP_ID_AUTOPILOT1,
-        )
+        return m.target_system in (0, self.system_id) and m.target_component in (0, COMPONENT)
+
+    def _handle_safely(self, m: Any) -> None:
+        """``_handle``, counting a message addressed elsewhere, and a handler's failure (a bug the
+        message found: counted and kept in ``stats``, the vehicle flies on)."""
+        target = getattr(m, "target_system", None)
+        component = getattr(m, "target_component", 0)
+        if target is not None and (target not in (0, self.system_id) or component not in (0, COMPONENT)):
+            self.stats.rx_refused += 1
+            return
+        self._accepted += 1
+        self._accepted_from = (m.get_srcSystem(), m.get_srcComponent())
+        try:
+            self._handle(m)
+        except Exception as e:
+            self.stats.handler_errors += 1
+            self.stats.last_handler_error = f"{m.get_type()}: {type(e).__name__}: {e}"
 
     def _handle(self, m: Any) -> None:
         t = m.get_type()
-        if t == "SET_ATTITUDE_TARGET" and self._for_me(m):
+        if t == "SET_ATTITUDE_TARGET":
             fields = np.array(
                 [*m.q, m.body_roll_rate, m.body_pitch_rate, m.body_yaw_rate, m.thrust], dtype=float
             )
@@ -380,12 +494,14 @@ class VehicleEndpoint:
             self._on_setpoint(
                 _Setpoint(m.time_boot_ms, m.target_system, m.target_component, m.type_mask, decoded)
             )
-        elif t == "COMMAND_LONG" and self._for_me(m):
+        elif t == "COMMAND_LONG":
             self._on_command(m)
-        elif t == "PARAM_REQUEST_LIST" and self._for_me(m):
+        elif t == "PARAM_REQUEST_LIST":
             for i, name in enumerate(self.params):
                 self._send_param(name, i)
-        elif t == "PARAM_REQUEST_READ" and self._for_me(m):
+        elif t == "PARAM_SET":
+            self._on_param_set(m)
+        elif t == "PARAM_REQUEST_READ":
             names = list(self.params)
             name = (
                 m.param_id
@@ -394,6 +510,32 @@ class VehicleEndpoint:
             )
             if name in self.params:
                 self._send_param(name, names.index(name))
+        elif t != "HEARTBEAT":  # a peer's heartbeat needs no answer
+            self.stats.rx_unhandled += 1
+
+    def _on_param_set(self, m: Any) -> None:
+        """Set a parameter that may change in flight (``SETTABLE``, within its range); anything else
+        is refused and counted. Answered with PARAM_VALUE of what the vehicle keeps, as PX4 does."""
+        name = m.param_id
+        if name not in self.params:
+            self.stats.rx_invalid += 1
+            return
+        lo, hi = SETTABLE.get(name, (math.nan, math.nan))
+        value = float(m.param_value)
+        if lo <= value <= hi:
+            self.params[name] = value
+            self._apply_param(name, value)
+        else:
+            self.stats.rx_invalid += 1
+        self._send_param(name, list(self.params).index(name))
+
+    def _apply_param(self, name: str, value: float) -> None:
+        if name == "SP_TIMEOUT_S":
+            self.setpoint_timeout_s = value
+        elif name == "COM_OBL_ACT":
+            self.failsafe_action = round(value)
+        elif name in RATE_MAX_PARAMS:
+            self.autopilot.max_rate_rps[RATE_MAX_PARAMS.index(name)] = math.radians(value)
 
     def _send_param(self, name: str, index: int) -> None:
         self._send(
@@ -403,28 +545,51 @@ class VehicleEndpoint:
         )
 
     def _on_command(self, m: Any) -> None:
+        cmd = m.command
+        params = (m.param1, m.param2, m.param3, m.param4, m.param5, m.param6, m.param7)
         result = mav.MAV_RESULT_ACCEPTED
-        if m.command == mav.MAV_CMD_COMPONENT_ARM_DISARM:
-            self.armed = m.param1 >= 0.5
-        elif m.command == mav.MAV_CMD_DO_SET_MODE and int(m.param2) in (MODE_HOLD, MODE_OFFBOARD):
+        if cmd not in (
+            mav.MAV_CMD_COMPONENT_ARM_DISARM,
+            mav.MAV_CMD_DO_SET_MODE,
+            mav.MAV_CMD_SET_MESSAGE_INTERVAL,
+            mav.MAV_CMD_REQUEST_MESSAGE,
+        ):
+            self.stats.rx_unhandled += 1
+            self._ack(cmd, mav.MAV_RESULT_UNSUPPORTED)
+            return
+        if not all(map(math.isfinite, params)):  # NaN is "unused" in MAVLink; none of ours is optional
+            self.stats.rx_invalid += 1
+            self._ack(cmd, mav.MAV_RESULT_DENIED)
+            return
+        p1, p2 = params[0], params[1]
+        if cmd == mav.MAV_CMD_COMPONENT_ARM_DISARM:
+            arm = p1 >= 0.5
+            if self.armed and not arm and round(p2) != FORCE_DISARM:
+                result = mav.MAV_RESULT_DENIED  # PX4 refuses to disarm in flight unless forced
+            else:
+                self.armed = arm
+        elif cmd == mav.MAV_CMD_DO_SET_MODE and p2 in (MODE_HOLD, MODE_OFFBOARD):
             if self.mode == MODE_FAILSAFE:
                 self._event("failsafe_exit", vehicle=self.system_id)
-            self.mode = int(m.param2)
+            self.mode = int(p2)
             self._last_setpoint_s = self.autopilot.time_s if self.mode == MODE_OFFBOARD else -math.inf
-        elif m.command == mav.MAV_CMD_SET_MESSAGE_INTERVAL and int(m.param1) in self._rate_hz:
-            msg_id, us = int(m.param1), float(m.param2)
+        elif cmd == mav.MAV_CMD_SET_MESSAGE_INTERVAL and p1 in self._rate_hz:
+            msg_id, us = int(p1), p2
             self._rate_hz[msg_id] = (
                 self._defaults[msg_id] if us == 0 else (0.0 if us < 0 else 1e6 / max(us, 1.0))
             )
             self._next_send[msg_id] = 0.0
             self._next_any_s = 0.0
-        elif m.command == mav.MAV_CMD_REQUEST_MESSAGE and int(m.param1) in self._senders:
-            self._ack(m.command, result)  # the ack first, then the message, as PX4 does
-            self._senders[int(m.param1)](self.time_boot_ms)
+        elif cmd == mav.MAV_CMD_REQUEST_MESSAGE and p1 in self._senders:
+            self._ack(cmd, result)  # the ack first, then the message, as PX4 does
+            self._senders[int(p1)](self.time_boot_ms)
             return
-        else:
-            result = mav.MAV_RESULT_UNSUPPORTED
-        self._ack(m.command, result)
+        else:  # a mode, or a message, this vehicle does not have
+            self.stats.rx_invalid += 1
+            result = mav.MAV_RESULT_DENIED
+        if result != mav.MAV_RESULT_ACCEPTED and cmd == mav.MAV_CMD_COMPONENT_ARM_DISARM:
+            self.stats.rx_invalid += 1
+        self._ack(cmd, result)
 
     def _ack(self, command: int, result: int) -> None:
         self._send(self.mav.command_ack_encode(command, result))

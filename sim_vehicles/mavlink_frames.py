@@ -123,6 +123,11 @@ HIGHRES_IMU = Layout(mav.MAVLink_highres_imu_message)
 SET_ATTITUDE_TARGET = Layout(mav.MAVLink_set_attitude_target_message)
 
 
+def crc_with_extra(body: bytes | bytearray, crc_extra: int) -> int:
+    """MAVLink's X.25 CRC of ``body`` (a frame from its length byte up to its CRC) and a CRC extra."""
+    return int(crc16.mcrf4xx(bytes([crc_extra]), crc16.mcrf4xx(bytes(body), 0xFFFF)))
+
+
 def _crc(body: bytes, crc_extra: bytes) -> int:
     """MAVLink's X.25 CRC (CRC-16/MCRF4XX) of ``body`` and the message's CRC extra: the C routine
     pymavlink itself uses, called without its per-call wrapper object."""
@@ -161,6 +166,16 @@ def crc_ok(frame: bytes) -> bool:
     msg_id = frame[7] | (frame[8] << 8) | (frame[9] << 16)
     cls = mav.mavlink_map.get(msg_id)
     return cls is not None and _crc_matches(frame, bytes([cls.crc_extra]))
+
+
+def reset_parser(parser: Any) -> None:
+    """Forget the bytes pymavlink's stream parser keeps for the rest of a frame. On UDP a datagram
+    ends every frame in it: bytes left over are a frame cut short (counted bad by the caller), and
+    kept they would spoil the next datagram, or not, depending on what it is."""
+    parser.buf = bytearray()
+    parser.buf_index = 0
+    parser.expected_length = mav.HEADER_LEN_V1 + 2
+    parser.have_prefix_error = False
 
 
 Frame = tuple[int, int, int, tuple | None, bytes]

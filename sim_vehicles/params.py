@@ -1,8 +1,13 @@
 """Physical and attitude-loop parameters of one simulated vehicle."""
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
+
+#: PX4's largest MC_ROLLRATE_MAX / MC_PITCHRATE_MAX / MC_YAWRATE_MAX (1800 deg/s) [rad/s]: the
+#: default body-rate limit, above the paper scenario's largest command (22.8 rad/s, in pitch)
+MAX_RATE_DEFAULT_RPS = math.radians(1800.0)
 
 
 class VehicleParamError(ValueError):
@@ -17,6 +22,8 @@ class VehicleParams:
     inertia_kgm2: tuple[float, float, float]  #: principal inertia [kg m^2; body FLU axes]
     max_thrust_N: float  #: largest collective thrust [N]; MAVLink thrust 1.0 maps to this
     g_mps2: float = 9.81
+    #: commanded body rates are clipped to +- these (PX4's MC_*RATE_MAX) [rad/s; roll, pitch, yaw]
+    max_rate_rps: tuple[float, float, float] = (MAX_RATE_DEFAULT_RPS,) * 3
 
     def __post_init__(self) -> None:
         if not self.mass_kg > 0:
@@ -28,6 +35,9 @@ class VehicleParams:
                 f"max_thrust_N ({self.max_thrust_N}) must exceed the weight m g "
                 f"({self.mass_kg * self.g_mps2:.3f} N) or the vehicle cannot hover"
             )
+
+        if len(self.max_rate_rps) != 3 or not all(0 < w < math.inf for w in self.max_rate_rps):
+            raise VehicleParamError(f"max_rate_rps must be three finite values > 0, got {self.max_rate_rps}")
 
     @property
     def inertia(self) -> np.ndarray:

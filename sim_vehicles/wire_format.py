@@ -139,11 +139,13 @@ def attitude_target_fields(q_c, omega_c_B, thrust_N, max_thrust_N):
 @kernel
 def command_from_fields(f, max_thrust_N):
     """The command a vehicle holds for SET_ATTITUDE_TARGET fields ``(q[4], rates[3], thrust)``
-    (``CMD_*``); ``CMD_VALID`` is 0 for a quaternion that is not a rotation or a non-finite value."""
+    (``CMD_*``); ``CMD_VALID`` is 0 for a quaternion that is not a rotation, a non-finite value or a
+    thrust outside ``0..1`` (what no sender means: refused, never clipped into free fall or full thrust)."""
     out = np.empty(9)
     q0, q1, q2, q3 = f[0], f[1], f[2], f[3]
     n = math.sqrt(q0 * q0 + q1 * q1 + q2 * q2 + q3 * q3)
-    ok = math.isfinite(n) and abs(n - 1.0) <= 1e-3 and math.isfinite(f[4] + f[5] + f[6] + f[7])
+    rotation = math.isfinite(n) and abs(n - 1.0) <= 1e-3
+    ok = rotation and math.isfinite(f[4] + f[5] + f[6]) and 0.0 <= f[7] <= 1.0
     _swap_into(out, 0, q0 / n, q1 / n, q2 / n, q3 / n)
     out[4] = f[4]
     out[5] = -f[5]
@@ -174,12 +176,13 @@ def encode_attitude_target(cmd: AttitudeCommand, max_thrust_N: float) -> Attitud
 
 
 def decode_attitude_target(fields: AttitudeTargetFields, max_thrust_N: float) -> AttitudeCommand:
-    """The command a vehicle holds; raises ``ValueError`` for a quaternion that is not a rotation."""
+    """The command a vehicle holds; raises ``ValueError`` for fields it refuses (``command_from_fields``)."""
     f = np.array([*fields.q, *fields.body_rates, fields.thrust], dtype=np.float64)
     decoded = command_from_fields(f, float(max_thrust_N))
     if not decoded[CMD_VALID]:
         raise ValueError(
-            f"attitude target {fields.q} is not a unit quaternion, or a rate or thrust is not finite"
+            f"attitude target {fields.q} is not a unit quaternion, a rate is not finite, or thrust "
+            f"{fields.thrust} is outside 0..1"
         )
     return command_of(decoded)
 

@@ -234,7 +234,13 @@ def cmd_controllers(args: argparse.Namespace) -> int:
 
 
 def cmd_vehicles(args: argparse.Namespace) -> int:
-    from swarm_sitl.supervisor import RunFailedError, Supervisor, compile_kernels, start_vehicles
+    from swarm_sitl.supervisor import (
+        RunFailedError,
+        Supervisor,
+        compile_kernels,
+        signing_key_file,
+        start_vehicles,
+    )
 
     cfg = _load(args.config)
     if not 0 <= args.base_port <= 65535 - cfg.n_followers:
@@ -245,9 +251,11 @@ def cmd_vehicles(args: argparse.Namespace) -> int:
     compile_kernels(cfg)
     sup = Supervisor(run_dir)
     try:
-        endpoints = start_vehicles(sup, cfg, args.lockstep, args.base_port)
+        key_file = signing_key_file(cfg, run_dir, own_vehicles=False)
+        endpoints = start_vehicles(sup, cfg, args.lockstep, args.base_port, key_file)
         clock = f"lockstep, {cfg.control_dt_s:g} s per setpoint" if args.lockstep else "real time"
         print(f"{cfg.n_followers} vehicles of {cfg.name} ({clock}); .tlogs in {run_dir / 'tlogs'}")
+        print(f"  MAVLink 2 signing with {key_file}" if key_file else "  MAVLink 2 signing off")
         for i, ep in sorted(endpoints.items()):
             print(f"  vehicle {i}: udpout:{ep.removeprefix('udp:')}  (MAVLink system id {i})")
         print("Ctrl-C stops them", flush=True)

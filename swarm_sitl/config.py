@@ -13,7 +13,7 @@ import numpy as np
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
-from sim_vehicles.params import AttitudeGains, VehicleParams
+from sim_vehicles.params import MAX_RATE_DEFAULT_RPS, AttitudeGains, VehicleParams
 from swarm_sitl.fault_plan import FaultPlan
 from swarm_sitl.follower_law import HOLD_EXTRAPOLATE, HOLD_ZERO_ORDER, ControlGains
 from swarm_sitl.graph import Graph, GraphError
@@ -101,6 +101,9 @@ class VehicleSpec(_Strict):
     #: what the vehicle flies in failsafe (PX4's COM_OBL_ACT): a position hold at the point of
     #: loss, or a landing (descending at 0.7 m/s holding its horizontal position)
     failsafe_action: Literal["hold", "land"] = "hold"
+    #: commanded body rates are clipped to +- these (PX4's MC_ROLLRATE_MAX, MC_PITCHRATE_MAX,
+    #: MC_YAWRATE_MAX) [rad/s]; the default is PX4's largest setting, 1800 deg/s
+    max_rate_rps: tuple[Positive, Positive, Positive] = (MAX_RATE_DEFAULT_RPS,) * 3
 
 
 class FollowerSpec(_Strict):
@@ -153,6 +156,19 @@ class ZenohSpec(_Strict):
     multicast_scouting: bool = False
 
 
+class SigningSpec(_Strict):
+    """MAVLink 2 signing of every vehicle link (``sim_vehicles.mavlink_signing``): unsigned or
+    wrongly signed messages, and replays, are refused by vehicle and controller alike."""
+
+    #: sign the links of the vehicles ``run`` spawns (off: for a tool that cannot sign)
+    enabled: bool = True
+    #: a file whose first line is the passphrase (the key is its SHA-256, as MAVProxy's ``signing
+    #: setup`` and QGroundControl derive it). Unset: ``run`` writes a fresh random one to
+    #: ``RUN_DIR/mavlink_signing.key`` (mode 0600); ``controllers`` and ``vehicles`` sign only with
+    #: a file given here, the key the other side holds
+    passphrase_file: str | None = None
+
+
 class RunSpec(_Strict):
     """Limits of a multi-process run (wall-clock seconds)."""
 
@@ -197,6 +213,7 @@ class SwarmConfig(_Strict):
     gains: GainsSpec
     estimator: EstimatorSpec = EstimatorSpec()
     zenoh: ZenohSpec = ZenohSpec()
+    signing: SigningSpec = SigningSpec()
     run: RunSpec = RunSpec()
     faults: FaultPlan = FaultPlan()  #: what fails, how and when (``fault_plan``)
 
@@ -246,7 +263,7 @@ class SwarmConfig(_Strict):
 
     def vehicle_params(self) -> VehicleParams:
         v = self.vehicle
-        return VehicleParams(v.mass_kg, v.inertia_kgm2, v.max_thrust_N, self.gravity_mps2)
+        return VehicleParams(v.mass_kg, v.inertia_kgm2, v.max_thrust_N, self.gravity_mps2, v.max_rate_rps)
 
     def attitude_gains(self) -> AttitudeGains:
         return AttitudeGains(self.gains.l_q, self.gains.k_q)

@@ -29,6 +29,7 @@ def _guarded(name: str, body: Any, lockstep: bool) -> int:
     import zenoh
 
     from sim_vehicles.lifeline import batch_scheduling, hold_on, profiled
+    from sim_vehicles.mavlink_signing import SigningKeyError
     from swarm_sitl.command_attitude import SingularCommandError
     from swarm_sitl.node_clock import StallError
     from swarm_sitl.vehicle_link import LinkError
@@ -39,7 +40,7 @@ def _guarded(name: str, body: Any, lockstep: bool) -> int:
     signal.signal(signal.SIGTERM, _terminate)
     try:
         line = profiled(name, body)
-    except (LinkError, StallError, SingularCommandError) as e:
+    except (LinkError, StallError, SingularCommandError, SigningKeyError) as e:
         print(f"{name}: error: {e}", file=sys.stderr, flush=True)
         return 1
     except zenoh.ZError as e:
@@ -61,6 +62,7 @@ def _write_stats(path: Path, stats: dict[str, Any]) -> None:
 
 
 def cmd_controller(cfg: SwarmConfig, args: argparse.Namespace) -> int:
+    from sim_vehicles.mavlink_signing import read_key
     from sim_vehicles.row_log import RowLog
     from swarm_sitl.bus import NodeBus, ZenohNodeBus
     from swarm_sitl.bus_faults import FaultyBus, acts_on, watched
@@ -94,7 +96,10 @@ def cmd_controller(cfg: SwarmConfig, args: argparse.Namespace) -> int:
             link_faults = None
             if cfg.faults.on_mavlink(i, True) or cfg.faults.on_mavlink(i, False):
                 link_faults = MavlinkFaults(cfg.faults, i, clock, cfg.duration_s)
-            link = VehicleLink(args.mavlink, i, stamp_arrivals=not args.lockstep, faults=link_faults)
+            key = read_key(args.signing_key_file) if args.signing_key_file else None
+            link = VehicleLink(
+                args.mavlink, i, stamp_arrivals=not args.lockstep, faults=link_faults, signing_key=key
+            )
             session = _session(cfg, args.connect)
             watch = watched(cfg.faults, i, edges)
             bus = zbus = ZenohNodeBus(
@@ -194,6 +199,7 @@ def add_node_parsers(sub: Any, load: Any) -> None:
     c.add_argument(
         "--mavlink", required=True, help="pymavlink connection string, e.g. udpout:127.0.0.1:14561"
     )
+    c.add_argument("--signing-key-file", help="sign the MAVLink link with this passphrase file's key")
     _common(c)
     c.set_defaults(func=lambda a: cmd_controller(load(a), a))
     ld = sub.add_parser("leader", help="the leader's process (spawned by run/controllers)")

@@ -253,6 +253,10 @@ def supervisor_events_path(run_dir: Path) -> Path:
     return procs_dir(run_dir) / "supervisor.events"
 
 
+def vehicle_stats_path(run_dir: Path, i: int) -> Path:
+    return procs_dir(run_dir) / f"vehicle_{i}.stats.json"
+
+
 def vehicle_events_path(run_dir: Path, i: int) -> Path:
     return procs_dir(run_dir) / f"vehicle_{i}.events"
 

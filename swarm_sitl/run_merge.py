@@ -29,6 +29,7 @@ from swarm_sitl.recording import (
     read_start,
     supervisor_events_path,
     vehicle_events_path,
+    vehicle_stats_path,
     vehicle_truth_path,
 )
 
@@ -139,6 +140,23 @@ def inputs_and_links(cfg: SwarmConfig, run_dir: Path) -> tuple[dict[str, Any], d
         if f"{src}->{dst}" in links and src in published:
             links[f"{src}->{dst}"]["sent"] = published[src]
     return inputs, links
+
+
+#: what a vehicle refused (``sim_vehicles.mavlink_endpoint.EndpointStats``): the summary's part of
+#: its counts (the others count heartbeats, which follow the wall clock)
+VEHICLE_REFUSALS = ("rx_bad", "rx_refused", "rx_invalid", "rx_unhandled", "handler_errors")
+
+
+def vehicle_refusals(cfg: SwarmConfig, run_dir: Path) -> dict[str, Any]:
+    """Per vehicle that reported (ours, and not killed), what it received and refused."""
+    out: dict[str, Any] = {}
+    for f in cfg.followers:
+        s = _stats(vehicle_stats_path(run_dir, f.id))
+        if s:
+            out[str(f.id)] = {k: s.get(k, 0) for k in VEHICLE_REFUSALS}
+            if s.get("last_handler_error"):
+                out[str(f.id)]["last_handler_error"] = s["last_handler_error"]
+    return out
 
 
 def run_events(cfg: SwarmConfig, run_dir: Path) -> list[dict[str, Any]]:

@@ -26,11 +26,12 @@ def write_outputs(cfg: SwarmConfig, rec: Recording, run_dir: Path, processes: bo
     summary = summarize(rec, cfg.gain_dict(), masses, cfg.gravity_mps2, cfg.run.settle_s)
     if processes:
         from swarm_sitl.events import write_events
-        from swarm_sitl.run_merge import inputs_and_links, run_events
+        from swarm_sitl.run_merge import inputs_and_links, run_events, vehicle_refusals
 
         events = run_events(cfg, run_dir)
         write_events(run_dir / "events.jsonl", events)
         summary["inputs"], summary["links"] = inputs_and_links(cfg, run_dir)
+        summary["vehicles"] = vehicle_refusals(cfg, run_dir)
         summary["faults"] = {
             "seed": cfg.faults.seed,
             "plan": [f"{f.what}: {f.how}" for f in cfg.faults.plan],

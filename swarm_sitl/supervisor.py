@@ -17,6 +17,7 @@ import json
 import math
 import os
 import re
+import secrets
 import signal
 import site
 import socket
@@ -33,6 +34,7 @@ import numpy as np
 
 from sim_vehicles.lifeline import ENV as PARENT_ENV
 from sim_vehicles.lifeline import settle_heap
+from sim_vehicles.mavlink_signing import SigningKeyError, read_key
 from swarm_sitl import zenoh_keys
 from swarm_sitl.bus_codec import Status, decode_status, decode_waiting
 from swarm_sitl.config import SwarmConfig
@@ -41,6 +43,7 @@ from swarm_sitl.recording import (
     start_path,
     supervisor_events_path,
     vehicle_events_path,
+    vehicle_stats_path,
     vehicle_truth_path,
 )
 
@@ -207,7 +210,32 @@ def child_env(base: Mapping[str, str] | None = None) -> dict[str, str]:
     return env
 
 
-def vehicle_argv(cfg: SwarmConfig, i: int, run_dir: Path, lockstep: bool, port: int = 0) -> list[str]:
+def signing_key_file(cfg: SwarmConfig, run_dir: Path, own_vehicles: bool) -> Path | None:
+    """The passphrase file every vehicle link of this run is signed with (``SigningSpec``), or
+    None: the one the config gives, else for vehicles this run spawns a fresh random one written
+    to ``RUN_DIR/mavlink_signing.key``, readable by this user only."""
+    if not cfg.signing.enabled:
+        return None
+    if cfg.signing.passphrase_file is not None:
+        try:  # refused now, in one line, rather than in every child
+            read_key(cfg.signing.passphrase_file)
+        except SigningKeyError as e:
+            raise RunFailedError(f"signing.passphrase_file: {e}") from None
+        return Path(cfg.signing.passphrase_file)
+    if not own_vehicles:
+        return None
+    path = run_dir / "mavlink_signing.key"
+    with contextlib.suppress(FileNotFoundError):
+        path.unlink()
+    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
+    with os.fdopen(fd, "w") as f:
+        f.write(secrets.token_hex(32) + "\n")
+    return path
+
+
+def vehicle_argv(
+    cfg: SwarmConfig, i: int, run_dir: Path, lockstep: bool, port: int = 0, key_file: Path | None = None
+) -> list[str]:
     f, v, g = cfg.follower(i), cfg.vehicle, cfg.gains
     argv = [
         *module_argv("sim_vehicles"),
@@ -229,6 +257,8 @@ def vehicle_argv(cfg: SwarmConfig, i: int, run_dir: Path, lockstep: bool, port: 
         *map(repr, v.inertia_kgm2),
         "--max-thrust-n",
         repr(v.max_thrust_N),
+        "--max-rate-rps",
+        *map(repr, v.max_rate_rps),
         "--gravity-mps2",
         repr(cfg.gravity_mps2),
         "--l-q",
@@ -241,6 +271,9 @@ def vehicle_argv(cfg: SwarmConfig, i: int, run_dir: Path, lockstep: bool, port: 
         v.failsafe_action,
         "--events",
         str(vehicle_events_path(run_dir, i)),
+        "--stats",
+        str(vehicle_stats_path(run_dir, i)),
+        *(["--signing-key-file", str(key_file)] if key_file is not None else []),
         "--attitude-hz",
         repr(cfg.rates.attitude_hz),
         "--tlog",
@@ -253,15 +286,20 @@ def vehicle_argv(cfg: SwarmConfig, i: int, run_dir: Path, lockstep: bool, port: 
     return argv
 
 
-def start_vehicles(sup: Supervisor, cfg: SwarmConfig, lockstep: bool, base_port: int = 0) -> dict[int, str]:
-    """Spawn one vehicle per follower; returns ``{id: "udp:host:port"}`` once each is listening."""
+def start_vehicles(
+    sup: Supervisor, cfg: SwarmConfig, lockstep: bool, base_port: int = 0, key_file: Path | None = None
+) -> dict[int, str]:
+    """Spawn one vehicle per follower, signing with ``key_file``'s key if given; returns
+    ``{id: "udp:host:port"}`` once each is listening."""
     run_dir = sup.run_dir
     (run_dir / "tlogs").mkdir(parents=True, exist_ok=True)
     procs_dir(run_dir).mkdir(parents=True, exist_ok=True)
     children = {}
     for f in cfg.followers:
         port = base_port + f.id - 1 if base_port else 0
-        children[f.id] = sup.spawn(f"vehicle_{f.id}", vehicle_argv(cfg, f.id, run_dir, lockstep, port), False)
+        children[f.id] = sup.spawn(
+            f"vehicle_{f.id}", vehicle_argv(cfg, f.id, run_dir, lockstep, port, key_file), False
+        )
     endpoints: dict[int, str] = {}
     end = time.monotonic() + cfg.run.start_timeout_s
     while len(endpoints) < len(children):
@@ -402,12 +440,14 @@ def run_swarm(
     monitor = RunMonitor(session, cfg)
     faults = ProcessFaults(cfg, sup, lockstep, supervisor_events_path(run_dir)) if cfg.faults.plan else None
     try:
-        endpoints = start_vehicles(sup, cfg, lockstep) if mavlink is None else dict(mavlink)
+        key_file = signing_key_file(cfg, run_dir, own_vehicles=mavlink is None)
+        endpoints = start_vehicles(sup, cfg, lockstep, 0, key_file) if mavlink is None else dict(mavlink)
+        signing = ["--signing-key-file", str(key_file)] if key_file is not None else []
         node_args = {"leader": ["leader"]}
         for f in cfg.followers:
             url = endpoints[f.id]
             url = "udpout:" + url.removeprefix("udp:") if mavlink is None else url
-            node_args[f"controller_{f.id}"] = ["controller", "--id", str(f.id), "--mavlink", url]
+            node_args[f"controller_{f.id}"] = ["controller", "--id", str(f.id), "--mavlink", url, *signing]
 
         def argv(process: str, incarnation: int = 0, resume_tick: int = 0) -> list[str]:
             role, *extra = node_args[process]

@@ -35,6 +35,7 @@ from sim_vehicles import mavlink_frames as frames
 from sim_vehicles import tick_frames, udp_arrival
 from sim_vehicles.autopilot import AttitudeCommand
 from sim_vehicles.mavlink_endpoint import IGNORE_ALL, MODE_OFFBOARD
+from sim_vehicles.mavlink_signing import Signer, Verifier
 from sim_vehicles.wire_format import SAMPLE_P, SAMPLE_Q, SAMPLE_V, encode_attitude_target, sample_from_fields
 
 mav = mavutil.mavlink
@@ -57,16 +58,36 @@ for _id, _cls in mav.mavlink_map.items():
         _IGNORED[_id] = _cls.crc_extra
 
 
+class _Sealing:
+    """Where pymavlink writes a link's messages: signed, then onto the connection."""
+
+    def __init__(self, conn: Any, signer: Signer):
+        self.conn = conn
+        self.signer = signer
+
+    def write(self, buf: bytes) -> None:
+        self.conn.write(self.signer.seal(bytes(buf)))
+
+
 class LinkError(RuntimeError):
     """The vehicle did not answer as an autopilot should; the message is one line."""
 
 
 class VehicleLink:
-    def __init__(self, url: str, system_id: int, stamp_arrivals: bool = True, faults: Any = None):
+    def __init__(
+        self,
+        url: str,
+        system_id: int,
+        stamp_arrivals: bool = True,
+        faults: Any = None,
+        signing_key: bytes | None = None,
+    ):
         """``stamp_arrivals``: ask the kernel for arrival stamps where it can (a real-time loop
         needs them; a lockstep one does not, and reads its datagrams more cheaply without).
         ``faults``: a fault plan on this link (``link_faults.MavlinkFaults``), wrapping the
-        datagrams it sends and receives."""
+        datagrams it sends and receives. ``signing_key``: MAVLink 2 signing
+        (``sim_vehicles.mavlink_signing``), between the link and its fault plan: what it sends is
+        signed before the plan acts on it, what it receives is checked after."""
         try:
             self.conn: Any = mavutil.mavlink_connection(
                 url, source_system=system_id, source_component=COMP_ONBOARD, dialect="common"
@@ -88,6 +109,11 @@ class VehicleLink:
         self.heartbeat: Any = None
         self.acks: dict[int, int] = {}
         self.rx_bad = 0
+        self.rx_refused = 0  #: unsigned or replayed frames on a signed link
+        self._signer = Signer(signing_key) if signing_key else None
+        self._verifier = Verifier(signing_key) if signing_key else None
+        if self._signer is not None:  # what pymavlink sends for us is signed on its way out
+            self.conn.mav.file = _Sealing(self.conn, self._signer)
         self._next_hb = 0.0
         self.stamps_arrivals = stamp_arrivals and self._enable_timestamps()
         # whole frames per read: UDP only (a serial or TCP read can end inside a frame, and
@@ -153,6 +179,11 @@ class VehicleLink:
             readable = False
             if not data:
                 return n
+            if self._verifier is not None:
+                opened = self._open(data)
+                if opened is None:
+                    continue
+                data = opened
             plain = self._datagrams and conn.mav.signing.secret_key is None
             if plain:
                 s = tick_frames.read_sample(
@@ -184,11 +215,29 @@ class VehicleLink:
             try:
                 msgs = conn.mav.parse_buffer(data) or []
             except Exception:  # pymavlink raises its own and struct errors on garbage: drop, count
+                msgs = None
+            if msgs is None or (self._datagrams and conn.mav.buf_len()):  # garbage, or cut short
                 self.rx_bad += 1
+                if self._datagrams:
+                    frames.reset_parser(conn.mav)  # nothing carries over to the next datagram
+            if msgs is None:
                 continue
             for m in msgs:
                 n += 1
                 self._handle(m, arrival)
+
+    def _open(self, data: bytes) -> bytes | None:
+        """A signed datagram checked and unsigned; None (counted) if refused."""
+        v = self._verifier
+        assert v is not None
+        bad = v.bad
+        opened = v.open(data)
+        if opened is None:
+            if v.bad > bad:
+                self.rx_bad += 1
+            else:
+                self.rx_refused += 1
+        return opened
 
     def _handle(self, m: Any, arrival: float) -> None:
         t = m.get_type()
@@ -281,6 +330,8 @@ class VehicleLink:
             max_thrust,
         )
         frame = frames.take_frame(mav_, self._out, n)
+        if self._signer is not None:
+            frame = self._signer.seal(frame)
         if self.faults is None:
             self.conn.write(frame)
         else:

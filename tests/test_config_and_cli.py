@@ -8,6 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 from swarm_sitl.cli import main
 from tests.conftest import CONFIGS
@@ -163,3 +165,46 @@ def test_children_import_what_the_supervisor_imports_not_the_working_directory(t
                 [*module_argv(module), "--help"], cwd=tmp_path, env=env, capture_output=True, text=True
             )
             assert r.returncode == 0 and "usage" in r.stdout.lower(), (module, env, r.stderr[-300:])
+
+
+_PAPER_TEXT = (CONFIGS / "paper.yaml").read_text()
+
+
+@settings(
+    max_examples=200,
+    deadline=None,
+    derandomize=True,
+    suppress_health_check=[HealthCheck.function_scoped_fixture],
+)
+@given(
+    data=st.one_of(
+        st.binary(max_size=400),
+        st.text(max_size=200).map(str.encode),
+        st.integers(0, len(_PAPER_TEXT)).map(lambda n: _PAPER_TEXT[:n].encode()),  # cut short
+    )
+)
+def test_any_config_file_gives_one_line_never_a_traceback(tmp_path, capsys, data):
+    """Binary garbage, broken YAML, YAML of the wrong shape, a config cut short: exit 2 and one
+    line on stderr (a cut that leaves a whole valid config passes: exit 0)."""
+    path = tmp_path / "c.yaml"
+    path.write_bytes(data)
+    code = main(["check", str(path)])
+    err = capsys.readouterr().err
+    if code == 0:
+        assert err == ""
+        return
+    assert code == 2 and len(err.strip().splitlines()) == 1, err
+    assert err.startswith("swarm-sitl: error: ")
+
+
+@pytest.mark.parametrize("duration", ["inf", "-inf", "nan", "0", "-3", "1e400", "abc", ""])
+def test_any_duration_gives_one_error_line(capsys, duration):
+    """Refused before anything starts: our one line, or argparse's usage and its one line."""
+    try:
+        code = main(["run", str(CONFIGS / "paper.yaml"), f"--duration={duration}"])
+    except SystemExit as e:  # argparse's own refusal of a non-number
+        code = e.code
+    err = capsys.readouterr().err
+    assert code == 2 and "Traceback" not in err
+    errors = [line for line in err.splitlines() if "error:" in line]
+    assert len(errors) == 1 and "--duration" in errors[0], err

@@ -3,6 +3,7 @@ every kind of link fault, a bound that fails a degraded run, and riding through 
 
 (The user-style lockstep scenarios, a lossy edge and a cut edge, are in ``examples/``.)"""
 
+import hashlib
 import json
 import os
 import signal
@@ -210,6 +211,7 @@ def test_a_ground_station_slowing_a_vehicles_stream_fails_the_run_naming_the_sta
     """Another client asks vehicle 3 for its position at 1 Hz during a real-time run (the vehicle
     has one stream table for every client): follower 3's samples go stale, its formation breaks,
     and the run says so instead of passing."""
+    os.environ.setdefault("MAVLINK20", "1")  # signing is MAVLink 2's
     from pymavlink import mavutil
 
     cfg = yaml.safe_load((CONFIGS / "paper.yaml").read_text())
@@ -227,7 +229,10 @@ def test_a_ground_station_slowing_a_vehicles_stream_fails_the_run_naming_the_sta
     _wait_running(out)
     time.sleep(2.0)
     port = _vehicle_ports(out)[2]
-    gcs = mavutil.mavlink_connection(f"udpout:127.0.0.1:{port}", source_system=255)
+    gcs = mavutil.mavlink_connection(f"udpout:127.0.0.1:{port}", source_system=255, dialect="common")
+    # it holds the run's signing key, as MAVProxy given the passphrase would (a stranger is refused)
+    passphrase = (out / "mavlink_signing.key").read_text().split()[0]
+    gcs.setup_signing(hashlib.sha256(passphrase.encode()).digest(), sign_outgoing=True)
     msg_id, one_hz_us = mavutil.mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED, 1e6
     gcs.mav.command_long_send(
         3, 1, mavutil.mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, 0, msg_id, one_hz_us, 0, 0, 0, 0, 0

@@ -1,0 +1,166 @@
+"""MAVLink 2 message signing on a UDP link, as a wrapper of the datagrams a link sends and receives.
+
+The MAVLink 2 signing scheme (mavlink.io, "Message signing"): a signed frame sets incompat flag
+0x01 and ends with 13 bytes, ``link_id``, a 48-bit timestamp (10 us units since 2015-01-01 UTC)
+and the first 6 bytes of SHA-256(secret key + the frame up to and including the link id and
+timestamp). The key is 32 bytes; ``key_from_passphrase`` gives the one MAVProxy's ``signing
+setup`` and QGroundControl derive from a passphrase (its SHA-256).
+
+- ``Signer.seal(frame)``: a plain MAVLink 2 frame, signed (flag set, CRC redone, signature
+  appended). Its timestamps follow the wall clock and never repeat.
+- ``Verifier.open(datagram)``: the datagram's frames, checked and unsigned (flag cleared, CRC
+  redone): plain MAVLink 2 bytes for the parsers that follow (``tick_frames``, ``mavlink_frames``,
+  pymavlink). ``None`` if any frame is not signed (``unsigned``, MAVLink 1 included), is signed wrongly
+  or not a frame (``bad``), or repeats or goes back in time (``replayed``: each stream, a
+  ``(system, component, link id)``, must move its timestamp forward; a new stream may start at most
+  a minute behind this side's clock).
+
+Signing wraps a link whole: the wrappers around it (a fault plan, a ground-station port) see
+signed bytes on the wire, and the code within sees plain frames, so the per-tick fast paths are
+unchanged. Signatures are checked before timestamps, so a forged frame cannot move a stream's
+clock. Little-endian hosts, as the rest of ``sim_vehicles``.
+"""
+
+import hashlib
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from pymavlink.dialects.v20 import common as mav
+
+from sim_vehicles.mavlink_frames import MAGIC_V2, crc_with_extra
+
+SIGNED = 0x01  #: incompat flag of a signed frame
+MAGIC_V1 = 0xFE
+SIGNATURE_LEN = 13
+_HEADER_LEN = 10
+_EPOCH_2015_UNIX_S = 1420070400
+NEW_STREAM_SLACK = 60 * 100_000  #: a new stream may start this far behind our clock [10 us]
+
+
+class SigningKeyError(ValueError):
+    """A signing key file cannot be used; the message is one line."""
+
+
+def key_from_passphrase(passphrase: str) -> bytes:
+    """The 32-byte key MAVProxy (``signing setup``) and QGroundControl derive from a passphrase."""
+    return hashlib.sha256(passphrase.encode()).digest()
+
+
+def read_key(path: str | Path) -> bytes:
+    """The key of a passphrase file (its first line, surrounding whitespace removed)."""
+    try:
+        text = Path(path).read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as e:
+        raise SigningKeyError(f"{path}: cannot read the signing passphrase ({e})") from None
+    lines = text.strip().splitlines()
+    if not lines or not lines[0].strip():
+        raise SigningKeyError(f"{path}: the signing passphrase file is empty")
+    return key_from_passphrase(lines[0].strip())
+
+
+def now_stamp() -> int:
+    """The signing timestamp of this instant [10 us since 2015-01-01 UTC]."""
+    return int((time.time() - _EPOCH_2015_UNIX_S) * 100_000)
+
+
+def _crc_extra(msg_id: int) -> int | None:
+    cls = mav.mavlink_map.get(msg_id)
+    return None if cls is None else int(cls.crc_extra)
+
+
+class Signer:
+    """Signs the frames of one sender, on link ``link_id``."""
+
+    def __init__(self, key: bytes, link_id: int = 0):
+        self.key = key
+        self.link_id = link_id
+        self._stamp = 0
+
+    def seal(self, frame: bytes) -> bytes:
+        """``frame`` (one plain MAVLink 2 frame) signed; anything else is returned as it is."""
+        n = len(frame)
+        if n < _HEADER_LEN + 2 or frame[0] != MAGIC_V2 or frame[2] & SIGNED:
+            return frame
+        extra = _crc_extra(frame[7] | (frame[8] << 8) | (frame[9] << 16))
+        if extra is None:
+            return frame
+        self._stamp = stamp = max(self._stamp + 1, now_stamp())
+        head = bytearray(frame[:-2])
+        head[2] |= SIGNED
+        body = head + crc_with_extra(head[1:], extra).to_bytes(2, "little")
+        body += bytes([self.link_id]) + stamp.to_bytes(6, "little")
+        return bytes(body) + hashlib.sha256(self.key + body).digest()[:6]
+
+    def seal_all(self, datagram: bytes) -> bytes:
+        """Every frame of a datagram of plain frames, signed."""
+        out, at, n = [], 0, len(datagram)
+        while at < n:
+            if n - at < _HEADER_LEN + 2 or datagram[at] != MAGIC_V2:
+                out.append(datagram[at:])
+                break
+            end = at + _HEADER_LEN + datagram[at + 1] + 2
+            out.append(self.seal(datagram[at:end]))
+            at = end
+        return b"".join(out)
+
+
+@dataclass
+class Verifier:
+    """Checks the signed frames a receiver gets (``open``), counting what it refuses."""
+
+    key: bytes
+    unsigned: int = 0  #: frames without a signature
+    bad: int = 0  #: wrong signature, or not a frame
+    replayed: int = 0  #: a timestamp that does not move its stream forward
+    _streams: dict[tuple[int, int, int], int] = field(default_factory=dict)
+
+    def open(self, datagram: bytes) -> bytes | None:
+        """The datagram's frames unsigned, or ``None`` (counted) if any of them is refused."""
+        out = []
+        at, n = 0, len(datagram)
+        seen: dict[tuple[int, int, int], int] = {}
+        while at < n:
+            if datagram[at] == MAGIC_V1:  # MAVLink 1 cannot be signed
+                self.unsigned += 1
+                return None
+            if n - at < _HEADER_LEN + 2 or datagram[at] != MAGIC_V2:
+                self.bad += 1
+                return None
+            flags = datagram[at + 2]
+            end = at + _HEADER_LEN + datagram[at + 1] + 2
+            if not flags & SIGNED:
+                self.unsigned += 1
+                return None
+            signed_end = end + SIGNATURE_LEN
+            if signed_end > n:
+                self.bad += 1
+                return None
+            frame = datagram[at:signed_end]
+            if hashlib.sha256(self.key + frame[:-6]).digest()[:6] != frame[-6:]:
+                self.bad += 1
+                return None
+            extra = _crc_extra(frame[7] | (frame[8] << 8) | (frame[9] << 16))
+            crc = frame[end - at - 2] | (frame[end - at - 1] << 8)
+            if extra is None or crc_with_extra(frame[1 : end - at - 2], extra) != crc:
+                self.bad += 1
+                return None
+            stream = (frame[5], frame[6], frame[end - at])
+            stamp = int.from_bytes(frame[end - at + 1 : end - at + 7], "little")
+            last = seen.get(stream, self._streams.get(stream))
+            if stamp <= (now_stamp() - NEW_STREAM_SLACK if last is None else last):
+                self.replayed += 1
+                return None
+            seen[stream] = stamp
+            head = bytearray(frame[: end - at - 2])
+            head[2] &= ~SIGNED & 0xFF
+            out.append(bytes(head) + crc_with_extra(head[1:], extra).to_bytes(2, "little"))
+            at = signed_end
+        if not out:
+            self.bad += 1
+            return None
+        self._streams.update(seen)
+        return b"".join(out)
+
+    def refused(self) -> int:
+        return self.unsigned + self.bad + self.replayed

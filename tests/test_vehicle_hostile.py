@@ -1,0 +1,311 @@
+"""Hostile input at a vehicle's MAVLink endpoint: nothing crashes it, moves it or takes its link.
+
+The fuzz tests drive the endpoint's datagram handler in process (the socket only adds the kernel),
+one datagram per input, and check after each: no exception, nothing the vehicle flies or streams
+changed, and the input counted among what it refused. ``SWARM_SITL_FUZZ_EXAMPLES`` sets the
+number of inputs per test (the default run uses a few hundred; the closing figures used 100,000:
+``SWARM_SITL_FUZZ_EXAMPLES=100000 python -m pytest tests/test_vehicle_hostile.py -k fuzz``).
+"""
+
+import math
+import os
+import socket
+import time
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+from pymavlink.dialects.v20 import common as mav
+
+from sim_vehicles.autopilot import Autopilot
+from sim_vehicles.mavlink_endpoint import MODE_OFFBOARD, PEER_SILENT_S, VehicleEndpoint
+from sim_vehicles.mavlink_frames import _crc
+from sim_vehicles.params import AttitudeGains, VehicleParams
+from sim_vehicles.rigid_body import make_state
+
+EXAMPLES = int(os.environ.get("SWARM_SITL_FUZZ_EXAMPLES", "300"))
+FUZZ = settings(
+    max_examples=EXAMPLES,
+    deadline=None,
+    derandomize=EXAMPLES <= 1000,  # the default run is the same every time
+    suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow],
+)
+SYS = 3
+PEER = ("127.0.0.1", 40001)
+STRANGER = ("127.0.0.1", 40002)
+PARAMS = VehicleParams(0.85, (0.05, 0.05, 0.09), 25.0)
+
+
+def _link(sysid: int = SYS, compid: int = 191) -> mav.MAVLink:
+    m = mav.MAVLink(None, srcSystem=sysid, srcComponent=compid)
+    m.robust_parsing = True
+    return m
+
+
+def _frame(msg: mav.MAVLink_message, sysid: int = SYS) -> bytes:
+    return bytes(msg.pack(_link(sysid)))
+
+
+def _setpoint(q=(1.0, 0.0, 0.0, 0.0), rates=(0.0, 0.0, 0.0), thrust=0.4, target=SYS, component=1) -> bytes:
+    return _frame(mav.MAVLink_set_attitude_target_message(0, target, component, 0, list(q), *rates, thrust))
+
+
+def _command(command: int, *params: float, target=SYS) -> bytes:
+    p = [*params, 0, 0, 0, 0, 0, 0, 0][:7]
+    return _frame(mav.MAVLink_command_long_message(target, 1, command, 0, *p))
+
+
+@pytest.fixture
+def flying():
+    """A vehicle armed in offboard, flying a valid setpoint from ``PEER``."""
+    ap = Autopilot(PARAMS, AttitudeGains(16.0, 16.0), make_state([0.0, 0.0, 10.0]), 0.001)
+    ep = VehicleEndpoint(ap, SYS)
+    ep.sock.close()  # driven in process: what it sends goes nowhere
+    ep.sock = _NullSocket()
+    ep._datagram(_command(mav.MAV_CMD_COMPONENT_ARM_DISARM, 1), PEER)
+    ep._datagram(_command(mav.MAV_CMD_DO_SET_MODE, 1, MODE_OFFBOARD), PEER)
+    ep._datagram(_setpoint(thrust=0.35), PEER)
+    assert ep.armed and ep.mode == MODE_OFFBOARD and ep.stats.setpoints == 1
+    yield ep
+    ep.close()
+
+
+class _NullSocket:
+    def sendto(self, data: bytes, addr: object) -> int:
+        return len(data)
+
+    def close(self) -> None:
+        pass
+
+
+def _held(ep: VehicleEndpoint) -> tuple:
+    """What the vehicle flies, streams and answers to: unchanged by anything it refuses."""
+    c = ep.autopilot.command
+    return (
+        tuple(np.asarray(c.q_c).tolist()),
+        float(c.thrust_N),
+        tuple(np.asarray(c.omega_c_B).tolist()),
+        tuple(ep.autopilot.state.tolist()),
+        ep.armed,
+        ep.mode,
+        ep.peer,
+        tuple(sorted(ep.params.items())),
+        tuple(sorted(ep._rate_hz.items())),
+        tuple(ep.autopilot.max_rate_rps.tolist()),
+    )
+
+
+def _refused(ep: VehicleEndpoint) -> int:
+    s = ep.stats
+    return s.rx_bad + s.rx_refused + s.rx_invalid + s.rx_unhandled
+
+
+def _assert_refused(ep: VehicleEndpoint, data: bytes, addr=PEER) -> None:
+    before, n0 = _held(ep), _refused(ep)
+    ep._datagram(data, addr)
+    ep.flush()
+    assert ep.stats.handler_errors == 0, ep.stats.last_handler_error
+    assert _held(ep) == before
+    assert _refused(ep) > n0
+
+
+# -- what the issue found, one by one ------------------------------------------------------------
+
+NAN, INF = math.nan, math.inf
+
+
+@pytest.mark.parametrize(
+    "data",
+    [
+        _command(mav.MAV_CMD_DO_SET_MODE, 1, NAN),
+        _command(mav.MAV_CMD_DO_SET_MODE, 1, INF),
+        _command(mav.MAV_CMD_SET_MESSAGE_INTERVAL, NAN, 1e4),
+        _command(mav.MAV_CMD_SET_MESSAGE_INTERVAL, 32, NAN),
+        _command(mav.MAV_CMD_SET_MESSAGE_INTERVAL, INF, -INF),
+        _command(mav.MAV_CMD_REQUEST_MESSAGE, NAN),
+        _command(mav.MAV_CMD_DO_SET_MODE, 1, 7),  # a mode it does not have
+        _command(mav.MAV_CMD_COMPONENT_ARM_DISARM, 0),  # disarm in flight, not forced
+        _setpoint(thrust=-1.0),
+        _setpoint(thrust=2.0),
+        _setpoint(thrust=NAN),
+        _setpoint(rates=(NAN, 0, 0)),
+        _setpoint(rates=(0, INF, 0)),
+        _setpoint(q=(2.0, 0.0, 0.0, 0.0)),
+        _setpoint(q=(0.0, 0.0, 0.0, 0.0)),
+        _setpoint(q=(NAN, 0.0, 0.0, 0.0)),
+        _setpoint(target=SYS + 1),
+        _setpoint(component=2),
+        _frame(mav.MAVLink_param_set_message(SYS, 1, b"MASS_KG", 100.0, mav.MAV_PARAM_TYPE_REAL32)),
+        _frame(mav.MAVLink_param_set_message(SYS, 1, b"SP_TIMEOUT_S", NAN, mav.MAV_PARAM_TYPE_REAL32)),
+        _frame(mav.MAVLink_param_set_message(SYS, 1, b"MC_ROLLRATE_MAX", 1e30, mav.MAV_PARAM_TYPE_REAL32)),
+        _frame(mav.MAVLink_param_set_message(SYS, 1, b"NO_SUCH", 1.0, mav.MAV_PARAM_TYPE_REAL32)),
+        _frame(mav.MAVLink_system_time_message(0, 0)),  # a message it does not handle
+        _setpoint()[:-3],  # cut short
+        b"\xfd\x09garbage-not-mavlink" * 5,
+    ],
+    ids=lambda d: d[:12].hex(),
+)
+def test_each_bad_input_is_refused_counted_and_changes_nothing(flying, data):
+    _assert_refused(flying, data)
+
+
+def test_a_stranger_is_refused_and_cannot_take_the_telemetry(flying):
+    for data in (
+        _command(mav.MAV_CMD_COMPONENT_ARM_DISARM, 0, 21196),  # even a forced disarm
+        _command(mav.MAV_CMD_DO_SET_MODE, 1, 0),
+        _setpoint(thrust=0.9),
+        _frame(mav.MAVLink_heartbeat_message(6, 8, 0, 0, 0, 3)),
+    ):
+        _assert_refused(flying, data, STRANGER)
+    assert flying.peer == PEER
+
+
+def test_a_silent_peer_gives_the_link_up(flying, monkeypatch):
+    """Its controller died: after ``PEER_SILENT_S`` another address may take the link."""
+    now = time.monotonic()
+    monkeypatch.setattr(time, "monotonic", lambda: now + PEER_SILENT_S + 0.1)
+    flying._datagram(_setpoint(thrust=0.5), STRANGER)
+    assert flying.peer == STRANGER and flying.autopilot.command.thrust_N == pytest.approx(0.5 * 25.0)
+
+
+def test_a_forced_disarm_and_a_settable_parameter_are_taken(flying):
+    flying._datagram(
+        _frame(mav.MAVLink_param_set_message(SYS, 1, b"MC_PITCHRATE_MAX", 90.0, mav.MAV_PARAM_TYPE_REAL32)),
+        PEER,
+    )
+    assert flying.autopilot.max_rate_rps[1] == pytest.approx(math.radians(90.0))
+    flying._datagram(_command(mav.MAV_CMD_COMPONENT_ARM_DISARM, 0, 21196), PEER)
+    assert not flying.armed
+
+
+def test_body_rates_are_clipped_to_the_rate_limits_and_the_state_stays_finite(flying):
+    """1e30 rad/s (finite as float32) used to leave the state non-finite for good; 50 rad/s
+    tumbled it. Clipped to MC_*RATE_MAX, the body rates stay near the limit."""
+    limit = flying.autopilot.max_rate_rps
+    for rates in ((1e30, -1e30, 1e30), (50.0, 50.0, -50.0)):
+        flying._datagram(_setpoint(rates=rates, thrust=0.34), PEER)
+        for _ in range(20):
+            flying.step(50)
+            w = flying.autopilot.state[10:13]
+            assert np.all(np.isfinite(flying.autopilot.state))
+            # the loop tracks the clipped rates (with its attitude term on top: the command
+            # attitude stands still while its rates say it turns)
+            assert np.all(np.abs(w) <= 2 * limit), w
+
+
+# -- fuzzing ---------------------------------------------------------------------------------------
+
+_MESSAGES = [cls for cls in mav.mavlink_map.values() if cls.id < 10000]
+_floats = st.floats(allow_nan=True, allow_infinity=True, width=32)
+
+
+@st.composite
+def hostile_datagrams(draw) -> bytes:
+    """Random bytes; a valid frame cut short or with bytes flipped; a valid setpoint or command
+    with a value the vehicle must refuse; a frame for another system; an unhandled message."""
+    kind = draw(st.sampled_from(["bytes", "cut", "flipped", "setpoint", "command", "elsewhere", "other"]))
+    if kind == "bytes":
+        return draw(st.binary(min_size=0, max_size=300))
+    if kind in ("cut", "flipped"):
+        good = _setpoint(thrust=draw(st.floats(0, 1)))
+        if kind == "cut":
+            return good[: draw(st.integers(0, len(good) - 1))]
+        at = draw(st.integers(0, len(good) - 1))
+        flip = draw(st.integers(1, 255))
+        return good[:at] + bytes([good[at] ^ flip]) + good[at + 1 :]
+    if kind == "setpoint":  # at least one refused value
+        q = [draw(_floats) for _ in range(4)]
+        rates = [draw(_floats) for _ in range(3)]
+        thrust = draw(_floats)
+        bad = draw(st.sampled_from(["q", "rate", "thrust"]))
+        if bad == "q":
+            q[0] = draw(st.sampled_from([NAN, INF, 2.0, 0.0, 1e20]))
+        elif bad == "rate":
+            rates[draw(st.integers(0, 2))] = draw(st.sampled_from([NAN, INF, -INF]))
+        else:
+            thrust = draw(
+                st.one_of(st.sampled_from([NAN, INF, -INF]), st.floats(1.0001, 1e30), st.floats(-1e30, -1e-6))
+            )
+        return _frame(mav.MAVLink_set_attitude_target_message(0, SYS, 1, 0, q, *rates, thrust))
+    if kind == "command":  # a non-finite parameter, or a command it does not have
+        command = draw(st.sampled_from([176, 400, 511, 512, draw(st.integers(0, 65535))]))
+        params = [draw(_floats) for _ in range(7)]
+        if command in (176, 400, 511, 512):
+            params[draw(st.integers(0, 6))] = draw(st.sampled_from([NAN, INF, -INF]))
+        return _command(command, *params)
+    if kind == "elsewhere":
+        target = draw(st.integers(0, 255).filter(lambda t: t not in (0, SYS)))
+        return _setpoint(target=target, thrust=0.5)
+    cls = draw(st.sampled_from(_MESSAGES))
+    if cls.id in _HANDLED:
+        cls = mav.MAVLink_system_time_message
+    # a frame of ``cls`` with a random payload and a good CRC: counted unhandled (or refused)
+    return _pack_raw(cls, draw(st.binary(min_size=cls.unpacker.size, max_size=cls.unpacker.size)))
+
+
+_HANDLED = {  # what the vehicle acts on: the other strategies make those hostile
+    mav.MAVLINK_MSG_ID_SET_ATTITUDE_TARGET,
+    mav.MAVLINK_MSG_ID_COMMAND_LONG,
+    mav.MAVLINK_MSG_ID_PARAM_REQUEST_LIST,
+    mav.MAVLINK_MSG_ID_PARAM_REQUEST_READ,
+    mav.MAVLINK_MSG_ID_PARAM_SET,
+    mav.MAVLINK_MSG_ID_HEARTBEAT,
+}
+
+
+def _pack_raw(cls, payload: bytes) -> bytes:
+    """A MAVLink 2 frame of message ``cls`` with ``payload`` (CRC made good)."""
+    while len(payload) > 1 and payload[-1] == 0:
+        payload = payload[:-1]
+    header = bytes([0xFD, len(payload), 0, 0, 0, SYS, 191, cls.id & 0xFF, (cls.id >> 8) & 0xFF, cls.id >> 16])
+    crc = _crc(header[1:] + payload, bytes([cls.crc_extra]))
+    return header + payload + crc.to_bytes(2, "little")
+
+
+@FUZZ
+@given(data=hostile_datagrams())
+def test_fuzz_vehicle_refuses_and_counts_every_hostile_datagram(flying, data):
+    _assert_refused(flying, data)
+
+
+@FUZZ
+@given(data=st.binary(min_size=0, max_size=600), sender=st.sampled_from([PEER, STRANGER]))
+def test_fuzz_vehicle_survives_random_bytes_from_anyone(flying, data, sender):
+    _assert_refused(flying, data, sender)
+
+
+def test_the_vehicle_process_keeps_flying_after_a_hostile_burst(tmp_path):
+    """Across the real socket: a burst of the inputs above, then the vehicle still answers."""
+    import subprocess
+    import sys
+
+    from pymavlink import mavutil
+
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "sim_vehicles", "--id", str(SYS), "--port", str(port), "--duration", "30"],
+        stdout=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert "listening" in proc.stdout.readline()
+        conn = mavutil.mavlink_connection(f"udpout:127.0.0.1:{port}", source_system=SYS, source_component=191)
+        conn.mav.heartbeat_send(18, 8, 0, 0, 0)
+        assert conn.recv_match(type="HEARTBEAT", blocking=True, timeout=5) is not None
+        rng = np.random.default_rng(1)
+        for data in [
+            _command(mav.MAV_CMD_DO_SET_MODE, 1, NAN),
+            _command(mav.MAV_CMD_SET_MESSAGE_INTERVAL, NAN, NAN),
+            _command(mav.MAV_CMD_REQUEST_MESSAGE, INF),
+            _setpoint(rates=(1e30, 1e30, 1e30)),
+        ] + [rng.bytes(int(n)) for n in rng.integers(1, 400, 500)]:
+            conn.write(data)
+        conn.mav.command_long_send(SYS, 1, mav.MAV_CMD_REQUEST_MESSAGE, 0, 32, 0, 0, 0, 0, 0, 0)
+        m = conn.recv_match(type="LOCAL_POSITION_NED", blocking=True, timeout=5)
+        assert m is not None and proc.poll() is None
+    finally:
+        proc.terminate()
+        proc.wait(timeout=10)
