@@ -292,9 +292,8 @@ class VehicleEndpoint:
 
     def _send_sample_part(self, pack: Callable[..., int], layout: frames.Layout, ms: int) -> None:
         """Queue LOCAL_POSITION_NED or ATTITUDE_QUATERNION of the current state, converted and
-        packed in one compiled call (``tick_frames``). Unsigned, like ``_send_fields``."""
-        if self.mav.signing.sign_outgoing:
-            raise ValueError("the per-tick frames are not signed: send signed frames through pymavlink")
+        packed in one compiled call (``tick_frames``). Plain, like every frame queued: ``flush``
+        signs what it sends on a signed link."""
         n = pack(
             self._out,
             self.mav.seq,
@@ -371,10 +370,14 @@ class VehicleEndpoint:
     def _may_speak(self, addr: Any) -> bool:
         """Whether a datagram from ``addr`` is heard: from the peer, or from anyone while there is
         none or it has been silent for ``PEER_SILENT_S``."""
-        if addr == self.peer or time.monotonic() - self._peer_heard_wall > PEER_SILENT_S:
+        if addr == self.peer or self._peer_silent(time.monotonic()):
             return True
         self.stats.rx_refused += 1
         return False
+
+    def _peer_silent(self, now: float) -> bool:
+        """No peer, or none heard for ``PEER_SILENT_S`` (``now``: ``time.monotonic``)."""
+        return now - self._peer_heard_wall > PEER_SILENT_S
 
     def _heard(self, addr: Any, signed: bool) -> None:
         """``addr`` sent a well-formed message addressed to the vehicle. The peer it is, or becomes
@@ -384,7 +387,7 @@ class VehicleEndpoint:
         now = time.monotonic()
         if addr != self.peer:
             companion = self._accepted_from == (self.system_id, COMPANION)
-            if now - self._peer_heard_wall <= PEER_SILENT_S and not (signed and companion):
+            if not (self._peer_silent(now) or (signed and companion)):
                 return
             self.peer = addr
             self.send_heartbeat()
@@ -416,27 +419,26 @@ class VehicleEndpoint:
                 self._heard(addr, self._verifier is not None)
 
     def _frames(self, data: bytes) -> None:
-        plain = self._parser.signing.secret_key is None
-        if plain:
-            r = tick_frames.read_setpoint(data, _SETPOINT.spec, self.autopilot.params.max_thrust_N)
-            if r[0]:  # one SET_ATTITUDE_TARGET and nothing else: what a controller sends
-                self._log(data)
-                self.stats.rx_messages += 1
-                sp = _Setpoint(
-                    int(r[tick_frames.SP_TIME_MS]),
-                    int(r[tick_frames.SP_TARGET_SYSTEM]),
-                    int(r[tick_frames.SP_TARGET_COMPONENT]),
-                    int(r[tick_frames.SP_TYPE_MASK]),
-                    r[tick_frames.SP_COMMAND],
-                )
-                if self._for_me(sp):
-                    self._accepted += 1
-                    self._accepted_from = (int(r[tick_frames.SP_SYSID]), int(r[tick_frames.SP_COMPID]))
-                    self._on_setpoint(sp)
-                else:
-                    self.stats.rx_refused += 1
-                return
-        fast = frames.read_datagram(data, {}) if plain else None
+        """Handle a datagram of plain frames (a signed one is checked and unsigned before)."""
+        r = tick_frames.read_setpoint(data, _SETPOINT.spec, self.autopilot.params.max_thrust_N)
+        if r[0]:  # one SET_ATTITUDE_TARGET and nothing else: what a controller sends
+            self._log(data)
+            self.stats.rx_messages += 1
+            sp = _Setpoint(
+                int(r[tick_frames.SP_TIME_MS]),
+                int(r[tick_frames.SP_TARGET_SYSTEM]),
+                int(r[tick_frames.SP_TARGET_COMPONENT]),
+                int(r[tick_frames.SP_TYPE_MASK]),
+                r[tick_frames.SP_COMMAND],
+            )
+            if self._for_me(sp):
+                self._accepted += 1
+                self._accepted_from = (int(r[tick_frames.SP_SYSID]), int(r[tick_frames.SP_COMPID]))
+                self._on_setpoint(sp)
+            else:
+                self.stats.rx_refused += 1
+            return
+        fast = frames.read_datagram(data, {})
         if fast is not None:
             for _id, _sys, _comp, _values, frame in fast:
                 self._log(frame)
@@ -466,14 +468,14 @@ class VehicleEndpoint:
             self._handle_safely(m)
 
     def _for_me(self, m: Any) -> bool:
-        return m.target_system in (0, self.system_id) and m.target_component in (0, COMPONENT)
+        """Addressed to this vehicle (a message with a target system and no target component is
+        for the system)."""
+        return m.target_system in (0, self.system_id) and getattr(m, "target_component", 0) in (0, COMPONENT)
 
     def _handle_safely(self, m: Any) -> None:
         """``_handle``, counting a message addressed elsewhere, and a handler's failure (a bug the
         message found: counted and kept in ``stats``, the vehicle flies on)."""
-        target = getattr(m, "target_system", None)
-        component = getattr(m, "target_component", 0)
-        if target is not None and (target not in (0, self.system_id) or component not in (0, COMPONENT)):
+        if hasattr(m, "target_system") and not self._for_me(m):
             self.stats.rx_refused += 1
             return
         self._accepted += 1
@@ -565,6 +567,7 @@ class VehicleEndpoint:
         if cmd == mav.MAV_CMD_COMPONENT_ARM_DISARM:
             arm = p1 >= 0.5
             if self.armed and not arm and round(p2) != FORCE_DISARM:
+                self.stats.rx_invalid += 1
                 result = mav.MAV_RESULT_DENIED  # PX4 refuses to disarm in flight unless forced
             else:
                 self.armed = arm
@@ -587,8 +590,6 @@ class VehicleEndpoint:
         else:  # a mode, or a message, this vehicle does not have
             self.stats.rx_invalid += 1
             result = mav.MAV_RESULT_DENIED
-        if result != mav.MAV_RESULT_ACCEPTED and cmd == mav.MAV_CMD_COMPONENT_ARM_DISARM:
-            self.stats.rx_invalid += 1
         self._ack(cmd, result)
 
     def _ack(self, command: int, result: int) -> None:

@@ -36,7 +36,7 @@ from sim_vehicles import tick_frames, udp_arrival
 from sim_vehicles.autopilot import AttitudeCommand
 from sim_vehicles.mavlink_endpoint import IGNORE_ALL, MODE_OFFBOARD
 from sim_vehicles.mavlink_signing import Signer, Verifier
-from sim_vehicles.wire_format import SAMPLE_P, SAMPLE_Q, SAMPLE_V, encode_attitude_target, sample_from_fields
+from sim_vehicles.wire_format import SAMPLE_P, SAMPLE_Q, SAMPLE_V, sample_from_fields
 
 mav = mavutil.mavlink
 COMP_ONBOARD = 191  # MAV_COMP_ID_ONBOARD_COMPUTER
@@ -184,7 +184,7 @@ class VehicleLink:
                 if opened is None:
                     continue
                 data = opened
-            plain = self._datagrams and conn.mav.signing.secret_key is None
+            plain = self._datagrams  # whole plain frames (a signed datagram is unsigned above)
             if plain:
                 s = tick_frames.read_sample(
                     data, self.system_id, COMP_AUTOPILOT, _LPOS.spec, _ATTQ.spec, _IGNORED
@@ -300,18 +300,6 @@ class VehicleLink:
     def send_setpoint(self, cmd: AttitudeCommand, time_boot_ms: int) -> None:
         mav_ = self.conn.mav
         max_thrust = self.params["MAX_THRUST_N"]
-        if mav_.signing.sign_outgoing:  # pymavlink signs
-            f = encode_attitude_target(cmd, max_thrust)
-            mav_.set_attitude_target_send(
-                time_boot_ms,
-                self.system_id,
-                COMP_AUTOPILOT,
-                IGNORE_NOTHING,
-                list(f.q),
-                *f.body_rates,
-                f.thrust,
-            )
-            return
         q_c, omega = cmd.q_c, cmd.omega_c_B
         if not (type(q_c) is np.ndarray and type(omega) is np.ndarray):
             q_c, omega = np.asarray(q_c, dtype=float), np.asarray(omega, dtype=float)
