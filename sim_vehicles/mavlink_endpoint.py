@@ -228,7 +228,7 @@ class VehicleEndpoint:
         self._signer = Signer(self.signing_key) if self.signing_key else None
         self._verifier = Verifier(self.signing_key) if self.signing_key else None
         self._peer_heard_wall = -math.inf  #: when the peer last sent [s; time.monotonic]
-        self._accepted = 0  #: well-formed messages addressed to this vehicle, from anyone heard
+        self._accepted = 0  #: well-formed messages it knows, addressed to it, from anyone heard
         self._accepted_from = (0, 0)  #: (system, component) of the last of them
         self.armed = False
         self.mode = MODE_HOLD
@@ -478,13 +478,15 @@ class VehicleEndpoint:
         if hasattr(m, "target_system") and not self._for_me(m):
             self.stats.rx_refused += 1
             return
-        self._accepted += 1
-        self._accepted_from = (m.get_srcSystem(), m.get_srcComponent())
+        unhandled = self.stats.rx_unhandled
         try:
             self._handle(m)
         except Exception as e:
             self.stats.handler_errors += 1
             self.stats.last_handler_error = f"{m.get_type()}: {type(e).__name__}: {e}"
+        if self.stats.rx_unhandled == unhandled:  # a message it does not know claims no link
+            self._accepted += 1
+            self._accepted_from = (m.get_srcSystem(), m.get_srcComponent())
 
     def _handle(self, m: Any) -> None:
         t = m.get_type()

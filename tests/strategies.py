@@ -1,7 +1,23 @@
 """Hypothesis strategies shared by the tests."""
 
+import os
+
 import numpy as np
+import pytest
+from hypothesis import HealthCheck, settings
 from hypothesis import strategies as st
+
+#: inputs per fuzz test: a few hundred in the default run; the closing figures of the hostile-input
+#: issue used ``SWARM_SITL_FUZZ_EXAMPLES=100000 python -m pytest tests -k fuzz``
+EXAMPLES = int(os.environ.get("SWARM_SITL_FUZZ_EXAMPLES", "300"))
+#: pytest-timeout for a fuzz test: the suite's 300 s, or more for a long run (about 5 ms an input)
+FUZZ_TIMEOUT = pytest.mark.timeout(max(300, int(EXAMPLES * 0.005 * 4)))
+FUZZ = settings(
+    max_examples=EXAMPLES,
+    deadline=None,
+    derandomize=EXAMPLES <= 1000,  # the default run is the same every time
+    suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow],
+)
 
 finite = st.floats(-10.0, 10.0, allow_nan=False, allow_infinity=False)
 vec3 = st.tuples(finite, finite, finite).map(np.array)
