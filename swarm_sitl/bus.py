@@ -9,7 +9,11 @@ under a wrapper, hands it to the fault stage that files it when the plan lets it
 Received samples wait in zenoh's own FIFO channels (on the Rust side) until the loop calls
 ``poll()``, which decodes and files them on the loop's thread: no Python callback thread, so no GIL
 hand-over per message (which costs more than the message on a loaded 2-core machine). Malformed
-payloads are dropped and counted in ``dropped``.
+payloads are dropped and counted in ``dropped``; well-formed ones that cannot be what their key
+says (another sender, a tick that does not follow the last one taken from that sender, or past
+``horizon()``) are dropped and counted per sender in ``refused``. Access control (``zenoh_access``)
+keeps anyone but the sender off a key; these checks keep a faulty sender from freezing a
+neighbour's table (one estimate of tick 2^32-1 would otherwise stay the newest for good).
 """
 
 import json
@@ -32,20 +36,50 @@ from swarm_sitl.bus_codec import (
 )
 from swarm_sitl.config import ZenohSpec
 from swarm_sitl.follower import EstimateMessage
+from swarm_sitl.zenoh_access import NodeKeys
 
 
-def zenoh_config(spec: ZenohSpec, extra_connect: Iterable[str] = ()) -> zenoh.Config:
+def zenoh_config(
+    spec: ZenohSpec, extra_connect: Iterable[str] = (), credentials: tuple[str, str] | None = None
+) -> zenoh.Config:
+    """A node's session: a client of the run's router (``router``, ``client``) or a peer, with
+    ``credentials`` (user, password) to authenticate with if given."""
     c = zenoh.Config()
-    c.insert_json5("mode", json.dumps(spec.mode))
+    c.insert_json5("mode", json.dumps("peer" if spec.mode == "peer" else "client"))
     if spec.mode == "peer":
         c.insert_json5("listen/endpoints", json.dumps(list(spec.listen)))
     c.insert_json5("connect/endpoints", json.dumps([*spec.connect, *extra_connect]))
     c.insert_json5("scouting/multicast/enabled", json.dumps(spec.multicast_scouting))
+    if credentials is not None:
+        c.insert_json5(
+            "transport/auth/usrpwd", json.dumps({"user": credentials[0], "password": credentials[1]})
+        )
     return c
 
 
-def open_session(spec: ZenohSpec, extra_connect: Iterable[str] = ()) -> zenoh.Session:
-    return zenoh.open(zenoh_config(spec, extra_connect))
+def open_session(
+    spec: ZenohSpec, extra_connect: Iterable[str] = (), credentials: tuple[str, str] | None = None
+) -> zenoh.Session:
+    return zenoh.open(zenoh_config(spec, extra_connect, credentials))
+
+
+def open_router(listen: list[str], users_file: str, access_control: dict[str, Any]) -> zenoh.Session:
+    """The run's router (``zenoh.mode: router``): it authenticates every session against
+    ``users_file`` (``user:password`` lines) and applies ``access_control`` to what they send and
+    receive (``zenoh_access``). Its own puts and subscriptions are local, not subject to it."""
+    c = zenoh.Config()
+    c.insert_json5("mode", json.dumps("router"))
+    c.insert_json5("listen/endpoints", json.dumps(listen))
+    c.insert_json5("scouting/multicast/enabled", "false")
+    c.insert_json5("transport/auth/usrpwd", json.dumps({"dictionary_file": users_file}))
+    c.insert_json5("access_control", json.dumps(access_control))
+    return zenoh.open(c)
+
+
+def error_line(e: Exception) -> str:
+    """The first line of a zenoh error (they carry the Rust source location after it)."""
+    text = str(e).strip()
+    return text.splitlines()[0] if text else type(e).__name__
 
 
 def _publisher(session: zenoh.Session, key: str) -> zenoh.Publisher:
@@ -121,6 +155,11 @@ class ZenohNodeBus:
         #: and the counts must be the same every run
         self.counted_steps: range | None = None
         self.published = 0  #: estimates published (each on every out-edge)
+        self.refused: dict[int, int] = {}  #: per sender, payloads that decoded but cannot be (above)
+        self._last_step: dict[int, int] = {}  #: per sender, the tick of its last estimate taken
+        #: the latest tick an estimate or status may be of now (``node_main``: the run's last tick,
+        #: in real time also no further ahead of this node's clock than ``HORIZON_LEAD_S``)
+        self.horizon: Callable[[], int] = lambda: 2**32
         self._epoch: float | None = None
         self._token: Any = None
         self._polls = 0
@@ -134,16 +173,23 @@ class ZenohNodeBus:
 
         sources = list(in_sources)
         self._est_subs = [
-            session.declare_subscriber(zenoh_keys.edge(swarm, s, node), fifo()) for s in sources
+            (s, session.declare_subscriber(zenoh_keys.edge(swarm, s, node), fifo())) for s in sources
         ]
         self._alive_subs = [
             (s, session.liveliness().declare_subscriber(zenoh_keys.alive(swarm, s), fifo(), history=True))
             for s in dict.fromkeys([*sources, *watch_alive])
         ]
         self._status_subs = [
-            session.declare_subscriber(zenoh_keys.status(swarm, f), fifo()) for f in watch_status
+            (f, session.declare_subscriber(zenoh_keys.status(swarm, f), fifo())) for f in watch_status
         ]
         self._start_sub = [session.declare_subscriber(zenoh_keys.start(swarm), fifo())]
+
+    @classmethod
+    def of(cls, session: zenoh.Session, swarm: str, keys: NodeKeys) -> "ZenohNodeBus":
+        """The bus of ``keys.node``, on the keys the router's access control grants it."""
+        return cls(
+            session, swarm, keys.node, keys.in_sources, keys.out_dests, keys.watch_status, keys.watch_alive
+        )
 
     # -- receive ---------------------------------------------------------------------------------
     def counts(self, step: int) -> bool:
@@ -153,21 +199,27 @@ class ZenohNodeBus:
     def poll(self) -> None:
         """File everything that has arrived (liveliness and the start signal every few calls: this
         runs on every wake-up of a loop and costs it most in Python overhead)."""
-        for sub in self._est_subs:
+        for src, sub in self._est_subs:
             while (sample := sub.try_recv()) is not None:
                 try:
                     m = decode_estimate(sample.payload.to_bytes())
                 except PayloadError:
                     self.dropped += 1
                     continue
+                if m.src != src or not self._in_sequence(src, m.step):
+                    self.refused[src] = self.refused.get(src, 0) + 1
+                    continue
                 if self.counts(m.step):
                     self.received[m.src] = self.received.get(m.src, 0) + 1
                 self.deliver(m)
-        for sub in self._status_subs:
+        for f, sub in self._status_subs:
             statuses, bad = decode_waiting(sub, decode_status)
             self.dropped += bad
             for st in statuses:
-                self._progress[st.follower] = max(self._progress.get(st.follower, -1), st.step)
+                if st.follower != f or st.step > self.horizon():
+                    self.refused[f] = self.refused.get(f, 0) + 1
+                    continue
+                self._progress[f] = max(self._progress.get(f, -1), st.step)
         self._polls += 1
         if self._polls % RARE_EVERY and self._epoch is not None:
             return
@@ -183,6 +235,15 @@ class ZenohNodeBus:
             self.dropped += bad
             if epochs and self._epoch is None:
                 self._epoch = epochs[0]
+
+    def _in_sequence(self, src: int, step: int) -> bool:
+        """Whether ``src``'s estimate of ``step`` can follow the last one taken from it (a later
+        tick, none past the horizon: a restarted sender resumes later than it stopped); if so it
+        is now the last one."""
+        if step <= self._last_step.get(src, -1) or step > self.horizon():
+            return False
+        self._last_step[src] = step
+        return True
 
     def file(self, m: EstimateMessage) -> None:
         """Make ``m`` available to the loop (``estimate``, ``latest``)."""
@@ -246,7 +307,10 @@ class ZenohNodeBus:
             self._token = self.session.liveliness().declare_token(zenoh_keys.alive(self.swarm, self.node))
 
     def close(self) -> None:
-        subs = [*self._est_subs, *(sub for _, sub in self._alive_subs), *self._status_subs, *self._start_sub]
+        subs = [
+            *(sub for _, sub in [*self._est_subs, *self._alive_subs, *self._status_subs]),
+            *self._start_sub,
+        ]
         for sub in subs:
             sub.undeclare()
         self._est_subs, self._alive_subs, self._status_subs, self._start_sub = [], [], [], []

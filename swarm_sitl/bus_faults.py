@@ -261,9 +261,3 @@ def acts_on(plan: FaultPlan, node: int, graph_edges: list[tuple[int, int]]) -> b
     if any(f.is_process for f in plan.plan):
         return True
     return any(plan.on_edge(s, d, graph_edges) for s, d in graph_edges if d == node)
-
-
-def watched(plan: FaultPlan, node: int, graph_edges: list[tuple[int, int]]) -> list[int]:
-    """The out-neighbours whose liveliness and status a node's bus must follow for the plan's
-    restarts (lockstep)."""
-    return sorted({d for s, d in graph_edges if s == node}) if any(f.kill for f in plan.plan) else []

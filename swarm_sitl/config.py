@@ -144,13 +144,20 @@ class EstimatorSpec(_Strict):
 
 
 class ZenohSpec(_Strict):
-    """How each process joins the zenoh bus. The defaults keep everything on loopback: a peer
-    session listening on an ephemeral loopback port, no multicast scouting, and (added by
-    ``swarm-sitl run``/``controllers``) a connection to the supervisor's session, from which the
-    peers learn each other (gossip) and connect directly. For several hosts, list a router's or
-    peers' endpoints in ``connect`` and a reachable address in ``listen``."""
+    """How each process joins the zenoh bus; everything stays on loopback unless configured.
 
-    mode: Literal["peer", "client"] = "peer"
+    - ``router`` (default): the supervisor's session is the run's zenoh router, on ``listen`` (the
+      first endpoint is the nodes'; ``tcp/127.0.0.1:0``: a free port); every node is a client of
+      it that authenticates with its own user and password, and the router's access control lets
+      each use only its own keys (``zenoh_access``);
+    - ``peer``: no authentication, no access control: the nodes are peers that listen on
+      ``listen``, meet at the supervisor's session and connect to each other directly;
+    - ``client``: the supervisor and every node are clients of the router(s) in ``connect`` (a
+      zenohd of your own: its authentication and access control are its config; a node gives
+      the user and password in ``SWARM_SITL_ZENOH_USER``/``SWARM_SITL_ZENOH_PASSWORD`` if set).
+    """
+
+    mode: Literal["router", "peer", "client"] = "router"
     listen: list[str] = ["tcp/127.0.0.1:0"]
     connect: list[str] = []
     multicast_scouting: bool = False

@@ -14,6 +14,9 @@ from collections.abc import Callable, Sequence
 POLL_S = 0.0005  #: longest block between two reads of the bus [s]
 #: real time: how long after the last tick's instant a node that is done keeps its zenoh session [s]
 END_LINGER_S = 0.25
+#: real time: how far ahead of a node's clock another's message may be [s] (their clocks are one
+#: host's, or NTP-synchronised hosts'); one further ahead is refused (``bus``)
+HORIZON_LEAD_S = 0.5
 
 
 class RunClock:
@@ -30,6 +33,14 @@ class RunClock:
     def now(self) -> float:
         """Lockstep: the tick (a count); real time: run seconds."""
         return float(self.tick) if self.lockstep else time.monotonic() - self.epoch_mono
+
+    def horizon(self, last_tick: int) -> int:
+        """The latest tick another node's message may be of now: in lockstep any of the run (a
+        neighbour may run far ahead), in real time none more than ``HORIZON_LEAD_S`` ahead of
+        this clock (before the start signal: any of the run)."""
+        if self.lockstep or math.isnan(self.epoch_mono):
+            return last_tick
+        return min(last_tick, int((time.monotonic() - self.epoch_mono + HORIZON_LEAD_S) / self.period_s))
 
     def now_s(self) -> float:
         """Run seconds: simulated in lockstep, on the wall clock in real time."""

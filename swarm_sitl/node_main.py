@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import Any
 
 from swarm_sitl.config import SwarmConfig
+from swarm_sitl.zenoh_access import node_keys
 
 
 def _terminate(signum: int, frame: object) -> None:
@@ -21,8 +22,9 @@ def _terminate(signum: int, frame: object) -> None:
 
 def _session(cfg: SwarmConfig, connect: list[str]) -> Any:
     from swarm_sitl.bus import open_session
+    from swarm_sitl.zenoh_access import credentials_from_env
 
-    return open_session(cfg.zenoh, connect)
+    return open_session(cfg.zenoh, connect, credentials_from_env())
 
 
 def _guarded(name: str, body: Any, lockstep: bool) -> int:
@@ -30,6 +32,7 @@ def _guarded(name: str, body: Any, lockstep: bool) -> int:
 
     from sim_vehicles.lifeline import batch_scheduling, hold_on, profiled
     from sim_vehicles.mavlink_signing import SigningKeyError
+    from swarm_sitl.bus import error_line
     from swarm_sitl.command_attitude import SingularCommandError
     from swarm_sitl.node_clock import StallError
     from swarm_sitl.vehicle_link import LinkError
@@ -44,8 +47,7 @@ def _guarded(name: str, body: Any, lockstep: bool) -> int:
         print(f"{name}: error: {e}", file=sys.stderr, flush=True)
         return 1
     except zenoh.ZError as e:
-        first = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
-        print(f"{name}: error: zenoh: {first}", file=sys.stderr, flush=True)
+        print(f"{name}: error: zenoh: {error_line(e)}", file=sys.stderr, flush=True)
         return 1
     except KeyboardInterrupt:
         print(f"{name}: stopped", file=sys.stderr, flush=True)
@@ -61,11 +63,24 @@ def _write_stats(path: Path, stats: dict[str, Any]) -> None:
     tmp.replace(path)
 
 
+def in_edge_stats(zbus: Any, faulty: Any) -> dict[int, dict[str, int]]:
+    """Per in-neighbour: what came (``received``), what the fault plan let through
+    (``delivered``), and what the bus refused (``refused``, only if any)."""
+    stats = (
+        faulty.edge_stats()
+        if faulty
+        else {s: {"received": n, "delivered": n} for s, n in zbus.received.items()}
+    )
+    for s, n in zbus.refused.items():
+        stats.setdefault(s, {})["refused"] = n
+    return stats
+
+
 def cmd_controller(cfg: SwarmConfig, args: argparse.Namespace) -> int:
     from sim_vehicles.mavlink_signing import read_key
     from sim_vehicles.row_log import RowLog
     from swarm_sitl.bus import NodeBus, ZenohNodeBus
-    from swarm_sitl.bus_faults import FaultyBus, acts_on, watched
+    from swarm_sitl.bus_faults import FaultyBus, acts_on
     from swarm_sitl.controller_node import CONTROLLER_COLUMNS, run_controller
     from swarm_sitl.events import EventLog
     from swarm_sitl.link_faults import MavlinkFaults
@@ -77,7 +92,6 @@ def cmd_controller(cfg: SwarmConfig, args: argparse.Namespace) -> int:
     i = args.id
     if i not in {f.id for f in cfg.followers}:
         raise ValueError(f"--id {i} is not a follower of {cfg.name} (ids 1..{cfg.n_followers})")
-    graph = cfg.build_graph()
     edges = cfg.graph_edges()
 
     def body() -> str:
@@ -101,16 +115,8 @@ def cmd_controller(cfg: SwarmConfig, args: argparse.Namespace) -> int:
                 args.mavlink, i, stamp_arrivals=not args.lockstep, faults=link_faults, signing_key=key
             )
             session = _session(cfg, args.connect)
-            watch = watched(cfg.faults, i, edges)
-            bus = zbus = ZenohNodeBus(
-                session,
-                cfg.name,
-                i,
-                [s for s, _ in graph.in_neighbours(i)],
-                list(graph.out_neighbours(i)),
-                watch_status=watch,
-                watch_alive=watch,
-            )
+            bus = zbus = ZenohNodeBus.of(session, cfg.name, node_keys(cfg, i))
+            zbus.horizon = lambda: clock.horizon(cfg.n_control_steps)
             if args.lockstep:
                 zbus.counted_steps = range(args.resume_tick, cfg.n_control_steps)
             faulty = None
@@ -126,14 +132,7 @@ def cmd_controller(cfg: SwarmConfig, args: argparse.Namespace) -> int:
                         "follower": i,
                         "report": rep._asdict(),
                         "published": zbus.published,
-                        "in_edges": {
-                            str(s): st
-                            for s, st in (
-                                faulty.edge_stats()
-                                if faulty
-                                else {s: {"received": n, "delivered": n} for s, n in zbus.received.items()}
-                            ).items()
-                        },
+                        "in_edges": {str(s): st for s, st in in_edge_stats(zbus, faulty).items()},
                         "mavlink": link_faults.link_stats() if link_faults else {},
                     },
                 )
@@ -154,13 +153,12 @@ def cmd_controller(cfg: SwarmConfig, args: argparse.Namespace) -> int:
 
 def cmd_leader(cfg: SwarmConfig, args: argparse.Namespace) -> int:
     from swarm_sitl.bus import NodeBus, ZenohNodeBus
-    from swarm_sitl.bus_faults import FaultyBus, acts_on, watched
+    from swarm_sitl.bus_faults import FaultyBus, acts_on
     from swarm_sitl.leader_node import run_leader
     from swarm_sitl.node_clock import RunClock
     from swarm_sitl.recording import leader_stats_path
 
-    graph = cfg.build_graph()
-    outs = list(graph.out_neighbours(0))
+    outs = node_keys(cfg, 0).out_dests
     edges = cfg.graph_edges()
 
     def body() -> str:
@@ -169,9 +167,8 @@ def cmd_leader(cfg: SwarmConfig, args: argparse.Namespace) -> int:
         try:
             session = _session(cfg, args.connect)
             clock = RunClock(args.lockstep, cfg.control_dt_s)
-            zbus = ZenohNodeBus(
-                session, cfg.name, 0, [], outs, watch_status=outs, watch_alive=watched(cfg.faults, 0, edges)
-            )
+            zbus = ZenohNodeBus.of(session, cfg.name, node_keys(cfg, 0))
+            zbus.horizon = lambda: clock.horizon(cfg.n_control_steps)
             node_bus: NodeBus = zbus
             if acts_on(cfg.faults, 0, edges):
                 node_bus = FaultyBus(

@@ -40,11 +40,14 @@ from swarm_sitl.bus_codec import Status, decode_status, decode_waiting
 from swarm_sitl.config import SwarmConfig
 from swarm_sitl.recording import (
     procs_dir,
+    signing_key_path,
     start_path,
     supervisor_events_path,
     vehicle_events_path,
     vehicle_stats_path,
     vehicle_truth_path,
+    write_secret,
+    zenoh_users_path,
 )
 
 TERM_GRACE_S = 5.0
@@ -94,6 +97,8 @@ class Supervisor:
     planned_exit: Callable[[Child, int], bool] = lambda child, code: False
     #: whether a stopped child was stopped by the plan
     planned_stop: Callable[[str], bool] = lambda process: False
+    #: environment a process's children get besides ``child_env()`` (its zenoh credentials)
+    env_for: Callable[[str], dict[str, str]] = lambda process: {}
 
     def child(self, process: str) -> Child | None:
         """The live incarnation of ``process``, if any."""
@@ -106,7 +111,12 @@ class Supervisor:
         log_path = log_dir / f"{name}.log"
         log = open(log_path, "wb")  # noqa: SIM115  (closed in close())
         self._logs.append(log)
-        env = {**child_env(), PARENT_ENV: str(os.getpid()), "PYTHONUNBUFFERED": "1"}
+        env = {
+            **child_env(),
+            PARENT_ENV: str(os.getpid()),
+            "PYTHONUNBUFFERED": "1",
+            **self.env_for(process or name),
+        }
         proc = subprocess.Popen(
             argv,
             stdout=log,
@@ -224,12 +234,8 @@ def signing_key_file(cfg: SwarmConfig, run_dir: Path, own_vehicles: bool) -> Pat
         return Path(cfg.signing.passphrase_file)
     if not own_vehicles:
         return None
-    path = run_dir / "mavlink_signing.key"
-    with contextlib.suppress(FileNotFoundError):
-        path.unlink()
-    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
-    with os.fdopen(fd, "w") as f:
-        f.write(secrets.token_hex(32) + "\n")
+    path = signing_key_path(run_dir)
+    write_secret(path, secrets.token_hex(32) + "\n")
     return path
 
 
@@ -375,11 +381,14 @@ class RunMonitor:
         return cb
 
     def _read_status(self) -> None:
-        for sub in self._status_subs:
+        for f, sub in zip(self.cfg.followers, self._status_subs, strict=True):
             statuses, bad = decode_waiting(sub, decode_status)
             self.dropped += bad
             for s in statuses:
-                self.status[s.follower] = s
+                if s.follower == f.id:  # else not its sender's (a peer-mode bus has no access control)
+                    self.status[s.follower] = s
+                else:
+                    self.dropped += 1
 
     def errors_m(self) -> dict[int, float]:
         """Each follower's |p - p_r - delta| at its latest status."""
@@ -404,6 +413,45 @@ class RunMonitor:
             s.undeclare()
 
 
+def open_hub(cfg: SwarmConfig, run_dir: Path, sup: Supervisor) -> tuple[str | None, Any]:
+    """The supervisor's zenoh session and the endpoint the nodes connect to (``ZenohSpec``): in
+    ``router`` mode a router on ``zenoh.listen`` (by default a free loopback port) that
+    authenticates each node with a fresh password (given to the node's processes in their
+    environment) and holds it to its keys; in ``peer`` mode a peer on a free loopback port where
+    the peers meet; in ``client`` mode a client of the configured router, and no endpoint of ours."""
+    import zenoh
+
+    from swarm_sitl.bus import error_line
+
+    try:
+        return _open_hub(cfg, run_dir, sup)
+    except zenoh.ZError as e:
+        raise RunFailedError(f"zenoh ({cfg.zenoh.mode} mode): {error_line(e)}") from None
+
+
+def _open_hub(cfg: SwarmConfig, run_dir: Path, sup: Supervisor) -> tuple[str | None, Any]:
+    from swarm_sitl import zenoh_access
+    from swarm_sitl.bus import open_router, open_session
+
+    if cfg.zenoh.mode == "client":
+        return None, open_session(cfg.zenoh, credentials=zenoh_access.credentials_from_env())
+    if cfg.zenoh.mode == "peer":
+        hub = f"tcp/127.0.0.1:{free_tcp_port()}"
+        return hub, open_session(cfg.zenoh.model_copy(update={"listen": [hub]}))
+    listen = [_with_free_port(e) for e in cfg.zenoh.listen]
+    passwords = zenoh_access.write_credentials(cfg, run_dir)
+    sup.env_for = lambda process: zenoh_access.credentials_env(process, passwords)
+    router = open_router(listen, str(zenoh_users_path(run_dir)), zenoh_access.access_control(cfg))
+    return listen[0].replace("/0.0.0.0:", "/127.0.0.1:"), router
+
+
+def _with_free_port(endpoint: str) -> str:
+    """``tcp/127.0.0.1:0`` with a free port in place of 0 (the nodes must be told the port)."""
+    if endpoint.startswith("tcp/127.0.0.1:") and endpoint.endswith(":0"):
+        return f"tcp/127.0.0.1:{free_tcp_port()}"
+    return endpoint
+
+
 @dataclass
 class RunResult:
     run_wall_s: float  #: from the start signal to the last controller done
@@ -419,7 +467,7 @@ def run_swarm(
     on_progress: Callable[[int, dict[int, float]], None] | None = None,
 ) -> RunResult:
     """Run the swarm; vehicles are spawned unless ``mavlink`` gives each follower's endpoint."""
-    from swarm_sitl.bus import open_session, publish_start
+    from swarm_sitl.bus import publish_start
     from swarm_sitl.process_faults import LostAircraftError, ProcessFaults, check_lockstep
 
     if lockstep:
@@ -431,12 +479,7 @@ def run_swarm(
     procs_dir(run_dir).mkdir(parents=True, exist_ok=True)
     t_spawn = time.monotonic()
     sup = Supervisor(run_dir)
-    if cfg.zenoh.mode == "peer":  # the supervisor's session is where the peers meet
-        hub: str | None = f"tcp/127.0.0.1:{free_tcp_port()}"
-        session = open_session(cfg.zenoh.model_copy(update={"listen": [hub]}))
-    else:
-        hub = None
-        session = open_session(cfg.zenoh)
+    hub, session = open_hub(cfg, run_dir, sup)
     monitor = RunMonitor(session, cfg)
     faults = ProcessFaults(cfg, sup, lockstep, supervisor_events_path(run_dir)) if cfg.faults.plan else None
     try:

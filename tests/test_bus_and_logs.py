@@ -76,12 +76,12 @@ def test_malformed_estimates_are_refused_with_one_line(payload, match):
 def test_each_node_subscribes_to_exactly_its_in_edges(paper_cfg):
     """The bus mirrors the graph: full keys, never a wildcard."""
     g = paper_cfg.build_graph()
-    session = open_session(ZenohSpec(listen=[]))
+    session = open_session(ZenohSpec(mode="peer", listen=[]))
     try:
         for f in paper_cfg.followers:
             i = f.id
             bus = ZenohNodeBus(session, "t", i, [s for s, _ in g.in_neighbours(i)], list(g.out_neighbours(i)))
-            subs = {str(sub.key_expr) for sub in bus._est_subs}
+            subs = {str(sub.key_expr) for _, sub in bus._est_subs}
             pubs = {str(p.key_expr) for p in bus._pubs}
             bus.close()
             assert subs == {zenoh_keys.edge("t", s, i) for s, _ in g.in_neighbours(i)}
@@ -92,7 +92,7 @@ def test_each_node_subscribes_to_exactly_its_in_edges(paper_cfg):
 
 
 def test_bad_payload_on_an_edge_is_dropped_and_counted():
-    session = open_session(ZenohSpec(listen=[]))
+    session = open_session(ZenohSpec(mode="peer", listen=[]))
     try:
         bus = ZenohNodeBus(session, "t", 2, [1], [])
         good = EstimateMessage(1, 5, 0.05, *[np.ones(3)] * 4)
@@ -128,28 +128,81 @@ def test_decode_waiting_returns_the_good_payloads_in_order_and_counts_the_bad():
 
 
 def test_forget_before_drops_exactly_the_older_ticks_even_out_of_order():
-    session = open_session(ZenohSpec(listen=[]))
+    """Out of order as a fault plan's delay files them (the wire's order is refused, below)."""
+    session = open_session(ZenohSpec(mode="peer", listen=[]))
     try:
         bus = ZenohNodeBus(session, "t", 2, [1], [])
-        steps = [0, 1, 2, 4, 3, 5, 6, 7]  # one pair out of order
-        for k in steps:
-            session.put(
-                zenoh_keys.edge("t", 1, 2),
-                encode_estimate(EstimateMessage(1, k, 0.01 * k, *[np.ones(3)] * 4)),
-            )
-        for _ in range(200):
-            bus.poll()
-            if bus.latest(1) is not None and bus.latest(1).step == 7:
-                break
-            time.sleep(0.01)
+        for k in [0, 1, 2, 4, 3, 5, 6, 7]:  # one pair out of order
+            bus.file(EstimateMessage(1, k, 0.01 * k, *[np.ones(3)] * 4))
         kept = lambda: [k for k in range(8) if bus.estimate(1, k) is not None]  # noqa: E731
-        assert kept() == list(range(8))
+        assert kept() == list(range(8)) and bus.latest(1).step == 7
         bus.forget_before(3)
         assert kept() == [3, 4, 5, 6, 7]
         bus.forget_before(4)  # tick 3 came after tick 4: it may stay until tick 4 goes
         assert kept()[-4:] == [4, 5, 6, 7]
         bus.forget_before(6)
         assert kept() == [6, 7]
+        bus.close()
+    finally:
+        session.close()
+
+
+def _estimate(src: int, step: int, p: float = 1.0) -> bytes:
+    return encode_estimate(EstimateMessage(src, step, 0.01 * step, *[np.full(3, p)] * 4))
+
+
+def _drain(bus, until) -> None:
+    for _ in range(300):
+        bus.poll()
+        if until():
+            return
+        time.sleep(0.01)
+
+
+def test_estimates_that_cannot_follow_the_last_are_refused_and_counted():
+    """On node 2's in-edge from 1: another sender's estimate, a tick already taken (a replay, a
+    duplicate, one out of order) and ticks past the horizon (2^32-1; past the run) are refused
+    and counted per sender; the sender's next real estimates are still taken and are the newest."""
+    session = open_session(ZenohSpec(mode="peer", listen=[]))
+    try:
+        bus = ZenohNodeBus(session, "t", 2, [1], [])
+        bus.horizon = lambda: 100
+        key = zenoh_keys.edge("t", 1, 2)
+        sent = [
+            (_estimate(1, 0), True),
+            (_estimate(1, 1), True),
+            (_estimate(3, 2, 9.0), False),  # node 3's estimate on node 1's key
+            (_estimate(1, 1, 9.0), False),  # tick 1 again
+            (_estimate(1, 3), True),  # a gap (lost, or the sender restarted): fine
+            (_estimate(1, 2, 9.0), False),  # out of order
+            (_estimate(1, 2**32 - 1, 9.0), False),  # far ahead
+            (_estimate(1, 101, 9.0), False),  # just past the horizon
+            (_estimate(1, 4), True),
+            (_estimate(1, 100), True),  # at the horizon
+        ]
+        for data, _ in sent:
+            session.put(key, data)
+        _drain(bus, lambda: bus.latest(1) is not None and bus.latest(1).step == 100)
+        taken = [k for k in range(101) if bus.estimate(1, k) is not None]
+        assert taken == [0, 1, 3, 4, 100]
+        assert bus.refused == {1: sum(not ok for _, ok in sent)} and bus.dropped == 0
+        assert all(bus.estimate(1, k).p_hat.tolist() == [1.0] * 3 for k in taken)
+        assert bus.received == {1: 5}
+        bus.close()
+    finally:
+        session.close()
+
+
+def test_a_status_from_another_sender_or_past_the_horizon_does_not_pace_the_leader():
+    session = open_session(ZenohSpec(mode="peer", listen=[]))
+    try:
+        bus = ZenohNodeBus(session, "t", 0, [], [1], watch_status=[1])
+        bus.horizon = lambda: 50
+        for st in (Status(2, 40, 0.4, 0.4, np.zeros(3)), Status(1, 51, 0.5, 0.5, np.zeros(3))):
+            session.put(zenoh_keys.status("t", 1), encode_status(st))
+        session.put(zenoh_keys.status("t", 1), encode_status(Status(1, 7, 0.07, 0.07, np.zeros(3))))
+        _drain(bus, lambda: bus.progress(1) >= 0)
+        assert bus.progress(1) == 7 and bus.refused == {1: 2}
         bus.close()
     finally:
         session.close()
@@ -168,3 +221,15 @@ def test_row_log_survives_a_cut_mid_row(tmp_path):
     cols, rows = read_rows(path)
     assert cols == ["a", "b", "c"] and rows.shape == (5, 3) and rows[4].tolist() == [4.0, 4.5, -4.0]
     log.close()
+
+
+def test_the_horizon_is_the_run_in_lockstep_and_half_a_second_ahead_in_real_time():
+    from swarm_sitl.node_clock import HORIZON_LEAD_S, RunClock
+
+    assert RunClock(True, 0.01).horizon(6000) == 6000
+    rt = RunClock(False, 0.01)
+    assert rt.horizon(6000) == 6000  # before the start signal
+    rt.epoch_mono = time.monotonic() - 2.0  # two seconds into the run
+    lead = round(HORIZON_LEAD_S / 0.01)
+    assert 200 + lead <= rt.horizon(6000) <= 200 + lead + 5
+    assert rt.horizon(210) == 210

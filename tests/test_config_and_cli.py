@@ -50,8 +50,8 @@ CASES = {
         "lockstep_window (5) must exceed status_every (10)",
     ),
     "zenoh mode": (
-        lambda d: d.update(zenoh={"mode": "router"}),
-        "zenoh.mode: Input should be 'peer' or 'client'",
+        lambda d: d.update(zenoh={"mode": "mesh"}),
+        "zenoh.mode: Input should be 'router', 'peer' or 'client'",
     ),
 }
 

@@ -143,17 +143,24 @@ def test_a_process_failing_to_start_tears_everything_down(tmp_path):
     busy.bind(("127.0.0.1", 0))
     busy.listen()
     cfg = yaml.safe_load((CONFIGS / "paper.yaml").read_text())
-    cfg["zenoh"] = {"listen": [f"tcp/127.0.0.1:{busy.getsockname()[1]}"]}  # every node fails to listen
+    taken = f"tcp/127.0.0.1:{busy.getsockname()[1]}"
+    cfg["zenoh"] = {"mode": "peer", "listen": [taken]}  # every node fails to listen
     path = tmp_path / "bad.yaml"
     path.write_text(yaml.safe_dump(cfg))
     out = tmp_path / "run"
     r = _cli("run", path, "--out", out, "--quiet", "--duration", 5)
-    busy.close()
     assert r.returncode == 1
     line = r.stderr.strip().splitlines()[-1]
     assert re.search(r"(leader|controller_\d) exited with code 1: .*zenoh", line), r.stderr
     assert not _processes_mentioning(str(tmp_path))
     assert all(_udp_free(p) for p in _vehicle_ports(out))
+    cfg["zenoh"] = {"mode": "router", "listen": [taken]}  # the supervisor's router cannot listen
+    path.write_text(yaml.safe_dump(cfg))
+    r = _cli("run", path, "--out", tmp_path / "run2", "--quiet", "--duration", 5)
+    busy.close()
+    assert r.returncode == 1 and len(r.stderr.strip().splitlines()) == 1, r.stderr
+    assert "zenoh (router mode): Can not create a new TCP listener" in r.stderr
+    assert not _processes_mentioning(str(tmp_path))
 
 
 def _start_run(out: Path, *extra) -> subprocess.Popen:
@@ -273,6 +280,22 @@ signal.signal(signal.SIGTERM, lambda *a: sys.exit(0))
 while True:
     time.sleep(1)
 """
+
+
+def test_the_same_swarm_runs_as_zenoh_peers(tmp_path, paper_cfg):
+    """``zenoh.mode: peer``: no router, no authentication; the nodes meet at the supervisor's
+    session and talk to each other directly. The same run, bit for bit."""
+    cfg = yaml.safe_load((CONFIGS / "paper.yaml").read_text())
+    cfg["zenoh"] = {"mode": "peer"}
+    path = tmp_path / "peers.yaml"
+    path.write_text(yaml.safe_dump(cfg))
+    out = tmp_path / "run"
+    r = _cli("run", path, "--duration", 3, "--out", out, "--quiet")
+    assert r.returncode == 0, r.stderr
+    assert not (out / "zenoh_users.txt").exists()
+    sim = run_sim(paper_cfg.model_copy(update={"duration_s": 3.0}))
+    for i in range(1, 5):
+        assert np.array_equal(np.load(out / f"follower_{i}.npz")["p_W"], sim.followers[i]["p_W"])
 
 
 def test_the_same_swarm_runs_through_a_zenoh_router(tmp_path, paper_cfg):

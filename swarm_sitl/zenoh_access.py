@@ -1,0 +1,150 @@
+"""Who may use which zenoh key: each node's keys from the graph, its credentials, and the router's
+access-control rules that hold it to them.
+
+In ``zenoh.mode: router`` (the default) the supervisor's session is the zenoh router of the run
+and every node is a client of it. The router authenticates each session by user name and password
+(zenoh's ``usrpwd``: a session without them, or with wrong ones, is refused at connect) and its
+access control (default deny) lets node ``i`` (user ``node_<i>``; 0 is the leader):
+
+- put on its out-edges ``edge/<i>/<d>`` and on its ``status/<i>``; declare its ``alive/<i>``;
+- subscribe to its in-edges ``edge/<s>/<i>``, to ``start``, and to the status and liveliness of the
+  nodes it watches (the leader paces itself on its out-neighbours; a fault plan's watchers);
+
+and nothing else: a put on another node's edge, a subscription to another's in-edge, to a
+wildcard or to ``start`` with the right to publish it is dropped by zenoh itself. Only the
+supervisor's own session, inside the router, publishes ``start``. ``NodeKeys`` is also what the
+node's bus declares (``node_main``), so the rules and the bus cannot disagree.
+"""
+
+import os
+import secrets
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from swarm_sitl import zenoh_keys
+from swarm_sitl.config import SwarmConfig
+from swarm_sitl.recording import write_secret, zenoh_users_path
+
+USER_ENV = "SWARM_SITL_ZENOH_USER"  #: the user name a node's session authenticates with
+PASSWORD_ENV = "SWARM_SITL_ZENOH_PASSWORD"  #: and its password (environment: not on a command line)
+
+
+@dataclass(frozen=True)
+class NodeKeys:
+    """The zenoh keys node ``node`` uses, by the other nodes they concern."""
+
+    node: int
+    in_sources: list[int]  #: it subscribes to their estimates for it
+    out_dests: list[int]  #: it publishes its estimate for them
+    watch_status: list[int]  #: followers whose status it follows
+    watch_alive: list[int]  #: nodes besides ``in_sources`` whose liveliness it follows
+
+
+def node_keys(cfg: SwarmConfig, node: int) -> NodeKeys:
+    graph = cfg.build_graph()
+    outs = list(graph.out_neighbours(node))
+    # a fault plan that kills processes: a node follows its out-neighbours' liveliness and status
+    # (lockstep: a restarted one resumes where the slowest reader is)
+    watch = sorted(set(outs)) if any(f.kill for f in cfg.faults.plan) else []
+    if node == 0:
+        return NodeKeys(0, [], outs, outs, watch)
+    return NodeKeys(node, [s for s, _ in graph.in_neighbours(node)], outs, watch, watch)
+
+
+def user(node: int) -> str:
+    return f"node_{node}"
+
+
+def process_node(process: str) -> int | None:
+    """The node a supervised process is (``leader`` 0, ``controller_<i>`` i), or None."""
+    if process == "leader":
+        return 0
+    if process.startswith("controller_"):
+        return int(process.removeprefix("controller_"))
+    return None
+
+
+def credentials_env(process: str, passwords: dict[int, str]) -> dict[str, str]:
+    """The environment that gives ``process`` its node's zenoh credentials (none to a vehicle)."""
+    node = process_node(process)
+    return {} if node is None else {USER_ENV: user(node), PASSWORD_ENV: passwords[node]}
+
+
+def credentials_from_env() -> tuple[str, str] | None:
+    """(user, password) from ``USER_ENV``/``PASSWORD_ENV``, if both are set."""
+    u, pw = os.environ.get(USER_ENV), os.environ.get(PASSWORD_ENV)
+    return (u, pw) if u and pw else None
+
+
+def _rules(swarm: str, k: NodeKeys) -> dict[str, list[str]]:
+    """Ingress rights of a node: key expressions by message kind."""
+    puts = [zenoh_keys.edge(swarm, k.node, d) for d in k.out_dests]
+    if k.node > 0:
+        puts.append(zenoh_keys.status(swarm, k.node))
+    subs = [zenoh_keys.edge(swarm, s, k.node) for s in k.in_sources]
+    subs += [zenoh_keys.status(swarm, f) for f in k.watch_status] + [zenoh_keys.start(swarm)]
+    alive = [zenoh_keys.alive(swarm, n) for n in dict.fromkeys([*k.in_sources, *k.watch_alive])]
+    rules = {
+        "put": puts,
+        "declare_subscriber": subs,
+        "liveliness_token": [zenoh_keys.alive(swarm, k.node)],
+        "declare_liveliness_subscriber": alive,
+        "liveliness_query": alive,
+    }
+    return {kind: keys for kind, keys in rules.items() if keys}
+
+
+def access_control(cfg: SwarmConfig) -> dict[str, Any]:
+    """The router's ``access_control`` section for the swarm of ``cfg``: default deny; each node's
+    ingress limited to its keys (``_rules``); egress (what the router forwards to a node) to the
+    swarm's keys, of which a node receives only what it subscribed to."""
+    swarm = cfg.name
+    rules: list[dict[str, Any]] = [
+        {
+            "id": "egress",
+            "messages": [
+                "put",
+                "declare_subscriber",
+                "liveliness_token",
+                "declare_liveliness_subscriber",
+                "liveliness_query",
+                "reply",
+            ],
+            "flows": ["egress"],
+            "permission": "allow",
+            "key_exprs": [f"swarm/{swarm}/**"],
+        }
+    ]
+    subjects: list[dict[str, Any]] = []
+    policies: list[dict[str, Any]] = []
+    for node in range(cfg.n_followers + 1):
+        ids = []
+        for kind, keys in _rules(swarm, node_keys(cfg, node)).items():
+            ids.append(f"{user(node)}_{kind}")
+            rules.append(
+                {
+                    "id": ids[-1],
+                    "messages": [kind],
+                    "flows": ["ingress"],
+                    "permission": "allow",
+                    "key_exprs": keys,
+                }
+            )
+        subjects.append({"id": user(node), "usernames": [user(node)]})
+        policies.append({"rules": ["egress", *ids], "subjects": [user(node)]})
+    return {
+        "enabled": True,
+        "default_permission": "deny",
+        "rules": rules,
+        "subjects": subjects,
+        "policies": policies,
+    }
+
+
+def write_credentials(cfg: SwarmConfig, run_dir: Path) -> dict[int, str]:
+    """A fresh random password per node, and the router's dictionary of them in
+    ``RUN_DIR/zenoh_users.txt`` (``user:password`` lines, readable by this user only)."""
+    passwords = {n: secrets.token_hex(16) for n in range(cfg.n_followers + 1)}
+    write_secret(zenoh_users_path(run_dir), "".join(f"{user(n)}:{pw}\n" for n, pw in passwords.items()))
+    return passwords
