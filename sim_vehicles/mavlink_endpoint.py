@@ -1,25 +1,32 @@
 """A simulated vehicle behind a MAVLink 2 endpoint on UDP, in real time.
 
-It behaves as a MAVLink tool expects of an autopilot (the PX4 SITL habits):
+It behaves as a MAVLink tool expects of a PX4 autopilot (the compatibility profile; PX4's
+conventions are in ``px4_profile``):
 
-- HEARTBEAT at 1 Hz: type MAV_TYPE_QUADROTOR, autopilot MAV_AUTOPILOT_GENERIC, system id = follower
+- HEARTBEAT at 1 Hz: type MAV_TYPE_QUADROTOR, autopilot MAV_AUTOPILOT_PX4, system id = follower
   id, component MAV_COMP_ID_AUTOPILOT1; ``base_mode`` carries SAFETY_ARMED and CUSTOM_MODE_ENABLED;
-  ``custom_mode`` is ``MODE_HOLD`` (0, ignores setpoints), ``MODE_OFFBOARD`` (1, follows
-  SET_ATTITUDE_TARGET) or ``MODE_FAILSAFE`` (2, setpoints lost for SP_TIMEOUT_S: the vehicle flies
-  its own failsafe, a position hold at the point of loss or a landing, ``failsafe``; a valid
-  setpoint brings it back to offboard), and ``system_status`` is MAV_STATE_CRITICAL in failsafe.
-  Entering and leaving failsafe is a STATUSTEXT and an event (``events_path``).
+  ``custom_mode`` is PX4's: AUTO.LOITER ("Hold", ``MODE_HOLD``: ignores setpoints) or OFFBOARD
+  (``MODE_OFFBOARD``: follows SET_ATTITUDE_TARGET). Setpoints lost for SP_TIMEOUT_S in offboard
+  are its failsafe (``MODE_FAILSAFE``): it flies a position hold at the point of loss or a landing
+  (``failsafe``), reported as AUTO.LOITER or AUTO.LAND with ``system_status`` MAV_STATE_CRITICAL,
+  and a valid setpoint brings it back to offboard. Entering and leaving failsafe is a STATUSTEXT
+  and an event (``events_path``).
 - Telemetry at configurable rates: LOCAL_POSITION_NED, ATTITUDE, ATTITUDE_QUATERNION,
-  ATTITUDE_TARGET, HIGHRES_IMU (specific force, body FRD), SYS_STATUS; ``time_boot_ms`` is the
-  vehicle's simulated time.
+  ATTITUDE_TARGET, HIGHRES_IMU (specific force, body FRD), SYS_STATUS (sensor and pre-arm health
+  bits), GLOBAL_POSITION_INT and GPS_RAW_INT (around ``home``), EXTENDED_SYS_STATE (landed state),
+  HOME_POSITION; ``time_boot_ms`` is the vehicle's simulated time. AUTOPILOT_VERSION on request
+  (PROTOCOL_VERSION is not in pymavlink's common dialect: MAV_CMD_REQUEST_PROTOCOL_VERSION is
+  answered UNSUPPORTED, and tools then take MAVLink 2 from the frames themselves).
 - SET_ATTITUDE_TARGET honoured as PX4 does: target system/component checked, type_mask bits
   (1..4 ignore body rates, 64 ignore throttle, 128 ignore attitude), NED/FRD converted at the wire
   (``wire_format``), thrust 0..1 of MAX_THRUST_N.
-- COMMAND_LONG MAV_CMD_COMPONENT_ARM_DISARM and MAV_CMD_DO_SET_MODE (param2 = custom mode), each
-  answered with COMMAND_ACK.
+- COMMAND_LONG MAV_CMD_COMPONENT_ARM_DISARM and MAV_CMD_DO_SET_MODE (PX4's base mode, main mode,
+  sub mode; OFFBOARD only while setpoints stream, as PX4 requires), each answered with COMMAND_ACK
+  addressed to its sender; MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES and MAV_CMD_GET_HOME_POSITION
+  answered with their message; PING answered; an empty mission list.
 - Parameters MASS_KG, INERTIA_X/Y/Z, MAX_THRUST_N, SP_TIMEOUT_S, COM_OBL_ACT and MC_ROLLRATE_MAX,
   MC_PITCHRATE_MAX, MC_YAWRATE_MAX [deg/s] over the parameter protocol; PARAM_SET changes those
-  that may change in flight (``SETTABLE``).
+  that may change in flight (``SETTABLE``), answered with PARAM_VALUE.
 - MAV_CMD_SET_MESSAGE_INTERVAL (param1 message id, param2 interval [us]; -1 stops, 0 restores the
   default) and MAV_CMD_REQUEST_MESSAGE (param1 message id: sent once, now) for the telemetry above.
 - Every message in and out written to a ``.tlog`` (8-byte big-endian microseconds, then the frame;
@@ -81,6 +88,7 @@ import numpy as np
 from pymavlink.dialects.v20 import common as mav
 
 from sim_vehicles import mavlink_frames as frames
+from sim_vehicles import px4_profile as px4
 from sim_vehicles import tick_frames, udp_arrival
 from sim_vehicles.autopilot import AttitudeCommand, Autopilot
 from sim_vehicles.event_log import EventLog
@@ -109,6 +117,11 @@ SETTABLE = {
     "COM_OBL_ACT": (0.0, 1.0),  # failsafe.ACTION_LAND, failsafe.ACTION_HOLD
     **dict.fromkeys(RATE_MAX_PARAMS, (1.0, 1800.0)),  # [deg/s], as PX4 gives them
 }
+#: commands that ask for a message: the message each one sends after its COMMAND_ACK
+ASKS = {
+    mav.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES: mav.MAVLINK_MSG_ID_AUTOPILOT_VERSION,
+    mav.MAV_CMD_GET_HOME_POSITION: mav.MAVLINK_MSG_ID_HOME_POSITION,
+}
 PEER_SILENT_S = 3.0  #: wall time a peer must be silent before another address may take the link [s]
 FORCE_DISARM = 21196  #: MAV_CMD_COMPONENT_ARM_DISARM param2 that forces a disarm (PX4's magic number)
 
@@ -123,6 +136,10 @@ class TelemetryRates:
     attitude_target_hz: float = 10.0
     imu_hz: float = 50.0
     sys_status_hz: float = 1.0
+    global_position_hz: float = 5.0
+    gps_raw_hz: float = 1.0
+    extended_sys_state_hz: float = 1.0
+    home_position_hz: float = 0.5
     heartbeat_hz: float = 1.0  #: on the wall clock, in both clock modes
 
     def by_message(self) -> dict[int, float]:
@@ -133,6 +150,10 @@ class TelemetryRates:
             mav.MAVLINK_MSG_ID_ATTITUDE_TARGET: self.attitude_target_hz,
             mav.MAVLINK_MSG_ID_HIGHRES_IMU: self.imu_hz,
             mav.MAVLINK_MSG_ID_SYS_STATUS: self.sys_status_hz,
+            mav.MAVLINK_MSG_ID_GLOBAL_POSITION_INT: self.global_position_hz,
+            mav.MAVLINK_MSG_ID_GPS_RAW_INT: self.gps_raw_hz,
+            mav.MAVLINK_MSG_ID_EXTENDED_SYS_STATE: self.extended_sys_state_hz,
+            mav.MAVLINK_MSG_ID_HOME_POSITION: self.home_position_hz,
         }
 
 
@@ -178,6 +199,20 @@ class EndpointStats:
     lockstep_resends: int = 0  #: retransmitted setpoints answered with the current sample
 
 
+FTP_NAK = 129  #: MAVLink FTP's NAK opcode
+FTP_OPEN_FILE_RO = 4
+FTP_FILE_NOT_FOUND, FTP_UNKNOWN_COMMAND = 10, 7
+
+
+def ftp_nak(request: bytes) -> list[int]:
+    """The payload of MAVLink FTP's NAK to ``request`` (the vehicle has no files): the request's
+    sequence + 1, its session, NAK, one data byte (FileNotFound to an open, else UnknownCommand)."""
+    seq = (request[0] | request[1] << 8) + 1 & 0xFFFF
+    error = FTP_FILE_NOT_FOUND if request[3] == FTP_OPEN_FILE_RO else FTP_UNKNOWN_COMMAND
+    head = [seq & 0xFF, seq >> 8, request[2], FTP_NAK, 1, request[3], 0, 0, 0, 0, 0, 0, error]
+    return head + [0] * (251 - len(head))
+
+
 class _Sink:
     """File-like object pymavlink writes frames into; we send them and log them."""
 
@@ -201,6 +236,7 @@ class VehicleEndpoint:
     failsafe_action: int = ACTION_HOLD  #: ``failsafe.ACTION_*`` (parameter COM_OBL_ACT)
     events_path: Path | None = None  #: write failsafe events here (``event_log``)
     signing_key: bytes | None = None  #: MAVLink 2 signing on this link (``mavlink_signing``)
+    home: px4.Home = field(default_factory=px4.Home)  #: where the local frame's origin is on the earth
 
     def __post_init__(self) -> None:
         self._lockstep_steps = 0
@@ -234,6 +270,9 @@ class VehicleEndpoint:
         self.mode = MODE_HOLD
         self.stats = EndpointStats()
         self._last_setpoint_s = -math.inf
+        #: the last SET_ATTITUDE_TARGET for it, valid or clock-only [s; simulated]: PX4 accepts
+        #: OFFBOARD only while a setpoint stream runs
+        self._offboard_signal_s = -math.inf
         #: simulated time each stream is next due (0: now; inf: off), in the order they are sent
         self._next_send: dict[int, float] = {}
         self._tlog: BinaryIO | None = open(self.tlog_path, "wb") if self.tlog_path else None  # noqa: SIM115
@@ -251,6 +290,15 @@ class VehicleEndpoint:
             mav.MAVLINK_MSG_ID_ATTITUDE_TARGET: self._send_attitude_target,
             mav.MAVLINK_MSG_ID_HIGHRES_IMU: self._send_imu,
             mav.MAVLINK_MSG_ID_SYS_STATUS: self._send_sys_status,
+            mav.MAVLINK_MSG_ID_GLOBAL_POSITION_INT: self._send_global_position,
+            mav.MAVLINK_MSG_ID_GPS_RAW_INT: self._send_gps_raw,
+            mav.MAVLINK_MSG_ID_EXTENDED_SYS_STATE: self._send_extended_sys_state,
+            mav.MAVLINK_MSG_ID_HOME_POSITION: self._send_home_position,
+        }
+        #: sent on request only (MAV_CMD_REQUEST_MESSAGE, or their own commands)
+        self._on_request: dict[int, Callable[[int], None]] = {
+            **self._senders,
+            mav.MAVLINK_MSG_ID_AUTOPILOT_VERSION: self._send_autopilot_version,
         }
         self._next_heartbeat_wall = -math.inf
         self._next_any_s = 0.0  #: simulated time of the next telemetry message due
@@ -514,6 +562,18 @@ class VehicleEndpoint:
             )
             if name in self.params:
                 self._send_param(name, names.index(name))
+        elif t == "PING" and m.target_system == 0:  # a request: answered to its sender
+            self._send(self.mav.ping_encode(m.time_usec, m.seq, m.get_srcSystem(), m.get_srcComponent()))
+        elif t == "FILE_TRANSFER_PROTOCOL":  # no file system: a NAK, so a tool falls back at once
+            self._send(
+                self.mav.file_transfer_protocol_encode(
+                    0, m.get_srcSystem(), m.get_srcComponent(), ftp_nak(bytes(m.payload))
+                )
+            )
+        elif t == "MISSION_REQUEST_LIST":  # no mission: an empty list
+            self._send(
+                self.mav.mission_count_encode(m.get_srcSystem(), m.get_srcComponent(), 0, m.mission_type)
+            )
         elif t != "HEARTBEAT":  # a peer's heartbeat needs no answer
             self.stats.rx_unhandled += 1
 
@@ -551,21 +611,28 @@ class VehicleEndpoint:
     def _on_command(self, m: Any) -> None:
         cmd = m.command
         params = (m.param1, m.param2, m.param3, m.param4, m.param5, m.param6, m.param7)
-        result = mav.MAV_RESULT_ACCEPTED
+
+        def ack(result: int) -> None:  # to the sender, as PX4 addresses it
+            self._send(
+                self.mav.command_ack_encode(cmd, result, 0, 0, m.get_srcSystem(), m.get_srcComponent())
+            )
+
         if cmd not in (
             mav.MAV_CMD_COMPONENT_ARM_DISARM,
             mav.MAV_CMD_DO_SET_MODE,
             mav.MAV_CMD_SET_MESSAGE_INTERVAL,
             mav.MAV_CMD_REQUEST_MESSAGE,
+            *ASKS,
         ):
             self.stats.rx_unhandled += 1
-            self._ack(cmd, mav.MAV_RESULT_UNSUPPORTED)
+            ack(mav.MAV_RESULT_UNSUPPORTED)
             return
         if not all(map(math.isfinite, params)):  # NaN is "unused" in MAVLink; none of ours is optional
             self.stats.rx_invalid += 1
-            self._ack(cmd, mav.MAV_RESULT_DENIED)
+            ack(mav.MAV_RESULT_DENIED)
             return
         p1, p2 = params[0], params[1]
+        result = mav.MAV_RESULT_ACCEPTED
         if cmd == mav.MAV_CMD_COMPONENT_ARM_DISARM:
             arm = p1 >= 0.5
             if self.armed and not arm and round(p2) != FORCE_DISARM:
@@ -573,11 +640,8 @@ class VehicleEndpoint:
                 result = mav.MAV_RESULT_DENIED  # PX4 refuses to disarm in flight unless forced
             else:
                 self.armed = arm
-        elif cmd == mav.MAV_CMD_DO_SET_MODE and p2 in (MODE_HOLD, MODE_OFFBOARD):
-            if self.mode == MODE_FAILSAFE:
-                self._event("failsafe_exit", vehicle=self.system_id)
-            self.mode = int(p2)
-            self._last_setpoint_s = self.autopilot.time_s if self.mode == MODE_OFFBOARD else -math.inf
+        elif cmd == mav.MAV_CMD_DO_SET_MODE:
+            result = self._set_mode(px4.requested_mode(p1, p2, params[2]))
         elif cmd == mav.MAV_CMD_SET_MESSAGE_INTERVAL and p1 in self._rate_hz:
             msg_id, us = int(p1), p2
             self._rate_hz[msg_id] = (
@@ -585,20 +649,41 @@ class VehicleEndpoint:
             )
             self._next_send[msg_id] = 0.0
             self._next_any_s = 0.0
-        elif cmd == mav.MAV_CMD_REQUEST_MESSAGE and p1 in self._senders:
-            self._ack(cmd, result)  # the ack first, then the message, as PX4 does
-            self._senders[int(p1)](self.time_boot_ms)
+        elif cmd == mav.MAV_CMD_REQUEST_MESSAGE and p1 in self._on_request:
+            ack(result)  # the ack first, then the message, as PX4 does
+            self._on_request[int(p1)](self.time_boot_ms)
             return
-        else:  # a mode, or a message, this vehicle does not have
+        elif cmd in ASKS:
+            ack(result)
+            self._on_request[ASKS[cmd]](self.time_boot_ms)
+            return
+        else:  # a message this vehicle does not have
             self.stats.rx_invalid += 1
             result = mav.MAV_RESULT_DENIED
-        self._ack(cmd, result)
+        ack(result)
 
-    def _ack(self, command: int, result: int) -> None:
-        self._send(self.mav.command_ack_encode(command, result))
+    def _set_mode(self, wanted: int | None) -> int:
+        """MAV_CMD_DO_SET_MODE to PX4's ``wanted`` custom mode: Hold (AUTO.LOITER), or OFFBOARD
+        while a setpoint stream runs (PX4's rule: setpoints within SP_TIMEOUT_S); the result."""
+        if wanted == px4.HOLD:
+            mode = MODE_HOLD
+        elif wanted == px4.OFFBOARD:
+            if self.autopilot.time_s - self._offboard_signal_s > self.setpoint_timeout_s:
+                return mav.MAV_RESULT_TEMPORARILY_REJECTED  # no setpoint stream yet
+            mode = MODE_OFFBOARD
+        else:  # a mode this vehicle does not have
+            self.stats.rx_invalid += 1
+            return mav.MAV_RESULT_DENIED
+        if self.mode == MODE_FAILSAFE:
+            self._event("failsafe_exit", vehicle=self.system_id)
+        self.mode = mode
+        self._last_setpoint_s = self.autopilot.time_s if mode == MODE_OFFBOARD else -math.inf
+        return mav.MAV_RESULT_ACCEPTED
 
     def _on_setpoint(self, m: "_Setpoint") -> None:
         ap = self.autopilot
+        if self.lockstep_period_s is None or m.time_boot_ms <= self.time_boot_ms:
+            self._offboard_signal_s = ap.time_s  # a stream runs (a future stamp is refused below)
         if self.lockstep_period_s is not None:
             now_ms = self.time_boot_ms
             if m.time_boot_ms < now_ms or (m.type_mask == IGNORE_ALL and m.time_boot_ms == now_ms):
@@ -686,8 +771,16 @@ class VehicleEndpoint:
         self._stream()
         self.flush()
 
+    def px4_mode(self) -> int:
+        """The mode as PX4 reports it in ``custom_mode``: the failsafe as what it flies."""
+        if self.mode == MODE_OFFBOARD:
+            return px4.OFFBOARD
+        if self.mode == MODE_FAILSAFE and self.failsafe_action != ACTION_HOLD:
+            return px4.LAND
+        return px4.HOLD
+
     def send_heartbeat(self) -> None:
-        base = mav.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | (mav.MAV_MODE_FLAG_SAFETY_ARMED if self.armed else 0)
+        base = px4.BASE_FLAGS | (mav.MAV_MODE_FLAG_SAFETY_ARMED if self.armed else 0)
         status = (
             mav.MAV_STATE_CRITICAL
             if self.mode == MODE_FAILSAFE
@@ -695,7 +788,7 @@ class VehicleEndpoint:
         )
         self._send(
             self.mav.heartbeat_encode(
-                mav.MAV_TYPE_QUADROTOR, mav.MAV_AUTOPILOT_GENERIC, base, self.mode, status
+                mav.MAV_TYPE_QUADROTOR, mav.MAV_AUTOPILOT_PX4, base, self.px4_mode(), status
             )
         )
 
@@ -763,7 +856,67 @@ class VehicleEndpoint:
         )
 
     def _send_sys_status(self, ms: int) -> None:
-        self._send(self.mav.sys_status_encode(0, 0, 0, 0, 12000, -1, -1, 0, 0, 0, 0, 0, 0))
+        on = px4.SENSORS
+        health = on | mav.MAV_SYS_STATUS_GEOFENCE  # no fence, so none breached (MAVProxy reads it)
+        self._send(self.mav.sys_status_encode(on, on, health, 0, 12000, -1, -1, 0, 0, 0, 0, 0, 0))
+
+    def _global(self) -> tuple[int, int, int, int]:
+        """(lat, lon [deg 1e7], alt AMSL, alt above home [mm]) of the current position."""
+        p = self.autopilot.state[0:3]
+        lat, lon, alt = self.home.global_of(float(p[0]), float(p[1]), float(p[2]))
+        return round(lat * 1e7), round(lon * 1e7), round(alt * 1000), round(float(p[2]) * 1000)
+
+    def _send_global_position(self, ms: int) -> None:
+        lat, lon, alt, rel = self._global()
+        v = self.autopilot.state[3:6]  # ENU -> NED [cm/s]
+        heading = self._heading_cdeg()
+        self._send(
+            self.mav.global_position_int_encode(
+                ms, lat, lon, alt, rel, round(v[1] * 100), round(v[0] * 100), round(-v[2] * 100), heading
+            )
+        )
+
+    def _heading_cdeg(self) -> int:
+        """Yaw of the body x axis from north, clockwise [cdeg 0..35999]."""
+        x_W = rotation_matrix(self.autopilot.state[QUAT])[:, 0]
+        return round(math.degrees(math.atan2(x_W[0], x_W[1])) % 360.0 * 100) % 36000
+
+    def _send_gps_raw(self, ms: int) -> None:
+        lat, lon, alt, _ = self._global()
+        v = self.autopilot.state[3:6]
+        speed = round(math.hypot(v[0], v[1]) * 100)
+        fix = mav.GPS_FIX_TYPE_3D_FIX
+        self._send(self.mav.gps_raw_int_encode(ms * 1000, fix, lat, lon, alt, 80, 120, speed, 65535, 12))
+
+    def _send_extended_sys_state(self, ms: int) -> None:
+        landed = mav.MAV_LANDED_STATE_IN_AIR if self.armed else mav.MAV_LANDED_STATE_ON_GROUND
+        self._send(self.mav.extended_sys_state_encode(mav.MAV_VTOL_STATE_UNDEFINED, landed))
+
+    def _send_home_position(self, ms: int) -> None:
+        h = self.home
+        lat, lon = round(h.latitude_deg * 1e7), round(h.longitude_deg * 1e7)
+        self._send(
+            self.mav.home_position_encode(
+                lat, lon, round(h.altitude_m * 1000), 0, 0, 0, [1, 0, 0, 0], 0, 0, 0, ms * 1000
+            )
+        )
+
+    def _send_autopilot_version(self, ms: int) -> None:
+        self._send(
+            self.mav.autopilot_version_encode(
+                px4.CAPABILITIES,
+                px4.FLIGHT_SW_VERSION,
+                0,
+                0,
+                0,
+                [0] * 8,
+                [0] * 8,
+                [0] * 8,
+                0,
+                0,
+                self.system_id,
+            )
+        )
 
     def run_realtime(self, duration_s: float | None = None, stop: Callable[[], bool] | None = None) -> None:
         """Step with the wall clock (``time.monotonic``) until ``duration_s`` of wall time or ``stop()``.

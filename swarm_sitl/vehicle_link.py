@@ -24,6 +24,7 @@ is split with ``sim_vehicles.mavlink_frames``, and everything else goes through 
 import math
 import os
 import time
+from collections.abc import Callable
 from typing import Any
 
 os.environ.setdefault("MAVLINK20", "1")  # before pymavlink picks its wire protocol
@@ -32,9 +33,10 @@ import numpy as np
 from pymavlink import mavutil
 
 from sim_vehicles import mavlink_frames as frames
+from sim_vehicles import px4_profile as px4
 from sim_vehicles import tick_frames, udp_arrival
 from sim_vehicles.autopilot import AttitudeCommand
-from sim_vehicles.mavlink_endpoint import IGNORE_ALL, MODE_OFFBOARD
+from sim_vehicles.mavlink_endpoint import IGNORE_ALL
 from sim_vehicles.mavlink_signing import Signer, Verifier
 from sim_vehicles.wire_format import SAMPLE_P, SAMPLE_Q, SAMPLE_V, sample_from_fields
 
@@ -368,9 +370,16 @@ class VehicleLink:
             self._command_acked(mav.MAV_CMD_SET_MESSAGE_INTERVAL, timeout_s, float(msg_id), other_us)
 
     def arm_offboard(self, timeout_s: float) -> None:
+        """Arm, then OFFBOARD the way PX4 takes it: with a setpoint stream already running (a
+        clock-only setpoint stamped with the vehicle's time, before each request: it holds what it
+        holds and, in lockstep, moves no clock)."""
         self._command_acked(mav.MAV_CMD_COMPONENT_ARM_DISARM, timeout_s, 1.0)
+        offboard = (float(px4.BASE_FLAGS), float(px4.MAIN_OFFBOARD), 0.0)
         self._command_acked(
-            mav.MAV_CMD_DO_SET_MODE, timeout_s, float(mav.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED), MODE_OFFBOARD
+            mav.MAV_CMD_DO_SET_MODE,
+            timeout_s,
+            *offboard,
+            before=lambda: self.send_clock_only(max(self.sample_ms, 0)),
         )
 
     def advance_to(self, time_boot_ms: int, timeout_s: float) -> None:
@@ -394,14 +403,19 @@ class VehicleLink:
 
         self._wait(lambda: self.sample_ms >= 0, "LOCAL_POSITION_NED and ATTITUDE_QUATERNION", timeout_s, ask)
 
-    def _command_acked(self, command: int, timeout_s: float, *params: float) -> None:
+    def _command_acked(
+        self, command: int, timeout_s: float, *params: float, before: Callable[[], None] | None = None
+    ) -> None:
+        """Send ``command`` until it is answered (``before()`` ahead of each try); ``LinkError``
+        if it is refused or never answered."""
         name = mav.enums["MAV_CMD"][command].name
         self.acks.pop(command, None)  # an answer to an earlier command of the same kind is not ours
-        self._wait(
-            lambda: command in self.acks,
-            f"COMMAND_ACK for {name}",
-            timeout_s,
-            lambda: self.command(command, *params),
-        )
+
+        def send() -> None:
+            if before is not None:
+                before()
+            self.command(command, *params)
+
+        self._wait(lambda: command in self.acks, f"COMMAND_ACK for {name}", timeout_s, send)
         if self.acks[command] != mav.MAV_RESULT_ACCEPTED:
             raise LinkError(f"{self.url}: {name} refused (MAV_RESULT {self.acks[command]})")

@@ -152,7 +152,7 @@ def test_a_stranger_without_the_key_cannot_command_a_signed_vehicle_or_take_its_
     for _ in range(3):
         stranger.mav.heartbeat_send(mav.MAV_TYPE_GCS, mav.MAV_AUTOPILOT_INVALID, 0, 0, 0)
         stranger.mav.command_long_send(3, 1, mav.MAV_CMD_COMPONENT_ARM_DISARM, 0, 0, 21196, 0, 0, 0, 0, 0)
-        stranger.mav.command_long_send(3, 1, mav.MAV_CMD_DO_SET_MODE, 0, 1, 0, 0, 0, 0, 0, 0)
+        stranger.mav.command_long_send(3, 1, mav.MAV_CMD_DO_SET_MODE, 0, 29, 4, 3, 0, 0, 0, 0)  # Hold
         stranger.mav.set_attitude_target_send(0, 3, 1, 0, [1, 0, 0, 0], 0, 0, 0, 1.0)
         stranger.mav.param_set_send(3, 1, b"SP_TIMEOUT_S", 30.0, mav.MAV_PARAM_TYPE_REAL32)
         time.sleep(0.1)
@@ -173,7 +173,8 @@ def test_a_stranger_without_the_key_cannot_command_a_signed_vehicle_or_take_its_
     owner.mav.command_long_send(3, 1, mav.MAV_CMD_REQUEST_MESSAGE, 0, 32, 0, 0, 0, 0, 0, 0)
     assert owner.recv_match(type="LOCAL_POSITION_NED", blocking=True, timeout=5) is not None
     hb = owner.recv_match(type="HEARTBEAT", blocking=True, timeout=3)
-    assert hb is not None and hb.base_mode & mav.MAV_MODE_FLAG_SAFETY_ARMED and hb.custom_mode == 0
+    assert hb is not None and hb.base_mode & mav.MAV_MODE_FLAG_SAFETY_ARMED
+    assert hb.custom_mode == (4 << 16) | (3 << 24)  # PX4's AUTO.LOITER (Hold), as it started
     proc.terminate()
     proc.wait(timeout=10)
     stats = json.loads(stats_path.read_text())

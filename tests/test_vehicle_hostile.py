@@ -57,9 +57,10 @@ def flying():
     ep.sock.close()  # driven in process: what it sends goes nowhere
     ep.sock = _NullSocket()
     ep._datagram(_command(mav.MAV_CMD_COMPONENT_ARM_DISARM, 1), PEER)
-    ep._datagram(_command(mav.MAV_CMD_DO_SET_MODE, 1, MODE_OFFBOARD), PEER)
+    ep._datagram(_setpoint(thrust=0.35), PEER)  # PX4's rule: a stream before OFFBOARD
+    ep._datagram(_command(mav.MAV_CMD_DO_SET_MODE, 29, 6, 0), PEER)
     ep._datagram(_setpoint(thrust=0.35), PEER)
-    assert ep.armed and ep.mode == MODE_OFFBOARD and ep.stats.setpoints == 1
+    assert ep.armed and ep.mode == MODE_OFFBOARD and ep.stats.setpoints == 2
     yield ep
     ep.close()
 

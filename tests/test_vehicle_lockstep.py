@@ -55,16 +55,22 @@ def test_time_moves_only_with_stamped_setpoints(lockstep):
     ep, conn = lockstep
     arm = lambda: conn.mav.command_long_send(7, 1, mav.MAV_CMD_COMPONENT_ARM_DISARM, 0, 1, 0, 0, 0, 0, 0, 0)  # noqa: E731
     assert any(m.get_type() == "COMMAND_ACK" for m in _exchange(ep, conn, arm, "COMMAND_ACK"))
-    mode = lambda: conn.mav.command_long_send(7, 1, mav.MAV_CMD_DO_SET_MODE, 0, 1, 1, 0, 0, 0, 0, 0)  # noqa: E731
-    _exchange(ep, conn, mode, "COMMAND_ACK")
+
+    def offboard() -> None:  # PX4's rule: a setpoint stream first (clock-only at 0: no step), then OFFBOARD
+        conn.mav.set_attitude_target_send(0, 7, 1, 0b1100_0111, [1.0, 0, 0, 0], 0, 0, 0, 0)
+        conn.mav.command_long_send(7, 1, mav.MAV_CMD_DO_SET_MODE, 0, 29, 6, 0, 0, 0, 0, 0)
+
+    acks = [m for m in _exchange(ep, conn, offboard, "COMMAND_ACK") if m.get_type() == "COMMAND_ACK"]
+    assert acks[-1].result == mav.MAV_RESULT_ACCEPTED and ep.mode == 1
     assert ep.time_boot_ms == 0  # nothing moves without a setpoint
+    resends = ep.stats.lockstep_resends
 
     got = _exchange(ep, conn, _setpoint(conn, 0), "ATTITUDE_QUATERNION")
     lp = [m for m in got if m.get_type() == "LOCAL_POSITION_NED"]
     assert ep.time_boot_ms == 10 and lp[-1].time_boot_ms == 10  # exactly one period
 
     got = _exchange(ep, conn, _setpoint(conn, 0), "ATTITUDE_QUATERNION")  # a retransmission
-    assert ep.time_boot_ms == 10 and ep.stats.lockstep_resends == 1  # answered, not stepped twice
+    assert ep.time_boot_ms == 10 and ep.stats.lockstep_resends == resends + 1  # answered, not stepped twice
     assert [m.time_boot_ms for m in got if m.get_type() == "LOCAL_POSITION_NED"] == [10]
 
     bad_before = ep.stats.rx_bad
@@ -129,7 +135,9 @@ def test_real_time_setpoint_acts_from_its_arrival_though_read_later(tmp_path, st
     ep._stamped = stamped  # without stamps (other systems) the loop wakes for each datagram
     try:
         conn.mav.command_long_send(7, 1, mav.MAV_CMD_COMPONENT_ARM_DISARM, 0, 1, 0, 0, 0, 0, 0, 0)
-        conn.mav.command_long_send(7, 1, mav.MAV_CMD_DO_SET_MODE, 0, 1, 1, 0, 0, 0, 0, 0)
+        conn.mav.set_attitude_target_send(0, 7, 1, 0b1100_0111, [1.0, 0, 0, 0], 0, 0, 0, 0)  # a stream
+        conn.mav.command_long_send(7, 1, mav.MAV_CMD_DO_SET_MODE, 0, 29, 6, 0, 0, 0, 0, 0)  # OFFBOARD
+        time.sleep(0.05)
         ep.poll()
         assert ep.armed and ep.mode == 1
         started = []  # the loop's own start, on its thread, right before its clock starts

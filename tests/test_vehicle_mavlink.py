@@ -5,6 +5,7 @@ import socket
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import pytest
 from pymavlink import mavutil
@@ -18,32 +19,19 @@ def _free_udp_port() -> int:
         return s.getsockname()[1]
 
 
+def spawn_vehicle(system_id: int, port: int, *extra: str) -> subprocess.Popen:
+    """``python -m sim_vehicles`` at 20 m up on ``port``, once it says it listens."""
+    argv = [sys.executable, "-m", "sim_vehicles", "--id", str(system_id), "--port", str(port)]
+    proc = subprocess.Popen([*argv, "--position", "0", "0", "20", *extra], stdout=subprocess.PIPE, text=True)
+    assert proc.stdout is not None and "listening" in proc.stdout.readline()
+    return proc
+
+
 @pytest.fixture
 def vehicle(tmp_path):
     port = _free_udp_port()
     tlog = tmp_path / "vehicle.tlog"
-    proc = subprocess.Popen(
-        [
-            sys.executable,
-            "-m",
-            "sim_vehicles",
-            "--id",
-            "3",
-            "--port",
-            str(port),
-            "--position",
-            "0",
-            "0",
-            "20",
-            "--tlog",
-            str(tlog),
-            "--duration",
-            "60",
-        ],
-        stdout=subprocess.PIPE,
-        text=True,
-    )
-    assert "listening" in proc.stdout.readline()
+    proc = spawn_vehicle(3, port, "--tlog", str(tlog), "--duration", "60")
     yield port, tlog, proc
     proc.terminate()
     proc.wait(timeout=10)
@@ -86,14 +74,17 @@ def test_pymavlink_client_arms_tilts_north_and_sees_it(vehicle):
 
     conn.mav.command_long_send(3, 1, mavutil.mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 0, 1, 0, 0, 0, 0, 0, 0)
     assert _wait(conn, "COMMAND_ACK").result == mavutil.mavlink.MAV_RESULT_ACCEPTED
-    conn.mav.command_long_send(3, 1, mavutil.mavlink.MAV_CMD_DO_SET_MODE, 0, 1, 1, 0, 0, 0, 0, 0)
-    assert _wait(conn, "COMMAND_ACK").result == mavutil.mavlink.MAV_RESULT_ACCEPTED
-    start = _wait(conn, "LOCAL_POSITION_NED")
-
     # pitch nose-down 10 deg in NED/FRD (rotation about body y by -10 deg): thrust tips toward north
     tilt = math.radians(10)
     q = [math.cos(-tilt / 2), 0.0, math.sin(-tilt / 2), 0.0]
     hover = 0.85 * 9.81 / 25.0 / math.cos(tilt)
+    assert hb.autopilot == mavutil.mavlink.MAV_AUTOPILOT_PX4 and conn.flightmode == "LOITER"  # PX4's Hold
+    conn.set_mode("OFFBOARD")  # pymavlink's own PX4 mode table: refused without a setpoint stream
+    assert _wait(conn, "COMMAND_ACK").result == mavutil.mavlink.MAV_RESULT_TEMPORARILY_REJECTED
+    conn.mav.set_attitude_target_send(0, 3, 1, 0b0000_0111, q, 0, 0, 0, hover)  # Hold ignores it
+    conn.set_mode("OFFBOARD")  # a stream runs now: taken, as PX4 takes it
+    assert _wait(conn, "COMMAND_ACK").result == mavutil.mavlink.MAV_RESULT_ACCEPTED
+    start = _wait(conn, "LOCAL_POSITION_NED")
     modes = set()
     end = time.monotonic() + 2.5
     while time.monotonic() < end:
@@ -101,8 +92,9 @@ def test_pymavlink_client_arms_tilts_north_and_sees_it(vehicle):
         time.sleep(0.02)
         while (m := conn.recv_match(type="HEARTBEAT", blocking=False)) is not None:
             if m.get_srcSystem() == 3:
-                modes.add((bool(m.base_mode & mavutil.mavlink.MAV_MODE_FLAG_SAFETY_ARMED), m.custom_mode))
-    assert (True, 1) in modes  # armed, following external setpoints
+                armed = bool(m.base_mode & mavutil.mavlink.MAV_MODE_FLAG_SAFETY_ARMED)
+                modes.add((armed, mavutil.mode_string_v10(m)))
+    assert (True, "OFFBOARD") in modes  # armed, following external setpoints
     lp = _latest(conn, "LOCAL_POSITION_NED")
     att = conn.messages["ATTITUDE_QUATERNION"]
     assert lp.time_boot_ms > start.time_boot_ms
@@ -117,8 +109,13 @@ def test_pymavlink_client_arms_tilts_north_and_sees_it(vehicle):
     # position loop), where the open-loop hover of old drifted on at the speed it had
     text = _wait(conn, "STATUSTEXT", timeout=4, cond=lambda m: "Failsafe" in m.text)
     assert "hold" in text.text
-    hb = _wait(conn, "HEARTBEAT", timeout=4, cond=lambda m: m.get_srcSystem() == 3 and m.custom_mode == 2)
-    assert hb.system_status == mavutil.mavlink.MAV_STATE_CRITICAL
+    hb = _wait(
+        conn,
+        "HEARTBEAT",
+        timeout=4,
+        cond=lambda m: m.get_srcSystem() == 3 and m.system_status == mavutil.mavlink.MAV_STATE_CRITICAL,
+    )
+    assert mavutil.mode_string_v10(hb) == "LOITER"  # what it flies: a hold
     time.sleep(4.0)  # it was doing about 4 m/s north: stopped within its 30-degree tilt limit
     a = _latest(conn, "LOCAL_POSITION_NED")
     time.sleep(1.0)
@@ -128,14 +125,14 @@ def test_pymavlink_client_arms_tilts_north_and_sees_it(vehicle):
     # a valid setpoint stream takes it back to offboard
     back = set()
     end = time.monotonic() + 2.5
-    while time.monotonic() < end and 1 not in back:
+    while time.monotonic() < end and "OFFBOARD" not in back:
         conn.mav.set_attitude_target_send(
             0, 3, 1, 0b0000_0111, [1.0, 0.0, 0.0, 0.0], 0, 0, 0, 0.85 * 9.81 / 25
         )
         time.sleep(0.02)
         while (m := conn.recv_match(type="HEARTBEAT", blocking=False)) is not None:
-            back.add(m.custom_mode)
-    assert 1 in back
+            back.add(mavutil.mode_string_v10(m))
+    assert "OFFBOARD" in back
     conn.close()
     proc.terminate()  # SIGTERM: the vehicle closes its .tlog before exiting
     assert proc.wait(timeout=10) == 0
@@ -151,6 +148,22 @@ def test_pymavlink_client_arms_tilts_north_and_sees_it(vehicle):
         "SET_ATTITUDE_TARGET",
         "PARAM_VALUE",
     } <= kinds
+    # pymavlink's own log tool reads it as it reads PX4's: the flight modes by name, the positions
+    dump = subprocess.run(
+        [
+            str(Path(sys.executable).with_name("mavlogdump.py")),
+            "--types",
+            "HEARTBEAT,LOCAL_POSITION_NED",
+            str(tlog),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert dump.returncode == 0, dump.stderr
+    out = dump.stdout.splitlines()
+    assert any("LOCAL_POSITION_NED {time_boot_ms" in line for line in out)
+    assert any("HEARTBEAT" in line and "autopilot : 12" in line for line in out), out[:5]
 
 
 def test_garbage_bytes_are_dropped_and_the_vehicle_keeps_talking(vehicle):
