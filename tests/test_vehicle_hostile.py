@@ -226,9 +226,9 @@ def hostile_datagrams(draw) -> bytes:
             )
         return _frame(mav.MAVLink_set_attitude_target_message(0, SYS, 1, 0, q, *rates, thrust))
     if kind == "command":  # a non-finite parameter, or a command it does not have
-        command = draw(st.sampled_from([176, 400, 511, 512, draw(st.integers(0, 65535))]))
+        command = draw(st.sampled_from([*_COMMANDS, draw(st.integers(0, 65535))]))
         params = [draw(_floats) for _ in range(7)]
-        if command in (176, 400, 511, 512):
+        if command in _COMMANDS:
             params[draw(st.integers(0, 6))] = draw(st.sampled_from([NAN, INF, -INF]))
         return _command(command, *params)
     if kind == "elsewhere":
@@ -241,7 +241,12 @@ def hostile_datagrams(draw) -> bytes:
     return _pack_raw(cls, draw(st.binary(min_size=cls.unpacker.size, max_size=cls.unpacker.size)))
 
 
+#: the commands the vehicle takes (sent with a non-finite parameter: refused)
+_COMMANDS = (176, 400, 410, 511, 512, 520)
 _HANDLED = {  # what the vehicle acts on: the other strategies make those hostile
+    mav.MAVLINK_MSG_ID_PING,
+    mav.MAVLINK_MSG_ID_MISSION_REQUEST_LIST,
+    mav.MAVLINK_MSG_ID_FILE_TRANSFER_PROTOCOL,
     mav.MAVLINK_MSG_ID_SET_ATTITUDE_TARGET,
     mav.MAVLINK_MSG_ID_COMMAND_LONG,
     mav.MAVLINK_MSG_ID_PARAM_REQUEST_LIST,
