@@ -36,12 +36,29 @@ def _warm_up(params: VehicleParams, gains: AttitudeGains, attitude_hz: float) ->
     tick_frames.warm_up()
 
 
+def _host_port(text: str) -> tuple[str, int]:
+    host, _, port = text.rpartition(":")
+    if not host or not port.isdigit() or not 0 < int(port) < 65536:
+        raise ValueError(f"--gcs-remote must be HOST:PORT, got {text!r}")
+    return host, int(port)
+
+
 def main(argv: list[str] | None = None) -> int:
     hold_on()  # a supervisor's child dies with it
     p = argparse.ArgumentParser(prog="python -m sim_vehicles", description=__doc__)
     p.add_argument("--id", type=int, default=1, help="MAVLink system id (1..255)")
     p.add_argument("--host", default="127.0.0.1", help="address to bind (loopback by default)")
     p.add_argument("--port", type=int, default=14560, help="UDP port to bind (0: any free port)")
+    p.add_argument(
+        "--gcs-port",
+        type=int,
+        help="a ground station's own UDP port: its own peer, PX4's GCS stream rates (0: any free port)",
+    )
+    p.add_argument(
+        "--gcs-remote",
+        metavar="HOST:PORT",
+        help="the ground-station port sends here until someone speaks to it (PX4 SITL: 127.0.0.1:14550)",
+    )
     p.add_argument(
         "--position",
         type=float,
@@ -131,15 +148,20 @@ def main(argv: list[str] | None = None) -> int:
             failsafe_action=ACTIONS[a.failsafe_action],
             events_path=a.events,
             signing_key=key,
+            gcs_bind=None if a.gcs_port is None else (a.host, a.gcs_port),
+            gcs_remote=_host_port(a.gcs_remote) if a.gcs_remote else None,
         )
     except (VehicleParamError, ValueError) as e:
         print(f"sim_vehicles: error: {e}", file=sys.stderr)
         return 2
     except OSError as e:
-        print(f"sim_vehicles: error: cannot bind udp {a.host}:{a.port} ({e.strerror})", file=sys.stderr)
+        ports = f"{a.port}" + (f" or {a.gcs_port}" if a.gcs_port is not None else "")
+        print(f"sim_vehicles: error: cannot bind udp {a.host}:{ports} ({e.strerror})", file=sys.stderr)
         return 2
     _warm_up(params, gains, a.attitude_hz)
-    print(f"vehicle {a.id} listening on udp:{ep.address[0]}:{ep.address[1]}", flush=True)
+    gcs = ep.gcs_address
+    tail = f", ground station on udp:{gcs[0]}:{gcs[1]}" if gcs else ""
+    print(f"vehicle {a.id} listening on udp:{ep.address[0]}:{ep.address[1]}{tail}", flush=True)
 
     def _terminate(signum: int, frame: object) -> None:
         raise KeyboardInterrupt  # close the .tlog through the finally below

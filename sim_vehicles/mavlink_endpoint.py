@@ -74,12 +74,13 @@ Hostile input (``stats`` counts each kind; nothing anyone sends stops the vehicl
   last error, never a stopped vehicle.
 """
 
+import contextlib
 import math
 import select
 import socket
 import struct
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, BinaryIO, NamedTuple
@@ -157,6 +158,40 @@ class TelemetryRates:
         }
 
 
+#: a ground-station port's default rates: PX4's "normal" MAVLink mode (``mavlink_main.cpp``)
+GCS_RATES = TelemetryRates(
+    local_position_hz=1.0,
+    attitude_hz=15.0,
+    attitude_quaternion_hz=10.0,
+    attitude_target_hz=2.0,
+    imu_hz=0.0,
+    sys_status_hz=1.0,
+    global_position_hz=5.0,
+    gps_raw_hz=1.0,
+    extended_sys_state_hz=1.0,
+    home_position_hz=0.5,
+)
+#: what each port of the vehicle has of its own (``_swap``): socket, packer (its sequence), what
+#: is queued, its peer, its stream table and rates, its signing, its parser
+_PORT_STATE = (
+    "sock",
+    "address",
+    "mav",
+    "_sink",
+    "_parser",
+    "peer",
+    "_peer_heard_wall",
+    "_accepted",
+    "_accepted_from",
+    "_rate_hz",
+    "_defaults",
+    "_next_send",
+    "_next_any_s",
+    "_signer",
+    "_verifier",
+    "_stamped",
+    "_waiting",
+)
 MAX_DATAGRAM = 1200  #: bytes; below any loopback or Ethernet MTU
 RX_EVERY_S = 0.01  #: real time, offboard: longest a datagram waits to be read [s]
 LOCKSTEP_WAIT_S = 0.2  #: lockstep: longest wait for a datagram before the heartbeat is checked [s]
@@ -237,6 +272,11 @@ class VehicleEndpoint:
     events_path: Path | None = None  #: write failsafe events here (``event_log``)
     signing_key: bytes | None = None  #: MAVLink 2 signing on this link (``mavlink_signing``)
     home: px4.Home = field(default_factory=px4.Home)  #: where the local frame's origin is on the earth
+    #: a ground station's own port (``None``: none), with its own peer and stream rates
+    gcs_bind: tuple[str, int] | None = None
+    gcs_rates: TelemetryRates = GCS_RATES
+    #: where the ground-station port sends until someone speaks to it (PX4 sends to 14550)
+    gcs_remote: tuple[str, int] | None = None
 
     def __post_init__(self) -> None:
         self._lockstep_steps = 0
@@ -314,10 +354,86 @@ class VehicleEndpoint:
             "COM_OBL_ACT": float(self.failsafe_action),
             **{name: math.degrees(w) for name, w in zip(RATE_MAX_PARAMS, p.max_rate_rps, strict=True)},
         }
+        self._on_gcs = False  #: the ground-station port's state is swapped in (``_gcs_port``)
+        self._gcs: dict[str, Any] | None = None
+        if self.gcs_bind is not None:
+            self._gcs = self._new_port(self.gcs_bind, self.gcs_rates, self.gcs_remote)
         self.events = EventLog(self.events_path, f"vehicle_{self.system_id}")
         self._hold = hold_at(self.autopilot.state, 0.0)
         self._fs_steps = max(1, round(FAILSAFE_PERIOD_S / self.autopilot.dt_s))
         self._fs_next = 0  #: attitude step at which the failsafe's position loop runs next
+
+    # -- the ground-station port ---------------------------------------------------------------
+    def _new_port(
+        self, bind: tuple[str, int], rates: TelemetryRates, remote: tuple[str, int] | None
+    ) -> dict[str, Any]:
+        """The state of a second port (``_PORT_STATE``), as ``__post_init__`` builds the first."""
+        sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        sock.bind(bind)
+        sock.setblocking(False)
+        sink = _Sink()
+        parser = mav.MAVLink(None, srcSystem=255, srcComponent=0)
+        parser.robust_parsing = True
+        defaults = rates.by_message()
+        return {
+            "sock": sock,
+            "address": sock.getsockname(),
+            "mav": mav.MAVLink(sink, srcSystem=self.system_id, srcComponent=mav.MAV_COMP_ID_AUTOPILOT1),
+            "_sink": sink,
+            "_parser": parser,
+            "peer": remote,
+            "_peer_heard_wall": -math.inf,
+            "_accepted": 0,
+            "_accepted_from": (0, 0),
+            "_rate_hz": dict(defaults),
+            "_defaults": defaults,
+            "_next_send": dict.fromkeys(defaults, 0.0),
+            "_next_any_s": 0.0,
+            "_signer": Signer(self.signing_key) if self.signing_key else None,
+            "_verifier": Verifier(self.signing_key) if self.signing_key else None,
+            "_stamped": False,
+            "_waiting": udp_arrival.Waiting(sock),
+        }
+
+    def _swap(self, state: dict[str, Any]) -> dict[str, Any]:
+        """Put ``state`` in place of the current port's; returns the one it replaced."""
+        old = {name: getattr(self, name) for name in _PORT_STATE}
+        for name, value in state.items():
+            setattr(self, name, value)
+        return old
+
+    @contextlib.contextmanager
+    def _gcs_port(self) -> Iterator[None]:
+        """Act as the ground-station port: what is sent, streamed and answered inside goes to it,
+        at its rates, and a command's reply to its sender there. The controller's port is the
+        one in place otherwise (no cost on its per-tick path)."""
+        assert self._gcs is not None
+        main = self._swap(self._gcs)
+        self._on_gcs = True
+        try:
+            yield
+        finally:
+            self._on_gcs = False
+            self._gcs = self._swap(main)
+
+    @property
+    def gcs_address(self) -> tuple[str, int] | None:
+        return None if self._gcs is None else self._gcs["address"]
+
+    def poll_gcs(self) -> None:
+        """Handle what waits on the ground-station port (at the current state), answer it there."""
+        if self._gcs is not None and self._gcs["_waiting"]():
+            with self._gcs_port():
+                try:
+                    self._receive(None, False)
+                finally:
+                    self.flush()
+
+    def _stream_gcs(self) -> None:
+        if self._gcs is not None and self.autopilot.time_s + 1e-9 >= self._gcs["_next_any_s"]:
+            with self._gcs_port():
+                self._stream()
+                self.flush()
 
     # -- I/O -------------------------------------------------------------------------------------
     def _log(self, frame: bytes) -> None:
@@ -377,6 +493,8 @@ class VehicleEndpoint:
 
     def close(self) -> None:
         self.sock.close()
+        if self._gcs is not None:
+            self._gcs["sock"].close()
         self.events.close()
         if self._tlog is not None:
             self._tlog.close()
@@ -469,6 +587,11 @@ class VehicleEndpoint:
     def _frames(self, data: bytes) -> None:
         """Handle a datagram of plain frames (a signed one is checked and unsigned before)."""
         r = tick_frames.read_setpoint(data, _SETPOINT.spec, self.autopilot.params.max_thrust_N)
+        if r[0] and self._on_gcs:  # setpoints come on the controller's port only
+            self._log(data)
+            self.stats.rx_messages += 1
+            self.stats.rx_refused += 1
+            return
         if r[0]:  # one SET_ATTITUDE_TARGET and nothing else: what a controller sends
             self._log(data)
             self.stats.rx_messages += 1
@@ -538,7 +661,9 @@ class VehicleEndpoint:
 
     def _handle(self, m: Any) -> None:
         t = m.get_type()
-        if t == "SET_ATTITUDE_TARGET":
+        if t == "SET_ATTITUDE_TARGET" and self._on_gcs:  # setpoints: the controller's port only
+            self.stats.rx_refused += 1
+        elif t == "SET_ATTITUDE_TARGET":
             fields = np.array(
                 [*m.q, m.body_roll_rate, m.body_pitch_rate, m.body_yaw_rate, m.thrust], dtype=float
             )
@@ -735,7 +860,12 @@ class VehicleEndpoint:
         self.events.add(self.autopilot.time_s, kind, unix_s=time.time(), **fields)
 
     def _statustext(self, severity: int, text: str) -> None:
+        """A STATUSTEXT now, to the controller and to the ground station (sent with their next
+        pass)."""
         self._send(self.mav.statustext_encode(severity, text.encode()[:50]))
+        if self._gcs is not None and not self._on_gcs:
+            gcs_mav = self._gcs["mav"]
+            gcs_mav.send(gcs_mav.statustext_encode(severity, text.encode()[:50]))
 
     def _failsafe_check(self) -> None:
         ap = self.autopilot
@@ -770,6 +900,7 @@ class VehicleEndpoint:
             self._failsafe_check()
         self._stream()
         self.flush()
+        self._stream_gcs()
 
     def px4_mode(self) -> int:
         """The mode as PX4 reports it in ``custom_mode``: the failsafe as what it flies."""
@@ -798,6 +929,10 @@ class VehicleEndpoint:
             self._next_heartbeat_wall = now_wall_s + 1.0 / self.rates.heartbeat_hz
             self.send_heartbeat()
             self.flush()
+            if self._gcs is not None:
+                with self._gcs_port():
+                    self.send_heartbeat()
+                    self.flush()
 
     def _stream(self) -> None:
         """Send the streams due now. Each is sent on its own grid of multiples of its period in
@@ -819,7 +954,7 @@ class VehicleEndpoint:
 
     def _send_local_position(self, ms: int) -> None:
         self._send_sample_part(tick_frames.pack_local_position, frames.LOCAL_POSITION_NED, ms)
-        if self._truth is not None:
+        if self._truth is not None and not self._on_gcs:  # the controller's samples only
             self._truth.append((self.autopilot.time_s,), self.autopilot.state)
 
     def _send_attitude_quaternion(self, ms: int) -> None:
@@ -918,6 +1053,9 @@ class VehicleEndpoint:
             )
         )
 
+    def _gcs_socks(self) -> list[socket.socket]:
+        return [] if self._gcs is None else [self._gcs["sock"]]
+
     def run_realtime(self, duration_s: float | None = None, stop: Callable[[], bool] | None = None) -> None:
         """Step with the wall clock (``time.monotonic``) until ``duration_s`` of wall time or ``stop()``.
 
@@ -940,6 +1078,7 @@ class VehicleEndpoint:
             deferred = self._stamped and self.mode == MODE_OFFBOARD
             if deferred:
                 self.poll(catch_up)
+                self.poll_gcs()
             now = time.monotonic() - start
             if (duration_s is not None and now >= duration_s) or (stop is not None and stop()):
                 return
@@ -954,8 +1093,9 @@ class VehicleEndpoint:
             wait = min(max(t_next - now, 0.0), 0.05)
             if deferred:
                 time.sleep(min(wait, RX_EVERY_S))
-            elif select.select([self.sock], [], [], wait)[0]:
+            elif self.sock in select.select([self.sock, *self._gcs_socks()], [], [], wait)[0]:
                 self.poll(catch_up, readable=True)
+            self.poll_gcs()
 
     def run_lockstep(self, stop: Callable[[], bool] | None = None) -> None:
         """Serve setpoints until ``stop()``: simulated time moves only with them (see the module doc).
@@ -968,6 +1108,7 @@ class VehicleEndpoint:
         try:
             while stop is None or not stop():
                 self.heartbeat_tick(time.monotonic())
+                self.poll_gcs()  # a ground station waits at most LOCKSTEP_WAIT_S, or a tick
                 try:
                     data, addr = self.sock.recvfrom(4096)
                 except OSError:  # the wait ran out (EAGAIN), or an ICMP error

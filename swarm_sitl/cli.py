@@ -156,14 +156,25 @@ class _RunProgress:
 
 
 def _run_and_record(
-    cfg: SwarmConfig, run_dir: Path, lockstep: bool, quiet: bool, mavlink: dict[int, str] | None, kind: str
+    cfg: SwarmConfig,
+    run_dir: Path,
+    lockstep: bool,
+    quiet: bool,
+    mavlink: dict[int, str] | None,
+    kind: str,
+    base_port: int = 0,
 ) -> int:
     from swarm_sitl.run_outputs import record_run
 
     clock = "lockstep" if lockstep else "real time"
     progress = _RunProgress(cfg, f"{kind} {cfg.name} ({clock})", quiet)
     try:
-        out = record_run(cfg, run_dir, lockstep, mavlink, progress)
+
+        def ports(lines: list[str]) -> None:
+            if not quiet:
+                print("\n".join(lines), flush=True)
+
+        out = record_run(cfg, run_dir, lockstep, mavlink, progress, base_port, ports)
     finally:
         progress.close()
     if out.failure is not None:
@@ -215,8 +226,20 @@ def _with_fault_file(cfg: SwarmConfig, path: str | None) -> SwarmConfig:
 
 def cmd_run(args: argparse.Namespace) -> int:
     cfg = _with_fault_file(_with_duration(_load(args.config), args.duration), args.faults)
+    _check_base_port(cfg, args.base_port)
     run_dir = Path(args.out) if args.out else _default_run_dir(cfg, "run")
-    return _run_and_record(cfg, run_dir, not args.realtime, args.quiet, None, "run")
+    return _run_and_record(cfg, run_dir, not args.realtime, args.quiet, None, "run", args.base_port)
+
+
+def _check_base_port(cfg: SwarmConfig, base_port: int) -> None:
+    from swarm_sitl.supervisor import GCS_PORT_OFFSET
+
+    if not (base_port == 0 or 1024 <= base_port <= 65535 - GCS_PORT_OFFSET - cfg.n_followers):
+        raise CliError(
+            f"--base-port must be 0 (free ports) or a port from 1024 with room for "
+            f"{cfg.n_followers} vehicles and their ground-station ports {GCS_PORT_OFFSET} above, "
+            f"got {base_port}"
+        )
 
 
 def cmd_controllers(args: argparse.Namespace) -> int:
@@ -238,26 +261,23 @@ def cmd_vehicles(args: argparse.Namespace) -> int:
         RunFailedError,
         Supervisor,
         compile_kernels,
+        port_lines,
         signing_key_file,
         start_vehicles,
     )
 
     cfg = _load(args.config)
-    if not 0 <= args.base_port <= 65535 - cfg.n_followers:
-        raise CliError(
-            f"--base-port must be 0 or a port with room for {cfg.n_followers}, got {args.base_port}"
-        )
+    _check_base_port(cfg, args.base_port)
     run_dir = Path(args.out) if args.out else _default_run_dir(cfg, "vehicles")
     compile_kernels(cfg)
     sup = Supervisor(run_dir)
     try:
         key_file = signing_key_file(cfg, run_dir, own_vehicles=False)
-        endpoints = start_vehicles(sup, cfg, args.lockstep, args.base_port, key_file)
+        endpoints, ground = start_vehicles(sup, cfg, args.lockstep, args.base_port, key_file)
         clock = f"lockstep, {cfg.control_dt_s:g} s per setpoint" if args.lockstep else "real time"
         print(f"{cfg.n_followers} vehicles of {cfg.name} ({clock}); .tlogs in {run_dir / 'tlogs'}")
         print(f"  MAVLink 2 signing with {key_file}" if key_file else "  MAVLink 2 signing off")
-        for i, ep in sorted(endpoints.items()):
-            print(f"  vehicle {i}: udpout:{ep.removeprefix('udp:')}  (MAVLink system id {i})")
+        print("\n".join(port_lines(endpoints, ground)))
         print("Ctrl-C stops them", flush=True)
         while True:
             sup.check()
@@ -317,6 +337,16 @@ def cmd_bench(args: argparse.Namespace) -> int:
         return 1
 
 
+def _base_port(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--base-port",
+        type=int,
+        default=0,
+        help="vehicle i takes its controller on BASE_PORT + i and a ground station on BASE_PORT + 3990 + i, "
+        "which sends to 127.0.0.1:14550 until one speaks (14580: PX4 SITL's ports; default: free ports)",
+    )
+
+
 def _run_outputs(p: argparse.ArgumentParser, kind: str) -> None:
     p.add_argument("--out", help=f"run directory (default runs/<name>-{kind}-<time>)")
     p.add_argument("--duration", type=float, help="override duration_s [s]")
@@ -342,15 +372,14 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("config")
     r.add_argument("--realtime", action="store_true", help="wall clock, as in flight (default: lockstep)")
     r.add_argument("--faults", metavar="FILE", help="fault plan (YAML: seed, plan) in place of the config's")
+    _base_port(r)
     _run_outputs(r, "run")
     r.set_defaults(func=cmd_run)
 
     v = sub.add_parser("vehicles", help="start only the simulated vehicles and print their MAVLink endpoints")
     v.add_argument("config")
     v.add_argument("--lockstep", action="store_true", help="step one control period per stamped setpoint")
-    v.add_argument(
-        "--base-port", type=int, default=0, help="vehicle i on BASE_PORT + i - 1 (default: free ports)"
-    )
+    _base_port(v)
     v.add_argument("--out", help="directory for .tlogs and logs (default runs/<name>-vehicles-<time>)")
     v.set_defaults(func=cmd_vehicles)
 

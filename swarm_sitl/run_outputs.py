@@ -60,6 +60,8 @@ def record_run(
     lockstep: bool,
     mavlink: dict[int, str] | None = None,
     on_progress: Callable[[int, dict[int, float]], None] | None = None,
+    base_port: int = 0,
+    on_vehicles: Callable[[list[str]], None] | None = None,
 ) -> Outcome:
     """Run the swarm as processes (``supervisor.run_swarm``) and write its run directory from
     what the processes recorded, however the run ended (a ``KeyboardInterrupt`` is caught and
@@ -72,7 +74,7 @@ def record_run(
     interrupted = False
     run_wall = startup = float("nan")
     try:
-        result = run_swarm(cfg, run_dir, lockstep, mavlink, on_progress)
+        result = run_swarm(cfg, run_dir, lockstep, mavlink, on_progress, base_port, on_vehicles)
         run_wall, startup = result.run_wall_s, result.startup_wall_s
     except RunFailedError as e:
         failure = str(e)

@@ -53,6 +53,13 @@ from swarm_sitl.recording import (
 TERM_GRACE_S = 5.0
 SUPERVISE_EVERY_S = 0.05  #: how often a run looks at its children (each look polls every one of them)
 _LISTENING = re.compile(r"listening on udp:([0-9.]+):(\d+)")
+_GROUND_STATION = re.compile(r"ground station on udp:([0-9.]+):(\d+)")
+#: ``--base-port B``: vehicle i listens for its controller on B + i and for a ground station on
+#: B + GCS_PORT_OFFSET + i, and its ground-station port sends to GCS_REMOTE until one speaks to it:
+#: with B = 14580, PX4 SITL's scheme (offboard 14580 + i, ground station 18570 + i -> 14550)
+PX4_BASE_PORT = 14580
+GCS_PORT_OFFSET = 3990
+GCS_REMOTE = "127.0.0.1:14550"
 
 
 class RunFailedError(RuntimeError):
@@ -240,7 +247,14 @@ def signing_key_file(cfg: SwarmConfig, run_dir: Path, own_vehicles: bool) -> Pat
 
 
 def vehicle_argv(
-    cfg: SwarmConfig, i: int, run_dir: Path, lockstep: bool, port: int = 0, key_file: Path | None = None
+    cfg: SwarmConfig,
+    i: int,
+    run_dir: Path,
+    lockstep: bool,
+    port: int = 0,
+    key_file: Path | None = None,
+    gcs_port: int = 0,
+    gcs_remote: str | None = None,
 ) -> list[str]:
     f, v, g = cfg.follower(i), cfg.vehicle, cfg.gains
     argv = [
@@ -280,6 +294,9 @@ def vehicle_argv(
         "--stats",
         str(vehicle_stats_path(run_dir, i)),
         *(["--signing-key-file", str(key_file)] if key_file is not None else []),
+        "--gcs-port",
+        str(gcs_port),
+        *(["--gcs-remote", gcs_remote] if gcs_remote else []),
         "--attitude-hz",
         repr(cfg.rates.attitude_hz),
         "--tlog",
@@ -294,35 +311,49 @@ def vehicle_argv(
 
 def start_vehicles(
     sup: Supervisor, cfg: SwarmConfig, lockstep: bool, base_port: int = 0, key_file: Path | None = None
-) -> dict[int, str]:
-    """Spawn one vehicle per follower, signing with ``key_file``'s key if given; returns
-    ``{id: "udp:host:port"}`` once each is listening."""
+) -> tuple[dict[int, str], dict[int, str]]:
+    """Spawn one vehicle per follower, signing with ``key_file``'s key if given, on the ports of
+    ``base_port`` (``PX4_BASE_PORT``; 0: free ports); returns ``{id: "udp:host:port"}`` of their
+    controller ports and of their ground-station ports once each is listening."""
     run_dir = sup.run_dir
     (run_dir / "tlogs").mkdir(parents=True, exist_ok=True)
     procs_dir(run_dir).mkdir(parents=True, exist_ok=True)
     children = {}
     for f in cfg.followers:
-        port = base_port + f.id - 1 if base_port else 0
-        children[f.id] = sup.spawn(
-            f"vehicle_{f.id}", vehicle_argv(cfg, f.id, run_dir, lockstep, port, key_file), False
+        port, gcs_port = (base_port + f.id, base_port + GCS_PORT_OFFSET + f.id) if base_port else (0, 0)
+        argv = vehicle_argv(
+            cfg, f.id, run_dir, lockstep, port, key_file, gcs_port, GCS_REMOTE if base_port else None
         )
+        children[f.id] = sup.spawn(f"vehicle_{f.id}", argv, False)
     endpoints: dict[int, str] = {}
+    ground: dict[int, str] = {}
     end = time.monotonic() + cfg.run.start_timeout_s
     while len(endpoints) < len(children):
         sup.check()
         for i, c in children.items():
             if i not in endpoints:
                 with contextlib.suppress(OSError):
-                    m = _LISTENING.search(c.log_path.read_text(errors="replace"))
-                    if m:
+                    log = c.log_path.read_text(errors="replace")
+                    m, g = _LISTENING.search(log), _GROUND_STATION.search(log)
+                    if m and g:
                         endpoints[i] = f"udp:{m.group(1)}:{m.group(2)}"
+                        ground[i] = f"udp:{g.group(1)}:{g.group(2)}"
         if time.monotonic() > end:
             late = sorted(set(children) - set(endpoints))
             raise RunFailedError(
                 f"vehicle(s) {late} did not start listening within {cfg.run.start_timeout_s:g} s"
             )
         time.sleep(0.02)
-    return endpoints
+    return endpoints, ground
+
+
+def port_lines(endpoints: Mapping[int, str], ground: Mapping[int, str]) -> list[str]:
+    """One line per vehicle: where its controller and a ground station reach it."""
+    return [
+        f"  vehicle {i}: controller udpout:{endpoints[i].removeprefix('udp:')}, ground station "
+        f"udpout:{ground[i].removeprefix('udp:')}  (MAVLink system id {i})"
+        for i in sorted(endpoints)
+    ]
 
 
 def node_argv(
@@ -465,8 +496,11 @@ def run_swarm(
     lockstep: bool,
     mavlink: dict[int, str] | None = None,
     on_progress: Callable[[int, dict[int, float]], None] | None = None,
+    base_port: int = 0,
+    on_vehicles: Callable[[list[str]], None] | None = None,
 ) -> RunResult:
-    """Run the swarm; vehicles are spawned unless ``mavlink`` gives each follower's endpoint."""
+    """Run the swarm; vehicles are spawned (on ``base_port``'s ports, ``start_vehicles``; their
+    ports go to ``on_vehicles``) unless ``mavlink`` gives each follower's endpoint."""
     from swarm_sitl.bus import publish_start
     from swarm_sitl.process_faults import LostAircraftError, ProcessFaults, check_lockstep
 
@@ -484,7 +518,12 @@ def run_swarm(
     faults = ProcessFaults(cfg, sup, lockstep, supervisor_events_path(run_dir)) if cfg.faults.plan else None
     try:
         key_file = signing_key_file(cfg, run_dir, own_vehicles=mavlink is None)
-        endpoints = start_vehicles(sup, cfg, lockstep, 0, key_file) if mavlink is None else dict(mavlink)
+        if mavlink is None:
+            endpoints, ground = start_vehicles(sup, cfg, lockstep, base_port, key_file)
+            if on_vehicles is not None:
+                on_vehicles(port_lines(endpoints, ground))
+        else:
+            endpoints = dict(mavlink)
         signing = ["--signing-key-file", str(key_file)] if key_file is not None else []
         node_args = {"leader": ["leader"]}
         for f in cfg.followers:

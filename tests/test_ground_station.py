@@ -1,0 +1,113 @@
+"""A ground station's own port on each vehicle: it watches without disturbing the controller.
+
+Clients use only pymavlink's public API. The system test watches vehicle 1 through its
+ground-station port during a lockstep run of the paper's scenario, which must still equal ``sim``
+bit for bit.
+"""
+
+import hashlib
+import re
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+import yaml
+from pymavlink import mavutil
+
+from swarm_sitl.sim import run_sim
+from tests.conftest import CONFIGS
+from tests.test_vehicle_mavlink import _free_udp_port, spawn_vehicle
+
+pytestmark = pytest.mark.system
+mav = mavutil.mavlink
+
+
+def _counts(*conns, seconds: float) -> list[dict[str, int]]:
+    """Messages of each kind each connection receives in the next ``seconds`` (read side by side)."""
+    for c in conns:  # what came before does not count
+        while c.recv_match(blocking=False) is not None:
+            pass
+    got: list[dict[str, int]] = [{} for _ in conns]
+    end = time.monotonic() + seconds
+    while time.monotonic() < end:
+        for c, counts in zip(conns, got, strict=True):
+            while (m := c.recv_match(blocking=False)) is not None:
+                counts[m.get_type()] = counts.get(m.get_type(), 0) + 1
+        time.sleep(0.005)
+    return got
+
+
+def test_a_ground_station_gets_its_own_streams_and_changes_only_them():
+    port, gcs_port = _free_udp_port(), _free_udp_port()
+    proc = spawn_vehicle(2, port, "--gcs-port", str(gcs_port), "--duration", "30")
+    try:
+        controller = mavutil.mavlink_connection(
+            f"udpout:127.0.0.1:{port}", source_system=2, source_component=191
+        )
+        controller.mav.heartbeat_send(mav.MAV_TYPE_ONBOARD_CONTROLLER, mav.MAV_AUTOPILOT_INVALID, 0, 0, 0)
+        assert controller.wait_heartbeat(timeout=5) is not None
+        gcs = mavutil.mavlink_connection(f"udpout:127.0.0.1:{gcs_port}", source_system=255)
+        gcs.mav.heartbeat_send(mav.MAV_TYPE_GCS, mav.MAV_AUTOPILOT_INVALID, 0, 0, 0)
+        hb = gcs.wait_heartbeat(timeout=5)
+        assert hb is not None and hb.autopilot == mav.MAV_AUTOPILOT_PX4 and gcs.flightmode == "LOITER"
+        (seen,) = _counts(gcs, seconds=3.0)  # PX4's ground-station rates: 5 Hz position, 15 Hz attitude
+        assert 10 <= seen.get("GLOBAL_POSITION_INT", 0) <= 20, seen
+        assert 30 <= seen.get("ATTITUDE", 0) <= 60 and "HIGHRES_IMU" not in seen, seen
+        # the ground station asks for 20 Hz of GLOBAL_POSITION_INT; the controller's port keeps 5 Hz
+        gcs.mav.command_long_send(2, 1, mav.MAV_CMD_SET_MESSAGE_INTERVAL, 0, 33, 50_000, 0, 0, 0, 0, 0)
+        ack = gcs.recv_match(type="COMMAND_ACK", blocking=True, timeout=3)
+        assert ack is not None and ack.result == mav.MAV_RESULT_ACCEPTED and ack.target_system == 255
+        # a setpoint on the ground station's port is refused: only the controller's port flies
+        gcs.mav.set_attitude_target_send(0, 2, 1, 0, [1.0, 0, 0, 0], 0, 0, 0, 1.0)
+        time.sleep(0.1)
+        on_gcs, on_controller = _counts(gcs, controller, seconds=2.0)
+        assert 35 <= on_gcs.get("GLOBAL_POSITION_INT", 0) <= 45, on_gcs
+        assert 8 <= on_controller.get("GLOBAL_POSITION_INT", 0) <= 12, on_controller
+        assert on_controller.get("LOCAL_POSITION_NED", 0) >= 80  # 50 Hz: the controller's stream goes on
+    finally:
+        proc.terminate()
+        proc.wait(timeout=10)
+
+
+def test_a_watcher_on_the_ground_station_port_leaves_a_lockstep_run_unchanged(tmp_path, paper_cfg):
+    cfg = yaml.safe_load((CONFIGS / "paper.yaml").read_text())
+    cfg["duration_s"] = 6.0
+    path = tmp_path / "paper.yaml"
+    path.write_text(yaml.safe_dump(cfg))
+    out = tmp_path / "run"
+    run = subprocess.Popen(
+        [sys.executable, "-m", "swarm_sitl", "run", str(path), "--out", str(out)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert run.stdout is not None
+        line = ""
+        while "vehicle 1:" not in line:
+            line = run.stdout.readline()
+            assert line, "run printed no ports"
+        gcs_port = int(re.search(r"ground station udpout:127\.0\.0\.1:(\d+)", line).group(1))
+        watcher = mavutil.mavlink_connection(f"udpout:127.0.0.1:{gcs_port}", source_system=255)
+        # the run signs every link: a ground station signs with the run's key too, as with PX4
+        passphrase = (out / "mavlink_signing.key").read_text().splitlines()[0]
+        watcher.setup_signing(hashlib.sha256(passphrase.encode()).digest(), sign_outgoing=True)
+        watcher.mav.heartbeat_send(mav.MAV_TYPE_GCS, mav.MAV_AUTOPILOT_INVALID, 0, 0, 0)
+        seen: dict[str, int] = {}
+        while run.poll() is None:
+            watcher.mav.heartbeat_send(mav.MAV_TYPE_GCS, mav.MAV_AUTOPILOT_INVALID, 0, 0, 0)
+            for kind, n in _counts(watcher, seconds=0.3)[0].items():
+                seen[kind] = seen.get(kind, 0) + n
+        stdout, stderr = run.communicate(timeout=60)
+    finally:
+        if run.poll() is None:
+            run.kill()
+            run.wait()
+    assert run.returncode == 0, stderr + stdout
+    assert seen.get("HEARTBEAT", 0) >= 1 and seen.get("GLOBAL_POSITION_INT", 0) >= 20, seen
+    sim = run_sim(paper_cfg.model_copy(update={"duration_s": 6.0}))
+    for i in range(1, 5):
+        got = np.load(out / f"follower_{i}.npz")
+        assert np.array_equal(got["p_W"], sim.followers[i]["p_W"]), f"follower {i} changed"
