@@ -123,11 +123,6 @@ HIGHRES_IMU = Layout(mav.MAVLink_highres_imu_message)
 SET_ATTITUDE_TARGET = Layout(mav.MAVLink_set_attitude_target_message)
 
 
-def crc_with_extra(body: bytes | bytearray, crc_extra: int) -> int:
-    """MAVLink's X.25 CRC of ``body`` (a frame from its length byte up to its CRC) and a CRC extra."""
-    return int(crc16.mcrf4xx(bytes([crc_extra]), crc16.mcrf4xx(bytes(body), 0xFFFF)))
-
-
 def _crc(body: bytes, crc_extra: bytes) -> int:
     """MAVLink's X.25 CRC (CRC-16/MCRF4XX) of ``body`` and the message's CRC extra: the C routine
     pymavlink itself uses, called without its per-call wrapper object."""

@@ -26,9 +26,10 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from fastcrc import crc16
 from pymavlink.dialects.v20 import common as mav
 
-from sim_vehicles.mavlink_frames import MAGIC_V2, crc_with_extra
+from sim_vehicles.mavlink_frames import MAGIC_V2
 
 SIGNED = 0x01  #: incompat flag of a signed frame
 MAGIC_V1 = 0xFE
@@ -64,9 +65,13 @@ def now_stamp() -> int:
     return int((time.time() - _EPOCH_2015_UNIX_S) * 100_000)
 
 
-def _crc_extra(msg_id: int) -> int | None:
-    cls = mav.mavlink_map.get(msg_id)
-    return None if cls is None else int(cls.crc_extra)
+#: each message's CRC extra as the one byte the CRC takes (per frame: no lookup through the class)
+_EXTRA = {msg_id: bytes([int(cls.crc_extra)]) for msg_id, cls in mav.mavlink_map.items()}
+
+
+def _crc(body: bytes | bytearray, extra: bytes) -> bytes:
+    """MAVLink's X.25 CRC of a frame from its length byte on, and the CRC extra: two wire bytes."""
+    return crc16.mcrf4xx(extra, crc16.mcrf4xx(bytes(body), 0xFFFF)).to_bytes(2, "little")
 
 
 class Signer:
@@ -76,21 +81,23 @@ class Signer:
         self.key = key
         self.link_id = link_id
         self._stamp = 0
+        self._link = bytes([link_id])
 
     def seal(self, frame: bytes) -> bytes:
         """``frame`` (one plain MAVLink 2 frame) signed; anything else is returned as it is."""
         n = len(frame)
         if n < _HEADER_LEN + 2 or frame[0] != MAGIC_V2 or frame[2] & SIGNED:
             return frame
-        extra = _crc_extra(frame[7] | (frame[8] << 8) | (frame[9] << 16))
+        extra = _EXTRA.get(frame[7] | (frame[8] << 8) | (frame[9] << 16))
         if extra is None:
             return frame
         self._stamp = stamp = max(self._stamp + 1, now_stamp())
         head = bytearray(frame[:-2])
         head[2] |= SIGNED
-        body = head + crc_with_extra(head[1:], extra).to_bytes(2, "little")
-        body += bytes([self.link_id]) + stamp.to_bytes(6, "little")
-        return bytes(body) + hashlib.sha256(self.key + body).digest()[:6]
+        head += _crc(memoryview(head)[1:], extra)
+        head += self._link
+        head += stamp.to_bytes(6, "little")
+        return bytes(head) + hashlib.sha256(self.key + head).digest()[:6]
 
     def seal_all(self, datagram: bytes) -> bytes:
         """Every frame of a datagram of plain frames, signed."""
@@ -140,9 +147,9 @@ class Verifier:
             if hashlib.sha256(self.key + frame[:-6]).digest()[:6] != frame[-6:]:
                 self.bad += 1
                 return None
-            extra = _crc_extra(frame[7] | (frame[8] << 8) | (frame[9] << 16))
-            crc = frame[end - at - 2] | (frame[end - at - 1] << 8)
-            if extra is None or crc_with_extra(frame[1 : end - at - 2], extra) != crc:
+            extra = _EXTRA.get(frame[7] | (frame[8] << 8) | (frame[9] << 16))
+            body_end = end - at - 2
+            if extra is None or _crc(frame[1:body_end], extra) != frame[body_end : body_end + 2]:
                 self.bad += 1
                 return None
             stream = (frame[5], frame[6], frame[end - at])
@@ -152,9 +159,10 @@ class Verifier:
                 self.replayed += 1
                 return None
             seen[stream] = stamp
-            head = bytearray(frame[: end - at - 2])
+            head = bytearray(frame[:body_end])
             head[2] &= ~SIGNED & 0xFF
-            out.append(bytes(head) + crc_with_extra(head[1:], extra).to_bytes(2, "little"))
+            head += _crc(memoryview(head)[1:], extra)
+            out.append(bytes(head))
             at = signed_end
         if not out:
             self.bad += 1
