@@ -69,7 +69,7 @@ def now_stamp() -> int:
 _EXTRA = {msg_id: bytes([int(cls.crc_extra)]) for msg_id, cls in mav.mavlink_map.items()}
 
 
-def _crc(body: bytes | bytearray, extra: bytes) -> bytes:
+def _crc(body: bytes | bytearray | memoryview, extra: bytes) -> bytes:
     """MAVLink's X.25 CRC of a frame from its length byte on, and the CRC extra: two wire bytes."""
     return crc16.mcrf4xx(extra, crc16.mcrf4xx(bytes(body), 0xFFFF)).to_bytes(2, "little")
 
