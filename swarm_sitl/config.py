@@ -33,12 +33,13 @@ Positive = Annotated[float, Field(gt=0)]
 
 
 class HelixSpec(_Strict):
-    type: Literal["helix"]
-    radius_m: Positive
+    type: Literal["helix"]  #: a circle in the horizontal plane that climbs at a constant rate
+    radius_m: Positive  #: of the circle [m]
+    #: about the vertical axis (positive: counter-clockwise seen from above) [rad/s]
     angular_rate_radps: float
-    climb_rate_mps: float
-    center_m: Vec3 = (0.0, 0.0, 0.0)
-    phase_rad: float = 0.0
+    climb_rate_mps: float  #: vertical speed [m/s]
+    center_m: Vec3 = (0.0, 0.0, 0.0)  #: centre of the circle at t = 0 [m; ENU]
+    phase_rad: float = 0.0  #: angle on the circle at t = 0, from east [rad]
 
     def build(self) -> Trajectory:
         return Helix(
@@ -47,26 +48,27 @@ class HelixSpec(_Strict):
 
 
 class FigureEightSpec(_Strict):
-    type: Literal["figure_eight"]
-    amplitude_x_m: Positive
-    amplitude_y_m: Positive
-    angular_rate_radps: Positive
-    center_m: Vec3 = (0.0, 0.0, 0.0)
+    type: Literal["figure_eight"]  #: a horizontal figure eight (lemniscate of Gerono)
+    amplitude_x_m: Positive  #: east half-width [m]
+    amplitude_y_m: Positive  #: north half-width [m]
+    angular_rate_radps: Positive  #: of the east motion (the north one runs twice as fast) [rad/s]
+    center_m: Vec3 = (0.0, 0.0, 0.0)  #: [m; ENU]
 
     def build(self) -> Trajectory:
         return FigureEight(self.amplitude_x_m, self.amplitude_y_m, self.angular_rate_radps, self.center_m)
 
 
 class LineSpec(_Strict):
-    type: Literal["line"]
-    start_m: Vec3
-    velocity_mps: Vec3
+    type: Literal["line"]  #: a straight line at constant velocity
+    start_m: Vec3  #: position at t = 0 [m; ENU]
+    velocity_mps: Vec3  #: [m/s; ENU]
 
     def build(self) -> Trajectory:
         return Line(self.start_m, self.velocity_mps)
 
 
 class LeaderSpec(_Strict):
+    #: the leader's reference p_r(t), with its derivatives in closed form; ``type`` picks the kind
     trajectory: Annotated[HelixSpec | FigureEightSpec | LineSpec, Field(discriminator="type")]
 
 
@@ -94,8 +96,11 @@ class GraphSpec(_Strict):
 
 
 class VehicleSpec(_Strict):
-    mass_kg: Positive
-    inertia_kgm2: tuple[Positive, Positive, Positive]
+    mass_kg: Positive  #: every follower's mass m [kg]
+    inertia_kgm2: tuple[
+        Positive, Positive, Positive
+    ]  #: principal moments of inertia J (body x, y, z) [kg m^2]
+    #: the thrust a throttle of 1 gives; above the law's bound (``swarm-sitl check``) [N]
     max_thrust_N: Positive
     setpoint_timeout_s: Positive = 0.5  #: failsafe after this long without a valid setpoint
     #: what the vehicle flies in failsafe (PX4's COM_OBL_ACT): a position hold at the point of
@@ -107,11 +112,11 @@ class VehicleSpec(_Strict):
 
 
 class FollowerSpec(_Strict):
-    id: Annotated[int, Field(ge=1)]
+    id: Annotated[int, Field(ge=1)]  #: 1..n, each once; the graph's node and the vehicle's MAVLink system id
     offset_m: Vec3  #: delta_i, desired position relative to the leader [m; ENU]
-    initial_position_m: Vec3
-    initial_velocity_mps: Vec3 = (0.0, 0.0, 0.0)
-    initial_quaternion_wxyz: tuple[float, float, float, float] = (1.0, 0.0, 0.0, 0.0)
+    initial_position_m: Vec3  #: [m; ENU]
+    initial_velocity_mps: Vec3 = (0.0, 0.0, 0.0)  #: [m/s; ENU]
+    initial_quaternion_wxyz: tuple[float, float, float, float] = (1.0, 0.0, 0.0, 0.0)  #: body to world, unit
 
     @field_validator("initial_quaternion_wxyz")
     @classmethod
@@ -123,20 +128,22 @@ class FollowerSpec(_Strict):
 
 
 class GainsSpec(_Strict):
-    k_gamma: Positive
-    k_p: Positive
-    k_v: Positive
-    l_a: Positive
-    k_a: Positive
-    l_p: Positive
-    l_v: Positive
-    k_eta: Positive
-    l_q: Positive
-    k_q: Positive
+    k_gamma: Positive  #: estimator: bound of the acceleration estimate, a_hat = k_gamma tanh(gamma) [m/s^2]
+    k_p: Positive  #: estimator: consensus gain on the neighbours' position estimates [1/s]
+    k_v: Positive  #: estimator: consensus gain on the neighbours' velocity estimates [1/s]
+    l_a: Positive  #: estimator: damping of gamma's second-order dynamics [1/s]
+    k_a: Positive  #: estimator: gain of the sliding variable's sign term
+    l_p: Positive  #: auxiliary system: position-error gain
+    l_v: Positive  #: auxiliary system: velocity-error gain
+    k_eta: Positive  #: auxiliary system: bound of its saturated (tanh) terms [m/s^2]
+    l_q: Positive  #: torque law (the vehicle's attitude loop): attitude-error gain
+    k_q: Positive  #: torque law: body-rate-error gain
 
 
 class EstimatorSpec(_Strict):
     sign_boundary_layer: Annotated[float, Field(ge=0)] = 0.0  #: 0 = paper's sgn; >0 saturation width
+    #: how a neighbour's estimate is carried to the tick that uses it: ``extrapolate`` by its age
+    #: with its own derivatives, ``zero_order`` as it came
     neighbour_hold: Literal["extrapolate", "zero_order"] = "extrapolate"
     #: a neighbour's latest estimate is used, carried by its age, while it is at most this old [s];
     #: past it the neighbour is left out of the sums until a newer one comes (a lost or cut edge)
@@ -157,10 +164,11 @@ class ZenohSpec(_Strict):
       the user and password in ``SWARM_SITL_ZENOH_USER``/``SWARM_SITL_ZENOH_PASSWORD`` if set).
     """
 
-    mode: Literal["router", "peer", "client"] = "router"
+    mode: Literal["router", "peer", "client"] = "router"  #: who routes the bus (above)
+    #: zenoh endpoints to listen on: the router's (``router``) or each peer's (``peer``)
     listen: list[str] = ["tcp/127.0.0.1:0"]
-    connect: list[str] = []
-    multicast_scouting: bool = False
+    connect: list[str] = []  #: zenoh endpoints every session connects to (a router, other peers)
+    multicast_scouting: bool = False  #: find peers by multicast (off: nothing leaves loopback unasked)
 
 
 class SigningSpec(_Strict):
@@ -209,19 +217,21 @@ class RunSpec(_Strict):
 
 
 class SwarmConfig(_Strict):
-    name: Annotated[str, Field(pattern=r"^[A-Za-z0-9_-]+$")]
-    duration_s: Positive
-    gravity_mps2: Positive = 9.81
-    rates: RatesSpec
-    leader: LeaderSpec
-    graph: GraphSpec
-    vehicle: VehicleSpec
-    followers: list[FollowerSpec]
-    gains: GainsSpec
-    estimator: EstimatorSpec = EstimatorSpec()
-    zenoh: ZenohSpec = ZenohSpec()
-    signing: SigningSpec = SigningSpec()
-    run: RunSpec = RunSpec()
+    name: Annotated[
+        str, Field(pattern=r"^[A-Za-z0-9_-]+$")
+    ]  #: the swarm's name: its zenoh keys and run directories
+    duration_s: Positive  #: simulated time of a run [s]
+    gravity_mps2: Positive = 9.81  #: g [m/s^2]
+    rates: RatesSpec  #: loop rates
+    leader: LeaderSpec  #: node 0, the reference
+    graph: GraphSpec  #: the directed communication graph (node 0 is the leader)
+    vehicle: VehicleSpec  #: every follower's airframe and autopilot
+    followers: list[FollowerSpec]  #: one per follower: its place in the formation and initial state
+    gains: GainsSpec  #: the law's gains (paper section 4 for its example)
+    estimator: EstimatorSpec = EstimatorSpec()  #: the distributed estimator's sampled-time choices
+    zenoh: ZenohSpec = ZenohSpec()  #: the bus between the processes
+    signing: SigningSpec = SigningSpec()  #: MAVLink 2 signing of the vehicle links
+    run: RunSpec = RunSpec()  #: limits and pacing of a multi-process run
     faults: FaultPlan = FaultPlan()  #: what fails, how and when (``fault_plan``)
 
     @model_validator(mode="after")

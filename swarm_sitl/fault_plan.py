@@ -207,8 +207,8 @@ class FaultPlan(BaseModel):
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
-    seed: Annotated[int, Field(ge=0, lt=2**63)] = 0
-    plan: list[FaultSpec] = []
+    seed: Annotated[int, Field(ge=0, lt=2**63)] = 0  #: of every random draw: the same seed, the same faults
+    plan: list[FaultSpec] = []  #: the entries, each one what, one how and when
 
     def check_against(self, graph_edges: list[tuple[int, int]], n_followers: int, duration_s: float) -> None:
         """Cross-checks with the rest of the config; raises ``ValueError`` naming the entry."""
