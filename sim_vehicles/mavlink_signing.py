@@ -6,10 +6,10 @@ and the first 6 bytes of SHA-256(secret key + the frame up to and including the 
 timestamp). The key is 32 bytes; ``key_from_passphrase`` gives the one MAVProxy's ``signing
 setup`` and QGroundControl derive from a passphrase (its SHA-256).
 
-- ``Signer.seal(frame)``: a plain MAVLink 2 frame, signed (flag set, CRC redone, signature
+- ``Signer.seal(frame)``: a plain MAVLink 2 frame, signed (flag set, CRC updated, signature
   appended). Its timestamps follow the wall clock and never repeat.
 - ``Verifier.open(datagram)``: the datagram's frames, checked and unsigned (flag cleared, CRC
-  redone): plain MAVLink 2 bytes for the parsers that follow (``tick_frames``, ``mavlink_frames``,
+  updated): plain MAVLink 2 bytes for the parsers that follow (``tick_frames``, ``mavlink_frames``,
   pymavlink). ``None`` if any frame is not signed (``unsigned``, MAVLink 1 included), is signed wrongly
   or not a frame (``bad``), or repeats or goes back in time (``replayed``: each stream, a
   ``(system, component, link id)``, must move its timestamp forward; a new stream may start at most
@@ -27,7 +27,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from fastcrc import crc16
-from pymavlink.dialects.v20 import common as mav
 
 from sim_vehicles.mavlink_frames import MAGIC_V2
 
@@ -65,13 +64,29 @@ def now_stamp() -> int:
     return int((time.time() - _EPOCH_2015_UNIX_S) * 100_000)
 
 
-#: each message's CRC extra as the one byte the CRC takes (per frame: no lookup through the class)
-_EXTRA = {msg_id: bytes([int(cls.crc_extra)]) for msg_id, cls in mav.mavlink_map.items()}
+def _flag_deltas() -> list[int]:
+    """What setting the signed flag does to a frame's CRC, by payload length. MAVLink's X.25 CRC
+    (no final XOR) is linear: CRC(A ^ D) = CRC(A) ^ CRC_0(D), where CRC_0 starts from 0. The
+    flag is bit 0 of the CRC's second byte (the frame's third) and the CRC extra follows the
+    body, so signing or unsigning a frame XORs its CRC with the CRC_0 of that one bit: no CRC
+    is computed per frame (and no message's CRC extra is needed)."""
+    out = []
+    for plen in range(256):
+        d = bytearray(_HEADER_LEN - 1 + plen + 1)  # body (length byte on) and the CRC extra's slot
+        d[1] = SIGNED
+        out.append(crc16.mcrf4xx(bytes(d), 0))
+    return out
 
 
-def _crc(body: bytes | bytearray | memoryview, extra: bytes) -> bytes:
-    """MAVLink's X.25 CRC of a frame from its length byte on, and the CRC extra: two wire bytes."""
-    return crc16.mcrf4xx(extra, crc16.mcrf4xx(bytes(body), 0xFFFF)).to_bytes(2, "little")
+_FLAG_DELTA = _flag_deltas()
+
+
+def _flip_flag(frame: bytearray, body_end: int) -> None:
+    """Toggle the signed flag of the frame in ``frame`` (its CRC at ``body_end``), CRC kept right."""
+    frame[2] ^= SIGNED
+    crc = (frame[body_end] | frame[body_end + 1] << 8) ^ _FLAG_DELTA[frame[1]]
+    frame[body_end] = crc & 0xFF
+    frame[body_end + 1] = crc >> 8
 
 
 class Signer:
@@ -88,13 +103,9 @@ class Signer:
         n = len(frame)
         if n < _HEADER_LEN + 2 or frame[0] != MAGIC_V2 or frame[2] & SIGNED:
             return frame
-        extra = _EXTRA.get(frame[7] | (frame[8] << 8) | (frame[9] << 16))
-        if extra is None:
-            return frame
         self._stamp = stamp = max(self._stamp + 1, now_stamp())
-        head = bytearray(frame[:-2])
-        head[2] |= SIGNED
-        head += _crc(memoryview(head)[1:], extra)
+        head = bytearray(frame)
+        _flip_flag(head, n - 2)
         head += self._link
         head += stamp.to_bytes(6, "little")
         return bytes(head) + hashlib.sha256(self.key + head).digest()[:6]
@@ -147,11 +158,7 @@ class Verifier:
             if hashlib.sha256(self.key + frame[:-6]).digest()[:6] != frame[-6:]:
                 self.bad += 1
                 return None
-            extra = _EXTRA.get(frame[7] | (frame[8] << 8) | (frame[9] << 16))
-            body_end = end - at - 2
-            if extra is None or _crc(frame[1:body_end], extra) != frame[body_end : body_end + 2]:
-                self.bad += 1
-                return None
+            body_end = end - at - 2  # the CRC is not checked: the signature covers it
             stream = (frame[5], frame[6], frame[end - at])
             stamp = int.from_bytes(frame[end - at + 1 : end - at + 7], "little")
             last = seen.get(stream, self._streams.get(stream))
@@ -159,9 +166,8 @@ class Verifier:
                 self.replayed += 1
                 return None
             seen[stream] = stamp
-            head = bytearray(frame[:body_end])
-            head[2] &= ~SIGNED & 0xFF
-            head += _crc(memoryview(head)[1:], extra)
+            head = bytearray(frame[: body_end + 2])
+            _flip_flag(head, body_end)
             out.append(bytes(head))
             at = signed_end
         if not out:
