@@ -32,7 +32,7 @@ def _comments(module: types.ModuleType) -> dict[tuple[str, str], str]:
             if not (isinstance(stmt, ast.AnnAssign) and isinstance(stmt.target, ast.Name)):
                 continue
             row = stmt.lineno - 1
-            above = []
+            above: list[str] = []
             j = row - 1
             while j >= 0 and lines[j].strip().startswith("#:"):
                 above.insert(0, lines[j].strip()[2:].strip())

@@ -238,7 +238,7 @@ def test_own_vehicles_and_controllers_meet_over_given_endpoints(tmp_path, paper_
         while len(urls) < 4:
             line = vehicles.stdout.readline()
             assert line, vehicles.stderr.read()
-            m = re.search(r"vehicle \d+: (udpout:\S+)", line)
+            m = re.search(r"vehicle \d+: controller (udpout:[^\s,]+)", line)
             if m:
                 urls.append(m.group(1))
         out = tmp_path / "ctl"
