@@ -291,6 +291,18 @@ def cmd_vehicles(args: argparse.Namespace) -> int:
         sup.close()
 
 
+def cmd_export(args: argparse.Namespace) -> int:
+    from swarm_sitl.mcap_export import write_mcap
+
+    run_dir = Path(args.run_dir)
+    if not (run_dir / "config.yaml").is_file():
+        raise RunDirError(f"{run_dir}: not a run directory (no config.yaml)")
+    out = Path(args.out) if args.out else run_dir / "run.mcap"
+    counts = write_mcap(run_dir, out)
+    print(f"{out}: {sum(counts.values())} messages on {len(counts)} channels")
+    return 0
+
+
 def cmd_plot(args: argparse.Namespace) -> int:
     from swarm_sitl.plots import plot_run
     from swarm_sitl.recording import load_run
@@ -405,6 +417,11 @@ def build_parser() -> argparse.ArgumentParser:
     pl.add_argument("run_dir")
     pl.add_argument("--out", help="output folder (default RUN_DIR/plots)")
     pl.set_defaults(func=cmd_plot)
+
+    ex = sub.add_parser("export", help="write a run directory as one MCAP file (Foxglove opens it)")
+    ex.add_argument("run_dir")
+    ex.add_argument("--out", help="the MCAP file (default RUN_DIR/run.mcap)")
+    ex.set_defaults(func=cmd_export)
 
     b = sub.add_parser("bench", help="measure speed figures and print them")
     b.add_argument("--config", default=str(Path("configs") / "paper.yaml"))
