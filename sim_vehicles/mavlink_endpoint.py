@@ -65,7 +65,8 @@ Hostile input (``stats`` counts each kind; nothing anyone sends stops the vehicl
   system or component: ``rx_refused``. A message the vehicle does not handle: ``rx_unhandled``.
 - Values it refuses (``rx_invalid``; the vehicle keeps its last valid setpoint): a setpoint whose
   quaternion is not a rotation, with a non-finite rate or a thrust outside 0..1; a command whose
-  parameters are not finite or not what the command takes (COMMAND_ACK ``MAV_RESULT_DENIED``); a
+  parameters are not finite where it reads them (``COMMAND_PARAMS``; NaN in a parameter it does not
+  need is MAVLink's "unused") or not what the command takes (COMMAND_ACK ``MAV_RESULT_DENIED``); a
   PARAM_SET outside the parameter's range (answered with the value it keeps).
 - Commanded body rates are clipped to the vehicle's MC_ROLLRATE_MAX, MC_PITCHRATE_MAX and
   MC_YAWRATE_MAX (``VehicleParams.max_rate_rps``), so the plant's state stays finite.
@@ -122,6 +123,16 @@ SETTABLE = {
 ASKS = {
     mav.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES: mav.MAVLINK_MSG_ID_AUTOPILOT_VERSION,
     mav.MAV_CMD_GET_HOME_POSITION: mav.MAVLINK_MSG_ID_HOME_POSITION,
+}
+#: the commands the vehicle takes: the parameters (0-based) each needs finite, and those it reads
+#: that may be NaN (MAVLink's "unused", as MAVSDK sends them: taken as 0); the others are not read
+COMMAND_PARAMS: dict[int, tuple[tuple[int, ...], tuple[int, ...]]] = {
+    mav.MAV_CMD_COMPONENT_ARM_DISARM: ((0,), (1,)),
+    mav.MAV_CMD_DO_SET_MODE: ((0, 1), (2,)),
+    mav.MAV_CMD_SET_MESSAGE_INTERVAL: ((0, 1), ()),
+    mav.MAV_CMD_REQUEST_MESSAGE: ((0,), ()),
+    mav.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES: ((0,), ()),
+    mav.MAV_CMD_GET_HOME_POSITION: ((), ()),
 }
 PEER_SILENT_S = 3.0  #: wall time a peer must be silent before another address may take the link [s]
 FORCE_DISARM = 21196  #: MAV_CMD_COMPONENT_ARM_DISARM param2 that forces a disarm (PX4's magic number)
@@ -735,27 +746,23 @@ class VehicleEndpoint:
 
     def _on_command(self, m: Any) -> None:
         cmd = m.command
-        params = (m.param1, m.param2, m.param3, m.param4, m.param5, m.param6, m.param7)
+        params: tuple[float, ...] = (m.param1, m.param2, m.param3, m.param4, m.param5, m.param6, m.param7)
 
         def ack(result: int) -> None:  # to the sender, as PX4 addresses it
             self._send(
                 self.mav.command_ack_encode(cmd, result, 0, 0, m.get_srcSystem(), m.get_srcComponent())
             )
 
-        if cmd not in (
-            mav.MAV_CMD_COMPONENT_ARM_DISARM,
-            mav.MAV_CMD_DO_SET_MODE,
-            mav.MAV_CMD_SET_MESSAGE_INTERVAL,
-            mav.MAV_CMD_REQUEST_MESSAGE,
-            *ASKS,
-        ):
+        if cmd not in COMMAND_PARAMS:
             self.stats.rx_unhandled += 1
             ack(mav.MAV_RESULT_UNSUPPORTED)
             return
-        if not all(map(math.isfinite, params)):  # NaN is "unused" in MAVLink; none of ours is optional
+        used, optional = COMMAND_PARAMS[cmd]
+        if not all(math.isfinite(params[j]) for j in used) or any(math.isinf(params[j]) for j in optional):
             self.stats.rx_invalid += 1
             ack(mav.MAV_RESULT_DENIED)
             return
+        params = tuple(0.0 if j in optional and math.isnan(v) else v for j, v in enumerate(params))
         p1, p2 = params[0], params[1]
         result = mav.MAV_RESULT_ACCEPTED
         if cmd == mav.MAV_CMD_COMPONENT_ARM_DISARM:

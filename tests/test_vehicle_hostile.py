@@ -18,7 +18,7 @@ from hypothesis import strategies as st
 from pymavlink.dialects.v20 import common as mav
 
 from sim_vehicles.autopilot import Autopilot
-from sim_vehicles.mavlink_endpoint import MODE_OFFBOARD, PEER_SILENT_S, VehicleEndpoint
+from sim_vehicles.mavlink_endpoint import COMMAND_PARAMS, MODE_OFFBOARD, PEER_SILENT_S, VehicleEndpoint
 from sim_vehicles.mavlink_frames import _crc
 from sim_vehicles.params import AttitudeGains, VehicleParams
 from sim_vehicles.rigid_body import make_state
@@ -226,10 +226,15 @@ def hostile_datagrams(draw) -> bytes:
             )
         return _frame(mav.MAVLink_set_attitude_target_message(0, SYS, 1, 0, q, *rates, thrust))
     if kind == "command":  # a non-finite parameter, or a command it does not have
-        command = draw(st.sampled_from([*_COMMANDS, draw(st.integers(0, 65535))]))
+        command = draw(st.sampled_from([*COMMAND_PARAMS, draw(st.integers(0, 65535))]))
         params = [draw(_floats) for _ in range(7)]
-        if command in _COMMANDS:
-            params[draw(st.integers(0, 6))] = draw(st.sampled_from([NAN, INF, -INF]))
+        if command in COMMAND_PARAMS:  # a parameter it reads: non-finite (an optional one: infinite)
+            used, optional = COMMAND_PARAMS[command]
+            if not used:  # it reads none: an unhandled command instead
+                command = 7
+            else:
+                j = draw(st.sampled_from([*used, *optional]))
+                params[j] = draw(st.sampled_from([INF, -INF] if j in optional else [NAN, INF, -INF]))
         return _command(command, *params)
     if kind == "elsewhere":
         target = draw(st.integers(0, 255).filter(lambda t: t not in (0, SYS)))
@@ -241,8 +246,6 @@ def hostile_datagrams(draw) -> bytes:
     return _pack_raw(cls, draw(st.binary(min_size=cls.unpacker.size, max_size=cls.unpacker.size)))
 
 
-#: the commands the vehicle takes (sent with a non-finite parameter: refused)
-_COMMANDS = (176, 400, 410, 511, 512, 520)
 _HANDLED = {  # what the vehicle acts on: the other strategies make those hostile
     mav.MAVLINK_MSG_ID_PING,
     mav.MAVLINK_MSG_ID_MISSION_REQUEST_LIST,
