@@ -150,6 +150,12 @@ class _RunProgress:
             )
             self.bar.set_postfix_str(f"|p-p_r-d| m {shown}", refresh=False)
 
+    def note(self, lines: list[str]) -> None:
+        """Lines printed above the bar (the vehicles' ports, as they come up)."""
+        if self.bar is not None:
+            for line in lines:
+                self.bar.write(line)
+
     def close(self) -> None:
         if self.bar is not None:
             self.bar.close()
@@ -170,11 +176,7 @@ def _run_and_record(
     progress = _RunProgress(cfg, f"{kind} {cfg.name} ({clock})", quiet)
     try:
 
-        def ports(lines: list[str]) -> None:
-            if not quiet:
-                print("\n".join(lines), flush=True)
-
-        out = record_run(cfg, run_dir, lockstep, mavlink, progress, base_port, ports)
+        out = record_run(cfg, run_dir, lockstep, mavlink, progress, base_port, progress.note)
     finally:
         progress.close()
     if out.failure is not None:
