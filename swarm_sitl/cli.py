@@ -155,6 +155,7 @@ class _RunProgress:
         if self.bar is not None:
             for line in lines:
                 self.bar.write(line)
+            sys.stdout.flush()  # a pipe's reader (a script waiting for the ports) gets them now
 
     def close(self) -> None:
         if self.bar is not None:
