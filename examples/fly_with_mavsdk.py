@@ -22,7 +22,7 @@ async def _first(gen):
 async def fly(port: int) -> dict:
     """Connect to the vehicle whose controller (or ground-station) port is ``port``, read its
     telemetry, arm, fly MAVSDK's offboard attitude flow (level, then 10 degrees nose down for 3 s),
-    stop offboard; returns what it saw."""
+    stop offboard (Hold: it brakes and holds); returns what it saw."""
     import mavsdk.asyncio as mavsdk
     from mavsdk.asyncio.plugins.action import ActionAsync
     from mavsdk.asyncio.plugins.offboard import OffboardAsync
@@ -60,6 +60,9 @@ async def fly(port: int) -> dict:
         seen["attitude_tilted"] = await now(tel.subscribe_attitude_euler())
         await offboard.stop()
         seen["mode_after"] = await now(tel.subscribe_flight_mode())
+        await asyncio.sleep(4.0)  # Hold: it brakes and holds its position
+        v = (await now(tel.subscribe_position_velocity_ned())).velocity
+        seen["speed_held"] = math.sqrt(v.north_m_s**2 + v.east_m_s**2 + v.down_m_s**2)
         seen["moved"] = (end.north_m - start.north_m, end.east_m - start.east_m, end.down_m - start.down_m)
         seen["modes"] = (FlightMode.HOLD, FlightMode.OFFBOARD)
     return seen
@@ -79,6 +82,7 @@ def main() -> int:
     print(f"health: armable {h.is_armable}, global position ok {h.is_global_position_ok}")
     north, east, down = seen["moved"]
     print(f"moved {north:.2f} m north, {east:.2f} m east, {down:.2f} m down in 3 s at 10 degrees nose down")
+    print(f"4 s after offboard.stop() (Hold): {seen['speed_held']:.2f} m/s")
     return 0
 
 

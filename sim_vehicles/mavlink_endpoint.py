@@ -5,7 +5,8 @@ conventions are in ``px4_profile``):
 
 - HEARTBEAT at 1 Hz: type MAV_TYPE_QUADROTOR, autopilot MAV_AUTOPILOT_PX4, system id = follower
   id, component MAV_COMP_ID_AUTOPILOT1; ``base_mode`` carries SAFETY_ARMED and CUSTOM_MODE_ENABLED;
-  ``custom_mode`` is PX4's: AUTO.LOITER ("Hold", ``MODE_HOLD``: ignores setpoints) or OFFBOARD
+  ``custom_mode`` is PX4's: AUTO.LOITER ("Hold", ``MODE_HOLD``: a position hold where it was when
+  the mode began or it was armed, by its own loop as in its failsafe; setpoints ignored) or OFFBOARD
   (``MODE_OFFBOARD``: follows SET_ATTITUDE_TARGET). Setpoints lost for SP_TIMEOUT_S in offboard
   are its failsafe (``MODE_FAILSAFE``): it flies a position hold at the point of loss or a landing
   (``failsafe``), reported as AUTO.LOITER or AUTO.LAND with ``system_status`` MAV_STATE_CRITICAL,
@@ -771,6 +772,8 @@ class VehicleEndpoint:
                 self.stats.rx_invalid += 1
                 result = mav.MAV_RESULT_DENIED  # PX4 refuses to disarm in flight unless forced
             else:
+                if arm and not self.armed and self.mode == MODE_HOLD:
+                    self._hold_here()  # armed in Hold: it holds where it is
                 self.armed = arm
         elif cmd == mav.MAV_CMD_DO_SET_MODE:
             result = self._set_mode(px4.requested_mode(p1, p2, params[2]))
@@ -808,9 +811,17 @@ class VehicleEndpoint:
             return mav.MAV_RESULT_DENIED
         if self.mode == MODE_FAILSAFE:
             self._event("failsafe_exit", vehicle=self.system_id)
+        if mode == MODE_HOLD and self.mode != MODE_HOLD:
+            self._hold_here()
         self.mode = mode
         self._last_setpoint_s = self.autopilot.time_s if mode == MODE_OFFBOARD else -math.inf
         return mav.MAV_RESULT_ACCEPTED
+
+    def _hold_here(self) -> None:
+        """Hold (PX4's AUTO.LOITER) from now: a position hold where it is, by its own loop."""
+        ap = self.autopilot
+        self._hold = hold_at(ap.state, ap.time_s)
+        self._fs_next = ap.step_index
 
     def _on_setpoint(self, m: "_Setpoint") -> None:
         ap = self.autopilot
@@ -895,11 +906,10 @@ class VehicleEndpoint:
         left = n_steps if self.armed else 0
         while left > 0:
             chunk = left
-            if self.mode == MODE_FAILSAFE:
+            if self.mode in (MODE_FAILSAFE, MODE_HOLD):
                 if ap.step_index >= self._fs_next:
-                    ap.set_command(
-                        failsafe_command(ap.state, self._hold, ap.time_s, self.failsafe_action, ap.params)
-                    )
+                    action = self.failsafe_action if self.mode == MODE_FAILSAFE else ACTION_HOLD
+                    ap.set_command(failsafe_command(ap.state, self._hold, ap.time_s, action, ap.params))
                     self._fs_next = ap.step_index + self._fs_steps
                 chunk = min(left, self._fs_next - ap.step_index)
             ap.advance(chunk)

@@ -49,3 +49,4 @@ def test_mavsdk_reads_telemetry_and_flies_offboard_attitude():
     assert north > 3.0 and abs(east) < 0.3 * north and abs(down) < 1.0, seen["moved"]
     assert seen["attitude_tilted"].pitch_deg == pytest.approx(-10.0, abs=1.0)
     assert abs(seen["attitude_tilted"].yaw_deg) < 2.0
+    assert seen["speed_held"] < 0.5  # Hold holds: it braked from about 5 m/s
