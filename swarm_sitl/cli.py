@@ -176,7 +176,6 @@ def _run_and_record(
     clock = "lockstep" if lockstep else "real time"
     progress = _RunProgress(cfg, f"{kind} {cfg.name} ({clock})", quiet)
     try:
-
         out = record_run(cfg, run_dir, lockstep, mavlink, progress, base_port, progress.note)
     finally:
         progress.close()
