@@ -63,9 +63,11 @@ def test_a_ground_station_gets_its_own_streams_and_changes_only_them():
         gcs.mav.set_attitude_target_send(0, 2, 1, 0, [1.0, 0, 0, 0], 0, 0, 0, 1.0)
         time.sleep(0.1)
         on_gcs, on_controller = _counts(gcs, controller, seconds=2.0)
-        assert 35 <= on_gcs.get("GLOBAL_POSITION_INT", 0) <= 45, on_gcs
-        assert 8 <= on_controller.get("GLOBAL_POSITION_INT", 0) <= 12, on_controller
-        assert on_controller.get("LOCAL_POSITION_NED", 0) >= 80  # 50 Hz: the controller's stream goes on
+        # rates on the wall clock of a shared machine: a margin for a late wake-up, none for a
+        # rate that changed on the wrong port (20 Hz against 5)
+        assert 30 <= on_gcs.get("GLOBAL_POSITION_INT", 0) <= 45, on_gcs
+        assert 6 <= on_controller.get("GLOBAL_POSITION_INT", 0) <= 13, on_controller
+        assert on_controller.get("LOCAL_POSITION_NED", 0) >= 70  # 50 Hz: the controller's stream goes on
     finally:
         proc.terminate()
         proc.wait(timeout=10)
