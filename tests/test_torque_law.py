@@ -56,3 +56,47 @@ def test_sliding_surface_decays_as_j_rdot_equals_minus_kq_r():
             expected = r0 * np.exp(-K_Q / J * t)
             # torque is held over each step: agreement to first order in dt
             np.testing.assert_allclose(r_of(x, t), expected, atol=2e-3 * np.linalg.norm(r0))
+
+
+def _rotating_command(t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A command attitude turning about a fixed axis n of its own frame by theta(t) = a t + b t^2:
+    its body rate is theta'(t) n and its rate derivative theta''(t) n = 2 b n (not zero)."""
+    n = np.array([0.2, -0.6, 0.77])
+    n = n / np.linalg.norm(n)
+    a, b = 0.7, 1.3
+    q_c = qmul(from_axis_angle([0.3, 1.0, 0.2], 0.4), from_axis_angle(n, a * t + b * t * t))
+    return q_c, (a + 2 * b * t) * n, 2 * b * n
+
+
+def _identity_residual(torque_law, x: np.ndarray, t0: float, h: float = 1e-5) -> tuple[np.ndarray, float]:
+    """``J rdot + k_q r`` at ``t0`` (zero for the paper's law), ``rdot`` by a central difference of
+    ``r = l_q q_e + omega_e`` along the plant's own motion under the torque of ``t0``; and |k_q r|."""
+
+    def r_at(state: np.ndarray, t: float) -> np.ndarray:
+        q_c, w_c, _ = _rotating_command(t)
+        q_e, w_e, _ = attitude_error(state[QUAT], state[RATE], q_c, w_c)
+        return L_Q * q_e[1:] + w_e
+
+    q_c, w_c, wdot_c = _rotating_command(t0)
+    tau = torque_law(x[QUAT], x[RATE], q_c, w_c, wdot_c, J, L_Q, K_Q)
+    ahead = rk4_step(x, 0.0, tau, PARAMS.mass_kg, J, 0.0, h)
+    behind = rk4_step(x, 0.0, tau, PARAMS.mass_kg, J, 0.0, -h)
+    r_dot = (r_at(ahead, t0 + h) - r_at(behind, t0 - h)) / (2 * h)
+    r = r_at(x, t0)
+    return J * r_dot + K_Q * r, float(np.linalg.norm(K_Q * r))
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_the_torque_law_gives_j_rdot_equal_minus_kq_r_at_any_instant(seed):
+    """The law's defining identity, at one instant of a generic state and a command whose rate
+    changes (omegadot_c not zero): every term of the law shows in it. Against mutated copies of the
+    law the worst relative residual over these states is 1.5e-2 (q_e^x sign flipped), 8.2e-3
+    (feed-forward sign flipped), 4.1e-3 (feed-forward missing), 8.8e-4 (gyroscopic term missing),
+    against 4.6e-8 for the law: the bound below sits between, with margins of 20 and 900."""
+    rng = np.random.default_rng(seed)
+    axis = rng.normal(size=3)
+    x = make_state(
+        [0, 0, 0.0], q_wb=from_axis_angle(axis, rng.uniform(0.2, 2.5)), omega_radps=rng.normal(0, 1.5, 3)
+    )
+    residual, scale = _identity_residual(torque, x, t0=rng.uniform(0.0, 2.0))
+    assert np.linalg.norm(residual) < 1e-6 * max(scale, 1.0), (residual, scale)
