@@ -15,7 +15,8 @@ def render(report: GainReport, name: str) -> str:
         f"  lambda_min(Xi) = {report.lambda_min_xi:.4g}, "
         f"lambda_min(M^T Theta M) = {report.lambda_min_mtm:.4g}, "
         f"||Theta|| = {report.norm_theta:.4g}, ||Theta M|| = {report.norm_theta_m:.4g}",
-        f"  sup|pddot_r| = {report.sup_acc:.4g} m/s^2, sup|N_p| = {report.sup_Np:.4g} m/s^3",
+        f"  sup|pddot_r| = {report.sup_acc:.4g} m/s^2, sup|N_p| = {report.sup_Np:.4g} m/s^3 "
+        "(N_p = -l_a p_r^(3) - p_r^(4), as derived)",
         "",
     ]
     w = max(len(c.name) for c in report.conditions)

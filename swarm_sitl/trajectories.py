@@ -5,6 +5,7 @@ position [m], velocity [m/s], acceleration [m/s^2], jerk [m/s^3] and snap [m/s^4
 """
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, Protocol
 
@@ -106,15 +107,57 @@ class Line:
         return _stack(cols)
 
 
+def period_s(traj: Trajectory) -> float | None:
+    """The period of ``traj``'s derivatives from the velocity on (the helix climbs, its
+    derivatives repeat), or None where they are constant (a line, a helix that does not turn)."""
+    if isinstance(traj, Helix | FigureEight) and traj.angular_rate_radps != 0:
+        return 2 * math.pi / abs(traj.angular_rate_radps)
+    return None
+
+
+def N_p(traj: Trajectory, l_a: float, t_s: float | np.ndarray) -> np.ndarray:
+    """``N_p = -l_a p_r^(3) - p_r^(4)`` as derived from the estimator (NOTES.md item 8: the paper
+    prints ``+l_a``), at ``t_s``."""
+    d = traj.derivatives(t_s)
+    return -l_a * d[..., 3, :] - d[..., 4, :]
+
+
+def _sup(
+    traj: Trajectory,
+    f: Callable[[np.ndarray], np.ndarray],
+    horizon_s: float,
+    samples: int,
+    periodic: bool = True,
+) -> float:
+    """``sup_t |f(t)|``: over one period where the derivatives repeat (so for all time), the grid's
+    best point refined by golden-section search to the float's precision; else over
+    ``[0, horizon_s]`` (where the derivatives are constant, exactly)."""
+    period = period_s(traj) if periodic else None
+    t = np.linspace(0.0, period if period is not None else horizon_s, samples)
+    norms = np.linalg.norm(f(t), axis=-1)
+    k = int(np.argmax(norms))
+    best = float(norms[k])
+    if period is None:
+        return best
+    lo, hi = t[max(k - 1, 0)], t[min(k + 1, samples - 1)]
+    g = (math.sqrt(5.0) - 1.0) / 2.0
+    for _ in range(80):  # the bracket shrinks by 0.618 a step: far below a float's spacing
+        a, b = hi - g * (hi - lo), lo + g * (hi - lo)
+        fa, fb = np.linalg.norm(f(np.array([a, b])), axis=-1)
+        if fa >= fb:
+            hi = b
+        else:
+            lo = a
+        best = max(best, float(fa), float(fb))
+    return best
+
+
 def sup_norm(traj: Trajectory, order: int, horizon_s: float, samples: int = 20001) -> float:
-    """``sup |p_r^(order)(t)|`` over ``[0, horizon_s]`` on a dense grid (exact for the shapes here)."""
-    t = np.linspace(0.0, horizon_s, samples)
-    d = traj.derivatives(t)[:, order, :]
-    return float(np.max(np.linalg.norm(d, axis=1)))
+    """``sup |p_r^(order)(t)|`` for all time where the derivatives are periodic (order 1 on: a
+    helix's position is not), else over ``[0, horizon_s]``."""
+    return _sup(traj, lambda t: traj.derivatives(t)[:, order, :], horizon_s, samples, periodic=order > 0)
 
 
 def sup_Np(traj: Trajectory, l_a: float, horizon_s: float, samples: int = 20001) -> float:
-    """``sup |N_p(t)|`` with ``N_p = l_a p_r^(3) - p_r^(4)`` (Theorem 1)."""
-    t = np.linspace(0.0, horizon_s, samples)
-    d = traj.derivatives(t)
-    return float(np.max(np.linalg.norm(l_a * d[:, 3, :] - d[:, 4, :], axis=1)))
+    """``sup |N_p(t)|`` (``N_p`` as derived), as ``sup_norm`` takes it (Theorem 1's ``k_a`` bound)."""
+    return _sup(traj, lambda t: N_p(traj, l_a, t), horizon_s, samples)
