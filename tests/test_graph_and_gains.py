@@ -103,3 +103,43 @@ def test_l_a_bound_is_where_omega_stops_being_positive_definite():
     assert np.linalg.eigvalsh(omega(la * 1.001)).min() > 0
     assert np.linalg.eigvalsh(omega(la * 0.999)).min() < 0
     assert abs(np.linalg.det(omega(la))) < 1e-9
+
+
+def test_theorem_1_bounds_on_a_two_follower_chain_worked_by_hand():
+    """Leader -> 1 -> 2, unit weights, the paper's gains and helix, every number worked out by hand:
+
+    M = L + diag(d_0) = [[1, 0], [-1, 1]];  M^-1 1 = [1, 2], so Theta = diag(1, 1/2) (Lemma 2.1).
+    Xi = M^T Theta + Theta M = [[1, -1/2], [0, 1/2]] + [[1, 0], [-1/2, 1/2]] = [[2, -1/2], [-1/2, 1]]:
+      eigenvalues (3 -+ sqrt(2)) / 2, lambda_min = (3 - sqrt 2)/2.
+    M^T Theta M = [[3/2, -1/2], [-1/2, 1/2]]: eigenvalues 1 -+ sqrt(2)/2, lambda_min = 1 - sqrt(2)/2.
+    ||.|| is the paper's F-norm (its notation section): ||Theta|| = sqrt(1 + 1/4) = sqrt(5)/2, and
+      Theta M = [[1, 0], [-1/2, 1/2]] gives ||Theta M|| = sqrt(1 + 1/4 + 1/4) = sqrt(3/2).
+    Helix R = 5, w = 0.2, l_a = 12: sup|N_p| = R w^3 sqrt(l_a^2 + w^2) = 0.04 sqrt(144.04);
+      sup|pddot_r| = R w^2 = 0.2.
+    Bounds: k_p k_v > ||Theta||^2 / lmin(Xi)^2;  l_a > k_p lmin(Xi) ||Theta||^2 / (lmin(MTM) (k_p k_v
+    lmin(Xi)^2 - ||Theta||^2));  k_a > 2 sqrt(n) ||Theta M|| sup|N_p| / lmin(Xi);  k_eta < (g - k_gamma)/2.
+    """
+    lx = (3 - np.sqrt(2)) / 2
+    lm = 1 - np.sqrt(2) / 2
+    nt2 = 5 / 4  # ||Theta||^2
+    ntm = np.sqrt(3 / 2)
+    np_bar = 0.04 * np.sqrt(144.04)
+    k_p = k_v = PAPER_GAINS["k_p"]
+    expected = [
+        nt2 / lx**2,
+        k_p * lx * nt2 / (lm * (k_p * k_v * lx**2 - nt2)),
+        2 * np.sqrt(2) * ntm * np_bar / lx,
+        (9.81 - PAPER_GAINS["k_gamma"]) / 2,
+        0.2,
+    ]
+    chain = Graph.from_edges(2, [(0, 1), (1, 2)])
+    r = check_gains(chain, PAPER_GAINS, HELIX, 9.81, 100)
+    assert r.lambda_min_xi == pytest.approx(lx, rel=1e-12) and r.lambda_min_mtm == pytest.approx(
+        lm, rel=1e-12
+    )
+    assert r.norm_theta == pytest.approx(np.sqrt(nt2), rel=1e-12) and r.norm_theta_m == pytest.approx(
+        ntm, rel=1e-12
+    )
+    assert r.sup_Np == pytest.approx(np_bar, rel=1e-12) and r.sup_acc == pytest.approx(0.2, rel=1e-12)
+    for cond, bound in zip(r.conditions, expected, strict=True):
+        assert cond.bound == pytest.approx(bound, rel=1e-9), cond.name
