@@ -10,9 +10,9 @@ access control (default deny) lets node ``i`` (user ``node_<i>``; 0 is the leade
 - subscribe to its in-edges ``edge/<s>/<i>``, to ``start``, and to the status and liveliness of the
   nodes it watches (the leader paces itself on its out-neighbours; a fault plan's watchers);
 
-and nothing else: a put on another node's edge, a subscription to another's in-edge, to a
-wildcard or to ``start`` with the right to publish it is dropped by zenoh itself. Only the
-supervisor's own session, inside the router, publishes ``start``. ``NodeKeys`` is also what the
+and nothing else: a put on another node's edge or on ``start``, a subscription to another node's
+in-edge or to a wildcard, is dropped by zenoh itself. Only the supervisor's own session, inside
+the router, publishes ``start``. ``NodeKeys`` is also what the
 node's bus declares (``node_main``), so the rules and the bus cannot disagree.
 """
 
