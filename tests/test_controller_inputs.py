@@ -1,5 +1,7 @@
 """What a lockstep controller waits for when a neighbour's process is gone (``controller_node``)."""
 
+import math
+
 import numpy as np
 import pytest
 
@@ -53,7 +55,10 @@ def test_a_neighbour_that_finished_after_sending_what_is_needed_does_not_stall_t
     bus = _Bus()
     bus.estimates[(2, 9)] = _estimate(2, 9)
     bus.gone = {2}  # node 2 ran ahead, finished and exited; node 1's estimate is still on its way
-    _waiting_at_tick_10(bus).idle()
+    io = _waiting_at_tick_10(bus)
+    io.idle()  # no StallError: what is missing comes from a node that is still there
+    assert io._lacking() == [1] and io._lost_since == math.inf  # waiting, not counting a stall
+    assert "no estimate of node 1 for tick 9" in io.missing() and "went away" not in io.missing()
 
 
 def test_a_missing_estimate_from_a_node_that_is_gone_stalls_the_tick_naming_it(monkeypatch):
@@ -69,7 +74,9 @@ def test_a_gone_node_gets_a_grace_period_for_messages_still_in_flight():
     bus = _Bus()
     bus.gone = {1}
     io = _waiting_at_tick_10(bus)
-    io.idle()  # within LOST_GRACE_S of noticing: no error yet
+    io.idle()  # within LOST_GRACE_S of noticing: no error yet, but the stall clock runs
+    assert io._lost_since < math.inf and io._lacking() == [1, 2]
     bus.estimates[(1, 9)] = _estimate(1, 9)
     bus.estimates[(2, 9)] = _estimate(2, 9)
-    io.idle()  # it came: nothing is lacking from a node that is gone
+    io.idle()  # it came: nothing is lacking from a node that is gone, and the clock stops
+    assert io._lacking() == [] and io._lost_since == math.inf
