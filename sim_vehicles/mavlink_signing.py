@@ -110,18 +110,6 @@ class Signer:
         head += stamp.to_bytes(6, "little")
         return bytes(head) + hashlib.sha256(self.key + head).digest()[:6]
 
-    def seal_all(self, datagram: bytes) -> bytes:
-        """Every frame of a datagram of plain frames, signed."""
-        out, at, n = [], 0, len(datagram)
-        while at < n:
-            if n - at < _HEADER_LEN + 2 or datagram[at] != MAGIC_V2:
-                out.append(datagram[at:])
-                break
-            end = at + _HEADER_LEN + datagram[at + 1] + 2
-            out.append(self.seal(datagram[at:end]))
-            at = end
-        return b"".join(out)
-
 
 @dataclass
 class Verifier:
@@ -175,6 +163,3 @@ class Verifier:
             return None
         self._streams.update(seen)
         return b"".join(out)
-
-    def refused(self) -> int:
-        return self.unsigned + self.bad + self.replayed
