@@ -55,7 +55,7 @@ def cmd_check(args: argparse.Namespace) -> int:
     report = check_gains(
         cfg.build_graph(), cfg.gain_dict(), cfg.trajectory(), cfg.gravity_mps2, max(cfg.duration_s, 200.0)
     )
-    print(render(report, args.config))
+    print(render(report, args.config, cfg.estimator.bracket))
     return 0
 
 

@@ -141,6 +141,10 @@ class GainsSpec(_Strict):
 
 
 class EstimatorSpec(_Strict):
+    #: the bracket inside gamma_ddot (NOTES.md item 7): ``sliding_surface`` weighs its acceleration
+    #: sum by l_a, the form Theorem 1's proof and ``swarm-sitl check`` cover; ``printed`` is the
+    #: paper's equation as printed (no l_a), which the theorem does not cover unless l_a = 1
+    bracket: Literal["sliding_surface", "printed"] = "sliding_surface"
     sign_boundary_layer: Annotated[float, Field(ge=0)] = 0.0  #: 0 = paper's sgn; >0 saturation width
     #: how a neighbour's estimate is carried to the tick that uses it: ``extrapolate`` by its age
     #: with its own derivatives, ``zero_order`` as it came
@@ -297,6 +301,7 @@ class SwarmConfig(_Strict):
             g.l_v,
             g.k_eta,
             self.estimator.sign_boundary_layer,
+            g.l_a if self.estimator.bracket == "sliding_surface" else 1.0,
             self.vehicle.mass_kg if mass_kg is None else mass_kg,
             self.gravity_mps2,
         )

@@ -1,4 +1,4 @@
-"""The paper's distributed estimator of the leader's state (eq. estimator), with NOTES.md fix 2.
+"""The paper's distributed estimator of the leader's state (eq. estimator), with NOTES.md fixes 2 and 7.
 
 State of follower i (12 floats): ``[p_hat(3), v_hat(3), gamma(3), gamma_dot(3)]``, with
 ``a_hat = k_gamma tanh(gamma)`` and ``a_hat_dot = k_gamma Gammabar gamma_dot``,
@@ -8,7 +8,16 @@ State of follower i (12 floats): ``[p_hat(3), v_hat(3), gamma(3), gamma_dot(3)]`
     p_hat_dot   = v_hat - k_p sum_j d_ij (p_hat_i - p_hat_j)
     v_hat_dot   = a_hat - k_v sum_j d_ij (v_hat_i - v_hat_j)
     gamma_ddot  = -l_a gamma_dot + 2 Gamma gamma_dot - (k_a/k_gamma) Gammabar^-1 (S + sgn(S))
-    S           = sum_j d_ij (a_hat_i - a_hat_j) + sum_j d_ij (a_hat_dot_i - a_hat_dot_j)
+    S           = w_a sum_j d_ij (a_hat_i - a_hat_j) + sum_j d_ij (a_hat_dot_i - a_hat_dot_j)
+
+The bracket's weight ``w_a`` (``bracket_a_weight``) is the one choice between the two forms:
+
+- ``w_a = l_a``, the **sliding-surface** form (``estimator.bracket: sliding_surface``, the default):
+  ``S`` is then row i of the proof's surface ``s = (M x I3)(l_a abar + abardot)`` and
+  ``sdot = (M x I3)(-k_a s - k_a sgn(s) + 1 x N_p)`` holds exactly, so Theorem 1's ``k_a`` bound
+  (``swarm-sitl check``) covers the law that runs (NOTES.md item 7);
+- ``w_a = 1``, the bracket **as printed** (``estimator.bracket: printed``): equal to the other only
+  when ``l_a = 1``; it converges in simulation, without the proof's guarantee.
 
 Neighbour table (one row per in-neighbour, the leader included as node 0), columns
 ``NB_WEIGHT, NB_P, NB_V, NB_A, NB_ADOT``: its estimates at the evaluation time.
@@ -51,8 +60,9 @@ def acceleration_estimate(gamma, gamma_dot, k_gamma):
 
 
 @kernel
-def estimator_rhs(xe, nb, k_gamma, k_p, k_v, l_a, k_a, sign_boundary_layer):
-    """``(xe_dot, a_hat, a_hat_dot, gamma_ddot)`` of one follower's estimator."""
+def estimator_rhs(xe, nb, k_gamma, k_p, k_v, l_a, k_a, sign_boundary_layer, bracket_a_weight):
+    """``(xe_dot, a_hat, a_hat_dot, gamma_ddot)`` of one follower's estimator; ``bracket_a_weight``
+    is ``w_a`` above (``l_a``: sliding-surface form, 1: as printed)."""
     out = np.empty(12)
     a = np.empty(3)
     ad = np.empty(3)
@@ -70,7 +80,7 @@ def estimator_rhs(xe, nb, k_gamma, k_p, k_v, l_a, k_a, sign_boundary_layer):
             w = nb[r, 0]
             ep += w * (xe[c] - nb[r, 1 + c])
             ev += w * (xe[3 + c] - nb[r, 4 + c])
-            s += w * (a[c] - nb[r, 7 + c]) + w * (ad[c] - nb[r, 10 + c])
+            s += bracket_a_weight * w * (a[c] - nb[r, 7 + c]) + w * (ad[c] - nb[r, 10 + c])
         sg = np.sign(s) if sign_boundary_layer <= 0.0 else min(max(s / sign_boundary_layer, -1.0), 1.0)
         gdd[c] = -l_a * gd + 2.0 * (th * gd) * gd - (k_a / k_gamma) * (s + sg) / gbar
         out[c] = xe[3 + c] - k_p * ep

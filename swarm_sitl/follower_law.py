@@ -61,6 +61,9 @@ class ControlGains(NamedTuple):
     l_v: float
     k_eta: float
     sign_boundary_layer: float  #: 0 = the paper's sgn; > 0 = saturation width (deviation)
+    #: weight of the acceleration sum in the estimator's bracket: l_a = the sliding-surface form
+    #: Theorem 1 covers, 1 = the bracket as printed (estimator.py)
+    bracket_a_weight: float
     mass_kg: float
     g_mps2: float
 
@@ -73,10 +76,10 @@ def gains_vector(gains: ControlGains) -> np.ndarray:
 
 @kernel
 def _gains_from(v):
-    return ControlGains(v[0], v[1], v[2], v[3], v[4], v[5], v[6], v[7], v[8], v[9], v[10])
+    return ControlGains(v[0], v[1], v[2], v[3], v[4], v[5], v[6], v[7], v[8], v[9], v[10], v[11])
 
 
-assert len(ControlGains._fields) == 11, "_gains_from reads every field of ControlGains"
+assert len(ControlGains._fields) == 12, "_gains_from reads every field of ControlGains"
 
 
 @kernel
@@ -101,14 +104,28 @@ def neighbours_at(msgs, t, hold):
 
 
 @kernel
+def _estimator(xc, nb, gains):
+    """``estimator_rhs`` of the controller state's estimator part, with ``gains``'."""
+    return estimator_rhs(
+        xc[0:12],
+        nb,
+        gains.k_gamma,
+        gains.k_p,
+        gains.k_v,
+        gains.l_a,
+        gains.k_a,
+        gains.sign_boundary_layer,
+        gains.bracket_a_weight,
+    )
+
+
+@kernel
 def controller_rhs(xc, t, msgs, hold, veh_t, veh_p, veh_v, veh_a, offset, gains):
     """Time derivative of the controller state at ``t``."""
     nb = neighbours_at(msgs, t, hold)
     tau = t - veh_t if hold == HOLD_EXTRAPOLATE else 0.0
     out = np.empty(18)
-    dxe, _, _, _ = estimator_rhs(
-        xc[0:12], nb, gains.k_gamma, gains.k_p, gains.k_v, gains.l_a, gains.k_a, gains.sign_boundary_layer
-    )
+    dxe, _, _, _ = _estimator(xc, nb, gains)
     out[0:12] = dxe
     p_tilde = np.empty(3)
     v_tilde = np.empty(3)
@@ -149,9 +166,7 @@ def controller_output(xc, t, msgs, hold, p, v, q_WB, a_given, use_a_given, offse
     ``use_a_given``, in which case ``a_given`` is used (for tests on prescribed trajectories).
     """
     nb = neighbours_at(msgs, t, hold)
-    dxe, a_hat, a_hat_dot, gdd = estimator_rhs(
-        xc[0:12], nb, gains.k_gamma, gains.k_p, gains.k_v, gains.l_a, gains.k_a, gains.sign_boundary_layer
-    )
+    dxe, a_hat, a_hat_dot, gdd = _estimator(xc, nb, gains)
     eta = xc[12:15]
     eta_dot = xc[15:18]
     p_tilde = p - xc[0:3] - offset - eta

@@ -4,11 +4,16 @@ import numpy as np
 
 from swarm_sitl.gain_conditions import GainReport
 
+COVERED_BRACKET = "sliding_surface"  #: the estimator form Theorem 1's proof is written for
 
-def render(report: GainReport, name: str) -> str:
+
+def render(report: GainReport, name: str, bracket: str = COVERED_BRACKET) -> str:
+    """``bracket``: the config's ``estimator.bracket``, the form the run will fly."""
     np.set_printoptions(precision=4, suppress=True)
     lines = [
         f"config {name}: Theorem 1 and section 3.3 conditions (sufficient, not necessary)",
+        f"  they cover the estimator with bracket {COVERED_BRACKET} (the proof's surface "
+        f"s = (M x I3)(l_a abar + abardot)); this config flies bracket {bracket}",
         f"  Theta = diag({', '.join(f'{x:.4g}' for x in np.diag(report.theta))})   ({report.theta_source})",
         "  Xi = M^T Theta + Theta M =",
         *("    " + "  ".join(f"{x:8.4f}" for x in row) for row in report.xi),
@@ -37,4 +42,9 @@ def render(report: GainReport, name: str) -> str:
         )
     else:
         lines.append("all conditions hold.")
+    if bracket != COVERED_BRACKET:
+        lines.append(
+            f"WARNING: estimator.bracket is {bracket}: Theorem 1 does not cover it (NOTES.md item 7), "
+            f"so the verdicts above are not a guarantee for this run; bracket {COVERED_BRACKET} is."
+        )
     return "\n".join(lines)

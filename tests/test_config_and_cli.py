@@ -105,6 +105,21 @@ def test_check_passes_paper_and_names_failures_on_ring(capsys):
     assert "suggested gains" in out
 
 
+def test_check_warns_when_the_estimator_flies_the_printed_bracket(capsys, tmp_path):
+    """The conditions cover the sliding-surface bracket (NOTES.md item 7); `check` says so, and
+    warns when the config flies the bracket as printed."""
+    assert main(["check", str(CONFIGS / "paper.yaml")]) == 0
+    out = capsys.readouterr().out
+    assert "this config flies bracket sliding_surface" in out and "WARNING" not in out
+    text = (CONFIGS / "paper.yaml").read_text().replace("bracket: sliding_surface", "bracket: printed")
+    (tmp_path / "printed.yaml").write_text(text)
+    assert main(["check", str(tmp_path / "printed.yaml")]) == 0
+    out = capsys.readouterr().out
+    assert "all conditions hold." in out  # the same verdicts ...
+    warnings = [line for line in out.splitlines() if line.startswith("WARNING")]
+    assert len(warnings) == 1 and "does not cover it" in warnings[0]  # ... not a guarantee
+
+
 def test_sim_writes_a_run_directory_and_plot_draws_it(tmp_path):
     run = tmp_path / "run"
     r = subprocess.run(

@@ -45,6 +45,7 @@ GAINS = ControlGains(
     l_v=4,
     k_eta=4,
     sign_boundary_layer=PHI,
+    bracket_a_weight=12.0,
     mass_kg=0.85,
     g_mps2=9.81,
 )
@@ -141,7 +142,8 @@ def test_analytic_derivatives_match_finite_differences(trajectory, t_check):
 
 
 def test_printed_gamma_would_break_the_acceleration_error_dynamics(trajectory):
-    """NOTES.md error 2: a_hat_ddot = -l_a a_hat_dot - k_a (S + sat(S)) holds with tanh(gamma) only."""
+    """NOTES.md error 2: a_hat_ddot = -l_a a_hat_dot - k_a (S + sat(S)) holds with tanh(gamma) only
+    (S with the bracket's weight l_a on its first sum: the default sliding-surface form)."""
     xs, msgs, _ = trajectory
     j = round(0.6 / H_INT)
     idx = [j + m * STRIDE for m in (-2, -1, 0, 1, 2)]
@@ -149,7 +151,7 @@ def test_printed_gamma_would_break_the_acceleration_error_dynamics(trajectory):
     x = xs[j]
     nb = neighbours_at(msgs, j * H_INT, HOLD_EXTRAPOLATE)
     a, ad = acceleration_estimate(x[6:9], x[9:12], GAINS.k_gamma)
-    S = (a - nb[0, 7:10]) + (ad - nb[0, 10:13])
+    S = GAINS.bracket_a_weight * (a - nb[0, 7:10]) + (ad - nb[0, 10:13])
     expected = -GAINS.l_a * ad - GAINS.k_a * (S + np.clip(S / PHI, -1, 1))
     assert _rel(_d2(a_hat), expected) < 1e-5
     # the printed Gamma (tanh(gamma_dot) gamma_dot) in the same gamma_ddot gives a different a_hat_ddot
