@@ -59,6 +59,28 @@ def cmd_check(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_new(args: argparse.Namespace) -> int:
+    from swarm_sitl.config_generator import GeneratorError, generate
+
+    try:
+        text = generate(args.followers, args.graph, args.formation, args.trajectory, args.seed, args.duration)
+    except GeneratorError as e:
+        raise CliError(str(e)) from None
+    out = Path(args.o)
+    if out.exists() and not args.force:
+        raise CliError(f"{out} exists (--force to overwrite)")
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        out.write_text(text)
+    except OSError as e:
+        raise CliError(f"cannot write {out}: {e.strerror}") from None
+    gains = [line.strip()[2:] for line in text.splitlines() if line.startswith("  # ") and "gains" in line]
+    print(f"wrote {out}: {args.followers} followers, {args.graph} graph, {args.formation}, {args.trajectory}")
+    for line in gains[:1]:
+        print(f"  gains: {line}")
+    return 0
+
+
 def _summary_lines(summary: dict) -> list[str]:
     s = summary["swarm"]
 
@@ -376,6 +398,21 @@ def build_parser() -> argparse.ArgumentParser:
     c = sub.add_parser("check", help="report Theorem 1's gain conditions for a config")
     c.add_argument("config")
     c.set_defaults(func=cmd_check)
+
+    from swarm_sitl.config_generator import FORMATIONS, GRAPHS, TRAJECTORIES
+
+    n = sub.add_parser("new", help="write a config for a generated swarm (graph, formation, trajectory)")
+    n.add_argument("--followers", type=int, required=True, metavar="N", help="how many followers (1..254)")
+    n.add_argument("--graph", choices=GRAPHS, default="layered", help="communication graph (default layered)")
+    n.add_argument("--formation", choices=FORMATIONS, default="grid", help="formation shape (default grid)")
+    n.add_argument(
+        "--trajectory", choices=TRAJECTORIES, default="helix", help="leader's path (default helix)"
+    )
+    n.add_argument("--seed", type=int, default=0, help="random graph and initial positions (default 0)")
+    n.add_argument("--duration", type=float, default=60.0, help="duration_s of the config [s] (default 60)")
+    n.add_argument("-o", required=True, metavar="FILE", help="the config file to write")
+    n.add_argument("--force", action="store_true", help="overwrite FILE if it exists")
+    n.set_defaults(func=cmd_new)
 
     s = sub.add_parser("sim", help="run the whole swarm in one process and write a run directory")
     s.add_argument("config")

@@ -1,0 +1,121 @@
+"""``swarm-sitl new``: generated swarms load, have the asked shape, and their gain notes are true."""
+
+import itertools
+
+import numpy as np
+import pytest
+import yaml
+
+from swarm_sitl.cli import main
+from swarm_sitl.config import parse_config
+from swarm_sitl.config_generator import (
+    FORMATIONS,
+    GRAPHS,
+    SPACING_M,
+    TRAJECTORIES,
+    generate,
+    layer_width,
+)
+from swarm_sitl.gain_conditions import check_gains
+from swarm_sitl.sim import run_sim
+
+pytestmark = pytest.mark.unit
+
+
+def _load(text: str):
+    return parse_config(yaml.safe_load(text), "generated")
+
+
+@pytest.mark.parametrize("graph, n", list(itertools.product(GRAPHS, (1, 2, 7, 16, 64))))
+def test_every_graph_reaches_every_follower_with_the_asked_shape(graph, n):
+    cfg = _load(generate(n, graph, "grid", "helix", seed=n))
+    assert cfg.n_followers == n and [f.id for f in cfg.followers] == list(range(1, n + 1))
+    edges = cfg.graph_edges()
+    assert len(set(edges)) == len(edges) and all(s != d for s, d in edges)
+    g = cfg.build_graph()
+    assert g.unreachable_followers() == []  # also checked by the schema at load
+    into = {i: sorted(s for s, d in edges if d == i) for i in range(1, n + 1)}
+    if graph == "ring":
+        assert into[1] == ([0, n] if n > 1 else [0])
+        assert all(into[i] == [i - 1] for i in range(2, n + 1))
+    elif graph == "tree":
+        assert all(into[i] == [(i - 1) // 2] for i in range(1, n + 1))
+    elif graph == "layered":
+        w = layer_width(n)
+        assert all(into[i] == [0] for i in range(1, min(w, n) + 1))
+        for i in range(w + 1, n + 1):
+            assert into[i] == ([i - w - 1, i - w] if (i - 1) % w else [i - w])
+    else:  # random: a spanning tree from earlier nodes, plus edges between followers
+        assert all(any(s < i for s in into[i]) for i in range(1, n + 1))
+
+
+@pytest.mark.parametrize("formation, n", list(itertools.product(FORMATIONS, (1, 3, 10, 64))))
+def test_formations_are_centred_and_spaced(formation, n):
+    cfg = _load(generate(n, "layered", formation, "line"))
+    d = np.array([f.offset_m for f in cfg.followers])
+    centre = d.mean(axis=0) if formation == "circle" else (d.max(axis=0) + d.min(axis=0)) / 2
+    np.testing.assert_allclose(centre, 0.0, atol=1e-4)  # centred on the leader
+    assert np.all(d[:, 2] == 0.0)
+    if n > 1:
+        gaps = [np.linalg.norm(a - b) for a, b in itertools.combinations(d, 2)]
+        assert min(gaps) == pytest.approx(SPACING_M, abs=1e-4)  # nobody closer than the spacing
+
+
+@pytest.mark.parametrize("trajectory", TRAJECTORIES)
+def test_initial_positions_spread_around_the_places_at_the_leaders_start(trajectory):
+    cfg = _load(generate(12, "random", "circle", trajectory, seed=5))
+    p0 = cfg.trajectory().derivatives(0.0)[0]
+    for f in cfg.followers:
+        dev = np.asarray(f.initial_position_m) - p0 - np.asarray(f.offset_m)
+        assert np.all(np.abs(dev) <= 2.0 + 1e-5)
+    assert cfg.gains.k_gamma >= np.max(
+        np.linalg.norm(cfg.trajectory().derivatives(np.linspace(0, 70, 701))[:, 2], axis=1)
+    )
+
+
+@pytest.mark.parametrize(
+    "graph, n", [("layered", 4), ("tree", 16), ("ring", 4), ("ring", 16), ("random", 32)]
+)
+def test_the_gain_notes_say_what_check_finds(graph, n):
+    text = generate(n, graph, "grid", "helix", seed=2)
+    cfg = _load(text)
+    report = check_gains(cfg.build_graph(), cfg.gain_dict(), cfg.trajectory(), cfg.gravity_mps2, 200.0)
+    notes = [line for line in text.splitlines() if line.startswith("  # ")]
+    if any("FAIL" in line for line in notes):
+        named = {line.strip()[2:].strip() for line in notes}
+        failing = {c.name for c in report.conditions if not c.holds}
+        assert failing and failing <= named  # every failing condition is named in the file
+    else:
+        assert report.all_hold  # "every condition holds": it does, with the gains written
+
+
+def test_the_same_seed_writes_the_same_file_and_another_seed_another_swarm():
+    a = generate(10, "random", "grid", "figure_eight", seed=1)
+    assert generate(10, "random", "grid", "figure_eight", seed=1) == a
+    b = generate(10, "random", "grid", "figure_eight", seed=2)
+    assert _load(a).graph_edges() != _load(b).graph_edges()
+
+
+def test_new_writes_a_config_and_refuses_bad_requests_in_one_line(tmp_path, capsys):
+    out = tmp_path / "s.yaml"
+    assert main(["new", "--followers", "6", "--graph", "ring", "-o", str(out)]) == 0
+    assert _load(out.read_text()).n_followers == 6
+    assert main(["new", "--followers", "6", "-o", str(out)]) == 2  # exists
+    assert main(["new", "--followers", "0", "-o", str(tmp_path / "t.yaml")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [
+        f"swarm-sitl: error: {out} exists (--force to overwrite)",
+        "swarm-sitl: error: --followers must be 1..254 (MAVLink system ids), got 0",
+    ]
+    assert main(["new", "--followers", "6", "--force", "--seed", "3", "-o", str(out)]) == 0
+    assert main(["check", str(out)]) == 0
+
+
+@pytest.mark.integration
+def test_a_generated_swarm_flies_into_formation():
+    cfg = _load(generate(6, "random", "line", "figure_eight", seed=4, duration_s=15.0))
+    rec = run_sim(cfg)
+    for a in rec.followers.values():
+        e = np.linalg.norm(a["pos_err_m"], axis=1)
+        assert e[0] > 0.3  # starts out of place
+        assert e[a["t_s"] >= 12.0].max() < 0.01
