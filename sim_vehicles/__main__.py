@@ -17,7 +17,7 @@ import numpy as np
 from sim_vehicles import tick_frames
 from sim_vehicles.autopilot import Autopilot
 from sim_vehicles.failsafe import ACTIONS
-from sim_vehicles.lifeline import batch_scheduling, hold_on, profiled, settle_heap
+from sim_vehicles.lifeline import batch_scheduling, hold_on, mark, process_figures, profiled, settle_heap
 from sim_vehicles.mavlink_endpoint import VehicleEndpoint
 from sim_vehicles.mavlink_signing import read_key
 from sim_vehicles.params import MAX_RATE_DEFAULT_RPS, AttitudeGains, VehicleParamError, VehicleParams
@@ -45,6 +45,7 @@ def _host_port(text: str) -> tuple[str, int]:
 
 def main(argv: list[str] | None = None) -> int:
     hold_on()  # a supervisor's child dies with it
+    mark("main")
     p = argparse.ArgumentParser(prog="python -m sim_vehicles", description=__doc__)
     p.add_argument("--id", type=int, default=1, help="MAVLink system id (1..255)")
     p.add_argument("--host", default="127.0.0.1", help="address to bind (loopback by default)")
@@ -159,6 +160,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"sim_vehicles: error: cannot bind udp {a.host}:{ports} ({e.strerror})", file=sys.stderr)
         return 2
     _warm_up(params, gains, a.attitude_hz)
+    mark("ready")
     gcs = ep.gcs_address
     tail = f", ground station on udp:{gcs[0]}:{gcs[1]}" if gcs else ""
     print(f"vehicle {a.id} listening on udp:{ep.address[0]}:{ep.address[1]}{tail}", flush=True)
@@ -178,7 +180,8 @@ def main(argv: list[str] | None = None) -> int:
     finally:
         ep.close()
         if a.stats:
-            Path(a.stats).write_text(json.dumps(dataclasses.asdict(ep.stats), indent=1) + "\n")
+            stats = {**dataclasses.asdict(ep.stats), "process": process_figures()}
+            Path(a.stats).write_text(json.dumps(stats, indent=1) + "\n")
     return 0
 
 

@@ -13,6 +13,10 @@
   and both pay an extra context switch and refill their caches. A batch process is not preempted
   when another wakes, so a sender finishes its tick first. Threads started afterwards (zenoh's)
   inherit the policy. Real-time processes keep the default policy: there latency matters.
+- ``mark(name)`` and ``process_figures()``: where a process's start-up and CPU went. ``mark``
+  notes the process's age (seconds since the kernel created it) and its CPU seconds (every
+  thread's) at a named point (``main``: the interpreter and the imports done; ``zenoh``: its
+  session open; ``ready``); ``process_figures`` gives them with the totals, for a stats file.
 - ``profiled(name, body)``: a debugging aid. With ``SWARM_SITL_PROFILE=DIR`` set, run ``body`` under
   cProfile timed by this thread's CPU clock (sleeping, waiting and being preempted cost nothing, so
   the figures are what the loop itself spends) and write ``DIR/<name>.prof``.
@@ -55,6 +59,32 @@ def batch_scheduling() -> bool:
     except OSError:
         return False
     return True
+
+
+_LOADED = time.monotonic()
+_MARKS: dict[str, dict[str, float]] = {}
+
+
+def process_age_s() -> float:
+    """Seconds since the kernel created this process (Linux ``/proc``, 10 ms resolution); elsewhere
+    since this module was imported."""
+    try:
+        with open("/proc/self/stat") as f:
+            start_ticks = int(f.read().rsplit(")", 1)[1].split()[19])  # field 22, starttime
+        with open("/proc/uptime") as f:
+            uptime_s = float(f.read().split()[0])
+        return uptime_s - start_ticks / os.sysconf("SC_CLK_TCK")
+    except (OSError, ValueError, IndexError):
+        return time.monotonic() - _LOADED
+
+
+def mark(name: str) -> None:
+    _MARKS.setdefault(name, {"age_s": process_age_s(), "cpu_s": time.process_time()})
+
+
+def process_figures() -> dict[str, object]:
+    """``cpu_s`` and ``age_s`` now, and the ``marks`` noted so far."""
+    return {"cpu_s": time.process_time(), "age_s": process_age_s(), "marks": dict(_MARKS)}
 
 
 def settle_heap() -> None:

@@ -358,11 +358,21 @@ def cmd_bench(args: argparse.Namespace) -> int:
     from swarm_sitl.bench import run_bench
     from swarm_sitl.supervisor import RunFailedError
 
-    if args.repeats < 1 or not args.realtime_s > 0:
-        raise CliError("--repeats must be >= 1 and --realtime-s > 0")
+    if args.repeats < 1 or not args.realtime_s > 0 or not 0 < args.scale_duration < math.inf:
+        raise CliError("--repeats must be >= 1, --realtime-s and --scale-duration > 0")
     if args.against and not (Path(args.against) / "swarm_sitl" / "__init__.py").is_file():
         raise CliError(f"--against {args.against}: not a swarm-sitl source tree (no swarm_sitl/__init__.py)")
     try:
+        if args.scale:
+            from swarm_sitl.bench_scale import run_scale
+
+            try:
+                ns = [int(x) for x in args.scale.split(",")]
+            except ValueError:
+                raise CliError(f"--scale takes follower counts like 4,8,16, got {args.scale!r}") from None
+            if not ns or min(ns) < 1 or max(ns) > 254:
+                raise CliError(f"--scale: follower counts must be 1..254, got {args.scale!r}")
+            return run_scale(ns, args.scale_duration, Path(args.out) if args.out else None)
         if args.against:
             from swarm_sitl.bench import compare_trees
 
@@ -473,6 +483,15 @@ def build_parser() -> argparse.ArgumentParser:
         "--against",
         metavar="DIR",
         help="only compare the lockstep run with another source tree's, alternated --repeats times",
+    )
+    b.add_argument(
+        "--scale",
+        metavar="N,N,...",
+        help="instead: lockstep cost against sim for generated layered swarms of these sizes (4,8,16,32,64)",
+    )
+    b.add_argument("--scale-duration", type=float, default=20.0, help="simulated seconds per --scale run")
+    b.add_argument(
+        "--out", help="--scale: directory for scale.csv and scale.png (default runs/bench-scale-<time>)"
     )
     b.set_defaults(func=cmd_bench)
     return p

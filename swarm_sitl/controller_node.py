@@ -32,7 +32,7 @@ import numpy as np
 
 from sim_vehicles import tick_frames
 from sim_vehicles.autopilot import AttitudeCommand
-from sim_vehicles.lifeline import settle_heap
+from sim_vehicles.lifeline import mark, settle_heap
 from sim_vehicles.row_log import RowLog
 from swarm_sitl.assembly import build_controller
 from swarm_sitl.bus import NodeBus
@@ -89,6 +89,7 @@ class NodeReport(NamedTuple):
 
 def wait_for_start(bus: NodeBus, link: VehicleLink | None, timeout_s: float, who: str) -> float:
     """Declare this node ready and wait for the supervisor's start; returns the epoch [UNIX s]."""
+    mark("ready")
     bus.set_ready()
     fds = [link.fileno()] if link else []
 

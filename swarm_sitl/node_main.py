@@ -12,6 +12,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from sim_vehicles.lifeline import mark, process_figures
 from swarm_sitl.config import SwarmConfig
 from swarm_sitl.zenoh_access import node_keys
 
@@ -89,6 +90,7 @@ def cmd_controller(cfg: SwarmConfig, args: argparse.Namespace) -> int:
     from swarm_sitl.recording import controller_events_path, controller_rows_path, controller_stats_path
     from swarm_sitl.vehicle_link import VehicleLink
 
+    mark("main")
     i = args.id
     if i not in {f.id for f in cfg.followers}:
         raise ValueError(f"--id {i} is not a follower of {cfg.name} (ids 1..{cfg.n_followers})")
@@ -115,6 +117,7 @@ def cmd_controller(cfg: SwarmConfig, args: argparse.Namespace) -> int:
                 args.mavlink, i, stamp_arrivals=not args.lockstep, faults=link_faults, signing_key=key
             )
             session = _session(cfg, args.connect)
+            mark("zenoh")
             bus = zbus = ZenohNodeBus.of(session, cfg.name, node_keys(cfg, i))
             zbus.horizon = lambda: clock.horizon(cfg.n_control_steps)
             if args.lockstep:
@@ -134,6 +137,7 @@ def cmd_controller(cfg: SwarmConfig, args: argparse.Namespace) -> int:
                         "published": zbus.published,
                         "in_edges": {str(s): st for s, st in in_edge_stats(zbus, faulty).items()},
                         "mavlink": link_faults.link_stats() if link_faults else {},
+                        "process": process_figures(),
                     },
                 )
             degraded = describe_inputs(rep._asdict())
@@ -158,6 +162,7 @@ def cmd_leader(cfg: SwarmConfig, args: argparse.Namespace) -> int:
     from swarm_sitl.node_clock import RunClock
     from swarm_sitl.recording import leader_stats_path
 
+    mark("main")
     outs = node_keys(cfg, 0).out_dests
     edges = cfg.graph_edges()
 
@@ -166,6 +171,7 @@ def cmd_leader(cfg: SwarmConfig, args: argparse.Namespace) -> int:
         bus: Any = None
         try:
             session = _session(cfg, args.connect)
+            mark("zenoh")
             clock = RunClock(args.lockstep, cfg.control_dt_s)
             zbus = ZenohNodeBus.of(session, cfg.name, node_keys(cfg, 0))
             zbus.horizon = lambda: clock.horizon(cfg.n_control_steps)
@@ -178,7 +184,8 @@ def cmd_leader(cfg: SwarmConfig, args: argparse.Namespace) -> int:
             rep = run_leader(cfg, node_bus, args.lockstep, outs, clock, args.resume_tick)
             if args.out:
                 _write_stats(
-                    leader_stats_path(Path(args.out), args.incarnation), {"published": zbus.published}
+                    leader_stats_path(Path(args.out), args.incarnation),
+                    {"published": zbus.published, "process": process_figures()},
                 )
             return f"leader: {rep.ticks} ticks published to {outs}, {rep.late_ticks} late"
         finally:

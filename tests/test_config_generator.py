@@ -119,3 +119,21 @@ def test_a_generated_swarm_flies_into_formation():
         e = np.linalg.norm(a["pos_err_m"], axis=1)
         assert e[0] > 0.3  # starts out of place
         assert e[a["t_s"] >= 12.0].max() < 0.01
+
+
+@pytest.mark.system
+def test_bench_scale_writes_its_table_with_consistent_figures(tmp_path, capsys):
+    import csv
+
+    assert main(["bench", "--scale", "0,2"]) == 2  # one line, no run
+    assert main(["bench", "--scale", "2", "--scale-duration", "1", "--out", str(tmp_path)]) == 0
+    (row,) = list(csv.DictReader((tmp_path / "scale.csv").read_text().splitlines()))
+    r = {k: float(v) for k, v in row.items()}
+    assert r["followers"] == 2 and r["edges"] == 2  # layered: the leader feeds both
+    assert r["startup_s"] > 0 and r["run_x"] > r["e2e_x"] > 0  # end to end counts the start-up
+    parts = r["cpu_vehicles"] + r["cpu_controllers"] + r["cpu_leader"] + r["cpu_supervisor"]
+    assert r["cpu_per_sim_s"] == pytest.approx(parts, rel=1e-9)
+    assert r["overhead"] == pytest.approx(r["cpu_per_sim_s"] / r["sim_cpu_per_sim_s"], rel=1e-9)
+    assert 0 < r["ctrl_main_s"] <= r["ctrl_zenoh_s"] <= r["ctrl_ready_s"]  # in the order they happen
+    assert (tmp_path / "scale.png").stat().st_size > 10_000
+    assert "scale.csv" in capsys.readouterr().out

@@ -1,0 +1,197 @@
+"""``swarm-sitl bench --scale N,N,...``: how the lockstep swarm's cost grows with the number of followers.
+
+For each N, a generated swarm (``swarm-sitl new --followers N --graph layered --formation grid
+--trajectory helix``) flies ``duration_s`` twice: in ``sim`` (one process, the same physics and
+control without transport: the floor) and as a lockstep ``run`` across 2N + 1 processes. Printed,
+and written to ``OUT/scale.csv`` and ``OUT/scale.png``:
+
+- ``startup_s``: spawning to every process ready; ``run_x``: simulated over wall seconds of the
+  run phase; ``e2e_x``: the same with the start-up counted;
+- ``cpu_per_sim_s``: CPU seconds of every process (threads included) per simulated second, each
+  node's from when it was ready (the supervisor's whole), next to ``sim``'s, and their ratio
+  (``overhead``: what the transport costs);
+- the CPU split per process kind (vehicles, controllers, leader, supervisor: this process, which
+  routes zenoh) per simulated second;
+- where a controller's start-up goes (medians over controllers, ``sim_vehicles.lifeline.mark``):
+  ``main`` (interpreter and imports), ``zenoh`` (session opened), ``ready`` (MAVLink link, vehicle
+  parameters, kernels loaded, subscriptions declared), and the last vehicle's age at ready.
+"""
+
+import csv
+import json
+import resource
+import statistics
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from swarm_sitl.config import SwarmConfig, parse_config
+from swarm_sitl.config_generator import generate
+from swarm_sitl.recording import procs_dir
+
+COLUMNS = (
+    "followers",
+    "edges",
+    "startup_s",
+    "run_x",
+    "e2e_x",
+    "sim_x",
+    "cpu_per_sim_s",
+    "sim_cpu_per_sim_s",
+    "overhead",
+    "cpu_vehicles",
+    "cpu_controllers",
+    "cpu_leader",
+    "cpu_supervisor",
+    "ctrl_main_s",
+    "ctrl_zenoh_s",
+    "ctrl_ready_s",
+    "vehicle_ready_s",
+)
+
+
+def scale_config(n: int, duration_s: float) -> SwarmConfig:
+    return parse_config(yaml.safe_load(generate(n, "layered", "grid", "helix", 0, duration_s)), f"layered{n}")
+
+
+def _cpu_s(who: int) -> float:
+    r = resource.getrusage(who)
+    return r.ru_utime + r.ru_stime
+
+
+def _sim_floor(cfg: SwarmConfig) -> tuple[float, float]:
+    """Wall and CPU seconds of ``sim`` of ``cfg`` in this process, kernels loaded."""
+    from swarm_sitl.sim import run_sim
+
+    run_sim(cfg, n_steps=2)
+    t0, c0 = time.monotonic(), time.process_time()
+    run_sim(cfg)
+    return time.monotonic() - t0, time.process_time() - c0
+
+
+def _process_stats(run_dir: Path) -> dict[str, list[dict[str, Any]]]:
+    kinds: dict[str, list[dict[str, Any]]] = {"vehicle": [], "controller": [], "leader": []}
+    for path in sorted(procs_dir(run_dir).glob("*.stats.json")):
+        kind = path.name.split("_")[0].split(".")[0]
+        try:
+            process = json.loads(path.read_text()).get("process")
+        except (OSError, ValueError):
+            continue
+        if kind in kinds and isinstance(process, dict):
+            kinds[kind].append(process)
+    return kinds
+
+
+def _median_mark(procs: list[dict[str, Any]], name: str) -> float:
+    ages = [p["marks"][name]["age_s"] for p in procs if name in p.get("marks", {})]
+    return statistics.median(ages) if ages else float("nan")
+
+
+def measure(n: int, duration_s: float, work: Path) -> dict[str, float]:
+    from swarm_sitl.supervisor import run_swarm
+
+    cfg = scale_config(n, duration_s)
+    sim_wall, sim_cpu = _sim_floor(cfg)
+    self0 = _cpu_s(resource.RUSAGE_SELF)
+    t0 = time.monotonic()
+    res = run_swarm(cfg, work / f"n{n}", lockstep=True)
+    e2e = time.monotonic() - t0
+    sup_cpu = _cpu_s(resource.RUSAGE_SELF) - self0
+    kinds = _process_stats(work / f"n{n}")
+    # each node's CPU after it was ready: the run phase, start-up apart
+    per_kind = {
+        k: sum(p["cpu_s"] - p["marks"].get("ready", {"cpu_s": 0.0})["cpu_s"] for p in v) / duration_s
+        for k, v in kinds.items()
+    }
+    all_cpu = sup_cpu + sum(per_kind.values()) * duration_s
+    ctrl = kinds["controller"]
+    return {
+        "followers": n,
+        "edges": len(cfg.graph.edges),
+        "startup_s": res.startup_wall_s,
+        "run_x": duration_s / res.run_wall_s,
+        "e2e_x": duration_s / e2e,
+        "sim_x": duration_s / sim_wall,
+        "cpu_per_sim_s": all_cpu / duration_s,
+        "sim_cpu_per_sim_s": sim_cpu / duration_s,
+        "overhead": all_cpu / sim_cpu,
+        "cpu_vehicles": per_kind["vehicle"],
+        "cpu_controllers": per_kind["controller"],
+        "cpu_leader": per_kind["leader"],
+        "cpu_supervisor": sup_cpu / duration_s,
+        "ctrl_main_s": _median_mark(ctrl, "main"),
+        "ctrl_zenoh_s": _median_mark(ctrl, "zenoh"),
+        "ctrl_ready_s": _median_mark(ctrl, "ready"),
+        "vehicle_ready_s": max(
+            (p["marks"]["ready"]["age_s"] for p in kinds["vehicle"] if "ready" in p.get("marks", {})),
+            default=float("nan"),
+        ),
+    }
+
+
+def _plot(rows: list[dict[str, float]], path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    n = [r["followers"] for r in rows]
+    fig, (a, b) = plt.subplots(1, 2, figsize=(11, 4.2))
+    a.loglog(n, [r["cpu_per_sim_s"] for r in rows], "o-", label="lockstep run, every process")
+    a.loglog(n, [r["sim_cpu_per_sim_s"] for r in rows], "s-", label="sim (no transport)")
+    for key, label in (("cpu_vehicles", "vehicles"), ("cpu_controllers", "controllers")):
+        a.loglog(n, [r[key] for r in rows], ".--", label=label)
+    a.set_xlabel("followers")
+    a.set_ylabel("CPU seconds per simulated second")
+    a.legend(fontsize=8)
+    a.grid(True, which="both", alpha=0.3)
+    b.plot(n, [r["startup_s"] for r in rows], "o-", label="start-up [s]")
+    b.plot(n, [r["run_x"] for r in rows], "s-", label="run phase, x real time")
+    b.plot(n, [r["e2e_x"] for r in rows], "^-", label="end to end, x real time")
+    b.axhline(1.0, color="k", lw=0.6)
+    b.set_xscale("log", base=2)
+    b.set_xlabel("followers")
+    b.legend(fontsize=8)
+    b.grid(True, alpha=0.3)
+    fig.suptitle("swarm-sitl bench --scale: lockstep, layered graph, grid, helix")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def run_scale(ns: list[int], duration_s: float, out: Path | None) -> int:
+    out = out or Path("runs") / f"bench-scale-{time.strftime('%Y%m%d-%H%M%S')}"
+    out.mkdir(parents=True, exist_ok=True)
+    print(
+        f"bench --scale: generated layered swarms, {duration_s:g} s lockstep runs (2N+1 processes) "
+        f"against sim; CPU in seconds per simulated second"
+    )
+    head = (
+        f"{'N':>3} {'edges':>5} {'start s':>7} {'run x':>6} {'e2e x':>6} {'sim x':>6} "
+        f"{'cpu/s':>6} {'sim':>6} {'ovh':>5} | {'veh':>5} {'ctrl':>5} {'lead':>5} {'sup':>5} | "
+        f"ctrl main/zenoh/ready s, vehicle ready s"
+    )
+    print(head)
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for n in ns:
+            r = measure(n, duration_s, Path(tmp))
+            rows.append(r)
+            print(
+                f"{n:>3} {r['edges']:>5} {r['startup_s']:>7.2f} {r['run_x']:>6.2f} {r['e2e_x']:>6.2f} "
+                f"{r['sim_x']:>6.1f} {r['cpu_per_sim_s']:>6.2f} {r['sim_cpu_per_sim_s']:>6.3f} "
+                f"{r['overhead']:>5.1f} | {r['cpu_vehicles']:>5.2f} {r['cpu_controllers']:>5.2f} "
+                f"{r['cpu_leader']:>5.2f} {r['cpu_supervisor']:>5.2f} | {r['ctrl_main_s']:.2f}/"
+                f"{r['ctrl_zenoh_s']:.2f}/{r['ctrl_ready_s']:.2f}, {r['vehicle_ready_s']:.2f}",
+                flush=True,
+            )
+    with open(out / "scale.csv", "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=COLUMNS)
+        w.writeheader()
+        w.writerows(rows)
+    _plot(rows, out / "scale.png")
+    print(f"wrote {out / 'scale.csv'} and {out / 'scale.png'}")
+    return 0
