@@ -35,13 +35,6 @@ def qconj(q):
 
 
 @kernel
-def qnormalize(q):
-    """``q / |q|``."""
-    n = np.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
-    return q / n
-
-
-@kernel
 def skew(v):
     """``v^x``: the matrix with ``v^x a = v x a``."""
     out = np.zeros((3, 3))

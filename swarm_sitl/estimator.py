@@ -45,14 +45,6 @@ EST_GAMMA_DOT = slice(9, 12)
 
 
 @kernel
-def sign_term(s, boundary_layer):
-    """``sgn(s)`` (boundary_layer <= 0) or the saturation ``clip(s / boundary_layer, -1, 1)``."""
-    if boundary_layer <= 0.0:
-        return np.sign(s)
-    return np.minimum(np.maximum(s / boundary_layer, -1.0), 1.0)
-
-
-@kernel
 def acceleration_estimate(gamma, gamma_dot, k_gamma):
     """``(a_hat, a_hat_dot)`` from ``gamma`` and ``gamma_dot``."""
     th = np.tanh(gamma)

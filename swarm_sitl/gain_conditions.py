@@ -27,7 +27,9 @@ class Condition:
             return self.value > self.bound
         if self.relation == ">=":
             return self.value >= self.bound
-        return self.value < self.bound
+        if self.relation == "<":
+            return self.value < self.bound
+        raise ValueError(f"condition {self.name!r}: unknown relation {self.relation!r}")
 
 
 @dataclass(frozen=True)

@@ -139,7 +139,10 @@ def _sup(
     best = float(norms[k])
     if period is None:
         return best
-    lo, hi = t[max(k - 1, 0)], t[min(k + 1, samples - 1)]
+    # one grid step either side; past the period's ends is the next period (a peak just before
+    # t = period has its best grid point at t = 0, and its bracket must reach back over the end)
+    step = t[1] - t[0]
+    lo, hi = t[k] - step, t[k] + step
     g = (math.sqrt(5.0) - 1.0) / 2.0
     for _ in range(80):  # the bracket shrinks by 0.618 a step: far below a float's spacing
         a, b = hi - g * (hi - lo), lo + g * (hi - lo)

@@ -32,7 +32,7 @@ import numpy as np
 import pytest
 
 from swarm_sitl.estimator import acceleration_estimate, acceleration_estimate_ddot, estimator_rhs
-from swarm_sitl.trajectories import Helix
+from swarm_sitl.trajectories import Helix, Line
 
 pytestmark = pytest.mark.unit
 
@@ -43,26 +43,39 @@ TRAJ = Helix(5.0, 0.2, 1.0)
 T_S = 3.7
 
 
-def _errors(bracket_a_weight: float, seed: int, sign_boundary_layer: float = 0.0):
-    """(abar, abardot, abarddot, N_p) stacked per follower (3 x 3 each) at one instant."""
+def _instant(bracket_a_weight: float, seed: int, sign_boundary_layer: float = 0.0, traj=TRAJ, scale=1.0):
+    """Every follower's estimator at one instant: (pbar, vbar, pbardot, vbardot) and (abar,
+    abardot, abarddot, N_p), each stacked per follower (3 x 3)."""
     rng = np.random.default_rng(seed)
-    d = TRAJ.derivatives(T_S)  # rows: p, v, a, jerk, snap
-    xe = {i: rng.normal(size=12) * np.r_[np.ones(6), 0.8 * np.ones(3), 0.5 * np.ones(3)] for i in (1, 2, 3)}
+    d = traj.derivatives(T_S)  # rows: p, v, a, jerk, snap
+    xe = {
+        i: rng.normal(size=12) * scale * np.r_[np.ones(6), 0.8 * np.ones(3), 0.5 * np.ones(3)]
+        for i in (1, 2, 3)
+    }
     a_ad = {i: acceleration_estimate(xe[i][6:9], xe[i][9:12], K_GAMMA) for i in (1, 2, 3)}
     a_ad[0] = (d[2], d[3])
     abar, abardot, abarddot = np.empty((3, 3)), np.empty((3, 3)), np.empty((3, 3))
+    pbar, vbar, pbardot, vbardot = (np.empty((3, 3)) for _ in range(4))
     for i in (1, 2, 3):
         rows = []
         for (src, dst), w in EDGES.items():
             if dst == i:
                 p, v = (d[0], d[1]) if src == 0 else (xe[src][0:3], xe[src][3:6])
                 rows.append(np.r_[w, p, v, a_ad[src][0], a_ad[src][1]])
-        _, a, ad, gdd = estimator_rhs(
+        dxe, a, ad, gdd = estimator_rhs(
             xe[i], np.array(rows), K_GAMMA, K_P, K_V, L_A, K_A, sign_boundary_layer, bracket_a_weight
         )
         add = acceleration_estimate_ddot(xe[i][6:9], xe[i][9:12], gdd, K_GAMMA)
         abar[i - 1], abardot[i - 1], abarddot[i - 1] = a - d[2], ad - d[3], add - d[4]
-    return abar, abardot, abarddot, -L_A * d[3] - d[4]
+        pbar[i - 1], vbar[i - 1] = xe[i][0:3] - d[0], xe[i][3:6] - d[1]
+        pbardot[i - 1], vbardot[i - 1] = dxe[0:3] - d[1], dxe[3:6] - d[2]
+        np.testing.assert_array_equal(dxe[6:9], xe[i][9:12])  # gamma's derivative is gamma_dot
+    return (pbar, vbar, pbardot, vbardot), (abar, abardot, abarddot, -L_A * d[3] - d[4])
+
+
+def _errors(bracket_a_weight: float, seed: int, sign_boundary_layer: float = 0.0, **kw):
+    """(abar, abardot, abarddot, N_p) at one instant."""
+    return _instant(bracket_a_weight, seed, sign_boundary_layer, **kw)[1]
 
 
 def _printed_residual(abar, abardot, abarddot, n_p):
@@ -102,6 +115,15 @@ def test_the_proofs_surface_dynamics_miss_the_printed_form(seed):
     assert np.abs(res).max() > 1.0
 
 
+@pytest.mark.parametrize("seed", SEEDS)
+def test_position_and_velocity_estimates_follow_the_papers_error_dynamics(seed):
+    """pbardot = vbar - k_p (M x I3) pbar and vbardot = abar - k_v (M x I3) vbar (the paper's first
+    two error equations), either bracket."""
+    (pbar, vbar, pbardot, vbardot), (abar, *_) = _instant(L_A, seed)
+    np.testing.assert_allclose(pbardot, vbar - K_P * M @ pbar, atol=1e-12)
+    np.testing.assert_allclose(vbardot, abar - K_V * M @ vbar, atol=1e-12)
+
+
 def test_the_draws_put_both_signs_through_sgn():
     signs = set()
     for seed in SEEDS:
@@ -111,13 +133,33 @@ def test_the_draws_put_both_signs_through_sgn():
     assert signs == {-1.0, 1.0}
 
 
-def test_a_boundary_layer_replaces_sgn_by_its_saturation():
-    """With a boundary layer wider than |s| the sliding form's sdot follows the proof with
-    sgn(s) replaced by s / phi: the sign term's branch is the only difference."""
-    phi = 1e3
-    abar, abardot, abarddot, n_p = _errors(L_A, 0, sign_boundary_layer=phi)
-    s = M @ (L_A * abar + abardot)
-    assert np.abs(s).max() < phi
-    sdot = M @ (L_A * abardot + abarddot)
-    res = sdot - M @ (-K_A * s - K_A * s / phi + n_p)
-    assert np.abs(res).max() < 1e-9 * max(1.0, np.abs(abarddot).max())
+@pytest.mark.parametrize(
+    "phi, traj, scale",
+    [
+        (1e3, TRAJ, 1.0),  # wider than |s|: s / phi
+        (0.9, Line((0.0, 0.0, 0.0), (1.0, 0.5, 0.2)), 1e-3),  # a layer under 1 with |s| inside it
+        (1e-3, TRAJ, 1.0),  # |s| far outside: saturated at +-1
+    ],
+)
+def test_a_boundary_layer_replaces_sgn_by_its_saturation(phi, traj, scale):
+    """The sliding form's sdot follows the proof with sgn(s) replaced by clip(s / phi, -1, 1)."""
+    for seed in SEEDS:
+        abar, abardot, abarddot, n_p = _errors(L_A, seed, sign_boundary_layer=phi, traj=traj, scale=scale)
+        s = M @ (L_A * abar + abardot)
+        sat = np.clip(s / phi, -1.0, 1.0)
+        assert (np.abs(s) < phi).all() if phi > 0.5 else (np.abs(sat) == 1.0).all()
+        sdot = M @ (L_A * abardot + abarddot)
+        res = sdot - M @ (-K_A * s - K_A * sat + n_p)
+        assert np.abs(res).max() < 1e-9 * max(1.0, np.abs(abarddot).max())
+
+
+def test_an_estimate_on_the_leader_stays_there_with_the_papers_sgn():
+    """At s = 0 (every estimate equal to the leader's, on a line: a = 0) sgn(0) = 0, so nothing
+    moves the estimator off the equilibrium; a sign term evaluated as s / 0 would give NaN."""
+    line = Line((1.0, 2.0, 3.0), (0.5, -0.2, 0.1))
+    d = line.derivatives(T_S)
+    xe = np.r_[d[0], d[1], np.zeros(6)]
+    nb = np.array([np.r_[1.0, d[0], d[1], d[2], d[3]]])
+    dxe, _, _, gdd = estimator_rhs(xe, nb, K_GAMMA, K_P, K_V, L_A, K_A, 0.0, L_A)
+    np.testing.assert_array_equal(gdd, np.zeros(3))
+    np.testing.assert_array_equal(dxe, np.r_[d[1], np.zeros(9)])

@@ -143,3 +143,138 @@ def test_theorem_1_bounds_on_a_two_follower_chain_worked_by_hand():
     assert r.sup_Np == pytest.approx(np_bar, rel=1e-12) and r.sup_acc == pytest.approx(0.2, rel=1e-12)
     for cond, bound in zip(r.conditions, expected, strict=True):
         assert cond.bound == pytest.approx(bound, rel=1e-9), cond.name
+
+
+def test_out_neighbours_edges_as_objects_and_zero_weights():
+    from swarm_sitl.graph import Edge
+
+    g = Graph.from_edges(4, [(0, 1), (0, 2), Edge(1, 3, 2.5), (2, 3), (3, 4), (1, 4)])
+    assert [g.out_neighbours(i) for i in range(5)] == [(1, 2), (3, 4), (3,), (4,), ()]
+    assert g.in_neighbours(3) == ((1, 2.5), (2, 1.0))
+    with pytest.raises(GraphError, match="weight"):
+        Graph.from_edges(2, [(0, 1), (1, 2, 0.0)])
+
+
+def test_an_unreachable_first_follower_is_named():
+    with pytest.raises(GraphError, match=r"cannot reach follower\(s\) 1$"):
+        Graph.from_edges(3, [(0, 2), (1, 3), (2, 3)])
+
+
+def test_qus_theta_is_p_over_q_and_the_report_says_whose_theta_it_uses():
+    """Qu (2009): theta_i = p_i / q_i with p = M^-T 1, q = M^-1 1; on the weighted tree where the
+    paper's Theta fails (above), check reports Qu's, and the report's Xi is M^T Theta + Theta M."""
+    g = Graph.from_edges(6, [(0, 1, 1), (0, 2, 0.5), (0, 3, 1), (0, 4, 1), (2, 5, 1), (2, 6, 2)])
+    M = g.M()
+    p, q = np.linalg.solve(M.T, np.ones(6)), np.linalg.solve(M, np.ones(6))
+    np.testing.assert_allclose(g.theta(), np.diag(p / q), rtol=1e-12)
+    r = check_gains(g, PAPER_GAINS, HELIX, 9.81, 100)
+    np.testing.assert_allclose(r.theta, np.diag(p / q), rtol=1e-12)
+    np.testing.assert_allclose(r.xi, M.T @ r.theta + r.theta @ M, rtol=1e-12)
+    assert r.theta_source == g.theta_source() and "(M^-T 1)/(M^-1 1)" in r.theta_source
+    tree = Graph.from_edges(4, [(0, 1), (0, 2), (0, 3), (1, 4), (2, 4)])
+    assert check_gains(tree, PAPER_GAINS, HELIX, 9.81, 100).theta_source == "paper: 1/theta = M^-1 1"
+
+
+def test_conditions_are_named_as_the_paper_writes_them_and_compare_strictly():
+    from swarm_sitl.gain_conditions import Condition
+
+    tree = Graph.from_edges(4, [(0, 1), (0, 2), (0, 3), (1, 4), (2, 4)])
+    names = [c.name for c in check_gains(tree, PAPER_GAINS, HELIX, 9.81, 100).conditions]
+    assert names == [
+        "k_p k_v > ||Theta||^2 / lambda_min(Xi)^2",
+        "l_a > k_p lmin(Xi) ||Theta||^2 / (lmin(M^T Theta M)(k_p k_v lmin(Xi)^2 - ||Theta||^2))",
+        "k_a > 2 sqrt(n) ||Theta M|| sup|N_p| / lambda_min(Xi)",
+        "k_eta < (g - k_gamma) / 2",
+        "k_gamma >= sup |pddot_r|",
+    ]
+    assert [Condition("c", rel, 1.0, 1.0).holds for rel in (">", ">=", "<")] == [False, True, False]
+    assert not Condition("c", ">", float("inf"), 1e300).holds
+    with pytest.raises(ValueError, match="unknown relation"):
+        _ = Condition("c", "<=", 1.0, 0.0).holds
+
+
+def _la_bound(r, k):
+    """The printed l_a bound at k_p = k_v = k (written again from the paper)."""
+    den = r.lambda_min_mtm * (k * k * r.lambda_min_xi**2 - r.norm_theta**2)
+    return k * r.lambda_min_xi * r.norm_theta**2 / den if den > 0 else np.inf
+
+
+def _ka_bound(r, n, l_a):
+    from swarm_sitl.trajectories import sup_Np
+
+    return 2 * np.sqrt(n) * r.norm_theta_m * sup_Np(HELIX, l_a, 100) / r.lambda_min_xi
+
+
+def test_the_suggestion_keeps_what_holds_and_puts_what_fails_a_quarter_past_its_bound():
+    tree = Graph.from_edges(4, [(0, 1), (0, 2), (0, 3), (1, 4), (2, 4)])
+    gains = {**PAPER_GAINS, "k_gamma": 0.1, "k_eta": 5.0}  # k_gamma < sup|pddot_r| = 0.2, k_eta too big
+    r = check_gains(tree, gains, HELIX, 9.81, 100)
+    assert {c.name.split()[0] for c in r.conditions if not c.holds} == {"k_eta", "k_gamma"}
+    s = r.suggestion
+    assert s["k_gamma"] == pytest.approx(1.25 * 0.2, rel=1e-12)
+    assert s["k_eta"] == pytest.approx(0.8 * (9.81 - 1.25 * 0.2) / 2, rel=1e-12)
+    assert {k: s[k] for k in ("k_p", "k_v", "l_a", "k_a")} == {
+        k: gains[k] for k in ("k_p", "k_v", "l_a", "k_a")
+    }
+    assert check_gains(tree, {**gains, **s}, HELIX, 9.81, 100).all_hold
+    ok = check_gains(tree, PAPER_GAINS, HELIX, 9.81, 100).suggestion  # everything holds: nothing moves
+    assert ok == {k: PAPER_GAINS[k] for k in ok}
+
+
+@pytest.mark.parametrize(
+    "edges, gains",
+    [
+        ([(0, 1), (1, 2), (2, 3), (3, 4), (4, 1)], PAPER_GAINS),  # ring: l_a and k_a fail
+        ([(0, 1), (1, 2), (2, 3), (3, 4), (4, 1)], {**PAPER_GAINS, "k_p": 0.5, "k_v": 0.5}),  # k_p k_v too
+        ([(0, 1), (0, 2), (1, 3), (2, 3), (3, 4)], {**PAPER_GAINS, "l_a": 0.05, "k_a": 0.5}),
+    ],
+)
+def test_the_suggestion_is_the_smallest_k_a_on_its_documented_grid(edges, gains):
+    """The search (gain_conditions.py): k_p = k_v = k over sqrt(k_p k_v) if its condition holds, and
+    k0 2^j, j = 0..7, k0 = max(sqrt(k_p k_v), 1.25 ||Theta|| / lmin(Xi)); at each k, l_a kept if it
+    holds, else 1.25 x its bound; k_a likewise against its bound at that l_a; the k of least k_a wins."""
+    g = Graph.from_edges(4, edges)
+    r = check_gains(g, gains, HELIX, 9.81, 100)
+    assert not r.all_hold
+    s = r.suggestion
+    assert check_gains(g, {**gains, **s}, HELIX, 9.81, 100).all_hold
+    k_now = np.sqrt(gains["k_p"] * gains["k_v"])
+    ks = [k_now] if gains["k_p"] * gains["k_v"] > r.norm_theta**2 / r.lambda_min_xi**2 else []
+    ks += list(max(k_now, 1.25 * r.norm_theta / r.lambda_min_xi) * 2.0 ** np.arange(8))
+    las = [gains["l_a"] if gains["l_a"] > _la_bound(r, k) else 1.25 * _la_bound(r, k) for k in ks]
+    kas = [gains["k_a"] if gains["k_a"] > (b := _ka_bound(r, 4, la)) else 1.25 * b for la in las]
+    j = int(np.argmin(kas))
+    assert s["k_a"] == pytest.approx(kas[j], rel=1e-3)  # the search samples sup|N_p| more coarsely
+    assert s["l_a"] == pytest.approx(las[j], rel=1e-12)
+    kept = ks[j] == k_now and gains["k_p"] * gains["k_v"] > r.norm_theta**2 / r.lambda_min_xi**2
+    expected = (gains["k_p"], gains["k_v"]) if kept else (ks[j], ks[j])
+    assert (s["k_p"], s["k_v"]) == pytest.approx(expected, rel=1e-12)
+
+
+def test_a_line_leader_needs_no_acceleration_bound_and_its_k_a_bound_is_zero():
+    from swarm_sitl.trajectories import Line
+
+    tree = Graph.from_edges(4, [(0, 1), (0, 2), (0, 3), (1, 4), (2, 4)])
+    r = check_gains(tree, PAPER_GAINS, Line((0.0, 0.0, 0.0), (1.0, 2.0, 0.5)), 9.81, 100)
+    assert r.sup_acc == 0.0 and r.sup_Np == 0.0 and r.conditions[2].bound == 0.0
+    assert r.all_hold and r.suggestion == {k: PAPER_GAINS[k] for k in r.suggestion}
+
+
+def test_the_l_a_bound_is_infinite_while_k_p_k_v_fails():
+    """Below ||Theta||^2 / lmin(Xi)^2 the l_a bound's denominator is negative: no l_a is enough."""
+    ring = Graph.from_edges(4, [(0, 1), (1, 2), (2, 3), (3, 4), (4, 1)])
+    r = check_gains(ring, {**PAPER_GAINS, "k_p": 0.5, "k_v": 0.5, "l_a": 1e9}, HELIX, 9.81, 100)
+    assert not r.conditions[0].holds
+    assert r.conditions[1].bound == np.inf and not r.conditions[1].holds
+
+
+def test_the_suggestion_keeps_unequal_k_p_and_k_v_when_they_already_hold():
+    """k_p = 1, k_v = 4 on the tree: k_p k_v = 4 > ||Theta||^2 / lmin(Xi)^2 = 1.94 and l_a = 12 holds;
+    only k_a (3 < 3.43) fails. The suggestion raises k_a alone, k_p and k_v as they were."""
+    tree = Graph.from_edges(4, [(0, 1), (0, 2), (0, 3), (1, 4), (2, 4)])
+    gains = {**PAPER_GAINS, "k_p": 1.0, "k_v": 4.0, "k_a": 3.0}
+    r = check_gains(tree, gains, HELIX, 9.81, 100)
+    assert [c.holds for c in r.conditions] == [True, True, False, True, True]
+    s = r.suggestion
+    assert (s["k_p"], s["k_v"], s["l_a"]) == (1.0, 4.0, 12.0)
+    assert s["k_a"] == pytest.approx(1.25 * r.conditions[2].bound, rel=1e-3)

@@ -83,3 +83,26 @@ def test_quaternion_rate_is_body_rate_kinematics(q, w):
 
     fd = (qmul(q, dq(h)) - qmul(q, dq(-h))) / (2 * h)
     np.testing.assert_allclose(quaternion_rate(q, w), fd, atol=1e-7)
+
+
+def test_the_kernels_return_quaternions_of_four():
+    q, w = np.array([0.5, 0.5, -0.5, 0.5]), np.array([0.1, -0.2, 0.3])
+    assert qconj(q).shape == (4,) and quaternion_rate(q, w).shape == (4,)
+    np.testing.assert_array_equal(qconj(q), [0.5, -0.5, 0.5, -0.5])
+
+
+@pytest.mark.parametrize(
+    "q",
+    [
+        [0.5, -0.7, 0.0, np.sqrt(0.26)],  # R[1, 2] is R's largest entry, and q_y = 0
+        [0.0, 1.0, 0.0, 0.0],  # half turns: w = 0, the x, y or z branch
+        [0.0, 0.0, 1.0, 0.0],
+        [0.0, 0.0, 0.0, 1.0],
+        [-0.3, 0.1, np.sqrt(0.9), 0.0],  # w < 0: the same rotation comes back with w > 0
+    ],
+)
+def test_from_rotation_matrix_takes_the_stable_branch_and_w_at_least_zero(q):
+    q = np.asarray(q)
+    back = from_rotation_matrix(rotation_matrix(q))
+    expected = q if q[0] > 0 or (q[0] == 0 and q[np.nonzero(q)[0][0]] > 0) else -q
+    np.testing.assert_allclose(back, expected, atol=1e-15)

@@ -85,3 +85,65 @@ def test_sup_n_p_of_the_figure_eight_matches_its_closed_form_components():
         -8 * B * w**3 * (l_a * np.cos(2 * w * t) + 2 * w * np.sin(2 * w * t)),
     )
     assert float(np.max(printed)) == pytest.approx(expected, rel=1e-6)
+
+
+def test_positions_are_the_closed_forms_about_their_centres():
+    """The derivatives' tests cannot see where a path is: its position, centre and phase included."""
+    c = np.array([1.5, -2.0, 3.0])
+    for t in (0.0, 0.7, 4.1):
+        helix = Helix(2.0, -0.7, 0.3, tuple(c), 0.4).derivatives(t)
+        th = -0.7 * t + 0.4
+        np.testing.assert_allclose(
+            helix[0], c + np.array([2.0 * np.cos(th), 2.0 * np.sin(th), 0.3 * t]), atol=1e-14
+        )
+        np.testing.assert_allclose(helix[1], [1.4 * np.sin(th), -1.4 * np.cos(th), 0.3], atol=1e-14)
+        eight = FigureEight(4.0, 2.0, 0.3, tuple(c)).derivatives(t)
+        np.testing.assert_allclose(
+            eight[0], c + np.array([4.0 * np.sin(0.3 * t), 2.0 * np.sin(0.6 * t), 0.0]), atol=1e-14
+        )
+        np.testing.assert_allclose(eight[1], [1.2 * np.cos(0.3 * t), 1.2 * np.cos(0.6 * t), 0.0], atol=1e-14)
+        line = Line(tuple(c), (0.5, -1.0, 0.2)).derivatives(t)
+        np.testing.assert_allclose(
+            line, [c + np.array([0.5, -1.0, 0.2]) * t, [0.5, -1.0, 0.2], *[[0, 0, 0]] * 3]
+        )
+
+
+def test_periods_and_suprema_of_the_shipped_kinds():
+    from swarm_sitl.trajectories import period_s, sup_norm, sup_Np
+
+    assert period_s(Helix(1.0, 1.0, 0.0)) == pytest.approx(2 * np.pi, rel=1e-15)
+    assert period_s(FigureEight(1.0, 1.0, -0.25)) == pytest.approx(8 * np.pi, rel=1e-15)
+    assert period_s(Helix(1.0, 0.0, 1.0)) is None and period_s(Line((0, 0, 0), (1, 0, 0))) is None
+    line = Line((1.0, 2.0, 3.0), (3.0, 0.0, 4.0))  # not periodic: taken over the horizon, exactly
+    assert (
+        sup_norm(line, 1, 50.0) == 5.0 and sup_norm(line, 2, 50.0) == 0.0 and sup_Np(line, 12.0, 50.0) == 0.0
+    )
+    assert sup_norm(line, 0, 10.0) == pytest.approx(np.linalg.norm([31.0, 2.0, 43.0]), rel=1e-15)
+
+
+@pytest.mark.parametrize("peak_at", [0.0, 0.003, 0.013, 0.5, 0.987, 0.997, 1.0])
+def test_the_supremum_is_found_wherever_the_peak_lies_in_the_period(peak_at):
+    """``_sup`` over one period of a FigureEight (2 pi / w = 10 s) of a smooth bump whose peak
+    sits at ``peak_at`` of the period (wrapped, as a periodic function's would): the grid's best
+    point refined to the float's precision, the value at the peak."""
+    from swarm_sitl.trajectories import _sup
+
+    traj = FigureEight(1.0, 1.0, 2 * np.pi / 10.0)
+    t0 = 10.0 * peak_at
+
+    def bump(t):
+        d = (np.asarray(t) - t0 + 5.0) % 10.0 - 5.0  # periodic distance to the peak
+        return np.stack([3.0 + np.cos(0.5 * d) * np.exp(-d * d), 0 * d, 0 * d], axis=-1)
+
+    assert _sup(traj, bump, 99.0, 101) == pytest.approx(4.0, abs=1e-12)
+
+
+def test_suprema_are_over_all_time_for_periodic_derivatives_and_over_the_horizon_for_position():
+    from swarm_sitl.trajectories import sup_norm
+
+    eight = FigureEight(4.0, 2.0, 0.3)  # period 20.9 s; |v| peaks at t = 0: sqrt(1.2^2 + 1.2^2)
+    assert sup_norm(eight, 1, 3.0) == pytest.approx(1.2 * np.sqrt(2), rel=1e-12)  # horizon too short
+    t = np.linspace(0.0, 3.0, 300001)
+    p = np.linalg.norm(eight.derivatives(t)[:, 0], axis=1)  # position: over [0, 3 s] only
+    assert sup_norm(eight, 0, 3.0) == pytest.approx(p.max(), rel=1e-9)
+    assert sup_norm(eight, 0, 3.0) < 4.0  # the whole period would reach further
