@@ -53,8 +53,10 @@ COLUMNS = (
 )
 
 
-def scale_config(n: int, duration_s: float) -> SwarmConfig:
-    return parse_config(yaml.safe_load(generate(n, "layered", "grid", "helix", 0, duration_s)), f"layered{n}")
+def scale_config(n: int, duration_s: float, start: str = "fork") -> SwarmConfig:
+    data = yaml.safe_load(generate(n, "layered", "grid", "helix", 0, duration_s))
+    data["run"] = {"start": start}
+    return parse_config(data, f"layered{n}")
 
 
 def _cpu_s(who: int) -> float:
@@ -90,10 +92,10 @@ def _median_mark(procs: list[dict[str, Any]], name: str) -> float:
     return statistics.median(ages) if ages else float("nan")
 
 
-def measure(n: int, duration_s: float, work: Path) -> dict[str, float]:
+def measure(n: int, duration_s: float, work: Path, start: str = "fork") -> dict[str, float]:
     from swarm_sitl.supervisor import run_swarm
 
-    cfg = scale_config(n, duration_s)
+    cfg = scale_config(n, duration_s, start)
     sim_wall, sim_cpu = _sim_floor(cfg)
     self0 = _cpu_s(resource.RUSAGE_SELF)
     t0 = time.monotonic()
@@ -162,12 +164,12 @@ def _plot(rows: list[dict[str, float]], path: Path) -> None:
     plt.close(fig)
 
 
-def run_scale(ns: list[int], duration_s: float, out: Path | None) -> int:
+def run_scale(ns: list[int], duration_s: float, out: Path | None, start: str = "fork") -> int:
     out = out or Path("runs") / f"bench-scale-{time.strftime('%Y%m%d-%H%M%S')}"
     out.mkdir(parents=True, exist_ok=True)
     print(
         f"bench --scale: generated layered swarms, {duration_s:g} s lockstep runs (2N+1 processes) "
-        f"against sim; CPU in seconds per simulated second"
+        f"against sim; processes started by {start}; CPU in seconds per simulated second"
     )
     head = (
         f"{'N':>3} {'edges':>5} {'start s':>7} {'run x':>6} {'e2e x':>6} {'sim x':>6} "
@@ -178,7 +180,7 @@ def run_scale(ns: list[int], duration_s: float, out: Path | None) -> int:
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         for n in ns:
-            r = measure(n, duration_s, Path(tmp))
+            r = measure(n, duration_s, Path(tmp), start)
             rows.append(r)
             print(
                 f"{n:>3} {r['edges']:>5} {r['startup_s']:>7.2f} {r['run_x']:>6.2f} {r['e2e_x']:>6.2f} "

@@ -372,7 +372,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
                 raise CliError(f"--scale takes follower counts like 4,8,16, got {args.scale!r}") from None
             if not ns or min(ns) < 1 or max(ns) > 254:
                 raise CliError(f"--scale: follower counts must be 1..254, got {args.scale!r}")
-            return run_scale(ns, args.scale_duration, Path(args.out) if args.out else None)
+            return run_scale(ns, args.scale_duration, Path(args.out) if args.out else None, args.scale_start)
         if args.against:
             from swarm_sitl.bench import compare_trees
 
@@ -490,6 +490,9 @@ def build_parser() -> argparse.ArgumentParser:
         help="instead: lockstep cost against sim for generated layered swarms of these sizes (4,8,16,32,64)",
     )
     b.add_argument("--scale-duration", type=float, default=20.0, help="simulated seconds per --scale run")
+    b.add_argument(
+        "--scale-start", choices=("fork", "spawn"), default="fork", help="--scale: run.start of the runs"
+    )
     b.add_argument(
         "--out", help="--scale: directory for scale.csv and scale.png (default runs/bench-scale-<time>)"
     )

@@ -192,6 +192,10 @@ class RunSpec(_Strict):
     """Limits of a multi-process run (wall-clock seconds)."""
 
     start_timeout_s: Positive = 120.0  #: every process ready (connected, parameters read) within this
+    #: how the vehicles and nodes are started: ``fork``ed from one process that has imported
+    #: everything and loaded the compiled kernels (``fork_server``; Linux), or each ``spawn``ed as a
+    #: new interpreter. Either way each is its own process with its own sockets.
+    start: Literal["fork", "spawn"] = "fork"
     stall_timeout_s: Positive = 20.0  #: lockstep: a process waiting this long for an input gives up
     status_every: Annotated[int, Field(ge=1)] = 10  #: ticks between status messages of a controller
     lockstep_window: Annotated[int, Field(ge=1)] = 50  #: ticks the leader may run ahead in lockstep

@@ -38,6 +38,7 @@ from sim_vehicles.mavlink_signing import SigningKeyError, read_key
 from swarm_sitl import zenoh_keys
 from swarm_sitl.bus_codec import Status, decode_status, decode_waiting
 from swarm_sitl.config import SwarmConfig
+from swarm_sitl.fork_server import ENTRY_MODULES, ForkedProcess, ForkServer, ForkServerError, module_argv
 from swarm_sitl.recording import (
     procs_dir,
     signing_key_path,
@@ -72,7 +73,7 @@ STOPPED_GRACE_S = 0.5  #: a child stopped (SIGSTOP) this long, unplanned, fails 
 @dataclass
 class Child:
     name: str
-    proc: subprocess.Popen
+    proc: "subprocess.Popen[bytes] | ForkedProcess"
     log_path: Path
     must_finish: bool  #: leader/controllers end by themselves; vehicles run until torn down
     process: str = ""  #: the process it is an incarnation of (``controller_2`` for ``controller_2.1``)
@@ -106,6 +107,8 @@ class Supervisor:
     planned_stop: Callable[[str], bool] = lambda process: False
     #: environment a process's children get besides ``child_env()`` (its zenoh credentials)
     env_for: Callable[[str], dict[str, str]] = lambda process: {}
+    #: when set, children that run ``python -P -m sim_vehicles|swarm_sitl`` are forked from it
+    fork_server: ForkServer | None = None
 
     def child(self, process: str) -> Child | None:
         """The live incarnation of ``process``, if any."""
@@ -116,22 +119,34 @@ class Supervisor:
         log_dir = self.run_dir / "logs"
         log_dir.mkdir(parents=True, exist_ok=True)
         log_path = log_dir / f"{name}.log"
-        log = open(log_path, "wb")  # noqa: SIM115  (closed in close())
-        self._logs.append(log)
         env = {
             **child_env(),
             PARENT_ENV: str(os.getpid()),
             "PYTHONUNBUFFERED": "1",
             **self.env_for(process or name),
         }
-        proc = subprocess.Popen(
-            argv,
-            stdout=log,
-            stderr=subprocess.STDOUT,
-            stdin=subprocess.DEVNULL,
-            env=env,
-            start_new_session=True,
-        )
+        proc: subprocess.Popen[bytes] | ForkedProcess
+        prefix = module_argv("")[:-1]
+        if (
+            self.fork_server is not None
+            and argv[: len(prefix)] == prefix
+            and argv[len(prefix)] in ENTRY_MODULES
+        ):
+            try:
+                proc = self.fork_server.spawn(argv[len(prefix)], argv[len(prefix) + 1 :], env, log_path)
+            except ForkServerError as e:
+                raise RunFailedError(f"{name}: {e}") from None
+        else:
+            log = open(log_path, "wb")  # noqa: SIM115  (closed in close())
+            self._logs.append(log)
+            proc = subprocess.Popen(
+                argv,
+                stdout=log,
+                stderr=subprocess.STDOUT,
+                stdin=subprocess.DEVNULL,
+                env=env,
+                start_new_session=True,
+            )
         child = Child(name, proc, log_path, must_finish, process or name)
         self.children.append(child)
         return child
@@ -185,6 +200,9 @@ class Supervisor:
         for log in self._logs:
             log.close()
         self._logs.clear()
+        if self.fork_server is not None:
+            self.fork_server.close()
+            self.fork_server = None
 
 
 def compile_kernels(cfg: SwarmConfig) -> None:
@@ -197,19 +215,24 @@ def compile_kernels(cfg: SwarmConfig) -> None:
     settle_heap()
 
 
+def start_fork_server(cfg_path: Path, run_dir: Path) -> ForkServer:
+    """A fork server (``fork_server``) that has imported everything and loaded the kernels of
+    ``cfg_path`` (compiling them on a fresh install), its errors in ``logs/fork_server.log``."""
+    log_dir = run_dir / "logs"
+    log_dir.mkdir(parents=True, exist_ok=True)
+    env = {**child_env(), PARENT_ENV: str(os.getpid()), "PYTHONUNBUFFERED": "1"}
+    argv = [*module_argv("swarm_sitl.fork_server"), str(cfg_path)]
+    return ForkServer(argv, env, log_dir / "fork_server.log")
+
+
+def uses_fork_server(cfg: SwarmConfig) -> bool:
+    return cfg.run.start == "fork" and sys.platform.startswith("linux")
+
+
 def free_tcp_port() -> int:
     with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
         s.bind(("127.0.0.1", 0))
         return int(s.getsockname()[1])
-
-
-def module_argv(module: str) -> list[str]:
-    """``python -P -m module``, to run with ``child_env()``: a child imports the modules its parent
-    imported. Without ``-P``, ``-m`` puts the working directory first on ``sys.path``, so a run
-    started from a checkout beside an installed package ran its children from the checkout's
-    sources, compiling every kernel again in each child (about 40 s of start-up on a fresh install)
-    where the supervisor had just compiled them for the installed package."""
-    return [sys.executable, "-P", "-m", module]
 
 
 def child_env(base: Mapping[str, str] | None = None) -> dict[str, str]:
@@ -507,12 +530,15 @@ def run_swarm(
     if lockstep:
         check_lockstep(cfg)
     run_dir.mkdir(parents=True, exist_ok=True)
-    compile_kernels(cfg)
     cfg_path = run_dir / "config.yaml"
     cfg_path.write_text(cfg.to_yaml())
     procs_dir(run_dir).mkdir(parents=True, exist_ok=True)
     t_spawn = time.monotonic()
     sup = Supervisor(run_dir)
+    if uses_fork_server(cfg):
+        sup.fork_server = start_fork_server(cfg_path, run_dir)  # it compiles or loads the kernels
+    else:
+        compile_kernels(cfg)
     hub, session = open_hub(cfg, run_dir, sup)
     monitor = RunMonitor(session, cfg)
     faults = ProcessFaults(cfg, sup, lockstep, supervisor_events_path(run_dir)) if cfg.faults.plan else None

@@ -1,0 +1,310 @@
+"""Start a run's processes by forking one warmed-up parent: each vehicle and node without its own
+interpreter start, imports and kernel loads.
+
+A fresh ``python -m swarm_sitl controller ...`` spends about a second of CPU importing numpy,
+numba, pydantic, pymavlink and zenoh and loading its compiled kernels before it does anything;
+a run of N followers starts 2N + 1 of them on a machine of two cores. The fork server is one
+process that does that once (``serve``), then forks a child per request. Each child is still its
+own process with its own sockets, zenoh session, pid and log, in its own session (``setsid``),
+exactly as ``subprocess.Popen`` would have started it; it then runs the same ``main(argv)`` the
+command line would have run.
+
+Protocol (pipes between the supervisor and the server, one JSON object per line):
+
+- supervisor -> server: ``{"module": "sim_vehicles" | "swarm_sitl", "argv": [...], "env": {...},
+  "log": PATH}``;
+- server -> supervisor: ``{"ready": true}`` once warmed up; ``{"pid": N}`` for each request, in
+  order; ``{"exit": N, "code": C}`` when child N ends (C as ``Popen.returncode``: -signal if a
+  signal ended it).
+
+The server is forked before any zenoh session exists in it (zenoh's runtime starts with the first
+session, and a fork does not carry threads), and it dies with the supervisor (``hold_on``), its
+children with it. Linux only (``os.fork`` with ``prctl``); elsewhere ``run.start: spawn`` is used.
+"""
+
+import contextlib
+import json
+import os
+import random
+import select
+import shlex
+import signal
+import subprocess
+import sys
+import time
+import traceback
+from pathlib import Path
+from typing import IO, Any
+
+from setproctitle import setproctitle
+
+from sim_vehicles.lifeline import ENV as PARENT_ENV
+
+ENTRY_MODULES = ("sim_vehicles", "swarm_sitl")
+
+
+class ForkServerError(RuntimeError):
+    """The fork server did not start, ended, or could not start a child; the message says which."""
+
+
+def _run_child(request: dict[str, Any], fd: int) -> int:
+    """In the forked child: become the process the request describes (``fd``: its log, opened by
+    the server so that it exists when the pid is answered), run it, return its code."""
+    os.setsid()
+    signal.signal(signal.SIGCHLD, signal.SIG_DFL)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+    null = os.open(os.devnull, os.O_RDONLY)
+    os.dup2(null, 0)
+    os.dup2(fd, 1)
+    os.dup2(fd, 2)
+    os.close(fd)
+    os.close(null)
+    sys.stdin = open(0, closefd=False)  # noqa: SIM115
+    sys.stdout = open(1, "w", buffering=1, closefd=False)  # noqa: SIM115
+    sys.stderr = open(2, "w", buffering=1, closefd=False)  # noqa: SIM115
+    # ps, top and pgrep show the command line Popen would have started (before the environment
+    # changes: setproctitle takes its room from where the environment's strings lie)
+    setproctitle(" ".join(shlex.quote(a) for a in [*module_argv(request["module"]), *request["argv"]]))
+    os.environ.clear()
+    os.environ.update(request["env"])
+    os.environ[PARENT_ENV] = str(os.getppid())  # hold_on(): this process dies with the server
+    random.seed()  # the parent's generator state is not this process's
+    module, argv = request["module"], list(request["argv"])
+    sys.argv = [module, *argv]
+    try:
+        if module == "sim_vehicles":
+            from sim_vehicles.__main__ import main as vehicle_main
+
+            return int(vehicle_main(argv) or 0)
+        from swarm_sitl.cli import main as cli_main
+
+        return int(cli_main(argv) or 0)
+    except SystemExit as e:
+        return e.code if isinstance(e.code, int) else (0 if e.code is None else 1)
+    except BaseException:
+        traceback.print_exc()
+        return 1
+
+
+def module_argv(module: str) -> list[str]:
+    """``python -P -m module``, to run with ``supervisor.child_env()``: a child imports the modules
+    its parent imported. Without ``-P``, ``-m`` puts the working directory first on ``sys.path``,
+    so a run started from a checkout beside an installed package ran its children from the
+    checkout's sources, compiling every kernel again in each child (about 40 s of start-up on a
+    fresh install) where the supervisor had just compiled them for the installed package."""
+    return [sys.executable, "-P", "-m", module]
+
+
+def _warm_up(config_path: str | None) -> None:
+    """Import what the children run and load the compiled kernels into this process."""
+    import sim_vehicles.__main__  # noqa: F401
+    import swarm_sitl.bus
+    import swarm_sitl.cli
+    import swarm_sitl.controller_node
+    import swarm_sitl.leader_node
+    import swarm_sitl.node_main
+    import swarm_sitl.vehicle_link  # noqa: F401  (pymavlink)
+
+    if config_path:
+        from swarm_sitl.config import load_config
+        from swarm_sitl.sim import run_sim
+
+        run_sim(load_config(config_path), n_steps=1)
+
+
+def _send(out: IO[str], msg: dict[str, Any]) -> None:
+    out.write(json.dumps(msg) + "\n")
+    out.flush()
+
+
+def serve(config_path: str | None) -> int:
+    """The server's loop: warm up, then fork a child per request line on stdin until stdin closes
+    and every child has ended."""
+    from sim_vehicles.lifeline import hold_on, settle_heap
+
+    hold_on()
+    _warm_up(config_path)
+    settle_heap()
+    out = sys.stdout
+    _send(out, {"ready": True})
+    live: set[int] = set()
+    stdin_open = True
+    buf = b""
+    while stdin_open or live:
+        if stdin_open:
+            readable, _, _ = select.select([0], [], [], 0.02)
+            if readable:
+                chunk = os.read(0, 65536)
+                if not chunk:
+                    stdin_open = False
+                buf += chunk
+                while b"\n" in buf:
+                    line, buf = buf.split(b"\n", 1)
+                    request = json.loads(line)
+                    try:
+                        fd = os.open(request["log"], os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
+                    except OSError as e:
+                        _send(out, {"error": f"cannot open {request['log']}: {e.strerror}"})
+                        continue
+                    pid = os.fork()
+                    if pid == 0:
+                        code = 1
+                        try:
+                            code = _run_child(request, fd)
+                        finally:
+                            with contextlib.suppress(Exception):
+                                sys.stdout.flush()
+                                sys.stderr.flush()
+                            os._exit(code & 0xFF if code >= 0 else 1)
+                    os.close(fd)
+                    live.add(pid)
+                    _send(out, {"pid": pid})
+        else:
+            time.sleep(0.02)
+        while live:
+            try:
+                pid, status = os.waitpid(-1, os.WNOHANG)
+            except ChildProcessError:
+                live.clear()
+                break
+            if pid == 0:
+                break
+            live.discard(pid)
+            code = -os.WTERMSIG(status) if os.WIFSIGNALED(status) else os.WEXITSTATUS(status)
+            _send(out, {"exit": pid, "code": code})
+    return 0
+
+
+class ForkedProcess:
+    """The part of ``subprocess.Popen`` the supervisor uses, for a child of the fork server."""
+
+    def __init__(self, server: "ForkServer", pid: int):
+        self.server = server
+        self.pid = pid
+        self.returncode: int | None = None
+
+    def poll(self) -> int | None:
+        if self.returncode is None:
+            self.server.pump()
+        return self.returncode
+
+    def wait(self, timeout: float | None = None) -> int:
+        end = None if timeout is None else time.monotonic() + timeout
+        while self.poll() is None:
+            if end is not None and time.monotonic() > end:
+                raise subprocess.TimeoutExpired(f"pid {self.pid}", timeout or 0.0)
+            time.sleep(0.005)
+        return int(self.returncode)  # type: ignore[arg-type]
+
+    def send_signal(self, sig: int) -> None:
+        if self.poll() is None:
+            os.kill(self.pid, sig)
+
+
+class ForkServer:
+    """The supervisor's side: start the server, ask it for children, learn when they end."""
+
+    def __init__(self, argv: list[str], env: dict[str, str], log_path: Path, timeout_s: float = 120.0):
+        self._log = open(log_path, "wb")  # noqa: SIM115  (closed in close())
+        self.proc = subprocess.Popen(
+            argv,
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            stderr=self._log,
+            env=env,
+            start_new_session=True,
+        )
+        self._buf = b""
+        self._children: dict[int, ForkedProcess] = {}
+        self._exits: dict[int, int] = {}
+        self._log_path = log_path
+        self._timeout_s = timeout_s
+        self._ready = False  # it warms up while the caller does other things; spawn() waits
+
+    def _wait_ready(self) -> None:
+        if self._ready:
+            return
+        msg = self._next(self._timeout_s)
+        if msg is None or not msg.get("ready"):
+            last = self._log_path.read_text(errors="replace").strip().splitlines()[-1:] or [""]
+            raise ForkServerError(f"the fork server did not start: {last[0]} (log: {self._log_path})")
+        self._ready = True
+
+    def _next(self, timeout_s: float | None) -> dict[str, Any] | None:
+        """The next message; None if the server ended (or nothing came within ``timeout_s``)."""
+        assert self.proc.stdout is not None
+        end = None if timeout_s is None else time.monotonic() + timeout_s
+        while b"\n" not in self._buf:
+            wait = 0.0 if end is None else max(0.0, end - time.monotonic())
+            readable, _, _ = select.select([self.proc.stdout], [], [], wait)
+            if not readable:
+                return None
+            chunk = os.read(self.proc.stdout.fileno(), 65536)
+            if not chunk:
+                return None
+            self._buf += chunk
+        line, self._buf = self._buf.split(b"\n", 1)
+        msg: dict[str, Any] = json.loads(line)
+        return msg
+
+    def _take(self, msg: dict[str, Any]) -> None:
+        if "exit" in msg:
+            pid, code = int(msg["exit"]), int(msg["code"])
+            if pid in self._children:
+                self._children[pid].returncode = code
+            else:
+                self._exits[pid] = code
+
+    def spawn(self, module: str, argv: list[str], env: dict[str, str], log_path: Path) -> ForkedProcess:
+        assert self.proc.stdin is not None
+        self._wait_ready()
+        request = {"module": module, "argv": argv, "env": env, "log": str(log_path)}
+        self.proc.stdin.write((json.dumps(request) + "\n").encode())
+        self.proc.stdin.flush()
+        while True:
+            msg = self._next(30.0)
+            if msg is None:
+                raise ForkServerError("the fork server ended or stopped answering")
+            if "error" in msg:
+                raise ForkServerError(f"the fork server cannot start {module}: {msg['error']}")
+            if "pid" in msg:
+                child = ForkedProcess(self, int(msg["pid"]))
+                self._children[child.pid] = child
+                if child.pid in self._exits:
+                    child.returncode = self._exits.pop(child.pid)
+                return child
+            self._take(msg)
+
+    def pump(self) -> None:
+        """Take every exit the server has reported; if the server itself is gone, its children are
+        too (they die with it): each still unaccounted for is marked killed."""
+        while True:
+            msg = self._next(0.0)
+            if msg is None:
+                break
+            self._take(msg)
+        if self.proc.poll() is not None:
+            for child in self._children.values():
+                if child.returncode is None:
+                    child.returncode = -signal.SIGKILL
+
+    def close(self) -> None:
+        if self.proc.stdin is not None:
+            with contextlib.suppress(OSError):
+                self.proc.stdin.close()
+        try:
+            self.proc.wait(timeout=5.0)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            self.proc.wait()
+        self._log.close()
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = sys.argv[1:] if argv is None else argv
+    return serve(args[0] if args else None)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
