@@ -227,6 +227,8 @@ def test_the_suggestion_keeps_what_holds_and_puts_what_fails_a_quarter_past_its_
         ([(0, 1), (1, 2), (2, 3), (3, 4), (4, 1)], PAPER_GAINS),  # ring: l_a and k_a fail
         ([(0, 1), (1, 2), (2, 3), (3, 4), (4, 1)], {**PAPER_GAINS, "k_p": 0.5, "k_v": 0.5}),  # k_p k_v too
         ([(0, 1), (0, 2), (1, 3), (2, 3), (3, 4)], {**PAPER_GAINS, "l_a": 0.05, "k_a": 0.5}),
+        # k_p k_v = 1 fails, l_a = 12 holds from the grid's first point on: that point wins
+        ([(0, 1), (0, 2), (0, 3), (1, 4), (2, 4)], {**PAPER_GAINS, "k_p": 1.0, "k_v": 1.0}),
     ],
 )
 def test_the_suggestion_is_the_smallest_k_a_on_its_documented_grid(edges, gains):
@@ -268,13 +270,14 @@ def test_the_l_a_bound_is_infinite_while_k_p_k_v_fails():
     assert r.conditions[1].bound == np.inf and not r.conditions[1].holds
 
 
-def test_the_suggestion_keeps_unequal_k_p_and_k_v_when_they_already_hold():
-    """k_p = 1, k_v = 4 on the tree: k_p k_v = 4 > ||Theta||^2 / lmin(Xi)^2 = 1.94 and l_a = 12 holds;
-    only k_a (3 < 3.43) fails. The suggestion raises k_a alone, k_p and k_v as they were."""
+@pytest.mark.parametrize("k_p, k_v, l_a", [(1.0, 4.0, 12.0), (0.5, 4.0, 100.0)])
+def test_the_suggestion_keeps_unequal_k_p_and_k_v_when_they_already_hold(k_p, k_v, l_a):
+    """On the tree ||Theta||^2 / lmin(Xi)^2 = 1.94: k_p k_v = 4, or 2 (just above), holds, and so
+    does l_a; only k_a (3 < its bound) fails. The suggestion raises k_a alone."""
     tree = Graph.from_edges(4, [(0, 1), (0, 2), (0, 3), (1, 4), (2, 4)])
-    gains = {**PAPER_GAINS, "k_p": 1.0, "k_v": 4.0, "k_a": 3.0}
+    gains = {**PAPER_GAINS, "k_p": k_p, "k_v": k_v, "l_a": l_a, "k_a": 3.0}
     r = check_gains(tree, gains, HELIX, 9.81, 100)
     assert [c.holds for c in r.conditions] == [True, True, False, True, True]
     s = r.suggestion
-    assert (s["k_p"], s["k_v"], s["l_a"]) == (1.0, 4.0, 12.0)
+    assert (s["k_p"], s["k_v"], s["l_a"]) == (k_p, k_v, l_a)
     assert s["k_a"] == pytest.approx(1.25 * r.conditions[2].bound, rel=1e-3)

@@ -141,8 +141,10 @@ def test_the_supremum_is_found_wherever_the_peak_lies_in_the_period(peak_at):
 def test_suprema_are_over_all_time_for_periodic_derivatives_and_over_the_horizon_for_position():
     from swarm_sitl.trajectories import sup_norm
 
-    eight = FigureEight(4.0, 2.0, 0.3)  # period 20.9 s; |v| peaks at t = 0: sqrt(1.2^2 + 1.2^2)
-    assert sup_norm(eight, 1, 3.0) == pytest.approx(1.2 * np.sqrt(2), rel=1e-12)  # horizon too short
+    eight = FigureEight(4.0, 2.0, 0.3)  # period 20.9 s; |a| is 0 at t = 0 and peaks later
+    period = np.linspace(0.0, 2 * np.pi / 0.3, 2_000_001)
+    a_max = np.linalg.norm(eight.derivatives(period)[:, 2], axis=1).max()
+    assert sup_norm(eight, 2, 0.5) == pytest.approx(a_max, rel=1e-9)  # over all time, not 0.5 s
     t = np.linspace(0.0, 3.0, 300001)
     p = np.linalg.norm(eight.derivatives(t)[:, 0], axis=1)  # position: over [0, 3 s] only
     assert sup_norm(eight, 0, 3.0) == pytest.approx(p.max(), rel=1e-9)
