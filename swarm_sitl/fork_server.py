@@ -104,8 +104,9 @@ def _warm_up(config_path: str | None) -> None:
     import swarm_sitl.controller_node
     import swarm_sitl.leader_node
     import swarm_sitl.node_main
-    import swarm_sitl.vehicle_link  # noqa: F401  (pymavlink)
+    import swarm_sitl.vehicle_link
 
+    swarm_sitl.cli.build_parser()  # what the command line imports to build itself
     if config_path:
         from swarm_sitl.config import load_config
         from swarm_sitl.sim import run_sim
@@ -177,12 +178,23 @@ def serve(config_path: str | None) -> int:
 
 
 class ForkedProcess:
-    """The part of ``subprocess.Popen`` the supervisor uses, for a child of the fork server."""
+    """The part of ``subprocess.Popen`` the supervisor uses, for a child of the fork server.
 
-    def __init__(self, server: "ForkServer", pid: int):
+    Requests are pipelined: ``ForkServer.spawn`` returns at once and the pid is learnt from the
+    server's answers, in request order, when first needed (the supervisor asks for all of a run's
+    processes without waiting for each fork in turn)."""
+
+    def __init__(self, server: "ForkServer"):
         self.server = server
-        self.pid = pid
+        self._pid: int | None = None
         self.returncode: int | None = None
+        self.error = ""  #: why the server could not start it (then ``returncode`` is 1)
+
+    @property
+    def pid(self) -> int:
+        while self._pid is None and not self.error:
+            self.server.pump(block_s=1.0)
+        return -1 if self._pid is None else self._pid
 
     def poll(self) -> int | None:
         if self.returncode is None:
@@ -193,12 +205,12 @@ class ForkedProcess:
         end = None if timeout is None else time.monotonic() + timeout
         while self.poll() is None:
             if end is not None and time.monotonic() > end:
-                raise subprocess.TimeoutExpired(f"pid {self.pid}", timeout or 0.0)
+                raise subprocess.TimeoutExpired(f"pid {self._pid}", timeout or 0.0)
             time.sleep(0.005)
         return int(self.returncode)  # type: ignore[arg-type]
 
     def send_signal(self, sig: int) -> None:
-        if self.poll() is None:
+        if self.poll() is None and self.pid > 0:
             os.kill(self.pid, sig)
 
 
@@ -216,6 +228,7 @@ class ForkServer:
             start_new_session=True,
         )
         self._buf = b""
+        self._pending: list[ForkedProcess] = []  #: asked for, pid not yet answered, in order
         self._children: dict[int, ForkedProcess] = {}
         self._exits: dict[int, int] = {}
         self._log_path = log_path
@@ -249,7 +262,17 @@ class ForkServer:
         return msg
 
     def _take(self, msg: dict[str, Any]) -> None:
-        if "exit" in msg:
+        if "pid" in msg or "error" in msg:
+            child = self._pending.pop(0)
+            if "error" in msg:
+                child.error = str(msg["error"])
+                child.returncode = 1
+                return
+            child._pid = int(msg["pid"])
+            self._children[child._pid] = child
+            if child._pid in self._exits:
+                child.returncode = self._exits.pop(child._pid)
+        elif "exit" in msg:
             pid, code = int(msg["exit"]), int(msg["code"])
             if pid in self._children:
                 self._children[pid].returncode = code
@@ -257,37 +280,38 @@ class ForkServer:
                 self._exits[pid] = code
 
     def spawn(self, module: str, argv: list[str], env: dict[str, str], log_path: Path) -> ForkedProcess:
+        """Ask for a child; returns at once (its pid comes with the server's answer)."""
         assert self.proc.stdin is not None
         self._wait_ready()
-        request = {"module": module, "argv": argv, "env": env, "log": str(log_path)}
-        self.proc.stdin.write((json.dumps(request) + "\n").encode())
-        self.proc.stdin.flush()
-        while True:
-            msg = self._next(30.0)
-            if msg is None:
-                raise ForkServerError("the fork server ended or stopped answering")
-            if "error" in msg:
-                raise ForkServerError(f"the fork server cannot start {module}: {msg['error']}")
-            if "pid" in msg:
-                child = ForkedProcess(self, int(msg["pid"]))
-                self._children[child.pid] = child
-                if child.pid in self._exits:
-                    child.returncode = self._exits.pop(child.pid)
-                return child
-            self._take(msg)
-
-    def pump(self) -> None:
-        """Take every exit the server has reported; if the server itself is gone, its children are
-        too (they die with it): each still unaccounted for is marked killed."""
-        while True:
-            msg = self._next(0.0)
-            if msg is None:
-                break
-            self._take(msg)
         if self.proc.poll() is not None:
-            for child in self._children.values():
+            raise ForkServerError(
+                f"the fork server ended (code {self.proc.returncode}; log: {self._log_path})"
+            )
+        request = {"module": module, "argv": argv, "env": env, "log": str(log_path)}
+        child = ForkedProcess(self)
+        self._pending.append(child)
+        try:
+            self.proc.stdin.write((json.dumps(request) + "\n").encode())
+            self.proc.stdin.flush()
+        except OSError as e:
+            raise ForkServerError(f"the fork server stopped taking requests ({e.strerror})") from None
+        return child
+
+    def pump(self, block_s: float = 0.0) -> None:
+        """Take every answer and exit the server has reported (waiting up to ``block_s`` for the
+        first); if the server itself is gone, its children are too (they die with it): each still
+        unaccounted for is marked killed."""
+        msg = self._next(block_s)
+        while msg is not None:
+            self._take(msg)
+            msg = self._next(0.0)
+        if self.proc.poll() is not None:
+            for child in [*self._pending, *self._children.values()]:
                 if child.returncode is None:
                     child.returncode = -signal.SIGKILL
+                if child._pid is None and not child.error:
+                    child.error = "the fork server ended before it started this process"
+            self._pending.clear()
 
     def close(self) -> None:
         if self.proc.stdin is not None:

@@ -177,7 +177,7 @@ class Supervisor:
             if code != 0 or not c.must_finish:
                 if self.planned_exit(c, code):
                     continue
-                why = c.last_line()
+                why = getattr(c.proc, "error", "") or c.last_line()
                 raise RunFailedError(f"{c.name} exited with code {code}" + (f": {why}" if why else ""))
 
     def finished(self) -> bool:

@@ -51,6 +51,7 @@ def test_children_are_their_own_processes_with_their_exit_codes_and_logs(server,
 def test_a_child_runs_in_its_own_session_under_the_server_and_reports_its_signal(server, tmp_path):
     # a vehicle listening on a free port runs until it is told to stop
     vehicle = server.spawn("sim_vehicles", ["--id", "3", "--port", "0"], child_env(), tmp_path / "v.log")
+    assert vehicle.pid > 0  # the server's answer: from here the log exists
     end = time.monotonic() + 30
     while "listening on udp:127.0.0.1:" not in (tmp_path / "v.log").read_text():
         assert vehicle.poll() is None and time.monotonic() < end, (tmp_path / "v.log").read_text()
@@ -63,6 +64,7 @@ def test_a_child_runs_in_its_own_session_under_the_server_and_reports_its_signal
 
 def test_the_children_die_with_the_server(server, tmp_path):
     vehicle = server.spawn("sim_vehicles", ["--id", "4", "--port", "0"], child_env(), tmp_path / "v.log")
+    assert vehicle.pid > 0
     end = time.monotonic() + 30
     while "listening" not in (tmp_path / "v.log").read_text():
         assert time.monotonic() < end
@@ -78,6 +80,18 @@ def test_the_children_die_with_the_server(server, tmp_path):
 
 
 def test_a_request_it_cannot_serve_is_refused_and_the_server_serves_on(server, tmp_path):
-    with pytest.raises(RuntimeError, match="cannot open"):
-        server.spawn("swarm_sitl", ["--help"], child_env(), tmp_path / "no" / "such" / "dir.log")
+    refused = server.spawn("swarm_sitl", ["--help"], child_env(), tmp_path / "no" / "such" / "dir.log")
+    assert refused.wait(timeout=30) == 1 and "cannot open" in refused.error and refused.pid == -1
     assert server.spawn("swarm_sitl", ["--help"], child_env(), tmp_path / "ok.log").wait(timeout=30) == 0
+
+
+def test_requests_are_pipelined_and_answered_in_order(server, tmp_path):
+    """Ten children asked for at once: each gets its own pid and its own exit code, in order."""
+    kids = [
+        server.spawn("sim_vehicles", ["--id", str(256 + i)], child_env(), tmp_path / f"{i}.log")
+        for i in range(10)
+    ]
+    assert [k.wait(timeout=30) for k in kids] == [2] * 10
+    assert len({k.pid for k in kids}) == 10
+    for i in range(10):
+        assert f"--id must be 1..255, got {256 + i}" in (tmp_path / f"{i}.log").read_text()
