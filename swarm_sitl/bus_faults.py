@@ -248,6 +248,9 @@ class FaultyBus:
     def set_ready(self) -> None:
         self.inner.set_ready()
 
+    def drain(self, timeout_s: float) -> bool:
+        return self.inner.drain(timeout_s)
+
     def close(self) -> None:
         self.inner.close()
 
