@@ -79,7 +79,7 @@ def process_age_s() -> float:
 
 
 def mark(name: str) -> None:
-    _MARKS.setdefault(name, {"age_s": process_age_s(), "cpu_s": time.process_time()})
+    _MARKS.setdefault(name, {"age_s": process_age_s(), "cpu_s": time.process_time(), "unix_s": time.time()})
 
 
 def process_figures() -> dict[str, object]:

@@ -21,7 +21,6 @@ import csv
 import json
 import resource
 import statistics
-import tempfile
 import time
 from pathlib import Path
 from typing import Any
@@ -31,6 +30,7 @@ import yaml
 from swarm_sitl.config import SwarmConfig, parse_config
 from swarm_sitl.config_generator import generate
 from swarm_sitl.recording import procs_dir
+from swarm_sitl.supervisor import RunFailedError
 
 COLUMNS = (
     "followers",
@@ -178,22 +178,29 @@ def run_scale(ns: list[int], duration_s: float, out: Path | None, start: str = "
     )
     print(head)
     rows = []
-    with tempfile.TemporaryDirectory() as tmp:
-        for n in ns:
-            r = measure(n, duration_s, Path(tmp), start)
-            rows.append(r)
-            print(
-                f"{n:>3} {r['edges']:>5} {r['startup_s']:>7.2f} {r['run_x']:>6.2f} {r['e2e_x']:>6.2f} "
-                f"{r['sim_x']:>6.1f} {r['cpu_per_sim_s']:>6.2f} {r['sim_cpu_per_sim_s']:>6.3f} "
-                f"{r['overhead']:>5.1f} | {r['cpu_vehicles']:>5.2f} {r['cpu_controllers']:>5.2f} "
-                f"{r['cpu_leader']:>5.2f} {r['cpu_supervisor']:>5.2f} | {r['ctrl_main_s']:.2f}/"
-                f"{r['ctrl_zenoh_s']:.2f}/{r['ctrl_ready_s']:.2f}, {r['vehicle_ready_s']:.2f}",
-                flush=True,
-            )
+    runs = out / "runs"  # each N's run directory is kept: its logs say where a failed run stopped
+    failed = []
+    for n in ns:
+        try:
+            r = measure(n, duration_s, runs, start)
+        except RunFailedError as e:  # the others are still measured; the exit code says it
+            failed.append(n)
+            print(f"{n:>3} the run failed: {e} (run directory {runs / f'n{n}'})", flush=True)
+            continue
+        rows.append(r)
+        print(
+            f"{n:>3} {r['edges']:>5} {r['startup_s']:>7.2f} {r['run_x']:>6.2f} {r['e2e_x']:>6.2f} "
+            f"{r['sim_x']:>6.1f} {r['cpu_per_sim_s']:>6.2f} {r['sim_cpu_per_sim_s']:>6.3f} "
+            f"{r['overhead']:>5.1f} | {r['cpu_vehicles']:>5.2f} {r['cpu_controllers']:>5.2f} "
+            f"{r['cpu_leader']:>5.2f} {r['cpu_supervisor']:>5.2f} | {r['ctrl_main_s']:.2f}/"
+            f"{r['ctrl_zenoh_s']:.2f}/{r['ctrl_ready_s']:.2f}, {r['vehicle_ready_s']:.2f}",
+            flush=True,
+        )
     with open(out / "scale.csv", "w", newline="") as f:
         w = csv.DictWriter(f, fieldnames=COLUMNS)
         w.writeheader()
         w.writerows(rows)
-    _plot(rows, out / "scale.png")
+    if rows:
+        _plot(rows, out / "scale.png")
     print(f"wrote {out / 'scale.csv'} and {out / 'scale.png'}")
-    return 0
+    return 1 if failed else 0
