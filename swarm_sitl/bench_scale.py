@@ -12,6 +12,9 @@ and written to ``OUT/scale.csv`` and ``OUT/scale.png``:
   (``overhead``: what the transport costs);
 - the CPU split per process kind (vehicles, controllers, leader, supervisor: this process, which
   routes zenoh) per simulated second;
+- with ``--scale-realtime S``: each N again in real time for S seconds, late ticks and when
+  setpoints go out (median, p99), up to the first N with over 10 % late ticks or a failed run
+  (named: where the machine saturates);
 - where a controller's start-up goes (medians over controllers, ``sim_vehicles.lifeline.mark``):
   ``main`` (interpreter and imports), ``zenoh`` (session opened), ``ready`` (MAVLink link, vehicle
   parameters, kernels loaded, subscriptions declared), and the last vehicle's age at ready.
@@ -25,6 +28,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import yaml
 
 from swarm_sitl.config import SwarmConfig, parse_config
@@ -134,6 +138,26 @@ def measure(n: int, duration_s: float, work: Path, start: str = "fork") -> dict[
     }
 
 
+SATURATED_LATE = 0.10  #: a real-time run with more late ticks than this: the machine is saturated
+
+
+def measure_realtime(n: int, duration_s: float, work: Path, start: str = "fork") -> dict[str, float]:
+    """Late ticks and when setpoints go out after their tick's instant, in real time."""
+    from swarm_sitl.bench import _late_ticks
+    from swarm_sitl.supervisor import run_swarm
+
+    cfg = scale_config(n, duration_s, start)
+    run_dir = work / f"rt{n}"
+    run_swarm(cfg, run_dir, lockstep=False)
+    late, total, done = _late_ticks(cfg, run_dir)
+    return {
+        "followers": n,
+        "late_share": late / total,
+        "out_median_ms": float(np.median(done)) * 1e3,
+        "out_p99_ms": float(np.percentile(done, 99)) * 1e3,
+    }
+
+
 def _plot(rows: list[dict[str, float]], path: Path) -> None:
     import matplotlib
 
@@ -164,7 +188,11 @@ def _plot(rows: list[dict[str, float]], path: Path) -> None:
     plt.close(fig)
 
 
-def run_scale(ns: list[int], duration_s: float, out: Path | None, start: str = "fork") -> int:
+def run_scale(
+    ns: list[int], duration_s: float, out: Path | None, start: str = "fork", realtime_s: float = 0.0
+) -> int:
+    """Lockstep for every N, then (``realtime_s`` > 0) real time for every N up to the first that
+    saturates the machine."""
     out = out or Path("runs") / f"bench-scale-{time.strftime('%Y%m%d-%H%M%S')}"
     out.mkdir(parents=True, exist_ok=True)
     print(
@@ -180,6 +208,7 @@ def run_scale(ns: list[int], duration_s: float, out: Path | None, start: str = "
     rows = []
     runs = out / "runs"  # each N's run directory is kept: its logs say where a failed run stopped
     failed = []
+    realtime: list[dict[str, float]] = []
     for n in ns:
         try:
             r = measure(n, duration_s, runs, start)
@@ -196,6 +225,34 @@ def run_scale(ns: list[int], duration_s: float, out: Path | None, start: str = "
             f"{r['ctrl_zenoh_s']:.2f}/{r['ctrl_ready_s']:.2f}, {r['vehicle_ready_s']:.2f}",
             flush=True,
         )
+    if realtime_s > 0:
+        print(
+            f"real time, {realtime_s:g} s runs: late ticks (skipped, or setpoint out after the next "
+            f"tick's instant) and when setpoints go out after their tick's instant"
+        )
+        for n in ns:
+            try:
+                rt = measure_realtime(n, realtime_s, runs, start)
+            except RunFailedError as e:
+                failed.append(n)
+                print(f"{n:>3} the real-time run failed: {e}", flush=True)
+                print(f"    saturated at {n} followers (the run failed): larger N not run")
+                break
+            realtime.append(rt)
+            print(
+                f"{n:>3} late {100 * rt['late_share']:6.2f} %   setpoint out median "
+                f"{rt['out_median_ms']:.2f} ms, p99 {rt['out_p99_ms']:.2f} ms",
+                flush=True,
+            )
+            if rt["late_share"] > SATURATED_LATE:
+                print(
+                    f"    saturated at {n} followers (over {100 * SATURATED_LATE:g} % late): larger N not run"
+                )
+                break
+        with open(out / "realtime.csv", "w", newline="") as f:
+            w = csv.DictWriter(f, fieldnames=["followers", "late_share", "out_median_ms", "out_p99_ms"])
+            w.writeheader()
+            w.writerows(realtime)
     with open(out / "scale.csv", "w", newline="") as f:
         w = csv.DictWriter(f, fieldnames=COLUMNS)
         w.writeheader()

@@ -360,6 +360,8 @@ def cmd_bench(args: argparse.Namespace) -> int:
 
     if args.repeats < 1 or not args.realtime_s > 0 or not 0 < args.scale_duration < math.inf:
         raise CliError("--repeats must be >= 1, --realtime-s and --scale-duration > 0")
+    if not 0 <= args.scale_realtime < math.inf:
+        raise CliError(f"--scale-realtime must be >= 0 s, got {args.scale_realtime}")
     if args.against and not (Path(args.against) / "swarm_sitl" / "__init__.py").is_file():
         raise CliError(f"--against {args.against}: not a swarm-sitl source tree (no swarm_sitl/__init__.py)")
     try:
@@ -372,7 +374,8 @@ def cmd_bench(args: argparse.Namespace) -> int:
                 raise CliError(f"--scale takes follower counts like 4,8,16, got {args.scale!r}") from None
             if not ns or min(ns) < 1 or max(ns) > 254:
                 raise CliError(f"--scale: follower counts must be 1..254, got {args.scale!r}")
-            return run_scale(ns, args.scale_duration, Path(args.out) if args.out else None, args.scale_start)
+            out = Path(args.out) if args.out else None
+            return run_scale(ns, args.scale_duration, out, args.scale_start, args.scale_realtime)
         if args.against:
             from swarm_sitl.bench import compare_trees
 
@@ -490,6 +493,13 @@ def build_parser() -> argparse.ArgumentParser:
         help="instead: lockstep cost against sim for generated layered swarms of these sizes (4,8,16,32,64)",
     )
     b.add_argument("--scale-duration", type=float, default=20.0, help="simulated seconds per --scale run")
+    b.add_argument(
+        "--scale-realtime",
+        type=float,
+        default=0.0,
+        metavar="S",
+        help="--scale: also run each N for S s in real time (late ticks, setpoint latency)",
+    )
     b.add_argument(
         "--scale-start", choices=("fork", "spawn"), default="fork", help="--scale: run.start of the runs"
     )

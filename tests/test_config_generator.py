@@ -126,7 +126,8 @@ def test_bench_scale_writes_its_table_with_consistent_figures(tmp_path, capsys):
     import csv
 
     assert main(["bench", "--scale", "0,2"]) == 2  # one line, no run
-    assert main(["bench", "--scale", "2", "--scale-duration", "1", "--out", str(tmp_path)]) == 0
+    args = ["bench", "--scale", "2", "--scale-duration", "1", "--scale-realtime", "2", "--out", str(tmp_path)]
+    assert main(args) == 0
     (row,) = list(csv.DictReader((tmp_path / "scale.csv").read_text().splitlines()))
     r = {k: float(v) for k, v in row.items()}
     assert r["followers"] == 2 and r["edges"] == 2  # layered: the leader feeds both
@@ -136,4 +137,7 @@ def test_bench_scale_writes_its_table_with_consistent_figures(tmp_path, capsys):
     assert r["overhead"] == pytest.approx(r["cpu_per_sim_s"] / r["sim_cpu_per_sim_s"], rel=1e-9)
     assert 0 < r["ctrl_main_s"] <= r["ctrl_zenoh_s"] <= r["ctrl_ready_s"]  # in the order they happen
     assert (tmp_path / "scale.png").stat().st_size > 10_000
+    (rt,) = list(csv.DictReader((tmp_path / "realtime.csv").read_text().splitlines()))
+    assert int(rt["followers"]) == 2 and 0.0 <= float(rt["late_share"]) <= 1.0
+    assert 0 < float(rt["out_median_ms"]) <= float(rt["out_p99_ms"])
     assert "scale.csv" in capsys.readouterr().out
