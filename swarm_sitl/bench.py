@@ -85,7 +85,7 @@ def _sim_in_process_s(cfg: SwarmConfig) -> float:
     return time.monotonic() - t0
 
 
-def _late_ticks(cfg: SwarmConfig, run_dir: Path) -> tuple[int, int, np.ndarray]:
+def late_ticks(cfg: SwarmConfig, run_dir: Path) -> tuple[int, int, np.ndarray]:
     """``(late, expected, done_s of every recorded tick)`` over all controllers of a real-time run."""
     n = cfg.n_control_steps + 1
     c = CONTROLLER_COLUMNS.index("done_s")
@@ -136,7 +136,7 @@ def run_bench(cfg_path: str, scale_cfg_path: str, repeats: int = 3, realtime_s: 
         run = big.model_copy(update={"run": big.run.model_copy(update={"realtime_ticks": ticks})})
         with tempfile.TemporaryDirectory() as tmp:
             run_swarm(run, Path(tmp), lockstep=False)
-            late, total, done = _late_ticks(run, Path(tmp))
+            late, total, done = late_ticks(run, Path(tmp))
         print(
             f"  real time, {scale_cfg_path} ({big.n_followers} followers, {realtime_s:g} s, period "
             f"{dt_ms:g} ms, {ticks} ticks): {late} of {total} ticks late = {100 * late / total:.2f} % "

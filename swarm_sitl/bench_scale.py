@@ -143,13 +143,13 @@ SATURATED_LATE = 0.10  #: a real-time run with more late ticks than this: the ma
 
 def measure_realtime(n: int, duration_s: float, work: Path, start: str = "fork") -> dict[str, float]:
     """Late ticks and when setpoints go out after their tick's instant, in real time."""
-    from swarm_sitl.bench import _late_ticks
+    from swarm_sitl.bench import late_ticks
     from swarm_sitl.supervisor import run_swarm
 
     cfg = scale_config(n, duration_s, start)
     run_dir = work / f"rt{n}"
     run_swarm(cfg, run_dir, lockstep=False)
-    late, total, done = _late_ticks(cfg, run_dir)
+    late, total, done = late_ticks(cfg, run_dir)
     return {
         "followers": n,
         "late_share": late / total,
