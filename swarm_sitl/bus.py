@@ -17,6 +17,7 @@ neighbour's table (one estimate of tick 2^32-1 would otherwise stay the newest f
 """
 
 import json
+import re
 import time
 from collections.abc import Callable, Iterable
 from typing import Any, Protocol
@@ -77,10 +78,24 @@ def open_router(listen: list[str], users_file: str, access_control: dict[str, An
     return zenoh.open(c)
 
 
+def open_plain_router(listen: list[str], users_file: str | None = None) -> zenoh.Session:
+    """A router for a swarm over several hosts (``swarm-sitl router``): no access control, and
+    authentication against ``users_file`` if given (``user:password`` lines)."""
+    c = zenoh.Config()
+    c.insert_json5("mode", json.dumps("router"))
+    c.insert_json5("listen/endpoints", json.dumps(listen))
+    c.insert_json5("scouting/multicast/enabled", "false")
+    if users_file:
+        c.insert_json5("transport/auth/usrpwd", json.dumps({"dictionary_file": users_file}))
+    return zenoh.open(c)
+
+
 def error_line(e: Exception) -> str:
     """The first line of a zenoh error (they carry the Rust source location after it)."""
     text = str(e).strip()
-    return text.splitlines()[0] if text else type(e).__name__
+    if not text:
+        return type(e).__name__
+    return re.sub(r"\s+at\s+/\S+:\d+\.?$", "", text.splitlines()[0])  # not zenoh's source location
 
 
 def _matched(pub: zenoh.Publisher) -> bool:

@@ -6,6 +6,7 @@ Every user mistake ends with one line on stderr (``swarm-sitl: error: ...``) and
 import argparse
 import json
 import math
+import signal
 import sys
 import time
 from collections.abc import Sequence
@@ -56,6 +57,28 @@ def cmd_check(args: argparse.Namespace) -> int:
         cfg.build_graph(), cfg.gain_dict(), cfg.trajectory(), cfg.gravity_mps2, max(cfg.duration_s, 200.0)
     )
     print(render(report, args.config, cfg.estimator.bracket))
+    return 0
+
+
+def cmd_router(args: argparse.Namespace) -> int:
+    from swarm_sitl.bus import error_line, open_plain_router
+
+    if args.users_file and not Path(args.users_file).is_file():
+        raise CliError(f"--users-file {args.users_file}: no such file")
+    try:
+        router = open_plain_router(args.listen, args.users_file)
+    except Exception as e:  # zenoh raises its own error type for a bad or busy endpoint
+        raise CliError(f"cannot open a zenoh router on {' '.join(args.listen)}: {error_line(e)}") from None
+    auth = f"sessions authenticate against {args.users_file}" if args.users_file else "no authentication"
+    print(f"zenoh router listening on {' '.join(args.listen)} ({auth}); Ctrl-C stops it", flush=True)
+    signal.signal(signal.SIGTERM, lambda signum, frame: sys.exit(0))
+    try:
+        while True:
+            time.sleep(0.5)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        router.close()
     return 0
 
 
@@ -297,7 +320,7 @@ def cmd_vehicles(args: argparse.Namespace) -> int:
     sup = Supervisor(run_dir)
     try:
         key_file = signing_key_file(cfg, run_dir, own_vehicles=False)
-        endpoints, ground = start_vehicles(sup, cfg, args.lockstep, args.base_port, key_file)
+        endpoints, ground = start_vehicles(sup, cfg, args.lockstep, args.base_port, key_file, args.host)
         clock = f"lockstep, {cfg.control_dt_s:g} s per setpoint" if args.lockstep else "real time"
         print(f"{cfg.n_followers} vehicles of {cfg.name} ({clock}); .tlogs in {run_dir / 'tlogs'}")
         print(f"  MAVLink 2 signing with {key_file}" if key_file else "  MAVLink 2 signing off")
@@ -444,6 +467,12 @@ def build_parser() -> argparse.ArgumentParser:
     v.add_argument("config")
     v.add_argument("--lockstep", action="store_true", help="step one control period per stamped setpoint")
     _base_port(v)
+    v.add_argument(
+        "--host",
+        default="127.0.0.1",
+        help="address the vehicles bind (default 127.0.0.1; another host's controllers need this "
+        "machine's address on their network)",
+    )
     v.add_argument("--out", help="directory for .tlogs and logs (default runs/<name>-vehicles-<time>)")
     v.set_defaults(func=cmd_vehicles)
 
@@ -464,6 +493,22 @@ def build_parser() -> argparse.ArgumentParser:
     cs.set_defaults(func=cmd_controllers)
 
     add_node_parsers(sub, lambda a: _with_duration(_load(a.config), a.duration))
+
+    ro = sub.add_parser("router", help="a zenoh router for a swarm spread over several hosts")
+    ro.add_argument(
+        "--listen",
+        nargs="+",
+        required=True,
+        metavar="ENDPOINT",
+        help="zenoh endpoints to listen on, e.g. tcp/192.168.1.10:7447",
+    )
+    ro.add_argument(
+        "--users-file",
+        metavar="FILE",
+        help="user:password lines; sessions must authenticate as one (zenoh usrpwd). Without it the "
+        "router takes any session: use it only on a network you trust",
+    )
+    ro.set_defaults(func=cmd_router)
 
     pl = sub.add_parser("plot", help="draw the figures of a run directory as PNG")
     pl.add_argument("run_dir")

@@ -278,6 +278,7 @@ def vehicle_argv(
     key_file: Path | None = None,
     gcs_port: int = 0,
     gcs_remote: str | None = None,
+    host: str = "127.0.0.1",
 ) -> list[str]:
     f, v, g = cfg.follower(i), cfg.vehicle, cfg.gains
     argv = [
@@ -285,7 +286,7 @@ def vehicle_argv(
         "--id",
         str(i),
         "--host",
-        "127.0.0.1",
+        host,
         "--port",
         str(port),
         "--position",
@@ -333,11 +334,17 @@ def vehicle_argv(
 
 
 def start_vehicles(
-    sup: Supervisor, cfg: SwarmConfig, lockstep: bool, base_port: int = 0, key_file: Path | None = None
+    sup: Supervisor,
+    cfg: SwarmConfig,
+    lockstep: bool,
+    base_port: int = 0,
+    key_file: Path | None = None,
+    host: str = "127.0.0.1",
 ) -> tuple[dict[int, str], dict[int, str]]:
-    """Spawn one vehicle per follower, signing with ``key_file``'s key if given, on the ports of
-    ``base_port`` (``PX4_BASE_PORT``; 0: free ports); returns ``{id: "udp:host:port"}`` of their
-    controller ports and of their ground-station ports once each is listening."""
+    """Spawn one vehicle per follower bound to ``host``, signing with ``key_file``'s key if given,
+    on the ports of ``base_port`` (``PX4_BASE_PORT``; 0: free ports); returns ``{id:
+    "udp:host:port"}`` of their controller ports and of their ground-station ports once each is
+    listening."""
     run_dir = sup.run_dir
     (run_dir / "tlogs").mkdir(parents=True, exist_ok=True)
     procs_dir(run_dir).mkdir(parents=True, exist_ok=True)
@@ -345,7 +352,7 @@ def start_vehicles(
     for f in cfg.followers:
         port, gcs_port = (base_port + f.id, base_port + GCS_PORT_OFFSET + f.id) if base_port else (0, 0)
         argv = vehicle_argv(
-            cfg, f.id, run_dir, lockstep, port, key_file, gcs_port, GCS_REMOTE if base_port else None
+            cfg, f.id, run_dir, lockstep, port, key_file, gcs_port, GCS_REMOTE if base_port else None, host
         )
         children[f.id] = sup.spawn(f"vehicle_{f.id}", argv, False)
     endpoints: dict[int, str] = {}

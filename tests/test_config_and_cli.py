@@ -223,3 +223,14 @@ def test_any_duration_gives_one_error_line(capsys, duration):
     assert code == 2 and "Traceback" not in err
     errors = [line for line in err.splitlines() if "error:" in line]
     assert len(errors) == 1 and "--duration" in errors[0], err
+
+
+def test_router_refuses_a_bad_endpoint_or_users_file_in_one_line(capsys, tmp_path):
+    assert main(["router", "--listen", "tcp/999.1.1.1:7447"]) == 2
+    assert main(["router", "--listen", "tcp/127.0.0.1:0", "--users-file", str(tmp_path / "nope")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 2 and err[0].startswith(
+        "swarm-sitl: error: cannot open a zenoh router on tcp/999.1.1.1"
+    )
+    assert "/.cargo/" not in err[0]  # zenoh's source location is not the user's business
+    assert err[1] == f"swarm-sitl: error: --users-file {tmp_path / 'nope'}: no such file"
