@@ -76,13 +76,14 @@ def _sim_wall_s(cfg_path: str, repeats: int) -> list[float]:
     return out
 
 
-def _sim_in_process_s(cfg: SwarmConfig) -> float:
+def sim_in_process_s(cfg: SwarmConfig) -> tuple[float, float]:
+    """Wall and CPU seconds of ``sim`` of ``cfg`` in this process, its kernels loaded first."""
     from swarm_sitl.sim import run_sim
 
     run_sim(cfg, n_steps=2)  # kernels loaded
-    t0 = time.monotonic()
+    t0, c0 = time.monotonic(), time.process_time()
     run_sim(cfg)
-    return time.monotonic() - t0
+    return time.monotonic() - t0, time.process_time() - c0
 
 
 def late_ticks(cfg: SwarmConfig, run_dir: Path) -> tuple[int, int, np.ndarray]:
@@ -113,7 +114,7 @@ def run_bench(cfg_path: str, scale_cfg_path: str, repeats: int = 3, realtime_s: 
         f"of {repeats} -> {cfg.duration_s / best:.1f}x real time (target: >= 20x, i.e. < "
         f"{cfg.duration_s / 20:.1f} s)"
     )
-    sim_s = _sim_in_process_s(cfg)
+    sim_s, _ = sim_in_process_s(cfg)
     sim_cost = sim_s / cfg.duration_s
     with tempfile.TemporaryDirectory() as tmp:
         lock = [run_swarm(cfg, Path(tmp) / f"l{r}", lockstep=True) for r in range(repeats)]

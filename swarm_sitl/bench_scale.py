@@ -31,6 +31,7 @@ from typing import Any
 import numpy as np
 import yaml
 
+from swarm_sitl.bench import late_ticks, sim_in_process_s
 from swarm_sitl.config import SwarmConfig, parse_config
 from swarm_sitl.config_generator import generate
 from swarm_sitl.recording import procs_dir
@@ -68,16 +69,6 @@ def _cpu_s(who: int) -> float:
     return r.ru_utime + r.ru_stime
 
 
-def _sim_floor(cfg: SwarmConfig) -> tuple[float, float]:
-    """Wall and CPU seconds of ``sim`` of ``cfg`` in this process, kernels loaded."""
-    from swarm_sitl.sim import run_sim
-
-    run_sim(cfg, n_steps=2)
-    t0, c0 = time.monotonic(), time.process_time()
-    run_sim(cfg)
-    return time.monotonic() - t0, time.process_time() - c0
-
-
 def _process_stats(run_dir: Path) -> dict[str, list[dict[str, Any]]]:
     kinds: dict[str, list[dict[str, Any]]] = {"vehicle": [], "controller": [], "leader": []}
     for path in sorted(procs_dir(run_dir).glob("*.stats.json")):
@@ -100,7 +91,7 @@ def measure(n: int, duration_s: float, work: Path, start: str = "fork") -> dict[
     from swarm_sitl.supervisor import run_swarm
 
     cfg = scale_config(n, duration_s, start)
-    sim_wall, sim_cpu = _sim_floor(cfg)
+    sim_wall, sim_cpu = sim_in_process_s(cfg)
     self0 = _cpu_s(resource.RUSAGE_SELF)
     t0 = time.monotonic()
     res = run_swarm(cfg, work / f"n{n}", lockstep=True)
@@ -143,7 +134,6 @@ SATURATED_LATE = 0.10  #: a real-time run with more late ticks than this: the ma
 
 def measure_realtime(n: int, duration_s: float, work: Path, start: str = "fork") -> dict[str, float]:
     """Late ticks and when setpoints go out after their tick's instant, in real time."""
-    from swarm_sitl.bench import late_ticks
     from swarm_sitl.supervisor import run_swarm
 
     cfg = scale_config(n, duration_s, start)
