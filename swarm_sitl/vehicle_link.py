@@ -407,7 +407,9 @@ class VehicleLink:
         self, command: int, timeout_s: float, *params: float, before: Callable[[], None] | None = None
     ) -> None:
         """Send ``command`` until it is answered (``before()`` ahead of each try); ``LinkError``
-        if it is refused or never answered."""
+        if it is refused or never answered. A temporary refusal is tried again, as MAVSDK does,
+        until ``timeout_s``: on a lossy link the datagram ``before()`` sent (the setpoint that
+        OFFBOARD needs) can be lost while the command gets through."""
         name = mav.enums["MAV_CMD"][command].name
         self.acks.pop(command, None)  # an answer to an earlier command of the same kind is not ours
 
@@ -416,6 +418,12 @@ class VehicleLink:
                 before()
             self.command(command, *params)
 
-        self._wait(lambda: command in self.acks, f"COMMAND_ACK for {name}", timeout_s, send)
+        def answered() -> bool:
+            if self.acks.get(command) == mav.MAV_RESULT_TEMPORARILY_REJECTED and time.monotonic() < end:
+                del self.acks[command]  # try again at the next resend
+            return command in self.acks
+
+        end = time.monotonic() + timeout_s
+        self._wait(answered, f"COMMAND_ACK for {name}", timeout_s, send)
         if self.acks[command] != mav.MAV_RESULT_ACCEPTED:
             raise LinkError(f"{self.url}: {name} refused (MAV_RESULT {self.acks[command]})")

@@ -174,3 +174,34 @@ def test_garbage_bytes_are_dropped_and_the_vehicle_keeps_talking(vehicle):
     conn.mav.heartbeat_send(mavutil.mavlink.MAV_TYPE_GCS, mavutil.mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0)
     assert conn.wait_heartbeat(timeout=5) is not None
     conn.close()
+
+
+def test_offboard_refused_for_a_lost_setpoint_is_asked_again(vehicle):
+    """On a lossy link the setpoint sent ahead of DO_SET_MODE can be lost while the command gets
+    through: the vehicle answers TEMPORARILY_REJECTED (PX4's rule), and the controller's link asks
+    again, with a setpoint ahead, rather than give up the run."""
+    from swarm_sitl.vehicle_link import VehicleLink
+
+    port, _, _ = vehicle
+    link = VehicleLink(f"udpout:127.0.0.1:{port}", 3, stamp_arrivals=False)
+    sent_clock, answers = [], []
+    real_clock, real_handle = link.send_clock_only, link._handle
+
+    def lossy_clock(ms):  # the first setpoint is lost on the way
+        sent_clock.append(ms)
+        if len(sent_clock) > 1:
+            real_clock(ms)
+
+    def handle(m, arrival):
+        if m.get_type() == "COMMAND_ACK" and m.command == mavutil.mavlink.MAV_CMD_DO_SET_MODE:
+            answers.append(m.result)
+        real_handle(m, arrival)
+
+    link.send_clock_only, link._handle = lossy_clock, handle
+    try:
+        link.connect(10.0)
+        link.arm_offboard(10.0)
+    finally:
+        link.close()
+    assert answers[0] == mavutil.mavlink.MAV_RESULT_TEMPORARILY_REJECTED
+    assert answers[-1] == mavutil.mavlink.MAV_RESULT_ACCEPTED and len(sent_clock) >= 2
