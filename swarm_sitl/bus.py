@@ -6,9 +6,13 @@ delay, partitions) are a wrapper of this interface (``bus_faults.FaultyBus``), n
 every estimate a ``ZenohNodeBus`` decodes goes through ``deliver``, which files it (``file``) or,
 under a wrapper, hands it to the fault stage that files it when the plan lets it through.
 
-Received samples wait in zenoh's own FIFO channels (on the Rust side) until the loop calls
-``poll()``, which decodes and files them on the loop's thread: no Python callback thread, so no GIL
-hand-over per message (which costs more than the message on a loaded 2-core machine). Malformed
+Received samples are queued by a callback on zenoh's thread, which does nothing else: it appends
+the sample to one queue and writes a byte to a pipe (``fileno()``), so a loop waiting for an
+estimate blocks in ``select`` on that pipe beside its MAVLink socket and wakes when one comes, not
+every few hundred microseconds to look (which cost most of a controller's CPU per tick). ``poll()``
+decodes and files the queue on the loop's thread. The queue holds at most ``QUEUE_CAPACITY``
+samples: past it the callback waits (zenoh's reliable transport then backs up to the sender, as a
+full channel did). Malformed
 payloads are dropped and counted in ``dropped``; well-formed ones that cannot be what their key
 says (another sender, a tick that does not follow the last one taken from that sender, or past
 ``horizon()``) are dropped and counted per sender in ``refused``. Access control (``zenoh_access``)
@@ -16,9 +20,12 @@ keeps anyone but the sender off a key; these checks keep a faulty sender from fr
 neighbour's table (one estimate of tick 2^32-1 would otherwise stay the newest for good).
 """
 
+import contextlib
 import json
+import os
 import re
 import time
+from collections import deque
 from collections.abc import Callable, Iterable
 from typing import Any, Protocol
 
@@ -31,7 +38,6 @@ from swarm_sitl.bus_codec import (
     decode_estimate,
     decode_start,
     decode_status,
-    decode_waiting,
     encode_estimate,
     encode_start,
     encode_status,
@@ -113,9 +119,12 @@ def _publisher(session: zenoh.Session, key: str) -> zenoh.Publisher:
     )
 
 
-CHANNEL_CAPACITY = 4096
+QUEUE_CAPACITY = 4096  #: samples a bus holds before its callback waits for the loop to take them
+QUEUE_FULL_WAIT_S = 0.0005  #: how often a callback held by a full queue looks again [s]
 DRAIN_POLL_S = 0.01  #: how often ``drain`` looks whether its receivers have gone [s]
-RARE_EVERY = 16  #: liveliness and start are read on one ``poll()`` in this many
+
+# what a queued sample came on
+_ESTIMATE, _STATUS, _ALIVE, _START = range(4)
 
 
 class NodeBus(Protocol):
@@ -125,6 +134,10 @@ class NodeBus(Protocol):
         ...
 
     def poll(self) -> None: ...
+    def fileno(self) -> int:
+        """A file descriptor that turns readable when something has come for ``poll()``."""
+        ...
+
     def publish(self, msg: EstimateMessage) -> None: ...
     def publish_status(self, status: Status) -> None: ...
     def settled(self, src: int, step: int) -> bool:
@@ -187,27 +200,49 @@ class ZenohNodeBus:
         self.horizon: Callable[[], int] = lambda: 2**32
         self._epoch: float | None = None
         self._token: Any = None
-        self._polls = 0
         #: where each decoded estimate goes: ``file`` (a fault wrapper puts its stage here)
         self.deliver: Callable[[EstimateMessage], None] = self.file
         self._pubs = [_publisher(session, zenoh_keys.edge(swarm, node, d)) for d in out_dests]
         self._status_pub = _publisher(session, zenoh_keys.status(swarm, node)) if node > 0 else None
 
-        def fifo() -> Any:
-            return zenoh.handlers.FifoChannel(CHANNEL_CAPACITY)
+        self._queue: deque[tuple[int, int, Any]] = deque()  #: (what, node, sample), in arrival order
+        self._open = True
+        self._wake_r, self._wake_w = os.pipe()
+        os.set_blocking(self._wake_r, False)
+        os.set_blocking(self._wake_w, False)
+
+        def on(what: int, n: int) -> Callable[[Any], None]:
+            return lambda sample: self._queued(what, n, sample)
 
         sources = list(in_sources)
         self._est_subs = [
-            (s, session.declare_subscriber(zenoh_keys.edge(swarm, s, node), fifo())) for s in sources
+            (s, session.declare_subscriber(zenoh_keys.edge(swarm, s, node), on(_ESTIMATE, s)))
+            for s in sources
         ]
         self._alive_subs = [
-            (s, session.liveliness().declare_subscriber(zenoh_keys.alive(swarm, s), fifo(), history=True))
+            (
+                s,
+                session.liveliness().declare_subscriber(
+                    zenoh_keys.alive(swarm, s), on(_ALIVE, s), history=True
+                ),
+            )
             for s in dict.fromkeys([*sources, *watch_alive])
         ]
         self._status_subs = [
-            (f, session.declare_subscriber(zenoh_keys.status(swarm, f), fifo())) for f in watch_status
+            (f, session.declare_subscriber(zenoh_keys.status(swarm, f), on(_STATUS, f))) for f in watch_status
         ]
-        self._start_sub = [session.declare_subscriber(zenoh_keys.start(swarm), fifo())]
+        self._start_sub = [session.declare_subscriber(zenoh_keys.start(swarm), on(_START, 0))]
+
+    def _queued(self, what: int, n: int, sample: Any) -> None:
+        """On zenoh's thread: queue the sample and wake the loop (nothing else, to hold the GIL
+        for as short as can be)."""
+        queue = self._queue
+        while len(queue) >= QUEUE_CAPACITY and self._open:
+            time.sleep(QUEUE_FULL_WAIT_S)
+        queue.append((what, n, sample))
+        if self._open:
+            with contextlib.suppress(OSError):  # the pipe is full (the loop will wake) or closed
+                os.write(self._wake_w, b"\0")
 
     @classmethod
     def of(cls, session: zenoh.Session, swarm: str, keys: NodeKeys) -> "ZenohNodeBus":
@@ -221,45 +256,58 @@ class ZenohNodeBus:
         """Whether an estimate of ``step`` is counted (``counted_steps``)."""
         return self.counted_steps is None or step in self.counted_steps
 
+    def fileno(self) -> int:
+        return self._wake_r
+
     def poll(self) -> None:
-        """File everything that has arrived (liveliness and the start signal every few calls: this
-        runs on every wake-up of a loop and costs it most in Python overhead)."""
-        for src, sub in self._est_subs:
-            while (sample := sub.try_recv()) is not None:
+        """File everything that has arrived, in the order it came."""
+        with contextlib.suppress(OSError):  # nothing to read (or closed)
+            os.read(self._wake_r, 65536)
+        queue = self._queue
+        while queue:
+            what, n, sample = queue.popleft()
+            if what == _ESTIMATE:
+                self._take_estimate(n, sample)
+            elif what == _STATUS:
+                self._take_status(n, sample)
+            elif what == _ALIVE:
+                if sample.kind == zenoh.SampleKind.DELETE:
+                    self._lost.add(n)
+                else:
+                    self._lost.discard(n)
+                    self._puts[n] = self._puts.get(n, 0) + 1
+            else:
                 try:
-                    m = decode_estimate(sample.payload.to_bytes())
+                    epoch = decode_start(sample.payload.to_bytes())
                 except PayloadError:
                     self.dropped += 1
                     continue
-                if m.src != src or not self._in_sequence(src, m.step):
-                    self.refused[src] = self.refused.get(src, 0) + 1
-                    continue
-                if self.counts(m.step):
-                    self.received[m.src] = self.received.get(m.src, 0) + 1
-                self.deliver(m)
-        for f, sub in self._status_subs:
-            statuses, bad = decode_waiting(sub, decode_status)
-            self.dropped += bad
-            for st in statuses:
-                if st.follower != f or st.step > self.horizon():
-                    self.refused[f] = self.refused.get(f, 0) + 1
-                    continue
-                self._progress[f] = max(self._progress.get(f, -1), st.step)
-        self._polls += 1
-        if self._polls % RARE_EVERY and self._epoch is not None:
+                if self._epoch is None:
+                    self._epoch = epoch
+
+    def _take_estimate(self, src: int, sample: Any) -> None:
+        try:
+            m = decode_estimate(sample.payload.to_bytes())
+        except PayloadError:
+            self.dropped += 1
             return
-        for src, sub in self._alive_subs:
-            while (sample := sub.try_recv()) is not None:
-                if sample.kind == zenoh.SampleKind.DELETE:
-                    self._lost.add(src)
-                else:
-                    self._lost.discard(src)
-                    self._puts[src] = self._puts.get(src, 0) + 1
-        for sub in self._start_sub:
-            epochs, bad = decode_waiting(sub, decode_start)
-            self.dropped += bad
-            if epochs and self._epoch is None:
-                self._epoch = epochs[0]
+        if m.src != src or not self._in_sequence(src, m.step):
+            self.refused[src] = self.refused.get(src, 0) + 1
+            return
+        if self.counts(m.step):
+            self.received[m.src] = self.received.get(m.src, 0) + 1
+        self.deliver(m)
+
+    def _take_status(self, f: int, sample: Any) -> None:
+        try:
+            st = decode_status(sample.payload.to_bytes())
+        except PayloadError:
+            self.dropped += 1
+            return
+        if st.follower != f or st.step > self.horizon():
+            self.refused[f] = self.refused.get(f, 0) + 1
+            return
+        self._progress[f] = max(self._progress.get(f, -1), st.step)
 
     def _in_sequence(self, src: int, step: int) -> bool:
         """Whether ``src``'s estimate of ``step`` can follow the last one taken from it (a later
@@ -322,11 +370,6 @@ class ZenohNodeBus:
         ready: once per incarnation of its process."""
         return self._puts.get(node, 0)
 
-    def poll_liveliness(self) -> None:
-        """Read liveliness changes now (``poll`` reads them one call in ``RARE_EVERY``)."""
-        self._polls = -1
-        self.poll()
-
     def set_ready(self) -> None:
         if self._token is None:
             self._token = self.session.liveliness().declare_token(zenoh_keys.alive(self.swarm, self.node))
@@ -361,6 +404,10 @@ class ZenohNodeBus:
         if self._token is not None:
             self._token.undeclare()
             self._token = None
+        if self._open:
+            self._open = False
+            os.close(self._wake_r)
+            os.close(self._wake_w)
 
 
 def publish_start(session: zenoh.Session, swarm: str, epoch_unix_s: float) -> None:

@@ -182,6 +182,9 @@ class FaultyBus:
         self.inner.poll()
         self._release()
 
+    def fileno(self) -> int:
+        return self.inner.fileno()
+
     def settled(self, src: int, step: int) -> bool:
         if self._arrived.get(src, -1) >= step:
             return True
@@ -220,7 +223,7 @@ class FaultyBus:
                         f"(waited {time.monotonic() - start:.1f} s)"
                     )
                 time.sleep(POLL_S)
-                self.inner.poll_liveliness()
+                self.inner.poll()
 
     def publish_status(self, status: Status) -> None:
         self.inner.publish_status(status)

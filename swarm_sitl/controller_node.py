@@ -44,7 +44,6 @@ from swarm_sitl.follower import EstimateMessage, VehicleSample
 from swarm_sitl.follower_law import CTRL_SIZE, OUT_SIZE
 from swarm_sitl.neighbour_inbox import NeighbourInbox
 from swarm_sitl.node_clock import (
-    POLL_S,
     RunClock,
     StallError,
     linger_after_last_tick,
@@ -74,6 +73,9 @@ SAMPLE_WAIT_S = 0.05
 #: lockstep: how long a tick still waits for an estimate from a node whose liveliness token has gone
 #: (its last messages may come after the token's removal) before the run is called stalled
 LOST_GRACE_S = 1.0
+#: longest block while waiting on the vehicle's socket and the bus, each of which wakes the wait
+#: when something comes: how often resends and stall checks get their turn [s]
+IDLE_S = 0.05
 
 
 class NodeReport(NamedTuple):
@@ -91,7 +93,7 @@ def wait_for_start(bus: NodeBus, link: VehicleLink | None, timeout_s: float, who
     """Declare this node ready and wait for the supervisor's start; returns the epoch [UNIX s]."""
     mark("ready")
     bus.set_ready()
-    fds = [link.fileno()] if link else []
+    fds = [bus.fileno(), *([link.fileno()] if link else [])]
 
     def read() -> None:
         bus.poll()
@@ -103,7 +105,13 @@ def wait_for_start(bus: NodeBus, link: VehicleLink | None, timeout_s: float, who
             link.send_heartbeat_if_due()
 
     wait_until(
-        lambda: bus.start_epoch() is not None, read, fds, timeout_s, lambda: f"{who}: no start signal", idle
+        lambda: bus.start_epoch() is not None,
+        read,
+        fds,
+        timeout_s,
+        lambda: f"{who}: no start signal",
+        idle,
+        block_s=lambda: IDLE_S,
     )
     epoch = bus.start_epoch()
     assert epoch is not None
@@ -115,10 +123,11 @@ class _Inputs:
 
     def __init__(self, who: str, link: VehicleLink, bus: NodeBus, sources: list[int], dt: float):
         self.who, self.link, self.bus, self.sources, self.dt = who, link, bus, sources, dt
-        self.fds = [link.fileno()]
-        # real time: a link with kernel arrival stamps is read at the tick only (no wake-up per
-        # datagram); any other link is read as its datagrams come, to stamp them
-        self.tick_fds = [] if link.stamps_arrivals else self.fds
+        # lockstep: either input wakes the wait
+        self.fds = [link.fileno(), bus.fileno()]
+        # real time: the bus is read at the tick only, and so is a link with kernel arrival stamps
+        # (no wake-up per datagram); any other link is read as its datagrams come, to stamp them
+        self.tick_fds = [] if link.stamps_arrivals else [link.fileno()]
         self.epoch_mono = math.nan
         self.offset_s = math.inf  #: vehicle boot time -> swarm time (real time)
         self._last_ms = -1
@@ -181,12 +190,6 @@ class _Inputs:
         if now - self._lost_since > LOST_GRACE_S:
             raise StallError(self.missing())
 
-    def block_s(self) -> float:
-        """Poll the bus often only while an estimate is missing; a vehicle sample wakes us itself."""
-        if not self._lacking():
-            return min(RESEND_AFTER_S, 0.05)
-        return POLL_S
-
     def newest_lockstep(self, src: int) -> EstimateMessage | None:
         """The in-neighbour's estimate of tick ``k - 1``, or (a fault plan hid or held it) the
         newest it may use now."""
@@ -203,12 +206,12 @@ class _Inputs:
         if self.link.sample_ms != self.t_ms:
             # the vehicle answers the setpoint just sent: a read before its datagram comes finds
             # nothing, so block for it first, then read both inputs once
-            readable = bool(select.select(self.fds, [], [], SAMPLE_WAIT_S)[0])
+            readable = self.link.fileno() in select.select(self.fds[:1], [], [], SAMPLE_WAIT_S)[0]
             self.bus.poll()
             self.read_link(readable)
         if not self.ready():
             wait_until(
-                self.ready, self.read, self.fds, timeout_s, self.missing, self.idle, block_s=self.block_s
+                self.ready, self.read, self.fds, timeout_s, self.missing, self.idle, block_s=lambda: IDLE_S
             )
 
     def send(self, cmd: AttitudeCommand, time_boot_ms: int) -> None:

@@ -27,6 +27,9 @@ class _Bus:
     def lost(self) -> set[int]:
         return set(self.gone)
 
+    def fileno(self) -> int:
+        return -1
+
 
 class _Link:
     stamps_arrivals = True
