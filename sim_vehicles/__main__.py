@@ -25,10 +25,12 @@ from sim_vehicles.rigid_body import make_state
 from sim_vehicles.wire_format import command_roundtrip
 
 
-def _warm_up(params: VehicleParams, gains: AttitudeGains, attitude_hz: float) -> None:
+def warm_up(params: VehicleParams, gains: AttitudeGains, attitude_hz: float) -> None:
     """Load the compiled kernels for the argument types they will see (the plant's for the hover
     command's read-only zero rates, then a command from the wire; the per-tick frames'), so the
-    first setpoints are not held up by it."""
+    first setpoints are not held up by it. Kernels are typed by their arguments, not their
+    values: a fork server that calls this once with any valid vehicle spares every vehicle it
+    forks the loads."""
     ap = Autopilot(params, gains, make_state([0.0, 0.0, 0.0]), 1.0 / attitude_hz)
     ap.advance(1)
     ap.set_command(command_roundtrip(ap.command, params.max_thrust_N))
@@ -159,7 +161,7 @@ def main(argv: list[str] | None = None) -> int:
         ports = f"{a.port}" + (f" or {a.gcs_port}" if a.gcs_port is not None else "")
         print(f"sim_vehicles: error: cannot bind udp {a.host}:{ports} ({e.strerror})", file=sys.stderr)
         return 2
-    _warm_up(params, gains, a.attitude_hz)
+    warm_up(params, gains, a.attitude_hz)
     mark("ready")
     gcs = ep.gcs_address
     tail = f", ground station on udp:{gcs[0]}:{gcs[1]}" if gcs else ""

@@ -234,3 +234,18 @@ def test_router_refuses_a_bad_endpoint_or_users_file_in_one_line(capsys, tmp_pat
     )
     assert "/.cargo/" not in err[0]  # zenoh's source location is not the user's business
     assert err[1] == f"swarm-sitl: error: --users-file {tmp_path / 'nope'}: no such file"
+
+
+def test_a_config_loaded_again_unchanged_is_the_same_object_and_a_changed_one_is_parsed(tmp_path):
+    """The fork server loads the run's config once and its children get that object (see
+    ``config._LAST``); a file that changed in between is read anew."""
+    from swarm_sitl.config import load_config
+
+    path = tmp_path / "c.yaml"
+    text = (CONFIGS / "paper.yaml").read_text()
+    path.write_text(text)
+    first = load_config(path)
+    assert load_config(path) is first
+    path.write_text(text.replace("duration_s: 60.0", "duration_s: 7.0"))
+    changed = load_config(path)
+    assert changed is not first and changed.duration_s == 7.0 and first.duration_s == 60.0
