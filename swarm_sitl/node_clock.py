@@ -2,8 +2,9 @@
 
 Both clocks use it. In lockstep a loop waits for its inputs (``wait_until``), in real time for the
 next tick's instant (``sleep_until``); either way it keeps reading its inputs while it waits. The
-loop blocks in ``select`` on its file descriptors (the MAVLink link) for at most ``poll_s`` at a
-time and drains its bus in between, all on one thread: no lock and no GIL hand-over per message.
+loop blocks in ``select`` on its file descriptors (the MAVLink link, and in lockstep the bus's wake
+pipe, ``NodeBus.fileno``) and reads its inputs when one wakes it, all on one thread: the bus's
+zenoh callback only queues a sample and writes the pipe.
 """
 
 import math
@@ -11,7 +12,7 @@ import select
 import time
 from collections.abc import Callable, Sequence
 
-POLL_S = 0.0005  #: longest block between two reads of the bus [s]
+POLL_S = 0.0005  #: longest block between two reads when an input has no file descriptor [s]
 #: real time: how long after the last tick's instant a node that is done keeps its zenoh session [s]
 END_LINGER_S = 0.25
 #: real time: how far ahead of a node's clock another's message may be [s] (their clocks are one
@@ -95,8 +96,9 @@ def wait_until(
 ) -> None:
     """Read inputs until ``ready()``; ``on_idle()`` every ``idle_every_s``; ``StallError`` after
     ``timeout_s`` with ``describe()`` saying what is missing. Between reads it blocks on ``fds``
-    for ``block_s()`` (default ``POLL_S``): longer when only an fd input is missing, since a
-    datagram wakes the select anyway and each needless wake-up costs a loaded machine."""
+    for ``block_s()`` (default ``POLL_S``, for inputs without a descriptor): longer when every input
+    has one, since its data wakes the select anyway and each needless wake-up costs a loaded
+    machine."""
     start = time.monotonic()
     next_idle = start + idle_every_s
     while True:
