@@ -7,8 +7,8 @@ every estimate a ``ZenohNodeBus`` decodes goes through ``deliver``, which files 
 under a wrapper, hands it to the fault stage that files it when the plan lets it through.
 
 Received samples are queued by a callback on zenoh's thread, which does nothing else: it appends
-the sample to one queue and writes a byte to a pipe (``fileno()``), so a loop waiting for an
-estimate blocks in ``select`` on that pipe beside its MAVLink socket and wakes when one comes, not
+the sample to one queue and writes a byte to a local socket pair (``fileno()``), so a loop waiting
+for an estimate blocks in ``select`` on it beside its MAVLink socket and wakes when one comes, not
 every few hundred microseconds to look (which cost most of a controller's CPU per tick). ``poll()``
 decodes and files the queue on the loop's thread. The queue holds at most ``QUEUE_CAPACITY``
 samples: past it the callback waits (zenoh's reliable transport then backs up to the sender, as a
@@ -22,8 +22,8 @@ neighbour's table (one estimate of tick 2^32-1 would otherwise stay the newest f
 
 import contextlib
 import json
-import os
 import re
+import socket
 import time
 from collections import deque
 from collections.abc import Callable, Iterable
@@ -207,9 +207,11 @@ class ZenohNodeBus:
 
         self._queue: deque[tuple[int, int, Any]] = deque()  #: (what, node, sample), in arrival order
         self._open = True
-        self._wake_r, self._wake_w = os.pipe()
-        os.set_blocking(self._wake_r, False)
-        os.set_blocking(self._wake_w, False)
+        # a socket pair rather than a pipe: a closed socket object refuses a late callback's write
+        # (its descriptor is -1 from then on) where a closed pipe's number could be another file's
+        self._wake_r, self._wake_w = socket.socketpair()
+        self._wake_r.setblocking(False)
+        self._wake_w.setblocking(False)
 
         def on(what: int, n: int) -> Callable[[Any], None]:
             return lambda sample: self._queued(what, n, sample)
@@ -241,8 +243,8 @@ class ZenohNodeBus:
             time.sleep(QUEUE_FULL_WAIT_S)
         queue.append((what, n, sample))
         if self._open:
-            with contextlib.suppress(OSError):  # the pipe is full (the loop will wake) or closed
-                os.write(self._wake_w, b"\0")
+            with contextlib.suppress(OSError):  # full (the loop will wake anyway) or closed
+                self._wake_w.send(b"\0")
 
     @classmethod
     def of(cls, session: zenoh.Session, swarm: str, keys: NodeKeys) -> "ZenohNodeBus":
@@ -257,12 +259,12 @@ class ZenohNodeBus:
         return self.counted_steps is None or step in self.counted_steps
 
     def fileno(self) -> int:
-        return self._wake_r
+        return self._wake_r.fileno()
 
     def poll(self) -> None:
         """File everything that has arrived, in the order it came."""
         with contextlib.suppress(OSError):  # nothing to read (or closed)
-            os.read(self._wake_r, 65536)
+            self._wake_r.recv(65536)
         queue = self._queue
         while queue:
             what, n, sample = queue.popleft()
@@ -406,8 +408,8 @@ class ZenohNodeBus:
             self._token = None
         if self._open:
             self._open = False
-            os.close(self._wake_r)
-            os.close(self._wake_w)
+            self._wake_r.close()
+            self._wake_w.close()
 
 
 def publish_start(session: zenoh.Session, swarm: str, epoch_unix_s: float) -> None:

@@ -3,8 +3,8 @@
 Both clocks use it. In lockstep a loop waits for its inputs (``wait_until``), in real time for the
 next tick's instant (``sleep_until``); either way it keeps reading its inputs while it waits. The
 loop blocks in ``select`` on its file descriptors (the MAVLink link, and in lockstep the bus's wake
-pipe, ``NodeBus.fileno``) and reads its inputs when one wakes it, all on one thread: the bus's
-zenoh callback only queues a sample and writes the pipe.
+socket, ``NodeBus.fileno``) and reads its inputs when one wakes it, all on one thread: the bus's
+zenoh callback only queues a sample and writes that socket.
 """
 
 import math

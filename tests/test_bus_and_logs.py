@@ -233,3 +233,28 @@ def test_the_horizon_is_the_run_in_lockstep_and_half_a_second_ahead_in_real_time
     lead = round(HORIZON_LEAD_S / 0.01)
     assert 200 + lead <= rt.horizon(6000) <= 200 + lead + 5
     assert rt.horizon(210) == 210
+
+
+def test_the_bus_descriptor_wakes_a_select_when_an_estimate_comes_and_is_quiet_after_poll():
+    """What a lockstep controller blocks on (``NodeBus.fileno``): readable once an estimate has
+    come, quiet again once ``poll`` has taken it, and closed with the bus."""
+    import select
+
+    session = open_session(ZenohSpec(mode="peer", listen=[]))
+    try:
+        bus = ZenohNodeBus(session, "t", 2, [1], [])
+        fd = bus.fileno()
+        assert select.select([fd], [], [], 0.05)[0] == []  # nothing yet
+        bus.poll()
+        session.put(
+            zenoh_keys.edge("t", 1, 2), encode_estimate(EstimateMessage(1, 3, 0.03, *[np.ones(3)] * 4))
+        )
+        assert select.select([fd], [], [], 5.0)[0] == [fd]
+        bus.poll()
+        assert bus.estimate(1, 3) is not None
+        assert select.select([fd], [], [], 0.05)[0] == []  # taken: no wake-up left behind
+        bus.close()
+        session.put(zenoh_keys.edge("t", 1, 2), b"late")  # a closed bus takes nothing, quietly
+        time.sleep(0.05)
+    finally:
+        session.close()
