@@ -7,7 +7,8 @@ every estimate a ``ZenohNodeBus`` decodes goes through ``deliver``, which files 
 under a wrapper, hands it to the fault stage that files it when the plan lets it through.
 
 Received samples are queued by a callback on zenoh's thread, which does nothing else: it appends
-the sample to one queue and writes a byte to a local socket pair (``fileno()``), so a loop waiting
+the sample to one queue and, unless one is pending, writes a byte to a local socket pair
+(``fileno()``), so a loop waiting
 for an estimate blocks in ``select`` on it beside its MAVLink socket and wakes when one comes, not
 every few hundred microseconds to look (which cost most of a controller's CPU per tick). ``poll()``
 decodes and files the queue on the loop's thread. The queue holds at most ``QUEUE_CAPACITY``
@@ -207,6 +208,7 @@ class ZenohNodeBus:
 
         self._queue: deque[tuple[int, int, Any]] = deque()  #: (what, node, sample), in arrival order
         self._open = True
+        self._woken = False  #: a wake-up byte is out that no poll() has answered yet
         # a socket pair rather than a pipe: a closed socket object refuses a late callback's write
         # (its descriptor is -1 from then on) where a closed pipe's number could be another file's
         self._wake_r, self._wake_w = socket.socketpair()
@@ -242,7 +244,11 @@ class ZenohNodeBus:
         while len(queue) >= QUEUE_CAPACITY and self._open:
             time.sleep(QUEUE_FULL_WAIT_S)
         queue.append((what, n, sample))
-        if self._open:
+        # one byte per batch: once one is out, the loop's next poll() takes everything queued
+        # (it reads the byte, clears the flag, then empties the queue: a sample queued before the
+        # flag is cleared is taken by that poll, one queued after it sends its own byte)
+        if not self._woken and self._open:
+            self._woken = True
             with contextlib.suppress(OSError):  # full (the loop will wake anyway) or closed
                 self._wake_w.send(b"\0")
 
@@ -265,6 +271,7 @@ class ZenohNodeBus:
         """File everything that has arrived, in the order it came."""
         with contextlib.suppress(OSError):  # nothing to read (or closed)
             self._wake_r.recv(65536)
+        self._woken = False
         queue = self._queue
         while queue:
             what, n, sample = queue.popleft()

@@ -239,6 +239,7 @@ def test_the_bus_descriptor_wakes_a_select_when_an_estimate_comes_and_is_quiet_a
     """What a lockstep controller blocks on (``NodeBus.fileno``): readable once an estimate has
     come, quiet again once ``poll`` has taken it, and closed with the bus."""
     import select
+    import socket
 
     session = open_session(ZenohSpec(mode="peer", listen=[]))
     try:
@@ -253,6 +254,18 @@ def test_the_bus_descriptor_wakes_a_select_when_an_estimate_comes_and_is_quiet_a
         bus.poll()
         assert bus.estimate(1, 3) is not None
         assert select.select([fd], [], [], 0.05)[0] == []  # taken: no wake-up left behind
+        for k in (4, 5, 6):  # a batch between two polls: one wake-up, every estimate taken
+            session.put(
+                zenoh_keys.edge("t", 1, 2),
+                encode_estimate(EstimateMessage(1, k, 0.01 * k, *[np.ones(3)] * 4)),
+            )
+        deadline = time.monotonic() + 5.0
+        while len(bus._queue) < 3 and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert len(bus._wake_r.recv(16, socket.MSG_PEEK)) == 1
+        bus.poll()
+        assert all(bus.estimate(1, k) is not None for k in (4, 5, 6))
+        assert select.select([fd], [], [], 0.05)[0] == []
         bus.close()
         session.put(zenoh_keys.edge("t", 1, 2), b"late")  # a closed bus takes nothing, quietly
         time.sleep(0.05)
