@@ -8,17 +8,18 @@ under a wrapper, hands it to the fault stage that files it when the plan lets it
 
 Received samples are queued by a callback on zenoh's thread, which does nothing else: it appends
 the sample to one queue and, unless one is pending, writes a byte to a local socket pair
-(``fileno()``), so a loop waiting
-for an estimate blocks in ``select`` on it beside its MAVLink socket and wakes when one comes, not
-every few hundred microseconds to look (which cost most of a controller's CPU per tick). ``poll()``
-decodes and files the queue on the loop's thread. The queue holds at most ``QUEUE_CAPACITY``
-samples: past it the callback waits (zenoh's reliable transport then backs up to the sender, as a
-full channel did). Malformed
-payloads are dropped and counted in ``dropped``; well-formed ones that cannot be what their key
-says (another sender, a tick that does not follow the last one taken from that sender, or past
-``horizon()``) are dropped and counted per sender in ``refused``. Access control (``zenoh_access``)
-keeps anyone but the sender off a key; these checks keep a faulty sender from freezing a
-neighbour's table (one estimate of tick 2^32-1 would otherwise stay the newest for good).
+(``fileno()``). A loop waiting for an estimate blocks in ``select`` on it beside its MAVLink socket
+and wakes when one comes, not every few hundred microseconds to look (which cost most of a
+controller's CPU per tick). ``poll()`` decodes and files the queue on the loop's thread. The queue
+holds at most ``QUEUE_CAPACITY`` samples: past it the callback waits (zenoh's reliable transport
+then backs up to the sender, as a full channel did).
+
+Malformed payloads are dropped and counted in ``dropped``; well-formed ones that cannot be what
+their key says (another sender, a tick that does not follow the last one taken from that sender,
+or past ``horizon()``) are dropped and counted per sender in ``refused``. Access control
+(``zenoh_access``) keeps anyone but the sender off a key; these checks keep a faulty sender from
+freezing a neighbour's table (one estimate of tick 2^32-1 would otherwise stay the newest for
+good).
 """
 
 import contextlib

@@ -206,7 +206,7 @@ class _Inputs:
         if self.link.sample_ms != self.t_ms:
             # the vehicle answers the setpoint just sent: a read before its datagram comes finds
             # nothing, so block for it first, then read both inputs once
-            readable = self.link.fileno() in select.select(self.fds[:1], [], [], SAMPLE_WAIT_S)[0]
+            readable = bool(select.select([self.link.fileno()], [], [], SAMPLE_WAIT_S)[0])
             self.bus.poll()
             self.read_link(readable)
         if not self.ready():
