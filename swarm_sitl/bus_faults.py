@@ -27,10 +27,10 @@ Time, for delays and for the plan's ``from_s``/``until_s``:
 - real time: from its arrival (run seconds since the start epoch) plus the delay.
 """
 
+import contextlib
 import heapq
 import math
 import os
-import select
 import signal
 import time
 from dataclasses import dataclass, field
@@ -41,10 +41,12 @@ from swarm_sitl.bus_codec import PayloadError, Status, decode_estimate, encode_e
 from swarm_sitl.fault_plan import FaultPlan, FaultSpec, down_at, fate, uniform
 from swarm_sitl.fault_plan import edge_channel as channel_of
 from swarm_sitl.follower import EstimateMessage
-from swarm_sitl.node_clock import POLL_S, RunClock, StallError
+from swarm_sitl.node_clock import POLL_S, RunClock, StallError, wait_until
 
 _CORRUPT_BYTE = 3  #: salt of the draw that picks the byte a corruption flips
-DELIVERY_POLL_S = 0.05  #: longest wait between two looks at the out-neighbours' progress [s]
+#: longest block between two looks at the out-neighbours' progress before a planned kill (the
+#: bus's descriptor wakes it when a status comes) [s]
+DELIVERY_POLL_S = 0.05
 
 
 @dataclass
@@ -217,16 +219,23 @@ class FaultyBus:
         on a loaded machine). So the kill loses what the plan says, the ticks from ``step`` on,
         and the run is the same every time."""
         inner = self.inner
-        end = time.monotonic() + self.stall_timeout_s
-        while time.monotonic() < end:
-            inner.poll()
+
+        def delivered() -> bool:
             gone = inner.lost()
-            if all(
+            return all(
                 inner.progress(d) >= step or d in gone or down_at(self.outages.get(d, []), step)
                 for d in self.dests
-            ):
-                return
-            select.select([inner.fileno()], [], [], DELIVERY_POLL_S)
+            )
+
+        with contextlib.suppress(StallError):  # a reader that is stuck does not keep this node alive
+            wait_until(
+                delivered,
+                inner.poll,
+                [inner.fileno()],
+                self.stall_timeout_s,
+                lambda: "",
+                block_s=lambda: DELIVERY_POLL_S,
+            )
 
     def _await_readers(self, step: int) -> None:
         """Before publishing ``step``: every out-neighbour restarted by then has done its first
