@@ -29,7 +29,7 @@ import socket
 import time
 from collections import deque
 from collections.abc import Callable, Iterable
-from typing import Any, Protocol
+from typing import Any, Protocol, TypeVar
 
 import zenoh
 
@@ -120,6 +120,8 @@ def _publisher(session: zenoh.Session, key: str) -> zenoh.Publisher:
         key, congestion_control=zenoh.CongestionControl.BLOCK, reliability=zenoh.Reliability.RELIABLE
     )
 
+
+T = TypeVar("T")
 
 QUEUE_CAPACITY = 4096  #: samples a bus holds before its callback waits for the loop to take them
 QUEUE_FULL_WAIT_S = 0.0005  #: how often a callback held by a full queue looks again [s]
@@ -287,19 +289,21 @@ class ZenohNodeBus:
                     self._lost.discard(n)
                     self._puts[n] = self._puts.get(n, 0) + 1
             else:
-                try:
-                    epoch = decode_start(sample.payload.to_bytes())
-                except PayloadError:
-                    self.dropped += 1
-                    continue
-                if self._epoch is None:
+                epoch = self._decoded(decode_start, sample)
+                if epoch is not None and self._epoch is None:
                     self._epoch = epoch
 
-    def _take_estimate(self, src: int, sample: Any) -> None:
+    def _decoded(self, decode: Callable[[bytes], T], sample: Any) -> T | None:
+        """The sample's payload decoded, or None if it is malformed (dropped and counted)."""
         try:
-            m = decode_estimate(sample.payload.to_bytes())
+            return decode(sample.payload.to_bytes())
         except PayloadError:
             self.dropped += 1
+            return None
+
+    def _take_estimate(self, src: int, sample: Any) -> None:
+        m = self._decoded(decode_estimate, sample)
+        if m is None:
             return
         if m.src != src or not self._in_sequence(src, m.step):
             self.refused[src] = self.refused.get(src, 0) + 1
@@ -309,10 +313,8 @@ class ZenohNodeBus:
         self.deliver(m)
 
     def _take_status(self, f: int, sample: Any) -> None:
-        try:
-            st = decode_status(sample.payload.to_bytes())
-        except PayloadError:
-            self.dropped += 1
+        st = self._decoded(decode_status, sample)
+        if st is None:
             return
         if st.follower != f or st.step > self.horizon():
             self.refused[f] = self.refused.get(f, 0) + 1
