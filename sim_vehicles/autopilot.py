@@ -18,7 +18,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from sim_vehicles.jit import kernel
+from sim_vehicles.jit import kernel, kernel_array
 from sim_vehicles.params import AttitudeGains, VehicleParams
 from sim_vehicles.rigid_body import QUAT, STATE_SIZE, rk4_step
 from sim_vehicles.torque_law import torque
@@ -80,9 +80,7 @@ def _kernel_arg(v: np.ndarray) -> np.ndarray:
     every vehicle process)."""
     if v is _ZERO3:  # the default rates of nearly every command: no new array per setpoint
         return _ZERO3_ARG
-    if type(v) is np.ndarray and v.dtype == np.float64 and v.flags.c_contiguous and v.flags.writeable:
-        return v  # already so (what the MAVLink endpoint decodes): no call into np.require
-    return np.require(v, dtype=float, requirements=["C", "W"])
+    return kernel_array(v)
 
 
 class Autopilot:

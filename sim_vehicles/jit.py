@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import Any
 
 import numba
+import numpy as np
 from numba import njit as _njit
 
 _PACKAGES = ("sim_vehicles", "swarm_sitl")
@@ -41,3 +42,12 @@ def kernel(fn: Callable[..., Any]) -> Any:
     callers check results for finiteness where it matters (``FollowerController.step``).
     """
     return _njit(cache=True, fastmath=False, nogil=True, error_model="numpy")(fn)
+
+
+def kernel_array(v: Any) -> np.ndarray:
+    """``v`` as a writable C-contiguous float64 array, itself if it is one already: a kernel is
+    compiled once per argument type, and a read-only or strided array is another type (each
+    process would load a second version of the kernel the first time it met one)."""
+    if type(v) is np.ndarray and v.dtype == np.float64 and v.flags.c_contiguous and v.flags.writeable:
+        return v
+    return np.require(v, dtype=np.float64, requirements=["C", "W"])

@@ -23,7 +23,7 @@ from typing import NamedTuple
 import numpy as np
 
 from sim_vehicles.autopilot import AttitudeCommand
-from sim_vehicles.jit import kernel
+from sim_vehicles.jit import kernel, kernel_array
 
 _S = math.sqrt(0.5)
 
@@ -165,12 +165,10 @@ def command_of(decoded: np.ndarray) -> AttitudeCommand:
     )
 
 
-def _vec(v: np.ndarray) -> np.ndarray:
-    return np.ascontiguousarray(v, dtype=np.float64)
-
-
 def encode_attitude_target(cmd: AttitudeCommand, max_thrust_N: float) -> AttitudeTargetFields:
-    v = attitude_target_fields(_vec(cmd.q_c), _vec(cmd.omega_c_B), float(cmd.thrust_N), float(max_thrust_N))
+    v = attitude_target_fields(
+        kernel_array(cmd.q_c), kernel_array(cmd.omega_c_B), float(cmd.thrust_N), float(max_thrust_N)
+    )
     f = v.tolist()
     return AttitudeTargetFields((f[0], f[1], f[2], f[3]), (f[4], f[5], f[6]), f[7])
 
@@ -194,4 +192,4 @@ def command_roundtrip(cmd: AttitudeCommand, max_thrust_N: float) -> AttitudeComm
 
 def encode_attitude_quaternion(q_WB: np.ndarray, omega_B: np.ndarray) -> tuple[float, ...]:
     """``(q1..q4, rollspeed, pitchspeed, yawspeed)`` NED/FRD float32."""
-    return tuple(attitude_quaternion_fields(_vec(q_WB), _vec(omega_B)).tolist())
+    return tuple(attitude_quaternion_fields(kernel_array(q_WB), kernel_array(omega_B)).tolist())

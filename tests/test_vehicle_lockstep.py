@@ -221,3 +221,52 @@ def test_a_lockstep_vehicle_asks_for_batch_scheduling_and_a_real_time_one_does_n
             proc.terminate()
             proc.wait(timeout=10)
     assert policies == {True: os.SCHED_BATCH, False: os.sched_getscheduler(0)}  # real time: inherited
+
+
+_NO_LOAD_AFTER_WARM_UP = """
+import socket
+import sys
+import numba
+from sim_vehicles.__main__ import warm_up
+from sim_vehicles.autopilot import Autopilot
+from sim_vehicles.mavlink_endpoint import VehicleEndpoint
+from sim_vehicles.params import AttitudeGains, VehicleParams
+from sim_vehicles.rigid_body import make_state
+
+def loaded():
+    return {
+        f"{m}.{name}": len(obj.overloads)
+        for m in list(sys.modules)
+        if m.startswith(("sim_vehicles", "swarm_sitl"))
+        for name, obj in list(vars(sys.modules[m]).items())
+        if isinstance(obj, numba.core.registry.CPUDispatcher)
+    }
+
+params, gains = VehicleParams(0.85, (0.05, 0.05, 0.09), 25.0), AttitudeGains(16.0, 16.0)
+warm_up(params, gains, 1000.0)
+gcs = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+gcs.bind(("127.0.0.1", 0))
+ep = VehicleEndpoint(
+    Autopilot(params, gains, make_state([1.0, 2.0, 3.0]), 0.001), 7, lockstep_period_s=0.01,
+    gcs_bind=("127.0.0.1", 0), gcs_remote=gcs.getsockname(),
+)
+before = loaded()
+for armed in (False, True):  # every stream of both ports, on the ground and flying
+    ep.armed = armed
+    for _ in range(150):
+        ep.step(10)
+after = loaded()
+ep.close()
+print({k: (before.get(k, 0), n) for k, n in after.items() if n != before.get(k, 0)})
+"""
+
+
+def test_a_warmed_vehicle_loads_no_kernel_in_flight():
+    """``warm_up`` (run once in the fork server) loads every kernel a vehicle's streams use: a
+    kernel loaded in flight costs each vehicle tens of milliseconds of CPU in its run."""
+    out = subprocess.run(
+        [sys.executable, "-c", _NO_LOAD_AFTER_WARM_UP], capture_output=True, text=True, timeout=120
+    )
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == "{}", f"kernels loaded after warm_up (before, after): {out.stdout}"
+
