@@ -442,7 +442,10 @@ class VehicleEndpoint:
                     self.flush()
 
     def _stream_gcs(self) -> None:
-        if self._gcs is not None and self.autopilot.time_s + 1e-9 >= self._gcs["_next_any_s"]:
+        """The ground-station port's streams, once it has someone to send them to (``gcs_remote``
+        or a ground station that spoke): until then there is nothing to pack."""
+        gcs = self._gcs
+        if gcs is not None and gcs["peer"] is not None and self.autopilot.time_s + 1e-9 >= gcs["_next_any_s"]:
             with self._gcs_port():
                 self._stream()
                 self.flush()

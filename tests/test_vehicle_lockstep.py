@@ -270,3 +270,29 @@ def test_a_warmed_vehicle_loads_no_kernel_in_flight():
     assert out.returncode == 0, out.stderr
     assert out.stdout.strip() == "{}", f"kernels loaded after warm_up (before, after): {out.stdout}"
 
+
+def test_a_ground_station_port_packs_nothing_until_someone_speaks_to_it(tmp_path):
+    """No ``gcs_remote`` and no ground station yet: its streams are not packed (32 vehicles of a
+    swarm each packed ~40 frames a second for nobody); the first heartbeat starts them."""
+    params = VehicleParams(0.85, (0.05, 0.05, 0.09), 25.0)
+    ap = Autopilot(params, AttitudeGains(16.0, 16.0), make_state([1.0, 2.0, 3.0]), 0.001)
+    ep = VehicleEndpoint(
+        ap, 7, lockstep_period_s=0.01, gcs_bind=("127.0.0.1", 0), tlog_path=tmp_path / "v.tlog"
+    )
+    gcs = mavutil.mavlink_connection(f"udpout:127.0.0.1:{ep.gcs_address[1]}", source_system=255)
+    try:
+        for _ in range(100):  # 1 s
+            ep.step(10)
+        assert ep._gcs["mav"].total_packets_sent == 0
+        gcs.mav.heartbeat_send(mav.MAV_TYPE_GCS, mav.MAV_AUTOPILOT_INVALID, 0, 0, 0)
+        time.sleep(0.05)
+        ep.poll_gcs()
+        for _ in range(100):
+            ep.step(10)
+        got: dict[str, int] = {}
+        while (m := gcs.recv_match(blocking=True, timeout=0.2)) is not None:
+            got[m.get_type()] = got.get(m.get_type(), 0) + 1
+        assert got.get("HEARTBEAT", 0) >= 1 and 10 <= got.get("ATTITUDE", 0) <= 20, got  # 15 Hz for 1 s
+    finally:
+        gcs.close()
+        ep.close()
