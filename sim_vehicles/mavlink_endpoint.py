@@ -96,7 +96,7 @@ from sim_vehicles import tick_frames, udp_arrival
 from sim_vehicles.autopilot import AttitudeCommand, Autopilot
 from sim_vehicles.event_log import EventLog
 from sim_vehicles.failsafe import ACTION_HOLD, FAILSAFE_PERIOD_S, failsafe_command, hold_at
-from sim_vehicles.mavlink_signing import Signer, Verifier
+from sim_vehicles.mavlink_signing import SIGNATURE_LEN, Signer, Verifier
 from sim_vehicles.quaternion import rotation_matrix
 from sim_vehicles.rigid_body import QUAT, RATE
 from sim_vehicles.row_log import RowLog
@@ -495,16 +495,23 @@ class VehicleEndpoint:
             self._tlog.write(b"".join([stamp + frame for frame in frames]))
         if self.peer is not None:
             self.stats.tx_messages += len(frames)
-            if self._signer is not None:
-                frames = [self._signer.seal(frame) for frame in frames]
-            packet = b""
-            for frame in frames:
-                if len(packet) + len(frame) > MAX_DATAGRAM:
-                    self.sock.sendto(packet, self.peer)
-                    packet = b""
-                packet += frame
-            self.sock.sendto(packet, self.peer)
+            joined = b"".join(frames)
+            signatures = SIGNATURE_LEN * len(frames) if self._signer is not None else 0
+            if len(joined) + signatures <= MAX_DATAGRAM:  # the usual pass: signed in one call
+                self.sock.sendto(self._sealed(joined), self.peer)
+            else:
+                packet = b""
+                for frame in map(self._sealed, frames):
+                    if len(packet) + len(frame) > MAX_DATAGRAM:
+                        self.sock.sendto(packet, self.peer)
+                        packet = b""
+                    packet += frame
+                self.sock.sendto(packet, self.peer)
         self._sink.frames.clear()
+
+    def _sealed(self, frames: bytes) -> bytes:
+        """``frames`` signed on a signed link (``mavlink_signing``), else as they are."""
+        return frames if self._signer is None else self._signer.seal(frames)
 
     def close(self) -> None:
         self.sock.close()

@@ -15,12 +15,14 @@ import time
 
 os.environ.setdefault("MAVLINK20", "1")  # signing needs MAVLink 2 (pymavlink reads this at import)
 
+import numpy as np
 import pytest
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import common as mav
 
 import sim_vehicles.mavlink_signing as signing
 from sim_vehicles.mavlink_signing import Signer, Verifier, key_from_passphrase
+from sim_vehicles.sha256 import sha256_into
 
 KEY = key_from_passphrase("correct horse battery staple")
 
@@ -70,6 +72,49 @@ def test_the_verifier_opens_what_is_signed_and_refuses_the_rest():
         fresh.open(_forged_stamp(_plain(sysid=9), signing.now_stamp() - 2 * signing.NEW_STREAM_SLACK)) is None
     )
     assert fresh.replayed == 1
+
+
+def test_the_compiled_sha256_is_hashlibs_for_any_length_and_split():
+    out = np.zeros(32, np.uint8)
+    rng = np.random.default_rng(5)
+    for n in [*range(0, 140), 1000]:  # every padding case: 0-2 extra blocks
+        data = rng.integers(0, 256, n, dtype=np.uint8).tobytes()
+        for cut in {0, n // 3, n}:
+            sha256_into(np.frombuffer(data[:cut], np.uint8), cut, data[cut:], n - cut, out)
+            assert out.tobytes() == hashlib.sha256(data).digest(), (n, cut)
+
+
+def test_a_pass_of_several_frames_is_sealed_and_opened_whole_as_pymavlink_reads_it():
+    s, v = Signer(KEY), Verifier(KEY)
+    frames = _plain() + _plain(sysid=4) + _plain()
+    sealed = s.seal(frames)
+    assert len(sealed) == len(frames) + 3 * signing.SIGNATURE_LEN
+    receiver = mav.MAVLink(None)
+    receiver.signing.secret_key = KEY
+    got = receiver.parse_buffer(sealed)
+    assert [m.get_srcSystem() for m in got] == [3, 4, 3] and receiver.signing.badsig_count == 0
+    assert v.open(sealed) == frames  # two streams in one datagram
+    assert v.open(s.seal(frames)) == frames
+    # a frame cut short or a stray byte: nothing of it is signed
+    assert s.seal(frames[:-1]) == frames[:-1] and s.seal(frames + b"\0") == frames + b"\0"
+
+
+def test_a_repeat_inside_one_datagram_is_a_replay():
+    s, v = Signer(KEY), Verifier(KEY)
+    one = s.seal(_plain())
+    assert v.open(one + one) is None and v.replayed == 1
+    assert v.open(one) == _plain()  # the refused datagram moved no stream's clock
+    two = s.seal(_plain(sysid=4))
+    three = s.seal(_plain())
+    assert v.open(three + two) == _plain() + _plain(sysid=4)  # streams interleaved, each rising
+    assert v.open(three) is None and v.replayed == 2
+
+
+def test_a_key_of_the_wrong_length_is_refused_in_one_line():
+    with pytest.raises(signing.SigningKeyError, match="32 bytes, not 16"):
+        Signer(KEY[:16])
+    with pytest.raises(signing.SigningKeyError, match="32 bytes, not 33"):
+        Verifier(KEY + b"x")
 
 
 def _forged_stamp(plain: bytes, stamp: int) -> bytes:
