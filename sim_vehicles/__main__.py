@@ -16,7 +16,7 @@ import numpy as np
 from pymavlink.dialects.v20 import common as mav
 
 from sim_vehicles import mavlink_frames as frames
-from sim_vehicles import tick_frames
+from sim_vehicles import mavlink_signing, tick_frames
 from sim_vehicles.autopilot import Autopilot
 from sim_vehicles.failsafe import ACTION_LAND, ACTIONS, failsafe_command, hold_at
 from sim_vehicles.lifeline import batch_scheduling, hold_on, mark, process_figures, profiled, settle_heap
@@ -38,6 +38,7 @@ def warm_up(params: VehicleParams, gains: AttitudeGains, attitude_hz: float) -> 
     ap.set_command(command_roundtrip(ap.command, params.max_thrust_N))
     ap.advance(1)
     tick_frames.warm_up()
+    mavlink_signing.warm_up()
     # the lower-rate streams (ATTITUDE, ATTITUDE_TARGET, HIGHRES_IMU) and the failsafe's loop:
     # without these a vehicle loaded them in flight, 20-70 ms of CPU each
     x = ap.state

@@ -230,6 +230,7 @@ import numba
 from sim_vehicles.__main__ import warm_up
 from sim_vehicles.autopilot import Autopilot
 from sim_vehicles.mavlink_endpoint import VehicleEndpoint
+from sim_vehicles.mavlink_signing import Signer
 from sim_vehicles.params import AttitudeGains, VehicleParams
 from sim_vehicles.rigid_body import make_state
 
@@ -248,13 +249,14 @@ gcs = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
 gcs.bind(("127.0.0.1", 0))
 ep = VehicleEndpoint(
     Autopilot(params, gains, make_state([1.0, 2.0, 3.0]), 0.001), 7, lockstep_period_s=0.01,
-    gcs_bind=("127.0.0.1", 0), gcs_remote=gcs.getsockname(),
+    gcs_bind=("127.0.0.1", 0), gcs_remote=gcs.getsockname(), signing_key=bytes(32),
 )
 before = loaded()
-for armed in (False, True):  # every stream of both ports, on the ground and flying
+for armed in (False, True):  # every stream of both ports, on the ground and flying, signed
     ep.armed = armed
     for _ in range(150):
         ep.step(10)
+ep._datagram(Signer(bytes(32)).seal(bytes([253, 0, 0, 0, 0, 9, 1, 0, 0, 0, 0, 0])), ("127.0.0.1", 9))
 after = loaded()
 ep.close()
 print({k: (before.get(k, 0), n) for k, n in after.items() if n != before.get(k, 0)})
