@@ -14,9 +14,10 @@
   when another wakes, so a sender finishes its tick first. Threads started afterwards (zenoh's)
   inherit the policy. Real-time processes keep the default policy: there latency matters.
 - ``mark(name)`` and ``process_figures()``: where a process's start-up and CPU went. ``mark``
-  notes the process's age (seconds since the kernel created it) and its CPU seconds (every
-  thread's) at a named point (``main``: the interpreter and the imports done; ``zenoh``: its
-  session open; ``ready``); ``process_figures`` gives them with the totals, for a stats file.
+  notes the process's age (seconds since the kernel created it), its CPU seconds (every
+  thread's; the main thread's and the others' apart) at a named point (``main``: the interpreter
+  and the imports done; ``zenoh``: its session open; ``ready``); ``process_figures`` gives them
+  with the totals, for a stats file.
 - ``profiled(name, body)``: a debugging aid. With ``SWARM_SITL_PROFILE=DIR`` set, run ``body`` under
   cProfile timed by this thread's CPU clock (sleeping, waiting and being preempted cost nothing, so
   the figures are what the loop itself spends) and write ``DIR/<name>.prof``.
@@ -24,6 +25,7 @@
 
 import ctypes
 import gc
+import math
 import os
 import signal
 import sys
@@ -78,13 +80,50 @@ def process_age_s() -> float:
         return time.monotonic() - _LOADED
 
 
+def thread_cpu_s() -> tuple[float, float]:
+    """CPU seconds of this process's main thread and of all its other threads together, exact
+    (Linux ``schedstat``: time on a CPU; a thread that has ended is no longer counted); NaN
+    elsewhere."""
+    main = others = 0.0
+    try:
+        tids = os.listdir("/proc/self/task")
+    except OSError:
+        return math.nan, math.nan
+    for tid in tids:
+        try:
+            with open(f"/proc/self/task/{tid}/schedstat") as f:
+                s = int(f.read().split()[0]) / 1e9
+        except (OSError, ValueError, IndexError):  # a thread that has just ended
+            continue
+        if int(tid) == os.getpid():
+            main += s
+        else:
+            others += s
+    return main, others
+
+
+def _figures() -> dict[str, float]:
+    main, others = thread_cpu_s()
+    return {
+        "age_s": process_age_s(),
+        "cpu_s": time.process_time(),
+        "unix_s": time.time(),
+        "main_thread_s": main,
+        "other_threads_s": others,
+    }
+
+
 def mark(name: str) -> None:
-    _MARKS.setdefault(name, {"age_s": process_age_s(), "cpu_s": time.process_time(), "unix_s": time.time()})
+    if name not in _MARKS:
+        _MARKS[name] = _figures()
 
 
 def process_figures() -> dict[str, object]:
-    """``cpu_s`` and ``age_s`` now, and the ``marks`` noted so far."""
-    return {"cpu_s": time.process_time(), "age_s": process_age_s(), "marks": dict(_MARKS)}
+    """``cpu_s`` (every thread), ``age_s``, the main thread's and the other threads' CPU
+    (``thread_cpu_s``) now, and the ``marks`` noted so far (each with the same figures)."""
+    now = _figures()
+    del now["unix_s"]
+    return {**now, "marks": dict(_MARKS)}
 
 
 def settle_heap() -> None:

@@ -15,6 +15,11 @@ and written to ``OUT/scale.csv`` and ``OUT/scale.png``:
 - with ``--scale-realtime S``: each N again in real time for S seconds, late ticks and when
   setpoints go out (median, p99), up to the first N with over 10 % late ticks or a failed run
   (named: where the machine saturates);
+- the nodes' run-phase CPU split between their main threads (the loops) and their other threads
+  (zenoh's runtime), exact per thread;
+- with ``--split N``: the N-follower run again with every process profiled, and each process
+  kind's main-thread CPU by activity (physics and laws, MAVLink, zenoh, waking up, logs, the loop;
+  ``cost_split``), printed and written to ``OUT/split.csv``;
 - where a controller's start-up goes (medians over controllers, ``sim_vehicles.lifeline.mark``):
   ``main`` (interpreter and imports), ``zenoh`` (session opened), ``ready`` (MAVLink link, vehicle
   parameters, kernels loaded, subscriptions declared), and the last vehicle's age at ready.
@@ -22,6 +27,8 @@ and written to ``OUT/scale.csv`` and ``OUT/scale.png``:
 
 import csv
 import json
+import math
+import os
 import resource
 import statistics
 import time
@@ -51,6 +58,8 @@ COLUMNS = (
     "cpu_controllers",
     "cpu_leader",
     "cpu_supervisor",
+    "cpu_main_threads",
+    "cpu_other_threads",
     "ctrl_main_s",
     "ctrl_zenoh_s",
     "ctrl_ready_s",
@@ -82,6 +91,15 @@ def _process_stats(run_dir: Path) -> dict[str, list[dict[str, Any]]]:
     return kinds
 
 
+def _run_phase(kinds: dict[str, list[dict[str, Any]]], figure: str) -> float:
+    """A CPU figure (``lifeline.process_figures``) summed over every node, from ready to exit."""
+    return sum(
+        p.get(figure, math.nan) - p["marks"].get("ready", {}).get(figure, 0.0)
+        for procs in kinds.values()
+        for p in procs
+    )
+
+
 def _median_mark(procs: list[dict[str, Any]], name: str) -> float:
     ages = [p["marks"][name]["age_s"] for p in procs if name in p.get("marks", {})]
     return statistics.median(ages) if ages else float("nan")
@@ -105,6 +123,7 @@ def measure(n: int, duration_s: float, work: Path, start: str = "fork") -> dict[
     }
     all_cpu = sup_cpu + sum(per_kind.values()) * duration_s
     ctrl = kinds["controller"]
+    threads = {t: _run_phase(kinds, f"{t}_s") / duration_s for t in ("main_thread", "other_threads")}
     return {
         "followers": n,
         "edges": len(cfg.graph.edges),
@@ -119,6 +138,8 @@ def measure(n: int, duration_s: float, work: Path, start: str = "fork") -> dict[
         "cpu_controllers": per_kind["controller"],
         "cpu_leader": per_kind["leader"],
         "cpu_supervisor": sup_cpu / duration_s,
+        "cpu_main_threads": threads["main_thread"],
+        "cpu_other_threads": threads["other_threads"],
         "ctrl_main_s": _median_mark(ctrl, "main"),
         "ctrl_zenoh_s": _median_mark(ctrl, "zenoh"),
         "ctrl_ready_s": _median_mark(ctrl, "ready"),
@@ -146,6 +167,57 @@ def measure_realtime(n: int, duration_s: float, work: Path, start: str = "fork")
         "out_median_ms": float(np.median(done)) * 1e3,
         "out_p99_ms": float(np.percentile(done, 99)) * 1e3,
     }
+
+
+def measure_split(n: int, duration_s: float, work: Path, start: str = "fork") -> dict[str, dict[str, float]]:
+    """Per process kind, the main thread's CPU by activity (``cost_split``), in shares, from a
+    lockstep run with every process profiled."""
+    from swarm_sitl.cost_split import activity_split
+    from swarm_sitl.supervisor import run_swarm
+
+    cfg = scale_config(n, duration_s, start)
+    folder = work / f"profile{n}"
+    before = os.environ.get("SWARM_SITL_PROFILE")
+    os.environ["SWARM_SITL_PROFILE"] = str(folder)
+    try:
+        run_swarm(cfg, work / f"split{n}", lockstep=True)
+    finally:
+        if before is None:
+            del os.environ["SWARM_SITL_PROFILE"]
+        else:
+            os.environ["SWARM_SITL_PROFILE"] = before
+    out = {}
+    for kind in ("vehicle", "controller", "leader"):
+        seconds = activity_split(sorted(folder.glob(f"{kind}*.prof")))
+        total = sum(seconds.values())
+        out[kind] = {a: (v / total if total > 0 else math.nan) for a, v in seconds.items()}
+    return out
+
+
+def _print_split(
+    n: int, split: dict[str, dict[str, float]], row: dict[str, float] | None, path: Path
+) -> None:
+    from swarm_sitl.cost_split import ACTIVITIES
+
+    print(f"where the CPU goes at {n} followers (lockstep):")
+    if row is not None:
+        main, other = row["cpu_main_threads"], row["cpu_other_threads"]
+        print(
+            f"  nodes' main threads (the loops) {main:.2f}, their other threads (zenoh's runtime) "
+            f"{other:.2f}, supervisor (the zenoh router) {row['cpu_supervisor']:.2f} CPU s per simulated s"
+        )
+    print(
+        "  main threads by activity, % of each kind's"
+        " (a profiled run: cProfile leans towards Python-heavy work)"
+    )
+    print(f"  {'':<10} " + " ".join(f"{a:>16}" for a in ACTIVITIES))
+    for kind, shares in split.items():
+        print(f"  {kind:<10} " + " ".join(f"{100 * shares[a]:>15.1f}%" for a in ACTIVITIES))
+    with open(path, "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["kind", *ACTIVITIES])
+        for kind, shares in split.items():
+            w.writerow([kind, *(f"{shares[a]:.4f}" for a in ACTIVITIES)])
 
 
 def _plot(rows: list[dict[str, float]], path: Path) -> None:
@@ -179,10 +251,15 @@ def _plot(rows: list[dict[str, float]], path: Path) -> None:
 
 
 def run_scale(
-    ns: list[int], duration_s: float, out: Path | None, start: str = "fork", realtime_s: float = 0.0
+    ns: list[int],
+    duration_s: float,
+    out: Path | None,
+    start: str = "fork",
+    realtime_s: float = 0.0,
+    split_n: int = 0,
 ) -> int:
     """Lockstep for every N, then (``realtime_s`` > 0) real time for every N up to the first that
-    saturates the machine."""
+    saturates the machine, then (``split_n`` > 0) where the CPU goes at ``split_n`` followers."""
     out = out or Path("runs") / f"bench-scale-{time.strftime('%Y%m%d-%H%M%S')}"
     out.mkdir(parents=True, exist_ok=True)
     print(
@@ -243,6 +320,15 @@ def run_scale(
             w = csv.DictWriter(f, fieldnames=["followers", "late_share", "out_median_ms", "out_p99_ms"])
             w.writeheader()
             w.writerows(realtime)
+    if split_n > 0:
+        try:
+            split = measure_split(split_n, duration_s, runs, start)
+        except RunFailedError as e:
+            failed.append(split_n)
+            print(f"{split_n:>3} the profiled run failed: {e}", flush=True)
+        else:
+            row = next((r for r in rows if r["followers"] == split_n), None)
+            _print_split(split_n, split, row, out / "split.csv")
     with open(out / "scale.csv", "w", newline="") as f:
         w = csv.DictWriter(f, fieldnames=COLUMNS)
         w.writeheader()

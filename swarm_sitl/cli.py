@@ -385,6 +385,8 @@ def cmd_bench(args: argparse.Namespace) -> int:
         raise CliError("--repeats must be >= 1, --realtime-s and --scale-duration > 0")
     if not 0 <= args.scale_realtime < math.inf:
         raise CliError(f"--scale-realtime must be >= 0 s, got {args.scale_realtime}")
+    if args.split is not None and not args.scale:
+        raise CliError("--split N goes with --scale (it profiles one of the scale runs)")
     if args.against and not (Path(args.against) / "swarm_sitl" / "__init__.py").is_file():
         raise CliError(f"--against {args.against}: not a swarm-sitl source tree (no swarm_sitl/__init__.py)")
     try:
@@ -398,7 +400,11 @@ def cmd_bench(args: argparse.Namespace) -> int:
             if not ns or min(ns) < 1 or max(ns) > 254:
                 raise CliError(f"--scale: follower counts must be 1..254, got {args.scale!r}")
             out = Path(args.out) if args.out else None
-            return run_scale(ns, args.scale_duration, out, args.scale_start, args.scale_realtime)
+            if args.split and args.split not in ns:
+                raise CliError(f"--split {args.split}: not one of the --scale counts {args.scale}")
+            return run_scale(
+                ns, args.scale_duration, out, args.scale_start, args.scale_realtime, args.split or 0
+            )
         if args.against:
             from swarm_sitl.bench import compare_trees
 
@@ -544,6 +550,12 @@ def build_parser() -> argparse.ArgumentParser:
         default=0.0,
         metavar="S",
         help="--scale: also run each N for S s in real time (late ticks, setpoint latency)",
+    )
+    b.add_argument(
+        "--split",
+        type=int,
+        metavar="N",
+        help="--scale: also profile the N-follower run and print where each process kind's CPU goes",
     )
     b.add_argument(
         "--scale-start", choices=("fork", "spawn"), default="fork", help="--scale: run.start of the runs"

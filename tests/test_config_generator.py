@@ -126,8 +126,9 @@ def test_bench_scale_writes_its_table_with_consistent_figures(tmp_path, capsys):
     import csv
 
     assert main(["bench", "--scale", "0,2"]) == 2  # one line, no run
-    args = ["bench", "--scale", "2", "--scale-duration", "1", "--scale-realtime", "2", "--out", str(tmp_path)]
-    assert main(args) == 0
+    assert main(["bench", "--scale", "2", "--split", "3"]) == 2  # not one of the counts
+    args = ["bench", "--scale", "2", "--scale-duration", "1", "--scale-realtime", "2", "--split", "2"]
+    assert main([*args, "--out", str(tmp_path)]) == 0
     (row,) = list(csv.DictReader((tmp_path / "scale.csv").read_text().splitlines()))
     r = {k: float(v) for k, v in row.items()}
     assert r["followers"] == 2 and r["edges"] == 2  # layered: the leader feeds both
@@ -140,4 +141,15 @@ def test_bench_scale_writes_its_table_with_consistent_figures(tmp_path, capsys):
     (rt,) = list(csv.DictReader((tmp_path / "realtime.csv").read_text().splitlines()))
     assert int(rt["followers"]) == 2 and 0.0 <= float(rt["late_share"]) <= 1.0
     assert 0 < float(rt["out_median_ms"]) <= float(rt["out_p99_ms"])
-    assert "scale.csv" in capsys.readouterr().out
+    # every node's CPU is its main thread's and its other threads' (exact, per thread)
+    nodes = r["cpu_vehicles"] + r["cpu_controllers"] + r["cpu_leader"]
+    assert r["cpu_main_threads"] + r["cpu_other_threads"] == pytest.approx(nodes, rel=0.15)
+    assert 0 < r["cpu_other_threads"] < r["cpu_main_threads"]
+    split = {row["kind"]: row for row in csv.DictReader((tmp_path / "split.csv").read_text().splitlines())}
+    for kind, row in split.items():
+        assert sum(float(v) for k, v in row.items() if k != "kind") == pytest.approx(1.0, abs=1e-3), kind
+    assert float(split["vehicle"]["zenoh"]) == 0.0 < float(split["vehicle"]["MAVLink"])  # no zenoh there
+    assert float(split["leader"]["MAVLink"]) == 0.0 < float(split["leader"]["zenoh"])  # no vehicle link
+    assert float(split["controller"]["MAVLink"]) > 0 and float(split["controller"]["zenoh"]) > 0
+    out = capsys.readouterr().out
+    assert "scale.csv" in out and "where the CPU goes at 2 followers" in out
