@@ -12,8 +12,9 @@ Two measurements, each for what it can see:
     and controller (``swarm_sitl``), compiled kernels and the Python that calls them;
   - ``MAVLink``: frames, conversions, signing, the vehicle's endpoint and the controller's link;
   - ``zenoh``: the bus (``bus*.py``) and the zenoh calls it makes (puts, payloads);
-  - ``waking up``: the calls that block until something comes (``select``, ``poll``, ``sleep``,
-    and the lockstep vehicle's blocking ``recvfrom``): the CPU of going to sleep and waking;
+  - ``waking up``: the calls that block until something comes (``select``, ``sleep``, and the
+    lockstep vehicle's blocking ``recvfrom``): the CPU of going to sleep and waking (a poll(2)
+    that only looks, ``udp_arrival.Waiting``, is its caller's);
   - ``logs``: row logs, events, the ``.tlog``;
   - ``loop and other``: the per-tick loops themselves and everything else.
 
@@ -56,7 +57,6 @@ _BY_FILE = (  # (activity, path fragments), first match wins
             "sim_vehicles/wire_format.py",
             "sim_vehicles/sha256.py",
             "sim_vehicles/frames.py",
-            "sim_vehicles/udp_arrival.py",
             "sim_vehicles/px4_profile.py",
             "swarm_sitl/vehicle_link.py",
             "swarm_sitl/link_faults.py",
@@ -67,7 +67,9 @@ _BY_FILE = (  # (activity, path fragments), first match wins
 )
 #: the vehicle endpoint's loop and scheduling (the rest of ``mavlink_endpoint`` is MAVLink)
 _VEHICLE_LOOP = ("run_lockstep", "run_realtime", "step", "_failsafe_check", "heartbeat_tick")
-_WAITS = ("select.select", "'poll' of 'select.poll'", "time.sleep", "'epoll' objects")
+_WAITS = ("select.select", "time.sleep", "'epoll' objects")
+#: helpers shared by the link and the bus (``udp_arrival.Waiting``: a poll(2) that does not block)
+_SHARED = ("sim_vehicles/udp_arrival.py",)
 _BLOCKING_RECV = ("run_lockstep",)  #: callers whose ``recvfrom`` blocks for the next datagram
 
 
@@ -81,6 +83,8 @@ def activity_of(func: tuple[str, int, str]) -> str | None:
             return "zenoh"
         return None
     path = path.replace("\\", "/")
+    if path.endswith(_SHARED):
+        return None  # its caller's: the vehicle link's or the bus's
     if path.endswith("sim_vehicles/mavlink_endpoint.py") and name in _VEHICLE_LOOP:
         return "loop and other"
     for activity, fragments in _BY_FILE:

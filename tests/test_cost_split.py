@@ -67,6 +67,8 @@ def test_builtins_are_named_by_what_they_do():
     assert activity_of(("/x/sim_vehicles/mavlink_endpoint.py", 1, "run_lockstep")) == "loop and other"
     assert activity_of(("/x/sim_vehicles/mavlink_endpoint.py", 1, "_send_attitude")) == "MAVLink"
     assert activity_of(("/x/sim_vehicles/row_log.py", 1, "append")) == "logs"
+    assert activity_of(("/x/sim_vehicles/udp_arrival.py", 56, "__call__")) is None  # link's or bus's
+    assert activity_of(("~", 0, "<method 'poll' of 'select.poll' objects>")) is None  # poll(0): a look
 
 
 @pytest.mark.skipif(not os.path.isdir("/proc/self/task"), reason="per-thread CPU is read from Linux /proc")
