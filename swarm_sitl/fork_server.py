@@ -105,7 +105,6 @@ def _warm_up(config_path: str | None) -> None:
     import swarm_sitl.leader_node
     import swarm_sitl.node_main
     import swarm_sitl.vehicle_link
-    from sim_vehicles import tick_frames
     from sim_vehicles.params import AttitudeGains, VehicleParams
 
     swarm_sitl.cli.build_parser()  # what the command line imports to build itself
@@ -113,8 +112,7 @@ def _warm_up(config_path: str | None) -> None:
     # the attitude loop and the per-tick MAVLink frames (each child loaded them from numba's cache,
     # over 0.1 s of CPU apiece, 64 of them at once on two cores in a 64-follower start)
     vehicle = VehicleParams(1.0, (0.01, 0.01, 0.02), 20.0)
-    sim_vehicles.__main__.warm_up(vehicle, AttitudeGains(1.0, 1.0), 1000.0)
-    tick_frames.warm_up()
+    sim_vehicles.__main__.warm_up(vehicle, AttitudeGains(1.0, 1.0), 1000.0)  # frames' kernels too
     if config_path:
         from swarm_sitl.config import load_config
         from swarm_sitl.sim import run_sim
