@@ -400,7 +400,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
             if not ns or min(ns) < 1 or max(ns) > 254:
                 raise CliError(f"--scale: follower counts must be 1..254, got {args.scale!r}")
             out = Path(args.out) if args.out else None
-            if args.split and args.split not in ns:
+            if args.split is not None and args.split not in ns:
                 raise CliError(f"--split {args.split}: not one of the --scale counts {args.scale}")
             return run_scale(
                 ns, args.scale_duration, out, args.scale_start, args.scale_realtime, args.split or 0
