@@ -28,7 +28,7 @@ import re
 import socket
 import time
 from collections import deque
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Iterator
 from typing import Any, Protocol, TypeVar
 
 import zenoh
@@ -72,6 +72,38 @@ def open_session(
     spec: ZenohSpec, extra_connect: Iterable[str] = (), credentials: tuple[str, str] | None = None
 ) -> zenoh.Session:
     return zenoh.open(zenoh_config(spec, extra_connect, credentials))
+
+
+RUNTIME_ENV = "ZENOH_RUNTIME"  #: the variable zenoh reads its threads from
+#: zenoh's runtime (``ZENOH_RUNTIME``, RON) for a process whose session routes the swarm: one worker
+#: thread that receives, routes and sends. zenoh's default gives receiving (two threads), sending,
+#: accepting, its network tasks and the application pools of their own, so each routed estimate
+#: crosses from thread to thread, a wake-up at each. Measured (``docs/performance.md``): 9-15 % less
+#: CPU and wall time for a lockstep run; the nodes' sessions gained nothing from it and keep zenoh's.
+ROUTER_RUNTIME = (
+    "(app: (worker_threads: 1), rx: (handover: app), tx: (handover: app), "
+    "acc: (handover: app), net: (handover: app))"
+)
+
+
+@contextlib.contextmanager
+def router_runtime() -> Iterator[None]:
+    """Open the process's first zenoh session inside this to give it ``ROUTER_RUNTIME``.
+
+    zenoh reads ``ZENOH_RUNTIME`` once per process, when its first session starts: a process that
+    opened one before keeps the runtime it has, and a runtime the user set is left alone. The
+    variable is taken back on the way out, so the processes started afterwards keep zenoh's
+    defaults."""
+    import os
+
+    if RUNTIME_ENV in os.environ:
+        yield
+        return
+    os.environ[RUNTIME_ENV] = ROUTER_RUNTIME
+    try:
+        yield
+    finally:
+        os.environ.pop(RUNTIME_ENV, None)
 
 
 def open_router(listen: list[str], users_file: str, access_control: dict[str, Any]) -> zenoh.Session:

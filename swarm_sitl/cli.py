@@ -61,12 +61,13 @@ def cmd_check(args: argparse.Namespace) -> int:
 
 
 def cmd_router(args: argparse.Namespace) -> int:
-    from swarm_sitl.bus import error_line, open_plain_router
+    from swarm_sitl.bus import error_line, open_plain_router, router_runtime
 
     if args.users_file and not Path(args.users_file).is_file():
         raise CliError(f"--users-file {args.users_file}: no such file")
     try:
-        router = open_plain_router(args.listen, args.users_file)
+        with router_runtime():
+            router = open_plain_router(args.listen, args.users_file)
     except Exception as e:  # zenoh raises its own error type for a bad or busy endpoint
         raise CliError(f"cannot open a zenoh router on {' '.join(args.listen)}: {error_line(e)}") from None
     auth = f"sessions authenticate against {args.users_file}" if args.users_file else "no authentication"

@@ -492,7 +492,7 @@ def open_hub(cfg: SwarmConfig, run_dir: Path, sup: Supervisor) -> tuple[str | No
 
 def _open_hub(cfg: SwarmConfig, run_dir: Path, sup: Supervisor) -> tuple[str | None, Any]:
     from swarm_sitl import zenoh_access
-    from swarm_sitl.bus import open_router, open_session
+    from swarm_sitl.bus import open_router, open_session, router_runtime
 
     if cfg.zenoh.mode == "client":
         return None, open_session(cfg.zenoh, credentials=zenoh_access.credentials_from_env())
@@ -502,7 +502,8 @@ def _open_hub(cfg: SwarmConfig, run_dir: Path, sup: Supervisor) -> tuple[str | N
     listen = [_with_free_port(e) for e in cfg.zenoh.listen]
     passwords = zenoh_access.write_credentials(cfg, run_dir)
     sup.env_for = lambda process: zenoh_access.credentials_env(process, passwords)
-    router = open_router(listen, str(zenoh_users_path(run_dir)), zenoh_access.access_control(cfg))
+    with router_runtime():
+        router = open_router(listen, str(zenoh_users_path(run_dir)), zenoh_access.access_control(cfg))
     return listen[0].replace("/0.0.0.0:", "/127.0.0.1:"), router
 
 

@@ -1,18 +1,24 @@
 """The bus payloads, the zenoh key layout against the graph, and the crash-safe row logs."""
 
 import math
+import os
+import re
 import struct
+import subprocess
+import sys
 import time
 import zlib
+from pathlib import Path
 
 import numpy as np
 import pytest
+import zenoh
 from hypothesis import given
 from hypothesis import strategies as st
 
 from sim_vehicles.row_log import RowLog, read_rows
 from swarm_sitl import zenoh_keys
-from swarm_sitl.bus import ZenohNodeBus, open_session
+from swarm_sitl.bus import ROUTER_RUNTIME, RUNTIME_ENV, ZenohNodeBus, open_session, router_runtime
 from swarm_sitl.bus_codec import (
     PayloadError,
     Status,
@@ -26,6 +32,7 @@ from swarm_sitl.bus_codec import (
 )
 from swarm_sitl.config import ZenohSpec
 from swarm_sitl.follower import EstimateMessage
+from swarm_sitl.supervisor import child_env, free_tcp_port
 
 pytestmark = pytest.mark.unit
 
@@ -294,3 +301,64 @@ def test_the_bus_descriptor_wakes_a_select_when_an_estimate_comes_and_is_quiet_a
         time.sleep(0.05)
     finally:
         session.close()
+
+
+def test_router_runtime_is_taken_back_and_leaves_a_users_own(monkeypatch):
+    """The supervisor's children must not inherit the router's runtime; a user's runtime wins."""
+    monkeypatch.delenv(RUNTIME_ENV, raising=False)
+    with router_runtime():
+        assert os.environ[RUNTIME_ENV] == ROUTER_RUNTIME
+    assert RUNTIME_ENV not in os.environ
+    mine = "(rx: (worker_threads: 1))"
+    monkeypatch.setenv(RUNTIME_ENV, mine)
+    with router_runtime():
+        assert os.environ[RUNTIME_ENV] == mine
+    assert os.environ[RUNTIME_ENV] == mine
+
+
+def _zenoh_pools(pid: int) -> set[str]:
+    """The zenoh runtime pools a process has threads of (tokio names them ``<pool>-<n>``)."""
+    names = [(task / "comm").read_text().strip() for task in Path(f"/proc/{pid}/task").iterdir()]
+    return {m.group(1) for n in names if (m := re.fullmatch(r"(app|rx|tx|acc|net)-\d+", n))}
+
+
+@pytest.mark.system
+@pytest.mark.parametrize("users_runtime", [None, "(rx: (worker_threads: 1))"])
+def test_swarm_sitl_router_routes_on_one_thread_unless_the_user_sets_the_runtime(users_runtime):
+    """``swarm-sitl router`` (and ``run``'s router) run zenoh on one worker thread: two clients
+    exchange samples through it while it has threads of the application pool only; with the
+    user's ``ZENOH_RUNTIME`` it has zenoh's pools as that gives them."""
+    endpoint = f"tcp/127.0.0.1:{free_tcp_port()}"
+    env = {k: v for k, v in child_env().items() if k != RUNTIME_ENV}
+    if users_runtime is not None:
+        env[RUNTIME_ENV] = users_runtime
+    router = subprocess.Popen(
+        [sys.executable, "-m", "swarm_sitl", "router", "--listen", endpoint],
+        stdout=subprocess.PIPE,
+        text=True,
+        env=env,
+    )
+    sessions = []
+    try:
+        assert "router listening" in (router.stdout.readline() if router.stdout else "")
+        spec = ZenohSpec(mode="client", connect=[endpoint])
+        sessions = [open_session(spec), open_session(spec)]
+        sub = sessions[1].declare_subscriber("t/routed", zenoh.handlers.FifoChannel(64))
+        got = None
+        for _ in range(200):  # until the subscription has reached the router
+            sessions[0].put("t/routed", b"through the router")
+            got = sub.try_recv()
+            if got is not None:
+                break
+            time.sleep(0.02)
+        assert got is not None and got.payload.to_bytes() == b"through the router"
+        pools = _zenoh_pools(router.pid)
+        if users_runtime is None:
+            assert pools == {"app"}
+        else:
+            assert {"app", "rx", "tx"} <= pools
+    finally:
+        for s in sessions:
+            s.close()
+        router.terminate()
+        router.wait(timeout=10)
