@@ -15,8 +15,8 @@ from pathlib import Path
 import numpy as np
 from pymavlink.dialects.v20 import common as mav
 
+from sim_vehicles import lockstep_tick, mavlink_signing, tick_frames
 from sim_vehicles import mavlink_frames as frames
-from sim_vehicles import mavlink_signing, tick_frames
 from sim_vehicles.autopilot import Autopilot
 from sim_vehicles.failsafe import ACTION_LAND, ACTIONS, failsafe_command, hold_at
 from sim_vehicles.lifeline import batch_scheduling, hold_on, mark, process_figures, profiled, settle_heap
@@ -39,6 +39,18 @@ def warm_up(params: VehicleParams, gains: AttitudeGains, attitude_hz: float) -> 
     ap.advance(1)
     tick_frames.warm_up()
     mavlink_signing.warm_up()
+    lockstep_tick.step_and_sample(
+        ap.state,
+        *ap.kernel_args,
+        1,
+        np.zeros(lockstep_tick.SAMPLE_BYTES, np.uint8),
+        0,
+        1,
+        1,
+        frames.LOCAL_POSITION_NED.spec,
+        frames.ATTITUDE_QUATERNION.spec,
+        0,
+    )
     # the lower-rate streams (ATTITUDE, ATTITUDE_TARGET, HIGHRES_IMU) and the failsafe's loop:
     # without these a vehicle loaded them in flight, 20-70 ms of CPU each
     x = ap.state

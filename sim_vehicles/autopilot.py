@@ -106,24 +106,14 @@ class Autopilot:
 
     def set_command(self, command: AttitudeCommand) -> None:
         self.command = command
-        # the kernel's arguments, prepared once per command rather than once per advance
-        self._args = (
+        p = self.params
+        # the kernel's arguments but the state and the step count, prepared once per command
+        # rather than once per advance (``max_rate_rps`` is changed in place, never replaced)
+        self.kernel_args = (
             _kernel_arg(command.q_c),
             _kernel_arg(command.omega_c_B),
             _kernel_arg(command.omegadot_c_B),
             float(command.thrust_N),
-        )
-
-    def advance(self, n_steps: int) -> None:
-        """Run ``n_steps`` attitude-loop steps holding the current command."""
-        q_c, omega_c, omegadot_c, thrust_N = self._args
-        p = self.params
-        self.state = advance_kernel(
-            self.state,
-            q_c,
-            omega_c,
-            omegadot_c,
-            thrust_N,
             p.mass_kg,
             self._inertia,
             p.g_mps2,
@@ -132,6 +122,9 @@ class Autopilot:
             p.max_thrust_N,
             self.max_rate_rps,
             self.dt_s,
-            int(n_steps),
         )
+
+    def advance(self, n_steps: int) -> None:
+        """Run ``n_steps`` attitude-loop steps holding the current command."""
+        self.state = advance_kernel(self.state, *self.kernel_args, int(n_steps))
         self.step_index += int(n_steps)

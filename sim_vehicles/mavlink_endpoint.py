@@ -90,9 +90,9 @@ from typing import Any, BinaryIO, NamedTuple
 import numpy as np
 from pymavlink.dialects.v20 import common as mav
 
+from sim_vehicles import lockstep_tick, tick_frames, udp_arrival
 from sim_vehicles import mavlink_frames as frames
 from sim_vehicles import px4_profile as px4
-from sim_vehicles import tick_frames, udp_arrival
 from sim_vehicles.autopilot import AttitudeCommand, Autopilot
 from sim_vehicles.event_log import EventLog
 from sim_vehicles.failsafe import ACTION_HOLD, FAILSAFE_PERIOD_S, failsafe_command, hold_at
@@ -101,6 +101,9 @@ from sim_vehicles.quaternion import rotation_matrix
 from sim_vehicles.rigid_body import QUAT, RATE
 from sim_vehicles.row_log import RowLog
 from sim_vehicles.wire_format import CMD_VALID, command_from_fields, command_of, encode_attitude_quaternion
+
+#: the two messages of a lockstep sample, sent at every period
+LPOS_ID, ATTQ_ID = mav.MAVLINK_MSG_ID_LOCAL_POSITION_NED, mav.MAVLINK_MSG_ID_ATTITUDE_QUATERNION
 
 MODE_HOLD = 0
 MODE_OFFBOARD = 1
@@ -199,6 +202,7 @@ _PORT_STATE = (
     "_defaults",
     "_next_send",
     "_next_any_s",
+    "_next_other_s",
     "_signer",
     "_verifier",
     "_stamped",
@@ -228,6 +232,13 @@ class _Setpoint(NamedTuple):
 
 
 _SETPOINT = frames.SET_ATTITUDE_TARGET
+_SP_VALID = tick_frames.SP_COMMAND.start + CMD_VALID  #: ``read_setpoint``'s command is valid
+
+
+def _next_due(t_s: float, rate_hz: float) -> float:
+    """When a stream of ``rate_hz`` sent at ``t_s`` is next due: the next multiple of its period
+    in boot time, so streams of one rate share their instants."""
+    return (math.floor(t_s * rate_hz + 1e-6) + 1) / rate_hz
 
 
 @dataclass
@@ -354,7 +365,9 @@ class VehicleEndpoint:
         }
         self._next_heartbeat_wall = -math.inf
         self._next_any_s = 0.0  #: simulated time of the next telemetry message due
+        self._next_other_s = 0.0  #: ... of the next one but LOCAL_POSITION_NED and ATTITUDE_QUATERNION
         self._out = np.zeros(tick_frames.FRAME_BYTES, np.uint8)
+        self._sample_out = np.zeros(lockstep_tick.SAMPLE_BYTES, np.uint8)
         p = self.autopilot.params
         self.params: dict[str, float] = {
             "MASS_KG": p.mass_kg,
@@ -401,6 +414,7 @@ class VehicleEndpoint:
             "_defaults": defaults,
             "_next_send": dict.fromkeys(defaults, 0.0),
             "_next_any_s": 0.0,
+            "_next_other_s": 0.0,
             "_signer": Signer(self.signing_key) if self.signing_key else None,
             "_verifier": Verifier(self.signing_key) if self.signing_key else None,
             "_stamped": False,
@@ -617,6 +631,8 @@ class VehicleEndpoint:
         if r[0]:  # one SET_ATTITUDE_TARGET and nothing else: what a controller sends
             self._log(data)
             self.stats.rx_messages += 1
+            if self._usual_tick(r):
+                return
             sp = _Setpoint(
                 int(r[tick_frames.SP_TIME_MS]),
                 int(r[tick_frames.SP_TARGET_SYSTEM]),
@@ -659,6 +675,68 @@ class VehicleEndpoint:
                 self.stats.rx_bad += 1
                 continue
             self._handle_safely(m)
+
+    def _usual_tick(self, r: np.ndarray) -> bool:
+        """Take a setpoint (``tick_frames.read_setpoint``'s ``r``) as a lockstep tick in one
+        compiled call (``lockstep_tick``) if it is the usual one: for this vehicle, stamped with its
+        current time, every field taken and valid, the vehicle armed in offboard, and nothing but
+        the sample due when the period ends. The books are kept as ``_on_setpoint``, ``step`` and
+        ``_stream`` keep them, and the state and frames are theirs bit for bit. False: not the
+        usual tick (the general path takes it)."""
+        if not (self._lockstep_steps and self.armed and self.mode == MODE_OFFBOARD):
+            return False
+        v = r.tolist()  # Python floats: cheaper to compare than numpy's scalars
+        if not (
+            v[tick_frames.SP_TYPE_MASK] == 0
+            and v[_SP_VALID]
+            and v[tick_frames.SP_TARGET_SYSTEM] in (0, self.system_id)
+            and v[tick_frames.SP_TARGET_COMPONENT] in (0, COMPONENT)
+        ):
+            return False
+        ap = self.autopilot
+        t0 = ap.time_s
+        k1 = ap.step_index + self._lockstep_steps
+        t1 = k1 * ap.dt_s
+        next_send = self._next_send
+        if not (
+            v[tick_frames.SP_TIME_MS] == round(t0 * 1000)
+            and t1 - t0 <= self.setpoint_timeout_s  # else its failsafe would begin: ``step``'s
+            and t1 + 1e-9 < self._next_other_s
+            and next_send[LPOS_ID] <= t1 + 1e-9
+            and next_send[ATTQ_ID] <= t1 + 1e-9
+        ):
+            return False
+        self._accepted += 1
+        self._accepted_from = (int(v[tick_frames.SP_SYSID]), int(v[tick_frames.SP_COMPID]))
+        self._offboard_signal_s = self._last_setpoint_s = t0
+        self.stats.setpoints += 1
+        ap.set_command(command_of(r[tick_frames.SP_COMMAND]))
+        link, out = self.mav, self._sample_out
+        x, end_lpos, end_attq = lockstep_tick.step_and_sample(
+            ap.state,
+            *ap.kernel_args,
+            self._lockstep_steps,
+            out,
+            link.seq,
+            self.system_id,
+            COMPONENT,
+            frames.LOCAL_POSITION_NED.spec,
+            frames.ATTITUDE_QUATERNION.spec,
+            round(t1 * 1000),
+        )
+        ap.state = x
+        ap.step_index = k1
+        sent = self._sink.frames
+        sent.append(frames.take_frame(link, out, end_lpos))
+        sent.append(frames.take_frame(link, out, end_attq, end_lpos))
+        for msg_id in (LPOS_ID, ATTQ_ID):
+            next_send[msg_id] = _next_due(t1, self._rate_hz[msg_id])
+        self._next_any_s = min(next_send[LPOS_ID], next_send[ATTQ_ID], self._next_other_s)
+        if self._truth is not None:
+            self._truth.append((t1,), x)
+        self.flush()
+        self._stream_gcs()
+        return True
 
     def _for_me(self, m: Any) -> bool:
         """Addressed to this vehicle (a message with a target system and no target component is
@@ -793,7 +871,7 @@ class VehicleEndpoint:
                 self._defaults[msg_id] if us == 0 else (0.0 if us < 0 else 1e6 / max(us, 1.0))
             )
             self._next_send[msg_id] = 0.0
-            self._next_any_s = 0.0
+            self._next_any_s = self._next_other_s = 0.0
         elif cmd == mav.MAV_CMD_REQUEST_MESSAGE and p1 in self._on_request:
             ack(result)  # the ack first, then the message, as PX4 does
             self._on_request[int(p1)](self.time_boot_ms)
@@ -975,9 +1053,10 @@ class VehicleEndpoint:
                 if rate_hz <= 0:
                     next_send[msg_id] = math.inf
                     continue
-                next_send[msg_id] = (math.floor(t * rate_hz + 1e-6) + 1) / rate_hz
+                next_send[msg_id] = _next_due(t, rate_hz)
                 self._senders[msg_id](round(t * 1000))
         self._next_any_s = min(next_send.values())
+        self._next_other_s = min(at for msg_id, at in next_send.items() if msg_id not in (LPOS_ID, ATTQ_ID))
 
     def _send_local_position(self, ms: int) -> None:
         self._send_sample_part(tick_frames.pack_local_position, frames.LOCAL_POSITION_NED, ms)

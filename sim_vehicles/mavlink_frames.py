@@ -140,13 +140,13 @@ def pack_frame(link: Any, layout: Layout, values: Sequence[float]) -> bytes:
     return take_frame(link, out, n)
 
 
-def take_frame(link: Any, out: np.ndarray, n: int) -> bytes:
-    """The frame a kernel packed into ``out[:n]`` with ``link``'s sequence number, as bytes;
+def take_frame(link: Any, out: np.ndarray, n: int, start: int = 0) -> bytes:
+    """The frame a kernel packed into ``out[start:n]`` with ``link``'s sequence number, as bytes;
     advances ``link``'s sequence number and counters past it, as pymavlink's send would."""
-    frame = out[:n].tobytes()
+    frame = out[start:n].tobytes()
     link.seq = (link.seq + 1) % 256
     link.total_packets_sent += 1
-    link.total_bytes_sent += n
+    link.total_bytes_sent += n - start
     return frame
 
 

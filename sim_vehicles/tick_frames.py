@@ -53,19 +53,31 @@ SP_COMMAND = slice(7, 16)  #: ``wire_format.command_from_fields``
 
 
 @kernel
-def pack_local_position(out, seq, sysid, compid, spec, time_boot_ms, x):
+def local_position_into(out, at, seq, sysid, compid, spec, time_boot_ms, x):
+    """LOCAL_POSITION_NED of state ``x`` written at ``out[at:]``; returns the index after it."""
     v = np.empty(7)
     v[0] = time_boot_ms
     v[1:7] = local_position_fields(x[0:3], x[3:6])
-    return pack_into(out, 0, seq, sysid, compid, spec, v)
+    return pack_into(out, at, seq, sysid, compid, spec, v)
+
+
+@kernel
+def attitude_quaternion_into(out, at, seq, sysid, compid, spec, time_boot_ms, x):
+    """ATTITUDE_QUATERNION of state ``x`` written at ``out[at:]``; returns the index after it."""
+    v = np.empty(8)
+    v[0] = time_boot_ms
+    v[1:8] = attitude_quaternion_fields(x[6:10], x[10:13])
+    return pack_into(out, at, seq, sysid, compid, spec, v)
+
+
+@kernel
+def pack_local_position(out, seq, sysid, compid, spec, time_boot_ms, x):
+    return local_position_into(out, 0, seq, sysid, compid, spec, time_boot_ms, x)
 
 
 @kernel
 def pack_attitude_quaternion(out, seq, sysid, compid, spec, time_boot_ms, x):
-    v = np.empty(8)
-    v[0] = time_boot_ms
-    v[1:8] = attitude_quaternion_fields(x[6:10], x[10:13])
-    return pack_into(out, 0, seq, sysid, compid, spec, v)
+    return attitude_quaternion_into(out, 0, seq, sysid, compid, spec, time_boot_ms, x)
 
 
 @kernel

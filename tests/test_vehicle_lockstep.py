@@ -1,5 +1,6 @@
 """The vehicle's clocks, driven over real UDP by a pymavlink client (endpoint in-process)."""
 
+import copy
 import os
 import socket
 import subprocess
@@ -10,6 +11,7 @@ import time
 import numpy as np
 import pytest
 from pymavlink import mavutil
+from pymavlink.dialects.v20 import common as mavlink2
 
 from sim_vehicles import udp_arrival
 from sim_vehicles.autopilot import Autopilot
@@ -229,7 +231,8 @@ import sys
 import numba
 from sim_vehicles.__main__ import warm_up
 from sim_vehicles.autopilot import Autopilot
-from sim_vehicles.mavlink_endpoint import VehicleEndpoint
+from pymavlink.dialects.v20 import common as mav
+from sim_vehicles.mavlink_endpoint import MODE_OFFBOARD, VehicleEndpoint
 from sim_vehicles.mavlink_signing import Signer
 from sim_vehicles.params import AttitudeGains, VehicleParams
 from sim_vehicles.rigid_body import make_state
@@ -256,6 +259,13 @@ for armed in (False, True):  # every stream of both ports, on the ground and fly
     ep.armed = armed
     for _ in range(150):
         ep.step(10)
+ep.mode = MODE_OFFBOARD  # and the usual lockstep tick: a signed setpoint for now, in offboard
+controller = mav.MAVLink(None, 7, 191)
+for _ in range(3):
+    sp = controller.set_attitude_target_encode(ep.time_boot_ms, 7, 1, 0, [1.0, 0, 0, 0], 0, 0, 0, 0.4)
+    k = ep.autopilot.step_index
+    ep._datagram(Signer(bytes(32)).seal(sp.pack(controller)), ("127.0.0.1", 9))
+    assert ep.autopilot.step_index == k + 10, "the setpoint did not step the vehicle"
 ep._datagram(Signer(bytes(32)).seal(bytes([253, 0, 0, 0, 0, 9, 1, 0, 0, 0, 0, 0])), ("127.0.0.1", 9))
 after = loaded()
 ep.close()
@@ -298,3 +308,72 @@ def test_a_ground_station_port_packs_nothing_until_someone_speaks_to_it(tmp_path
     finally:
         gcs.close()
         ep.close()
+
+
+#: what an endpoint keeps besides its state and counters
+_BOOKS = ("_next_send", "_next_any_s", "_next_other_s", "_last_setpoint_s", "_offboard_signal_s")
+_BOOKS += ("_accepted", "_accepted_from", "mode", "armed")
+
+
+def _fly_setpoints(
+    tmp_path, name: str, usual_tick: bool
+) -> tuple[list[bytes], VehicleEndpoint, list[bool], list[dict]]:
+    """A lockstep vehicle armed in offboard, served 120 setpoints from a pymavlink controller
+    (varied commands; every 15th ignores the rates, so the general path takes it), with its other
+    streams at their defaults (ATTITUDE and HIGHRES_IMU at 50 Hz: due every other tick). Returns
+    what it sent, the endpoint (closed), for each setpoint whether the one-call tick took it
+    (``usual_tick=False``: never), and its books (``_BOOKS``) after each."""
+    params = VehicleParams(0.85, (0.05, 0.05, 0.09), 25.0)
+    ap = Autopilot(params, AttitudeGains(16.0, 16.0), make_state([1.0, 2.0, 3.0]), 0.001)
+    ep = VehicleEndpoint(ap, 7, lockstep_period_s=0.01, truth_path=tmp_path / f"{name}.rows")
+    taken: list[bool] = []
+    general = ep._usual_tick
+    ep._usual_tick = lambda r: usual_tick and (taken.append(general(r)) or taken[-1])  # type: ignore[method-assign]
+    rx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    rx.bind(("127.0.0.1", 0))
+    controller = mavlink2.MAVLink(None, 7, 191)
+    rng = np.random.default_rng(5)
+    ep.armed, ep.mode = True, 1
+    sent: list[bytes] = []
+    books = []
+    try:
+        for k in range(120):
+            q = rng.normal(size=4) * [0.05, 0.05, 0.05, 1.0]
+            q /= np.linalg.norm(q)
+            rates = rng.normal(scale=0.3, size=3)
+            mask = 0b0000_0111 if k % 15 == 7 else 0
+            sp = controller.set_attitude_target_encode(
+                ep.time_boot_ms, 7, 1, mask, q.tolist(), *rates.tolist(), float(rng.uniform(0.2, 0.5))
+            )
+            ep._datagram(sp.pack(controller), rx.getsockname())
+            ep.flush()
+            books.append({b: copy.copy(getattr(ep, b)) for b in (*_BOOKS, "stats")})
+        rx.setblocking(False)
+        while True:
+            try:
+                sent.append(rx.recv(4096))
+            except BlockingIOError:
+                break
+    finally:
+        rx.close()
+        ep.close()
+    return sent, ep, taken, books
+
+
+def test_the_one_call_lockstep_tick_is_the_general_path_bit_for_bit(tmp_path):
+    """``lockstep_tick``: the same state, bytes, counters and truth rows as the setpoint handler,
+    step and stream table it stands in for, interleaved with ticks that other streams make general."""
+    fast_sent, fast, taken, fast_books = _fly_setpoints(tmp_path, "fast", usual_tick=True)
+    slow_sent, slow, _, slow_books = _fly_setpoints(tmp_path, "slow", usual_tick=False)
+    assert 40 <= sum(taken) < len(taken) == 120  # at 50 Hz, ATTITUDE and HIGHRES_IMU make every other general
+    assert fast.time_boot_ms == slow.time_boot_ms == 1200
+    assert fast.autopilot.state.tobytes() == slow.autopilot.state.tobytes()
+    assert len(fast_sent) >= 120 and fast_sent == slow_sent
+    assert fast.stats == slow.stats and fast.stats.setpoints == 120
+    assert (fast.mav.seq, fast.mav.total_bytes_sent) == (slow.mav.seq, slow.mav.total_bytes_sent)
+    assert fast_books == slow_books  # after every setpoint
+    (fast_columns, fast_rows), (slow_columns, slow_rows) = (
+        read_rows(tmp_path / f"{n}.rows") for n in ("fast", "slow")
+    )
+    assert fast_columns == slow_columns and fast_rows.shape == (120, 14)
+    assert fast_rows.tobytes() == slow_rows.tobytes()

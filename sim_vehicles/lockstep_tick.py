@@ -1,0 +1,70 @@
+"""A lockstep vehicle's usual tick in one compiled call.
+
+In lockstep nearly every datagram a vehicle gets is the same: its controller's SET_ATTITUDE_TARGET
+for the vehicle's current time, every field taken, while it flies offboard. The vehicle holds that
+command for one period and sends its sample, LOCAL_POSITION_NED and ATTITUDE_QUATERNION of the new
+state. Taken call by call in Python (the endpoint's setpoint handler, its step, its stream table,
+a kernel call per frame) that was most of a vehicle's CPU, paid with cold caches at every wake-up
+(``docs/performance.md``).
+
+``step_and_sample`` runs the same kernels in the same order (``autopilot.advance_kernel``, then
+``tick_frames``' two frames), so the state and the bytes are those of the general path bit for
+bit. ``mavlink_endpoint`` decides when a tick is the usual one and keeps the books around it
+(sequence numbers, stream schedule, ``.tlog``); anything else takes the general path.
+"""
+
+from sim_vehicles.autopilot import advance_kernel
+from sim_vehicles.jit import kernel
+from sim_vehicles.tick_frames import attitude_quaternion_into, local_position_into
+
+#: room for the two frames of a sample
+SAMPLE_BYTES = 128
+
+
+@kernel
+def step_and_sample(
+    x,
+    q_c,
+    omega_c,
+    omegadot_c,
+    thrust_N,
+    mass_kg,
+    inertia_kgm2,
+    g_mps2,
+    l_q,
+    k_q,
+    max_thrust_N,
+    max_rate,
+    dt_s,
+    n_steps,
+    out,
+    seq,
+    sysid,
+    compid,
+    lpos_spec,
+    attq_spec,
+    time_boot_ms,
+):
+    """Advance state ``x`` ``n_steps`` attitude steps under the command (``Autopilot.kernel_args``),
+    then write LOCAL_POSITION_NED (sequence number ``seq``) and ATTITUDE_QUATERNION (``seq + 1``)
+    of the new state, stamped ``time_boot_ms``, to ``out``. Returns the new state and the index
+    after each frame."""
+    x = advance_kernel(
+        x,
+        q_c,
+        omega_c,
+        omegadot_c,
+        thrust_N,
+        mass_kg,
+        inertia_kgm2,
+        g_mps2,
+        l_q,
+        k_q,
+        max_thrust_N,
+        max_rate,
+        dt_s,
+        n_steps,
+    )
+    end_lpos = local_position_into(out, 0, seq, sysid, compid, lpos_spec, time_boot_ms, x)
+    end_attq = attitude_quaternion_into(out, end_lpos, seq + 1, sysid, compid, attq_spec, time_boot_ms, x)
+    return x, end_lpos, end_attq
