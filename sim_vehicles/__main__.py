@@ -41,7 +41,7 @@ def warm_up(params: VehicleParams, gains: AttitudeGains, attitude_hz: float) -> 
     mavlink_signing.warm_up()
     lockstep_tick.step_and_sample(
         ap.state,
-        *ap.kernel_args,
+        ap.kernel_args,
         1,
         np.zeros(lockstep_tick.SAMPLE_BYTES, np.uint8),
         0,

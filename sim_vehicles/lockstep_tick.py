@@ -22,49 +22,12 @@ SAMPLE_BYTES = 128
 
 
 @kernel
-def step_and_sample(
-    x,
-    q_c,
-    omega_c,
-    omegadot_c,
-    thrust_N,
-    mass_kg,
-    inertia_kgm2,
-    g_mps2,
-    l_q,
-    k_q,
-    max_thrust_N,
-    max_rate,
-    dt_s,
-    n_steps,
-    out,
-    seq,
-    sysid,
-    compid,
-    lpos_spec,
-    attq_spec,
-    time_boot_ms,
-):
-    """Advance state ``x`` ``n_steps`` attitude steps under the command (``Autopilot.kernel_args``),
-    then write LOCAL_POSITION_NED (sequence number ``seq``) and ATTITUDE_QUATERNION (``seq + 1``)
-    of the new state, stamped ``time_boot_ms``, to ``out``. Returns the new state and the index
-    after each frame."""
-    x = advance_kernel(
-        x,
-        q_c,
-        omega_c,
-        omegadot_c,
-        thrust_N,
-        mass_kg,
-        inertia_kgm2,
-        g_mps2,
-        l_q,
-        k_q,
-        max_thrust_N,
-        max_rate,
-        dt_s,
-        n_steps,
-    )
+def step_and_sample(x, plant_args, n_steps, out, seq, sysid, compid, lpos_spec, attq_spec, time_boot_ms):
+    """Advance state ``x`` ``n_steps`` attitude steps under the command (``plant_args``:
+    ``Autopilot.kernel_args``), then write LOCAL_POSITION_NED (sequence number ``seq``) and
+    ATTITUDE_QUATERNION (``seq + 1``) of the new state, stamped ``time_boot_ms``, to ``out``.
+    Returns the new state and the index after each frame."""
+    x = advance_kernel(x, *plant_args, n_steps)
     end_lpos = local_position_into(out, 0, seq, sysid, compid, lpos_spec, time_boot_ms, x)
     end_attq = attitude_quaternion_into(out, end_lpos, seq + 1, sysid, compid, attq_spec, time_boot_ms, x)
     return x, end_lpos, end_attq

@@ -714,7 +714,7 @@ class VehicleEndpoint:
         link, out = self.mav, self._sample_out
         x, end_lpos, end_attq = lockstep_tick.step_and_sample(
             ap.state,
-            *ap.kernel_args,
+            ap.kernel_args,
             self._lockstep_steps,
             out,
             link.seq,
