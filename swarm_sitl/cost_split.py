@@ -36,6 +36,7 @@ _BY_FILE = (  # (activity, path fragments), first match wins
         "physics and laws",
         (
             "sim_vehicles/autopilot.py",
+            "sim_vehicles/lockstep_tick.py",  # the plant's period, then two frames packed
             "sim_vehicles/rigid_body.py",
             "sim_vehicles/torque_law.py",
             "sim_vehicles/failsafe.py",
