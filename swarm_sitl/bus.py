@@ -78,8 +78,9 @@ RUNTIME_ENV = "ZENOH_RUNTIME"  #: the variable zenoh reads its threads from
 #: zenoh's runtime (``ZENOH_RUNTIME``, RON) for a process whose session routes the swarm: one worker
 #: thread that receives, routes and sends. zenoh's default gives receiving (two threads), sending,
 #: accepting, its network tasks and the application pools of their own, so each routed estimate
-#: crosses from thread to thread, a wake-up at each. Measured (``docs/performance.md``): 9-15 % less
-#: CPU and wall time for a lockstep run; the nodes' sessions gained nothing from it and keep zenoh's.
+#: crosses from thread to thread, a wake-up at each. Measured (``docs/performance.md``): 10-14 % less
+#: wall time and 7-11 % less CPU for a lockstep run; the nodes' sessions were slower with it and
+#: keep zenoh's default.
 ROUTER_RUNTIME = (
     "(app: (worker_threads: 1), rx: (handover: app), tx: (handover: app), "
     "acc: (handover: app), net: (handover: app))"
