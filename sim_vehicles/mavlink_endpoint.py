@@ -689,8 +689,7 @@ class VehicleEndpoint:
         if not (
             v[tick_frames.SP_TYPE_MASK] == 0
             and v[_SP_VALID]
-            and v[tick_frames.SP_TARGET_SYSTEM] in (0, self.system_id)
-            and v[tick_frames.SP_TARGET_COMPONENT] in (0, COMPONENT)
+            and self._addressed(v[tick_frames.SP_TARGET_SYSTEM], v[tick_frames.SP_TARGET_COMPONENT])
         ):
             return False
         ap = self.autopilot
@@ -741,7 +740,11 @@ class VehicleEndpoint:
     def _for_me(self, m: Any) -> bool:
         """Addressed to this vehicle (a message with a target system and no target component is
         for the system)."""
-        return m.target_system in (0, self.system_id) and getattr(m, "target_component", 0) in (0, COMPONENT)
+        return self._addressed(m.target_system, getattr(m, "target_component", 0))
+
+    def _addressed(self, target_system: float, target_component: float) -> bool:
+        """Whether a target system and component (0: any) are this vehicle's autopilot."""
+        return target_system in (0, self.system_id) and target_component in (0, COMPONENT)
 
     def _handle_safely(self, m: Any) -> None:
         """``_handle``, counting a message addressed elsewhere, and a handler's failure (a bug the

@@ -24,6 +24,7 @@ good).
 
 import contextlib
 import json
+import os
 import re
 import socket
 import time
@@ -95,8 +96,6 @@ def router_runtime() -> Iterator[None]:
     opened one before keeps the runtime it has, and a runtime the user set is left alone. The
     variable is taken back on the way out, so the processes started afterwards keep zenoh's
     defaults."""
-    import os
-
     if RUNTIME_ENV in os.environ:
         yield
         return
