@@ -108,6 +108,13 @@ def test_a_repeat_inside_one_datagram_is_a_replay():
     three = s.seal(_plain())
     assert v.open(three + two) == _plain() + _plain(sysid=4)  # streams interleaved, each rising
     assert v.open(three) is None and v.replayed == 2
+    # a pass of one stream moves its clock to its last frame's stamp: a frame stamped between its
+    # first and its last, or at its last, comes too late
+    t = signing.now_stamp() + 1000
+    w = Verifier(KEY)
+    assert w.open(_forged_stamp(_plain(), t) + _forged_stamp(_plain(), t + 5)) == _plain() + _plain()
+    assert w.open(_forged_stamp(_plain(), t + 3)) is None and w.open(_forged_stamp(_plain(), t + 5)) is None
+    assert w.replayed == 2 and w.open(_forged_stamp(_plain(), t + 6)) == _plain()
 
 
 def test_a_key_of_the_wrong_length_is_refused_in_one_line():
