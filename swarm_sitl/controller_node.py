@@ -76,6 +76,9 @@ LOST_GRACE_S = 1.0
 #: longest block while waiting on the vehicle's socket and the bus, each of which wakes the wait
 #: when something comes: how often resends and stall checks get their turn [s]
 IDLE_S = 0.05
+#: lockstep: every this many ticks the bus drops the estimates older than the last tick's (a tick
+#: asks only for those of the tick before it; dropping them every tick cost a call per tick)
+FORGET_EVERY = 8
 
 
 class NodeReport(NamedTuple):
@@ -332,7 +335,7 @@ def run_controller(
             rows.append((k, t, boot_s, sample_t, lateness, done), p, v, q, step.state, step.output)
         if k % r.status_every == 0 or k == n or k == io.first:
             bus.publish_status(Status(i, k, t, sample_t, p))
-        if lockstep and k >= 2:
+        if lockstep and k % FORGET_EVERY == 0:
             bus.forget_before(k - 1)
         k += 1
     if not lockstep:

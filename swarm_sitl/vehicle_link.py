@@ -21,6 +21,7 @@ in one compiled call each (``sim_vehicles.tick_frames``); a datagram that is not
 is split with ``sim_vehicles.mavlink_frames``, and everything else goes through pymavlink.
 """
 
+import contextlib
 import math
 import os
 import time
@@ -191,10 +192,11 @@ class VehicleLink:
                 s = tick_frames.read_sample(
                     data, self.system_id, COMP_AUTOPILOT, _LPOS.spec, _ATTQ.spec, _IGNORED
                 )
-                if s[tick_frames.RS_OK]:  # the sample, and telemetry that is only counted
-                    n += int(s[tick_frames.RS_FRAMES])
-                    self.rx_bad += int(s[tick_frames.RS_BAD])
-                    ms = int(s[tick_frames.RS_TIME_MS])
+                v = s.tolist()  # Python floats: one call, where each numpy scalar costs one
+                if v[tick_frames.RS_OK]:  # the sample, and telemetry that is only counted
+                    n += int(v[tick_frames.RS_FRAMES])
+                    self.rx_bad += int(v[tick_frames.RS_BAD])
+                    ms = int(v[tick_frames.RS_TIME_MS])
                     self._lpos = self._attq = (ms,)  # this instant is complete: no half to wait for
                     self._set_sample(ms, s[tick_frames.RS_SAMPLE], arrival)
                     continue
@@ -323,9 +325,24 @@ class VehicleLink:
         if self._signer is not None:
             frame = self._signer.seal(frame)
         if self.faults is None:
-            self.conn.write(frame)
+            self._write(frame)
         else:
             self.faults.send(frame, time_boot_ms, self.conn.write, self.send_clock_only)
+
+    def _write(self, frame: bytes) -> None:
+        """``conn.write``; on a ``udpout:`` link whose address pymavlink has resolved, its socket's
+        ``sendto`` straight away (what pymavlink's ``write`` ends in, without its per-call checks)."""
+        c = self.conn
+        if (
+            self._datagrams
+            and not c.udp_server
+            and not c.broadcast
+            and c.resolved_destination_addr is not None
+        ):
+            with contextlib.suppress(OSError):  # as pymavlink's write: a send that fails is lost
+                c.port.sendto(frame, c.destination_addr)
+            return
+        c.write(frame)
 
     def send_clock_only(self, time_boot_ms: int) -> None:
         """Lockstep: a clock-only SET_ATTITUDE_TARGET (every field ignored): the vehicle moves its
