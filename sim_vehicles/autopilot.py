@@ -104,14 +104,19 @@ class Autopilot:
     def time_s(self) -> float:
         return self.step_index * self.dt_s
 
-    def set_command(self, command: AttitudeCommand) -> None:
+    def set_command(self, command: AttitudeCommand, kernel_ready: bool = False) -> None:
+        """Hold ``command`` from now. ``kernel_ready``: its attitude and rates are writable
+        C-contiguous float64 arrays already (views into a kernel's fresh result), not checked again."""
         self.command = command
         p = self.params
+        q_c, omega_c = command.q_c, command.omega_c_B
+        if not kernel_ready:
+            q_c, omega_c = _kernel_arg(q_c), _kernel_arg(omega_c)
         # the kernel's arguments but the state and the step count, prepared once per command
         # rather than once per advance (``max_rate_rps`` is changed in place, never replaced)
         self.kernel_args = (
-            _kernel_arg(command.q_c),
-            _kernel_arg(command.omega_c_B),
+            q_c,
+            omega_c,
             _kernel_arg(command.omegadot_c_B),
             float(command.thrust_N),
             p.mass_kg,

@@ -709,7 +709,7 @@ class VehicleEndpoint:
         self._accepted_from = (int(v[tick_frames.SP_SYSID]), int(v[tick_frames.SP_COMPID]))
         self._offboard_signal_s = self._last_setpoint_s = t0
         self.stats.setpoints += 1
-        ap.set_command(command_of(r[tick_frames.SP_COMMAND]))
+        ap.set_command(command_of(r[tick_frames.SP_COMMAND]), kernel_ready=True)  # views of ``r``
         link, out = self.mav, self._sample_out
         x, end_lpos, end_attq = lockstep_tick.step_and_sample(
             ap.state,
