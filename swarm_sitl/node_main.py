@@ -9,16 +9,28 @@ import argparse
 import json
 import signal
 import sys
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from sim_vehicles.lifeline import mark, process_figures
 from swarm_sitl.config import SwarmConfig
 from swarm_sitl.zenoh_access import node_keys
 
+if TYPE_CHECKING:
+    from swarm_sitl.node_clock import RunClock
+
 
 def _terminate(signum: int, frame: object) -> None:
     raise KeyboardInterrupt
+
+
+def _horizon(clock: "RunClock", last_tick: int) -> Callable[[], int]:
+    """The bus's ``horizon``, asked for every estimate and status: ``clock.horizon``, a constant
+    in lockstep."""
+    if clock.lockstep:
+        return lambda: last_tick
+    return lambda: clock.horizon(last_tick)
 
 
 def _session(cfg: SwarmConfig, connect: list[str]) -> Any:
@@ -119,7 +131,7 @@ def cmd_controller(cfg: SwarmConfig, args: argparse.Namespace) -> int:
             session = _session(cfg, args.connect)
             mark("zenoh")
             bus = zbus = ZenohNodeBus.of(session, cfg.name, node_keys(cfg, i))
-            zbus.horizon = lambda: clock.horizon(cfg.n_control_steps)
+            zbus.horizon = _horizon(clock, cfg.n_control_steps)
             if args.lockstep:
                 zbus.counted_steps = range(args.resume_tick, cfg.n_control_steps)
             faulty = None
@@ -174,7 +186,7 @@ def cmd_leader(cfg: SwarmConfig, args: argparse.Namespace) -> int:
             mark("zenoh")
             clock = RunClock(args.lockstep, cfg.control_dt_s)
             zbus = ZenohNodeBus.of(session, cfg.name, node_keys(cfg, 0))
-            zbus.horizon = lambda: clock.horizon(cfg.n_control_steps)
+            zbus.horizon = _horizon(clock, cfg.n_control_steps)
             node_bus: NodeBus = zbus
             if acts_on(cfg.faults, 0, edges):
                 node_bus = FaultyBus(

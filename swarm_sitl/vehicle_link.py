@@ -21,7 +21,6 @@ in one compiled call each (``sim_vehicles.tick_frames``); a datagram that is not
 is split with ``sim_vehicles.mavlink_frames``, and everything else goes through pymavlink.
 """
 
-import contextlib
 import math
 import os
 import time
@@ -118,6 +117,8 @@ class VehicleLink:
         if self._signer is not None:  # what pymavlink sends for us is signed on its way out
             self.conn.mav.file = _Sealing(self.conn, self._signer)
         self._next_hb = 0.0
+        #: ``udpout:``: the socket's ``sendto`` and the resolved address, once pymavlink has them
+        self._sendto: tuple[Callable[[bytes, Any], int], Any] | None = None
         self.stamps_arrivals = stamp_arrivals and self._enable_timestamps()
         # whole frames per read: UDP only (a serial or TCP read can end inside a frame, and
         # pymavlink's parser keeps the rest for the next read)
@@ -332,17 +333,17 @@ class VehicleLink:
     def _write(self, frame: bytes) -> None:
         """``conn.write``; on a ``udpout:`` link whose address pymavlink has resolved, its socket's
         ``sendto`` straight away (what pymavlink's ``write`` ends in, without its per-call checks)."""
-        c = self.conn
-        if (
-            self._datagrams
-            and not c.udp_server
-            and not c.broadcast
-            and c.resolved_destination_addr is not None
-        ):
-            with contextlib.suppress(OSError):  # as pymavlink's write: a send that fails is lost
-                c.port.sendto(frame, c.destination_addr)
+        to = self._sendto
+        if to is None:
+            c = self.conn
+            c.write(frame)
+            if self._datagrams and not c.udp_server and not c.broadcast and c.resolved_destination_addr:
+                self._sendto = (c.port.sendto, c.destination_addr)
             return
-        c.write(frame)
+        try:  # noqa: SIM105  (a try costs less than a suppress() object every tick)
+            to[0](frame, to[1])
+        except OSError:
+            pass  # as pymavlink's write: a send that fails is lost
 
     def send_clock_only(self, time_boot_ms: int) -> None:
         """Lockstep: a clock-only SET_ATTITUDE_TARGET (every field ignored): the vehicle moves its
