@@ -219,6 +219,61 @@ def test_a_link_checks_the_telemetry_it_ignores_and_counts_what_is_bad():
         vehicle.close()
 
 
+def test_a_signed_link_reads_its_sample_and_refuses_the_rest():
+    """On a signed link a sample datagram is checked, unsigned and read as the sample; anything
+    else it takes goes on to the general reader, and what it refuses is counted: unsigned or
+    replayed as refused, wrongly signed as bad."""
+    from sim_vehicles.mavlink_signing import Signer, key_from_passphrase
+    from swarm_sitl.vehicle_link import VehicleLink
+
+    key = key_from_passphrase("run key")
+    vehicle = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    vehicle.bind(("127.0.0.1", 0))
+    vehicle.settimeout(5)
+    link = VehicleLink(
+        f"udpout:127.0.0.1:{vehicle.getsockname()[1]}", 3, stamp_arrivals=False, signing_key=key
+    )
+    signer = Signer(key)
+    tx = mav.MAVLink(_Sink(), 3, 1)
+
+    def sample(ms: int, z: float) -> bytes:
+        s = frames.pack_frame(tx, frames.LOCAL_POSITION_NED, (ms, 1.0, 2.0, z, 0.0, 0.0, 0.0))
+        return s + frames.pack_frame(tx, frames.ATTITUDE_QUATERNION, (ms, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0))
+
+    def deliver(datagram: bytes) -> None:
+        vehicle.sendto(datagram, controller_addr)
+        deadline = time.monotonic() + 5
+        while link.poll() == 0 and link.rx_bad + link.rx_refused == counts and time.monotonic() < deadline:
+            time.sleep(0.01)
+
+    try:
+        link.send_heartbeat_if_due()
+        _, controller_addr = vehicle.recvfrom(512)
+        counts = 0
+        first = signer.seal(sample(40, -3.0))
+        deliver(first)
+        assert link.sample_ms == 40 and link.sample()[1][2] == 3.0  # NED down -3 m: ENU up 3 m
+        heartbeat = bytes(mav.MAVLink_heartbeat_message(2, 12, 0, 4, 3, 3).pack(tx))
+        deliver(signer.seal(heartbeat))  # not a sample: unsigned and read the general way
+        assert link.heartbeat is not None and link.heartbeat.autopilot == 12
+        for datagram, refused, bad in (
+            (sample(50, -4.0), 1, 0),  # unsigned
+            (first, 1, 0),  # replayed
+            (Signer(key_from_passphrase("other")).seal(sample(50, -4.0)), 0, 1),  # wrongly signed
+        ):
+            before = (link.rx_refused, link.rx_bad)
+            counts = sum(before)
+            deliver(datagram)
+            assert (link.rx_refused - before[0], link.rx_bad - before[1]) == (refused, bad)
+            assert link.sample_ms == 40
+        counts = link.rx_bad + link.rx_refused
+        deliver(signer.seal(sample(50, -4.0)))
+        assert link.sample_ms == 50 and link.sample()[1][2] == 4.0
+    finally:
+        link.close()
+        vehicle.close()
+
+
 @settings(max_examples=150, deadline=None)
 @given(data=st.data(), seq=st.integers(0, 255), sysid=st.integers(1, 255), compid=st.integers(0, 255))
 def test_compiled_frames_are_byte_identical_to_pymavlink_and_read_back_the_same(data, seq, sysid, compid):
