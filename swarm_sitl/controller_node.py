@@ -149,8 +149,8 @@ class _Inputs:
         self.bus.poll()
         self.read_link()
 
-    def read_link(self, readable: bool = False) -> None:
-        self.link.poll(readable)
+    def read_link(self, readable: bool = False, until_ms: int = -1) -> None:
+        self.link.poll(readable, until_ms)
         if self.link.sample_ms != self._last_ms:
             self._last_ms = self.link.sample_ms
             arrival = self.link.sample_arrival_mono - self.epoch_mono
@@ -211,7 +211,7 @@ class _Inputs:
             # nothing, so block for it first, then read both inputs once
             readable = bool(select.select([self.link.fileno()], [], [], SAMPLE_WAIT_S)[0])
             self.bus.poll()
-            self.read_link(readable)
+            self.read_link(readable, self.t_ms)
         if not self.ready():
             wait_until(
                 self.ready, self.read, self.fds, timeout_s, self.missing, self.idle, block_s=lambda: IDLE_S

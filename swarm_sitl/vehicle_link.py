@@ -167,9 +167,11 @@ class VehicleLink:
             return b"", math.nan
         return data, arrival
 
-    def poll(self, readable: bool = False) -> int:
+    def poll(self, readable: bool = False, until_ms: int = -1) -> int:
         """Read everything waiting; returns the number of messages handled. ``readable``: a
-        ``select`` on ``fileno()`` has just said so (the first read needs no check). Bytes go
+        ``select`` on ``fileno()`` has just said so (the first read needs no check). ``until_ms``:
+        stop once the sample of that instant has come (lockstep: what else waits is read at the
+        next tick, whose wait finds the socket readable), saving a look at an empty socket. Bytes go
         straight to the parsers (``tick_frames``, ``mavlink_frames``, else ``mav.parse_buffer``):
         mavutil's per-message bookkeeping, which this link does not use, costs as much as the parsing."""
         n = 0
@@ -200,6 +202,8 @@ class VehicleLink:
                     ms = int(v[tick_frames.RS_TIME_MS])
                     self._lpos = self._attq = (ms,)  # this instant is complete: no half to wait for
                     self._set_sample(ms, s[tick_frames.RS_SAMPLE], arrival)
+                    if ms == until_ms:
+                        return n
                     continue
             fast = frames.read_datagram(data, _FAST_IN) if plain else None
             if fast is not None:

@@ -219,6 +219,39 @@ def test_a_link_checks_the_telemetry_it_ignores_and_counts_what_is_bad():
         vehicle.close()
 
 
+def test_a_lockstep_read_stops_at_the_sample_it_waits_for_and_leaves_the_rest_queued():
+    """``poll(until_ms=...)``: once the sample of that instant is in, the link stops reading (a
+    lockstep tick needs nothing more); what came after it is read by the next poll."""
+    from swarm_sitl.vehicle_link import VehicleLink
+
+    vehicle = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    vehicle.bind(("127.0.0.1", 0))
+    vehicle.settimeout(5)
+    link = VehicleLink(f"udpout:127.0.0.1:{vehicle.getsockname()[1]}", 3, stamp_arrivals=False)
+    tx = mav.MAVLink(_Sink(), 3, 1)
+
+    def sample(ms: int) -> bytes:
+        s = frames.pack_frame(tx, frames.LOCAL_POSITION_NED, (ms, 1.0, 2.0, -3.0, 0.0, 0.0, 0.0))
+        return s + frames.pack_frame(tx, frames.ATTITUDE_QUATERNION, (ms, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0))
+
+    try:
+        link.send_heartbeat_if_due()
+        _, controller_addr = vehicle.recvfrom(512)
+        for datagram in (
+            sample(10),
+            sample(20),
+            bytes(mav.MAVLink_heartbeat_message(2, 12, 0, 4, 3, 3).pack(tx)),
+        ):
+            vehicle.sendto(datagram, controller_addr)
+        time.sleep(0.2)  # all three have arrived
+        assert link.poll(until_ms=10) == 2 and link.sample_ms == 10  # the first datagram only
+        assert link.poll(until_ms=20) == 2 and link.sample_ms == 20 and link.heartbeat is None
+        assert link.poll() == 1 and link.heartbeat is not None  # the rest, at the next read
+    finally:
+        link.close()
+        vehicle.close()
+
+
 def test_a_signed_link_reads_its_sample_and_refuses_the_rest():
     """On a signed link a sample datagram is checked, unsigned and read as the sample; anything
     else it takes goes on to the general reader, and what it refuses is counted: unsigned or
