@@ -211,6 +211,9 @@ _PORT_STATE = (
 MAX_DATAGRAM = 1200  #: bytes; below any loopback or Ethernet MTU
 RX_EVERY_S = 0.01  #: real time, offboard: longest a datagram waits to be read [s]
 LOCKSTEP_WAIT_S = 0.2  #: lockstep: longest wait for a datagram before the heartbeat is checked [s]
+#: lockstep: how often the ground-station port is looked at between setpoints [s of wall clock]
+#: (every setpoint, a system call per tick that nearly always finds nothing)
+LOCKSTEP_GCS_EVERY_S = 0.005
 
 
 def _timeval(seconds: float) -> bytes:
@@ -1215,9 +1218,13 @@ class VehicleEndpoint:
         self.sock.setblocking(True)
         self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVTIMEO, _timeval(LOCKSTEP_WAIT_S))
         try:
+            next_gcs = 0.0
             while stop is None or not stop():
-                self.heartbeat_tick(time.monotonic())
-                self.poll_gcs()  # a ground station waits at most LOCKSTEP_WAIT_S, or a tick
+                now = time.monotonic()
+                self.heartbeat_tick(now)
+                if now >= next_gcs:  # a ground station waits LOCKSTEP_WAIT_S at most, or 5 ms and a tick
+                    next_gcs = now + LOCKSTEP_GCS_EVERY_S
+                    self.poll_gcs()
                 try:
                     data, addr = self.sock.recvfrom(4096)
                 except OSError:  # the wait ran out (EAGAIN), or an ICMP error
