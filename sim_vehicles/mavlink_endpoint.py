@@ -216,11 +216,6 @@ LOCKSTEP_WAIT_S = 0.2  #: lockstep: longest wait for a datagram before the heart
 LOCKSTEP_GCS_EVERY_S = 0.005
 
 
-def _timeval(seconds: float) -> bytes:
-    """A ``struct timeval`` for ``SO_RCVTIMEO``."""
-    return struct.pack("@ll", int(seconds), round((seconds % 1.0) * 1e6))
-
-
 TRUTH_COLUMNS = ["time_boot_s", "px", "py", "pz", "vx", "vy", "vz", "qw", "qx", "qy", "qz", "wx", "wy", "wz"]
 
 
@@ -1215,8 +1210,7 @@ class VehicleEndpoint:
         One datagram per wake-up, read by a blocking ``recvfrom`` that gives up after
         ``LOCKSTEP_WAIT_S`` (``SO_RCVTIMEO``) so the heartbeat and ``stop()`` still get their turn:
         one system call where a ``select`` and a drain would take three."""
-        self.sock.setblocking(True)
-        self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVTIMEO, _timeval(LOCKSTEP_WAIT_S))
+        udp_arrival.block_reads(self.sock, LOCKSTEP_WAIT_S)
         try:
             next_gcs = 0.0
             while stop is None or not stop():
@@ -1234,5 +1228,4 @@ class VehicleEndpoint:
                 finally:
                     self.flush()
         finally:
-            self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVTIMEO, _timeval(0.0))
-            self.sock.setblocking(False)
+            udp_arrival.block_reads(self.sock, 0.0)

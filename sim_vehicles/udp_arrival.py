@@ -27,6 +27,19 @@ _TIMESPEC = struct.Struct("qq")
 _ANCILLARY_BYTES = 64
 
 
+def block_reads(sock: socket.socket, timeout_s: float) -> None:
+    """Reads of ``sock`` wait up to ``timeout_s`` for a datagram (``SO_RCVTIMEO``; then
+    ``BlockingIOError``); 0: they return at once again (non-blocking). A loop that waits for one
+    datagram then waits in ``recvfrom``: one system call where ``select`` and a read take two."""
+    if timeout_s <= 0:
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVTIMEO, struct.pack("@ll", 0, 0))
+        sock.setblocking(False)
+        return
+    sock.setblocking(True)
+    timeval = struct.pack("@ll", int(timeout_s), round((timeout_s % 1.0) * 1e6))
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVTIMEO, timeval)
+
+
 def enable(sock: socket.socket) -> bool:
     """Ask the kernel to stamp each datagram ``sock`` receives; ``False`` where it cannot."""
     if not sys.platform.startswith("linux") or sock.type != socket.SOCK_DGRAM:

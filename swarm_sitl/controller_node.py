@@ -24,7 +24,6 @@ Every tick is written to ``procs/controller_<i>.rows`` (``row_log``) as it happe
 """
 
 import math
-import select
 import time
 from typing import NamedTuple
 
@@ -208,10 +207,10 @@ class _Inputs:
         self.need = self.sources if k > self.first else []
         if self.link.sample_ms != self.t_ms:
             # the vehicle answers the setpoint just sent: a read before its datagram comes finds
-            # nothing, so block for it first, then read both inputs once
-            readable = bool(select.select([self.link.fileno()], [], [], SAMPLE_WAIT_S)[0])
+            # nothing, so block for it first (in the read itself: ``VehicleLink.block_reads``),
+            # then read the bus
+            self.read_link(True, self.t_ms)
             self.bus.poll()
-            self.read_link(readable, self.t_ms)
         if not self.ready():
             wait_until(
                 self.ready, self.read, self.fds, timeout_s, self.missing, self.idle, block_s=lambda: IDLE_S
@@ -285,6 +284,8 @@ def run_controller(
     old_samples = 0
     max_age = 0.0
     k = io.first = resume_tick if lockstep else 0
+    if lockstep:  # a tick's first read of its link waits in recvfrom for the vehicle's answer
+        link.block_reads(SAMPLE_WAIT_S)
     while k <= n:
         t = k * dt + phase
         clock.tick = k

@@ -135,6 +135,13 @@ class VehicleLink:
     def fileno(self) -> int:
         return int(self.conn.fd)
 
+    def block_reads(self, timeout_s: float) -> None:
+        """UDP: a read told its socket is readable (``poll(readable=True)``) waits in ``recvfrom``
+        up to ``timeout_s`` for a datagram (``SO_RCVTIMEO``): one system call where a ``select``
+        and a read take two. Other reads still ask first whether a datagram waits."""
+        if self._datagrams:
+            udp_arrival.block_reads(self.conn.port, timeout_s)
+
     def close(self) -> None:
         self.conn.close()
 
