@@ -215,6 +215,12 @@ class Signer:
         return self._out[:n].tobytes()
 
 
+def _moves_forward(stamp: int, last: int | None) -> bool:
+    """MAVLink 2's replay rule: a frame's timestamp must pass its stream's last one; a stream not
+    seen yet may start at most ``NEW_STREAM_SLACK`` behind our clock."""
+    return stamp > (now_stamp() - NEW_STREAM_SLACK if last is None else last)
+
+
 @dataclass
 class Verifier:
     """Checks the signed frames a receiver gets (``open``), counting what it refuses."""
@@ -245,8 +251,7 @@ class Verifier:
         if one:  # one stream, rising: its first and last frames say as much as all of them
             system, component, link, first = self._frames[0].tolist()
             stream = (system, component, link)
-            last = self._streams.get(stream)
-            if first <= (now_stamp() - NEW_STREAM_SLACK if last is None else last):
+            if not _moves_forward(first, self._streams.get(stream)):
                 self.replayed += 1
                 return None
             self._streams[stream] = first if count == 1 else int(self._frames[count - 1, 3])
@@ -260,8 +265,7 @@ class Verifier:
         seen: dict[tuple[int, int, int], int] = {}
         for sysid, compid, link, stamp in frames:
             stream = (sysid, compid, link)
-            last = seen.get(stream, self._streams.get(stream))
-            if stamp <= (now_stamp() - NEW_STREAM_SLACK if last is None else last):
+            if not _moves_forward(stamp, seen.get(stream, self._streams.get(stream))):
                 return False
             seen[stream] = stamp
         self._streams.update(seen)
