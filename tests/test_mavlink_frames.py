@@ -1,10 +1,13 @@
 """The per-tick MAVLink path (``sim_vehicles.mavlink_frames``) against pymavlink itself: the same
 bytes out, the same fields in, and anything it does not handle left to pymavlink whole."""
 
+import contextlib
 import os
 import socket
 import struct
 import time
+from collections.abc import Iterator
+from typing import Any
 
 os.environ.setdefault("MAVLINK20", "1")
 
@@ -186,22 +189,39 @@ def test_a_udp_link_knows_when_a_sample_arrived_without_reading_it_then():
         vehicle.close()
 
 
-def test_a_link_checks_the_telemetry_it_ignores_and_counts_what_is_bad():
-    """The controller's link decodes only the messages it uses; a frame it skips still has its
-    CRC checked, and a bad one (or an unknown message) is counted, as pymavlink's parser would."""
+def _sample_pass(tx: Any, ms: int, down_m: float = -3.0) -> bytes:
+    """A vehicle's sample pass from ``tx``: LOCAL_POSITION_NED (``down_m`` in NED) and
+    ATTITUDE_QUATERNION of instant ``ms``."""
+    s = frames.pack_frame(tx, frames.LOCAL_POSITION_NED, (ms, 1.0, 2.0, down_m, 0.0, 0.0, 0.0))
+    return s + frames.pack_frame(tx, frames.ATTITUDE_QUATERNION, (ms, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0))
+
+
+@contextlib.contextmanager
+def _vehicle_and_link(**link_kwargs: Any) -> Iterator[tuple[socket.socket, Any, Any]]:
+    """A bare UDP socket standing in for vehicle 3, and a controller's ``VehicleLink`` to it (no
+    arrival stamps) that has spoken once: yields the socket, the link and the link's address."""
     from swarm_sitl.vehicle_link import VehicleLink
 
     vehicle = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     vehicle.bind(("127.0.0.1", 0))
     vehicle.settimeout(5)
-    link = VehicleLink(f"udpout:127.0.0.1:{vehicle.getsockname()[1]}", 3, stamp_arrivals=False)
+    link = VehicleLink(f"udpout:127.0.0.1:{vehicle.getsockname()[1]}", 3, stamp_arrivals=False, **link_kwargs)
     try:
-        assert not link.stamps_arrivals
         link.send_heartbeat_if_due()
         _, controller_addr = vehicle.recvfrom(512)
+        yield vehicle, link, controller_addr
+    finally:
+        link.close()
+        vehicle.close()
+
+
+def test_a_link_checks_the_telemetry_it_ignores_and_counts_what_is_bad():
+    """The controller's link decodes only the messages it uses; a frame it skips still has its
+    CRC checked, and a bad one (or an unknown message) is counted, as pymavlink's parser would."""
+    with _vehicle_and_link() as (vehicle, link, controller_addr):
+        assert not link.stamps_arrivals
         tx = mav.MAVLink(_Sink(), 3, 1)
-        sample = frames.pack_frame(tx, frames.LOCAL_POSITION_NED, (40, 1.0, 2.0, -3.0, 0.0, 0.0, 0.0))
-        sample += frames.pack_frame(tx, frames.ATTITUDE_QUATERNION, (40, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0))
+        sample = _sample_pass(tx, 40)
         attitude = frames.pack_frame(tx, frames.ATTITUDE, (40, 0.1, 0.2, 0.3, 0.0, 0.0, 0.0))
         corrupted = attitude[:-1] + bytes([attitude[-1] ^ 0xFF])
         unknown = bytearray(attitude)
@@ -214,32 +234,16 @@ def test_a_link_checks_the_telemetry_it_ignores_and_counts_what_is_bad():
                 time.sleep(0.01)
             assert link.sample_ms == 40
             assert link.rx_bad - before == bad
-    finally:
-        link.close()
-        vehicle.close()
 
 
 def test_a_lockstep_read_stops_at_the_sample_it_waits_for_and_leaves_the_rest_queued():
     """``poll(until_ms=...)``: once the sample of that instant is in, the link stops reading (a
     lockstep tick needs nothing more); what came after it is read by the next poll."""
-    from swarm_sitl.vehicle_link import VehicleLink
-
-    vehicle = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-    vehicle.bind(("127.0.0.1", 0))
-    vehicle.settimeout(5)
-    link = VehicleLink(f"udpout:127.0.0.1:{vehicle.getsockname()[1]}", 3, stamp_arrivals=False)
     tx = mav.MAVLink(_Sink(), 3, 1)
-
-    def sample(ms: int) -> bytes:
-        s = frames.pack_frame(tx, frames.LOCAL_POSITION_NED, (ms, 1.0, 2.0, -3.0, 0.0, 0.0, 0.0))
-        return s + frames.pack_frame(tx, frames.ATTITUDE_QUATERNION, (ms, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0))
-
-    try:
-        link.send_heartbeat_if_due()
-        _, controller_addr = vehicle.recvfrom(512)
+    with _vehicle_and_link() as (vehicle, link, controller_addr):
         for datagram in (
-            sample(10),
-            sample(20),
+            _sample_pass(tx, 10),
+            _sample_pass(tx, 20),
             bytes(mav.MAVLink_heartbeat_message(2, 12, 0, 4, 3, 3).pack(tx)),
         ):
             vehicle.sendto(datagram, controller_addr)
@@ -247,9 +251,6 @@ def test_a_lockstep_read_stops_at_the_sample_it_waits_for_and_leaves_the_rest_qu
         assert link.poll(until_ms=10) == 2 and link.sample_ms == 10  # the first datagram only
         assert link.poll(until_ms=20) == 2 and link.sample_ms == 20 and link.heartbeat is None
         assert link.poll() == 1 and link.heartbeat is not None  # the rest, at the next read
-    finally:
-        link.close()
-        vehicle.close()
 
 
 def test_a_signed_link_reads_its_sample_and_refuses_the_rest():
@@ -257,21 +258,10 @@ def test_a_signed_link_reads_its_sample_and_refuses_the_rest():
     else it takes goes on to the general reader, and what it refuses is counted: unsigned or
     replayed as refused, wrongly signed as bad."""
     from sim_vehicles.mavlink_signing import Signer, key_from_passphrase
-    from swarm_sitl.vehicle_link import VehicleLink
 
     key = key_from_passphrase("run key")
-    vehicle = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-    vehicle.bind(("127.0.0.1", 0))
-    vehicle.settimeout(5)
-    link = VehicleLink(
-        f"udpout:127.0.0.1:{vehicle.getsockname()[1]}", 3, stamp_arrivals=False, signing_key=key
-    )
     signer = Signer(key)
     tx = mav.MAVLink(_Sink(), 3, 1)
-
-    def sample(ms: int, z: float) -> bytes:
-        s = frames.pack_frame(tx, frames.LOCAL_POSITION_NED, (ms, 1.0, 2.0, z, 0.0, 0.0, 0.0))
-        return s + frames.pack_frame(tx, frames.ATTITUDE_QUATERNION, (ms, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0))
 
     def deliver(datagram: bytes) -> None:
         vehicle.sendto(datagram, controller_addr)
@@ -279,20 +269,18 @@ def test_a_signed_link_reads_its_sample_and_refuses_the_rest():
         while link.poll() == 0 and link.rx_bad + link.rx_refused == counts and time.monotonic() < deadline:
             time.sleep(0.01)
 
-    try:
-        link.send_heartbeat_if_due()
-        _, controller_addr = vehicle.recvfrom(512)
+    with _vehicle_and_link(signing_key=key) as (vehicle, link, controller_addr):
         counts = 0
-        first = signer.seal(sample(40, -3.0))
+        first = signer.seal(_sample_pass(tx, 40, -3.0))
         deliver(first)
         assert link.sample_ms == 40 and link.sample()[1][2] == 3.0  # NED down -3 m: ENU up 3 m
         heartbeat = bytes(mav.MAVLink_heartbeat_message(2, 12, 0, 4, 3, 3).pack(tx))
         deliver(signer.seal(heartbeat))  # not a sample: unsigned and read the general way
         assert link.heartbeat is not None and link.heartbeat.autopilot == 12
         for datagram, refused, bad in (
-            (sample(50, -4.0), 1, 0),  # unsigned
+            (_sample_pass(tx, 50, -4.0), 1, 0),  # unsigned
             (first, 1, 0),  # replayed
-            (Signer(key_from_passphrase("other")).seal(sample(50, -4.0)), 0, 1),  # wrongly signed
+            (Signer(key_from_passphrase("other")).seal(_sample_pass(tx, 50, -4.0)), 0, 1),  # wrongly signed
         ):
             before = (link.rx_refused, link.rx_bad)
             counts = sum(before)
@@ -300,11 +288,8 @@ def test_a_signed_link_reads_its_sample_and_refuses_the_rest():
             assert (link.rx_refused - before[0], link.rx_bad - before[1]) == (refused, bad)
             assert link.sample_ms == 40
         counts = link.rx_bad + link.rx_refused
-        deliver(signer.seal(sample(50, -4.0)))
+        deliver(signer.seal(_sample_pass(tx, 50, -4.0)))
         assert link.sample_ms == 50 and link.sample()[1][2] == 4.0
-    finally:
-        link.close()
-        vehicle.close()
 
 
 @settings(max_examples=150, deadline=None)
