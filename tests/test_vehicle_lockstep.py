@@ -325,7 +325,8 @@ def _fly_setpoints(
     (``usual_tick=False``: never), and its books (``_BOOKS``) after each."""
     params = VehicleParams(0.85, (0.05, 0.05, 0.09), 25.0)
     ap = Autopilot(params, AttitudeGains(16.0, 16.0), make_state([1.0, 2.0, 3.0]), 0.001)
-    ep = VehicleEndpoint(ap, 7, lockstep_period_s=0.01, truth_path=tmp_path / f"{name}.rows")
+    logs = {"truth_path": tmp_path / f"{name}.rows", "tlog_path": tmp_path / f"{name}.tlog"}
+    ep = VehicleEndpoint(ap, 7, lockstep_period_s=0.01, **logs)
     taken: list[bool] = []
     general = ep._usual_tick
     ep._usual_tick = lambda r: usual_tick and (taken.append(general(r)) or taken[-1])  # type: ignore[method-assign]
@@ -361,8 +362,9 @@ def _fly_setpoints(
 
 
 def test_the_one_call_lockstep_tick_is_the_general_path_bit_for_bit(tmp_path):
-    """``lockstep_tick``: the same state, bytes, counters and truth rows as the setpoint handler,
-    step and stream table it stands in for, interleaved with ticks that other streams make general."""
+    """``lockstep_tick``: the same state, bytes, counters, truth rows and ``.tlog`` frames as the
+    setpoint handler, step and stream table it stands in for, interleaved with ticks that other
+    streams make general."""
     fast_sent, fast, taken, fast_books = _fly_setpoints(tmp_path, "fast", usual_tick=True)
     slow_sent, slow, _, slow_books = _fly_setpoints(tmp_path, "slow", usual_tick=False)
     assert 40 <= sum(taken) < len(taken) == 120  # at 50 Hz, ATTITUDE and HIGHRES_IMU make every other general
@@ -377,3 +379,18 @@ def test_the_one_call_lockstep_tick_is_the_general_path_bit_for_bit(tmp_path):
     )
     assert fast_columns == slow_columns and fast_rows.shape == (120, 14)
     assert fast_rows.tobytes() == slow_rows.tobytes()
+    fast_log, slow_log = (_tlog(tmp_path / f"{n}.tlog") for n in ("fast", "slow"))
+    assert [b for _, b in fast_log] == [b for _, b in slow_log]  # every frame in and out, in order
+    assert len(fast_log) >= 120 + len(fast_sent)
+    stamps = [t for t, _ in fast_log]
+    assert stamps == sorted(stamps)
+
+
+def _tlog(path) -> list[tuple[float, bytes]]:
+    """A ``.tlog``'s messages as pymavlink reads them: (stamp [s], frame bytes)."""
+    log = mavutil.mavlink_connection(str(path))
+    got = []
+    while (m := log.recv_match()) is not None:
+        got.append((m._timestamp, bytes(m.get_msgbuf())))
+    log.close()
+    return got
