@@ -15,6 +15,9 @@ and written to ``OUT/scale.csv`` and ``OUT/scale.png``:
 - with ``--scale-realtime S``: each N again in real time for S seconds, late ticks and when
   setpoints go out (median, p99), up to the first N with over 10 % late ticks or a failed run
   (named: where the machine saturates);
+- with ``--empty``: each N again as a swarm of the same processes exchanging the same messages
+  with no work (``empty_swarm``): its speed and CPU per simulated second (``empty_x``,
+  ``empty_cpu_per_sim_s``), what the process structure alone costs on this machine;
 - the nodes' run-phase CPU split between their main threads (the loops) and their other threads
   (zenoh's runtime), exact per thread;
 - with ``--split N``: the N-follower run again with every process profiled, and each process
@@ -54,6 +57,8 @@ COLUMNS = (
     "cpu_per_sim_s",
     "sim_cpu_per_sim_s",
     "overhead",
+    "empty_x",
+    "empty_cpu_per_sim_s",
     "cpu_vehicles",
     "cpu_controllers",
     "cpu_leader",
@@ -105,7 +110,9 @@ def _median_mark(procs: list[dict[str, Any]], name: str) -> float:
     return statistics.median(ages) if ages else float("nan")
 
 
-def measure(n: int, duration_s: float, work: Path, start: str = "fork") -> dict[str, float]:
+def measure(
+    n: int, duration_s: float, work: Path, start: str = "fork", empty: bool = False
+) -> dict[str, float]:
     from swarm_sitl.supervisor import run_swarm
 
     cfg = scale_config(n, duration_s, start)
@@ -123,6 +130,12 @@ def measure(n: int, duration_s: float, work: Path, start: str = "fork") -> dict[
     }
     all_cpu = sup_cpu + sum(per_kind.values()) * duration_s
     ctrl = kinds["controller"]
+    empty_x = empty_cpu = math.nan
+    if empty:
+        from swarm_sitl.empty_swarm import measure_empty
+
+        e = measure_empty(cfg, cfg.n_control_steps)
+        empty_x, empty_cpu = duration_s / e.wall_s, e.cpu_total_s / duration_s
     threads = {t: _run_phase(kinds, f"{t}_s") / duration_s for t in ("main_thread", "other_threads")}
     return {
         "followers": n,
@@ -134,6 +147,8 @@ def measure(n: int, duration_s: float, work: Path, start: str = "fork") -> dict[
         "cpu_per_sim_s": all_cpu / duration_s,
         "sim_cpu_per_sim_s": sim_cpu / duration_s,
         "overhead": all_cpu / sim_cpu,
+        "empty_x": empty_x,
+        "empty_cpu_per_sim_s": empty_cpu,
         "cpu_vehicles": per_kind["vehicle"],
         "cpu_controllers": per_kind["controller"],
         "cpu_leader": per_kind["leader"],
@@ -230,6 +245,8 @@ def _plot(rows: list[dict[str, float]], path: Path) -> None:
     fig, (a, b) = plt.subplots(1, 2, figsize=(11, 4.2))
     a.loglog(n, [r["cpu_per_sim_s"] for r in rows], "o-", label="lockstep run, every process")
     a.loglog(n, [r["sim_cpu_per_sim_s"] for r in rows], "s-", label="sim (no transport)")
+    if not any(math.isnan(r["empty_cpu_per_sim_s"]) for r in rows):
+        a.loglog(n, [r["empty_cpu_per_sim_s"] for r in rows], "v:", label="empty swarm (no work)")
     for key, label in (("cpu_vehicles", "vehicles"), ("cpu_controllers", "controllers")):
         a.loglog(n, [r[key] for r in rows], ".--", label=label)
     a.set_xlabel("followers")
@@ -239,8 +256,11 @@ def _plot(rows: list[dict[str, float]], path: Path) -> None:
     b.plot(n, [r["startup_s"] for r in rows], "o-", label="start-up [s]")
     b.plot(n, [r["run_x"] for r in rows], "s-", label="run phase, x real time")
     b.plot(n, [r["e2e_x"] for r in rows], "^-", label="end to end, x real time")
+    if not any(math.isnan(r["empty_x"]) for r in rows):
+        b.plot(n, [r["empty_x"] for r in rows], "v:", label="empty swarm, x real time")
     b.axhline(1.0, color="k", lw=0.6)
     b.set_xscale("log", base=2)
+    b.set_yscale("log")
     b.set_xlabel("followers")
     b.legend(fontsize=8)
     b.grid(True, alpha=0.3)
@@ -257,6 +277,7 @@ def run_scale(
     start: str = "fork",
     realtime_s: float = 0.0,
     split_n: int = 0,
+    empty: bool = False,
 ) -> int:
     """Lockstep for every N, then (``realtime_s`` > 0) real time for every N up to the first that
     saturates the machine, then (``split_n`` > 0) where the CPU goes at ``split_n`` followers."""
@@ -268,7 +289,8 @@ def run_scale(
     )
     head = (
         f"{'N':>3} {'edges':>5} {'start s':>7} {'run x':>6} {'e2e x':>6} {'sim x':>6} "
-        f"{'cpu/s':>6} {'sim':>6} {'ovh':>5} | {'veh':>5} {'ctrl':>5} {'lead':>5} {'sup':>5} | "
+        f"{'cpu/s':>6} {'sim':>6} {'ovh':>5} | {'empty x':>7} {'cpu/s':>6} | "
+        f"{'veh':>5} {'ctrl':>5} {'lead':>5} {'sup':>5} | "
         f"ctrl main/zenoh/ready s, vehicle ready s"
     )
     print(head)
@@ -278,7 +300,7 @@ def run_scale(
     realtime: list[dict[str, float]] = []
     for n in ns:
         try:
-            r = measure(n, duration_s, runs, start)
+            r = measure(n, duration_s, runs, start, empty)
         except RunFailedError as e:  # the others are still measured; the exit code says it
             failed.append(n)
             print(f"{n:>3} the run failed: {e} (run directory {runs / f'n{n}'})", flush=True)
@@ -287,7 +309,8 @@ def run_scale(
         print(
             f"{n:>3} {r['edges']:>5} {r['startup_s']:>7.2f} {r['run_x']:>6.2f} {r['e2e_x']:>6.2f} "
             f"{r['sim_x']:>6.1f} {r['cpu_per_sim_s']:>6.2f} {r['sim_cpu_per_sim_s']:>6.3f} "
-            f"{r['overhead']:>5.1f} | {r['cpu_vehicles']:>5.2f} {r['cpu_controllers']:>5.2f} "
+            f"{r['overhead']:>5.1f} | {r['empty_x']:>7.2f} {r['empty_cpu_per_sim_s']:>6.2f} | "
+            f"{r['cpu_vehicles']:>5.2f} {r['cpu_controllers']:>5.2f} "
             f"{r['cpu_leader']:>5.2f} {r['cpu_supervisor']:>5.2f} | {r['ctrl_main_s']:.2f}/"
             f"{r['ctrl_zenoh_s']:.2f}/{r['ctrl_ready_s']:.2f}, {r['vehicle_ready_s']:.2f}",
             flush=True,

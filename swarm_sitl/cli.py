@@ -388,6 +388,8 @@ def cmd_bench(args: argparse.Namespace) -> int:
         raise CliError(f"--scale-realtime must be >= 0 s, got {args.scale_realtime}")
     if args.split is not None and not args.scale:
         raise CliError("--split N goes with --scale (it profiles one of the scale runs)")
+    if args.empty and not args.scale:
+        raise CliError("--empty goes with --scale (it runs each N's swarm with no work in it)")
     if args.against and not (Path(args.against) / "swarm_sitl" / "__init__.py").is_file():
         raise CliError(f"--against {args.against}: not a swarm-sitl source tree (no swarm_sitl/__init__.py)")
     try:
@@ -404,7 +406,13 @@ def cmd_bench(args: argparse.Namespace) -> int:
             if args.split is not None and args.split not in ns:
                 raise CliError(f"--split {args.split}: not one of the --scale counts {args.scale}")
             return run_scale(
-                ns, args.scale_duration, out, args.scale_start, args.scale_realtime, args.split or 0
+                ns,
+                args.scale_duration,
+                out,
+                args.scale_start,
+                args.scale_realtime,
+                args.split or 0,
+                args.empty,
             )
         if args.against:
             from swarm_sitl.bench import compare_trees
@@ -557,6 +565,12 @@ def build_parser() -> argparse.ArgumentParser:
         type=int,
         metavar="N",
         help="--scale: also profile the N-follower run and print where each process kind's CPU goes",
+    )
+    b.add_argument(
+        "--empty",
+        action="store_true",
+        help="--scale: also run each N as a swarm of the same processes and messages with no work "
+        "in them (what the process structure alone costs on this machine)",
     )
     b.add_argument(
         "--scale-start", choices=("fork", "spawn"), default="fork", help="--scale: run.start of the runs"

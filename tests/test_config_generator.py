@@ -127,7 +127,19 @@ def test_bench_scale_writes_its_table_with_consistent_figures(tmp_path, capsys):
 
     assert main(["bench", "--scale", "0,2"]) == 2  # one line, no run
     assert main(["bench", "--scale", "2", "--split", "3"]) == 2  # not one of the counts
-    args = ["bench", "--scale", "2", "--scale-duration", "1", "--scale-realtime", "2", "--split", "2"]
+    assert main(["bench", "--empty"]) == 2  # only with --scale
+    args = [
+        "bench",
+        "--scale",
+        "2",
+        "--scale-duration",
+        "1",
+        "--scale-realtime",
+        "2",
+        "--split",
+        "2",
+        "--empty",
+    ]
     assert main([*args, "--out", str(tmp_path)]) == 0
     (row,) = list(csv.DictReader((tmp_path / "scale.csv").read_text().splitlines()))
     r = {k: float(v) for k, v in row.items()}
@@ -136,6 +148,7 @@ def test_bench_scale_writes_its_table_with_consistent_figures(tmp_path, capsys):
     parts = r["cpu_vehicles"] + r["cpu_controllers"] + r["cpu_leader"] + r["cpu_supervisor"]
     assert r["cpu_per_sim_s"] == pytest.approx(parts, rel=1e-9)
     assert r["overhead"] == pytest.approx(r["cpu_per_sim_s"] / r["sim_cpu_per_sim_s"], rel=1e-9)
+    assert 0 < r["empty_cpu_per_sim_s"] < r["cpu_per_sim_s"] and r["empty_x"] > 0  # no work: cheaper
     assert 0 < r["ctrl_main_s"] <= r["ctrl_zenoh_s"] <= r["ctrl_ready_s"]  # in the order they happen
     assert (tmp_path / "scale.png").stat().st_size > 10_000
     (rt,) = list(csv.DictReader((tmp_path / "realtime.csv").read_text().splitlines()))
