@@ -80,6 +80,10 @@ def message_sizes() -> tuple[int, int, int]:
     return sample, setpoint, estimate
 
 
+class EmptySwarmError(RuntimeError):
+    """The empty swarm could not run (a process failed or stalled); the message is one line."""
+
+
 @dataclass
 class EmptyRun:
     followers: int
@@ -114,17 +118,23 @@ class _Inbox:
                 self._w.send(b"\0")
 
     def take(self) -> list[Any]:
+        """What has come, in order (the wake-up byte read if one is out)."""
         if self._woken:
             self._woken = False
-            with contextlib.suppress(OSError):
+            with contextlib.suppress(OSError):  # a byte written a moment late: ``wait`` reads it
                 self.r.recv(64)
-        out = list(self.queue)
-        self.queue.clear()
+        queue, out = self.queue, []
+        while queue:  # popleft: zenoh's thread may append meanwhile
+            out.append(queue.popleft())
         return out
 
     def wait(self) -> None:
+        """Block until a wake-up byte comes (and read it: none is left to wake the next wait)."""
         if not select.select([self.r], [], [], STALL_S)[0]:
             raise SystemExit("empty swarm: no message for 10 s")
+        with contextlib.suppress(OSError):
+            self.r.recv(64)
+        self._woken = False
 
 
 def _client(router: str) -> zenoh.Session:
@@ -239,13 +249,13 @@ def _line(p: subprocess.Popen[str], what: str) -> str:
     assert p.stdout is not None
     line = p.stdout.readline()
     if not line:
-        raise RuntimeError(f"empty swarm: a {what} process exited ({p.wait()})")
+        raise EmptySwarmError(f"empty swarm: a {what} process exited with code {p.wait()}")
     return line.strip()
 
 
 def measure_empty(cfg: "SwarmConfig", ticks: int) -> EmptyRun:
     """The empty swarm of ``cfg``'s graph for ``ticks`` lockstep ticks (the module doc)."""
-    from swarm_sitl.bus import router_runtime
+    from swarm_sitl.bus import error_line, router_runtime
     from swarm_sitl.leader_node import LEADER_POLL_S
 
     edges = cfg.graph_edges()
@@ -259,8 +269,11 @@ def measure_empty(cfg: "SwarmConfig", ticks: int) -> EmptyRun:
     c.insert_json5("mode", '"router"')
     c.insert_json5("listen/endpoints", json.dumps([router_at]))
     c.insert_json5("scouting/multicast/enabled", "false")
-    with router_runtime():
-        router = zenoh.open(c)
+    try:
+        with router_runtime():
+            router = zenoh.open(c)
+    except zenoh.ZError as e:
+        raise EmptySwarmError(f"empty swarm: no router at {router_at}: {error_line(e)}") from None
     procs: list[subprocess.Popen[str]] = []
     try:
         vehicles = [_spawn("vehicle", {"sample_bytes": sample}) for _ in ids]
@@ -309,6 +322,8 @@ def measure_empty(cfg: "SwarmConfig", ticks: int) -> EmptyRun:
         veh = [json.loads(_line(v, "vehicle")) for v in vehicles]
         for p in procs:
             p.wait(timeout=STALL_S)
+    except subprocess.TimeoutExpired:
+        raise EmptySwarmError("empty swarm: a process did not exit after its last tick") from None
     finally:
         for p in procs:
             if p.poll() is None:
@@ -333,12 +348,17 @@ def measure_empty(cfg: "SwarmConfig", ticks: int) -> EmptyRun:
 def main(argv: list[str]) -> None:
     role, args = argv[0], json.loads(argv[1])
     batch_scheduling()
-    if role == "vehicle":
-        _vehicle(args["sample_bytes"])
-    elif role == "controller":
-        _controller(args["id"], args)
-    else:
-        _leader(args)
+    try:
+        if role == "vehicle":
+            _vehicle(args["sample_bytes"])
+        elif role == "controller":
+            _controller(args["id"], args)
+        else:
+            _leader(args)
+    except (OSError, zenoh.ZError) as e:  # a stall (socket timeout) or zenoh: one line, exit 1
+        from swarm_sitl.bus import error_line
+
+        raise SystemExit(f"empty swarm {role}: {type(e).__name__}: {error_line(e)}") from None
 
 
 if __name__ == "__main__":
