@@ -39,6 +39,7 @@ from typing import TYPE_CHECKING, Any
 import zenoh
 
 from sim_vehicles.lifeline import batch_scheduling
+from sim_vehicles.udp_arrival import block_reads
 from swarm_sitl import zenoh_keys
 
 if TYPE_CHECKING:
@@ -156,7 +157,7 @@ def _ready_then_go(what: str = "") -> float:
 def _vehicle(sample_bytes: int) -> None:
     sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     sock.bind(("127.0.0.1", 0))
-    sock.settimeout(STALL_S)
+    block_reads(sock, STALL_S)  # a read waits in recvfrom, as a lockstep vehicle's does
     answer = bytes(sample_bytes)
     cpu0 = _ready_then_go(str(sock.getsockname()[1]))
     answered = 0
@@ -176,7 +177,7 @@ def _controller(i: int, args: dict[str, Any]) -> None:
     status = session.declare_publisher(zenoh_keys.status(SWARM, i))
     sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     sock.connect(("127.0.0.1", args["vehicle_port"]))
-    sock.settimeout(STALL_S)
+    block_reads(sock, STALL_S)  # as a lockstep controller waits for its sample
     n, every = args["ticks"], args["status_every"]
     setpoint, estimate = bytes(args["setpoint_bytes"]), bytearray(args["estimate_bytes"])
     have = dict.fromkeys(args["ins"], -1)
@@ -187,7 +188,7 @@ def _controller(i: int, args: dict[str, Any]) -> None:
         sock.recv(4096)
         while True:
             for sample in inbox.take():
-                b = bytes(sample.payload)
+                b = sample.payload.to_bytes()
                 src, step = b[0], int.from_bytes(b[1:5], "little")
                 have[src] = max(have[src], step)
                 received[src] += 1
@@ -222,7 +223,7 @@ def _leader(args: dict[str, Any]) -> None:
     while k <= n:
         for sample in statuses.take():
             f = int(str(sample.key_expr).rsplit("/", 1)[1])
-            progress[f] = int.from_bytes(bytes(sample.payload), "little")
+            progress[f] = int.from_bytes(sample.payload.to_bytes(), "little")
         if k > min(progress.values()) + window:
             time.sleep(args["poll_s"])
             continue
