@@ -310,6 +310,8 @@ def run_scale(
             print(f"{n:>3} the run failed: {e} (run directory {runs / f'n{n}'})", flush=True)
             continue
         rows.append(r)
+        if empty and math.isnan(r["empty_x"]):  # asked for and not measured: the exit code says it
+            failed.append(n)
         print(
             f"{n:>3} {r['edges']:>5} {r['startup_s']:>7.2f} {r['run_x']:>6.2f} {r['e2e_x']:>6.2f} "
             f"{r['sim_x']:>6.1f} {r['cpu_per_sim_s']:>6.2f} {r['sim_cpu_per_sim_s']:>6.3f} "
