@@ -47,6 +47,10 @@ from swarm_sitl.follower_law import (
 )
 from swarm_sitl.trajectories import Trajectory
 
+#: a controller whose output is not finite and whose inputs are older than this many periods is
+#: told it fell behind: on a saturated machine in real time the estimator diverges on old estimates
+STALE_INPUT_PERIODS = 5
+
 
 class EstimateMessage(NamedTuple):
     """What node ``src`` tells its out-neighbours at tick ``step`` (the leader: its reference)."""
@@ -177,11 +181,18 @@ class FollowerController:
         out = res[TICK_OUT]
         if not res[TICK_FINITE]:
             ages = ", ".join(f"{t - r[1]:.3f}" for r in msgs)
+            oldest = max([t - sample.t_s, *(t - r[1] for r in msgs)])
+            behind = (
+                f"; inputs up to {oldest:.2f} s old: the controller fell behind its ticks (in real "
+                f"time, a saturated machine: fewer followers or lockstep)"
+                if oldest > STALE_INPUT_PERIODS * self.dt_s
+                else ""
+            )
             err = SingularCommandError(
                 f"follower {self.id} at t={t:.3f}s: controller output is not finite (the estimator "
                 f"diverged or the command force reached the singular set; see `swarm-sitl check`); "
                 f"state finite: {bool(np.isfinite(self.state).all())}, sample age {t - sample.t_s:.3f} s, "
-                f"message ages [{ages}] s"
+                f"message ages [{ages}] s{behind}"
             )
             err.inputs = {  # type: ignore[attr-defined]
                 "t": t,

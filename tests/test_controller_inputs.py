@@ -1,4 +1,6 @@
-"""What a lockstep controller waits for when a neighbour's process is gone (``controller_node``)."""
+"""What a controller does with inputs that are missing or old: what a lockstep controller waits for
+when a neighbour's process is gone (``controller_node``), and what its error says when old inputs
+made its estimator diverge (``follower``)."""
 
 import math
 
@@ -6,8 +8,10 @@ import numpy as np
 import pytest
 
 from swarm_sitl import controller_node
+from swarm_sitl.assembly import build_controller
+from swarm_sitl.command_attitude import SingularCommandError
 from swarm_sitl.controller_node import _Inputs
-from swarm_sitl.follower import EstimateMessage
+from swarm_sitl.follower import EstimateMessage, VehicleSample
 from swarm_sitl.node_clock import StallError
 
 pytestmark = pytest.mark.unit
@@ -83,3 +87,22 @@ def test_a_gone_node_gets_a_grace_period_for_messages_still_in_flight():
     bus.estimates[(2, 9)] = _estimate(2, 9)
     io.idle()  # it came: nothing is lacking from a node that is gone, and the clock stops
     assert io._lacking() == [] and io._lost_since == math.inf
+
+
+@pytest.mark.parametrize("age_s", [0.01, 0.47])
+def test_a_diverged_controller_says_when_its_inputs_were_old(paper_cfg, age_s):
+    """A neighbour estimate that makes the output non-finite stops the controller with one line; if
+    the estimate was many periods old (a saturated real-time machine) the line says the
+    controller fell behind, with the age, and otherwise it does not."""
+    ctrl = build_controller(paper_cfg, 4)
+    q, x = np.array([1.0, 0.0, 0.0, 0.0]), np.zeros(3)
+    ctrl.step(0, VehicleSample(0.0, x, x, q), {})
+    k = 50
+    t = k * paper_cfg.control_dt_s
+    bad = EstimateMessage(1, k - 1, t - age_s, np.full(3, np.inf), x, x, x)
+    with pytest.raises(SingularCommandError) as e:
+        ctrl.step(k, VehicleSample(t, x, x, q), {1: bad, 2: bad._replace(src=2)})
+    text = str(e.value)
+    assert "not finite" in text and "\n" not in text
+    assert ("fell behind" in text) == (age_s > 5 * paper_cfg.control_dt_s)
+    assert (f"inputs up to {age_s:.2f} s old" in text) == ("fell behind" in text)
