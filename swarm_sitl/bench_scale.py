@@ -17,7 +17,9 @@ and written to ``OUT/scale.csv`` and ``OUT/scale.png``:
   (named: where the machine saturates);
 - with ``--empty``: each N again as a swarm of the same processes exchanging the same messages
   with no work (``empty_swarm``): its speed and CPU per simulated second (``empty_x``,
-  ``empty_cpu_per_sim_s``), what the process structure alone costs on this machine;
+  ``empty_cpu_per_sim_s``), what the process structure alone costs on this machine, and the
+  run's CPU over the empty swarm's and ``sim``'s together (``over_empty_sim``: what the run
+  costs beyond the bare transport and the laws; 1 would be nothing);
 - the nodes' run-phase CPU split between their main threads (the loops) and their other threads
   (zenoh's runtime), exact per thread;
 - with ``--split N``: the N-follower run again with every process profiled, and each process
@@ -59,6 +61,7 @@ COLUMNS = (
     "overhead",
     "empty_x",
     "empty_cpu_per_sim_s",
+    "over_empty_sim",
     "cpu_vehicles",
     "cpu_controllers",
     "cpu_leader",
@@ -153,6 +156,7 @@ def measure(
         "overhead": all_cpu / sim_cpu,
         "empty_x": empty_x,
         "empty_cpu_per_sim_s": empty_cpu,
+        "over_empty_sim": all_cpu / (empty_cpu * duration_s + sim_cpu),
         "cpu_vehicles": per_kind["vehicle"],
         "cpu_controllers": per_kind["controller"],
         "cpu_leader": per_kind["leader"],
@@ -293,7 +297,7 @@ def run_scale(
     )
     head = (
         f"{'N':>3} {'edges':>5} {'start s':>7} {'run x':>6} {'e2e x':>6} {'sim x':>6} "
-        f"{'cpu/s':>6} {'sim':>6} {'ovh':>5} | {'empty x':>7} {'cpu/s':>6} | "
+        f"{'cpu/s':>6} {'sim':>6} {'ovh':>5} | {'empty x':>7} {'cpu/s':>6} {'run/(e+s)':>9} | "
         f"{'veh':>5} {'ctrl':>5} {'lead':>5} {'sup':>5} | "
         f"ctrl main/zenoh/ready s, vehicle ready s"
     )
@@ -315,7 +319,8 @@ def run_scale(
         print(
             f"{n:>3} {r['edges']:>5} {r['startup_s']:>7.2f} {r['run_x']:>6.2f} {r['e2e_x']:>6.2f} "
             f"{r['sim_x']:>6.1f} {r['cpu_per_sim_s']:>6.2f} {r['sim_cpu_per_sim_s']:>6.3f} "
-            f"{r['overhead']:>5.1f} | {r['empty_x']:>7.2f} {r['empty_cpu_per_sim_s']:>6.2f} | "
+            f"{r['overhead']:>5.1f} | {r['empty_x']:>7.2f} {r['empty_cpu_per_sim_s']:>6.2f} "
+            f"{r['over_empty_sim']:>9.2f} | "
             f"{r['cpu_vehicles']:>5.2f} {r['cpu_controllers']:>5.2f} "
             f"{r['cpu_leader']:>5.2f} {r['cpu_supervisor']:>5.2f} | {r['ctrl_main_s']:.2f}/"
             f"{r['ctrl_zenoh_s']:.2f}/{r['ctrl_ready_s']:.2f}, {r['vehicle_ready_s']:.2f}",
