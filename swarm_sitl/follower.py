@@ -47,8 +47,8 @@ from swarm_sitl.follower_law import (
 )
 from swarm_sitl.trajectories import Trajectory
 
-#: a controller whose output is not finite and whose inputs are older than this many periods is
-#: told it fell behind: on a saturated machine in real time the estimator diverges on old estimates
+#: a controller whose output is not finite and whose inputs are older than this many periods says
+#: so: on a saturated machine in real time the estimator diverges on old estimates
 STALE_INPUT_PERIODS = 5
 
 
@@ -183,8 +183,8 @@ class FollowerController:
             ages = ", ".join(f"{t - r[1]:.3f}" for r in msgs)
             oldest = max([t - sample.t_s, *(t - r[1] for r in msgs)])
             behind = (
-                f"; inputs up to {oldest:.2f} s old: the controller fell behind its ticks (in real "
-                f"time, a saturated machine: fewer followers or lockstep)"
+                f"; its inputs were up to {oldest:.2f} s old (in real time: a machine too slow for "
+                f"the swarm, try fewer followers or lockstep; or a fault plan held them)"
                 if oldest > STALE_INPUT_PERIODS * self.dt_s
                 else ""
             )
