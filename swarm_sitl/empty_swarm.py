@@ -256,7 +256,7 @@ def _line(p: subprocess.Popen[str], what: str) -> str:
 
 def measure_empty(cfg: "SwarmConfig", ticks: int) -> EmptyRun:
     """The empty swarm of ``cfg``'s graph for ``ticks`` lockstep ticks (the module doc)."""
-    from swarm_sitl.bus import error_line, router_runtime
+    from swarm_sitl.bus import error_line, open_plain_router, router_runtime
     from swarm_sitl.leader_node import LEADER_POLL_S
 
     edges = cfg.graph_edges()
@@ -266,13 +266,9 @@ def measure_empty(cfg: "SwarmConfig", ticks: int) -> EmptyRun:
     probe.bind(("127.0.0.1", 0))
     router_at = f"tcp/127.0.0.1:{probe.getsockname()[1]}"
     probe.close()
-    c = zenoh.Config()
-    c.insert_json5("mode", '"router"')
-    c.insert_json5("listen/endpoints", json.dumps([router_at]))
-    c.insert_json5("scouting/multicast/enabled", "false")
     try:
         with router_runtime():
-            router = zenoh.open(c)
+            router = open_plain_router([router_at])
     except zenoh.ZError as e:
         raise EmptySwarmError(f"empty swarm: no router at {router_at}: {error_line(e)}") from None
     procs: list[subprocess.Popen[str]] = []
