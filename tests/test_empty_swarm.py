@@ -6,7 +6,6 @@ import pytest
 from sim_vehicles import mavlink_frames as frames
 from sim_vehicles import tick_frames
 from sim_vehicles.mavlink_signing import Signer
-from swarm_sitl.config import load_config
 from swarm_sitl.empty_swarm import measure_empty, message_sizes
 
 
@@ -29,10 +28,10 @@ def test_its_messages_are_the_size_of_a_signed_runs():
 
 
 @pytest.mark.system
-def test_the_empty_paper_swarm_runs_every_tick_in_lockstep():
+def test_the_empty_paper_swarm_runs_every_tick_in_lockstep(paper_cfg):
     """Every vehicle answers every setpoint and every controller takes every payload of each
     in-neighbour up to its last tick (the one of the last tick may come after it stops)."""
-    cfg = load_config("configs/paper.yaml")
+    cfg = paper_cfg
     ticks = 200
     run = measure_empty(cfg, ticks)
     assert run.followers == 4 and run.wall_s > 0
