@@ -15,16 +15,23 @@ from pathlib import Path
 import numpy as np
 from pymavlink.dialects.v20 import common as mav
 
-from sim_vehicles import lockstep_tick, mavlink_signing, tick_frames
-from sim_vehicles import mavlink_frames as frames
-from sim_vehicles.autopilot import Autopilot
-from sim_vehicles.failsafe import ACTION_LAND, ACTIONS, failsafe_command, hold_at
-from sim_vehicles.lifeline import batch_scheduling, hold_on, mark, process_figures, profiled, settle_heap
-from sim_vehicles.mavlink_endpoint import VehicleEndpoint
-from sim_vehicles.mavlink_signing import read_key
-from sim_vehicles.params import MAX_RATE_DEFAULT_RPS, AttitudeGains, VehicleParamError, VehicleParams
-from sim_vehicles.rigid_body import QUAT, RATE, make_state
-from sim_vehicles.wire_format import command_roundtrip, encode_attitude_quaternion
+from sim_vehicles.mavlink import frames, signing, tick_frames
+from sim_vehicles.mavlink.signing import read_key
+from sim_vehicles.mavlink.wire_format import command_roundtrip, encode_attitude_quaternion
+from sim_vehicles.plant.autopilot import Autopilot
+from sim_vehicles.plant.failsafe import ACTION_LAND, ACTIONS, failsafe_command, hold_at
+from sim_vehicles.plant.params import MAX_RATE_DEFAULT_RPS, AttitudeGains, VehicleParamError, VehicleParams
+from sim_vehicles.plant.rigid_body import QUAT, RATE, make_state
+from sim_vehicles.runtime.lifeline import (
+    batch_scheduling,
+    hold_on,
+    mark,
+    process_figures,
+    profiled,
+    settle_heap,
+)
+from sim_vehicles.vehicle import lockstep_tick
+from sim_vehicles.vehicle.endpoint import VehicleEndpoint
 
 
 def warm_up(params: VehicleParams, gains: AttitudeGains, attitude_hz: float) -> None:
@@ -38,7 +45,7 @@ def warm_up(params: VehicleParams, gains: AttitudeGains, attitude_hz: float) -> 
     ap.set_command(command_roundtrip(ap.command, params.max_thrust_N))
     ap.advance(1)
     tick_frames.warm_up()
-    mavlink_signing.warm_up()
+    signing.warm_up()
     lockstep_tick.step_and_sample(
         ap.state,
         ap.kernel_args,

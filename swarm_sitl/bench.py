@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from sim_vehicles.row_log import read_rows
+from sim_vehicles.runtime.row_log import read_rows
 from swarm_sitl.assembly import build_autopilot
 from swarm_sitl.config import SwarmConfig, load_config
 from swarm_sitl.controller_node import CONTROLLER_COLUMNS

@@ -34,7 +34,7 @@ from typing import Any, Protocol, TypeVar
 
 import zenoh
 
-from sim_vehicles import udp_arrival
+from sim_vehicles.runtime import udp_arrival
 from swarm_sitl import zenoh_keys
 from swarm_sitl.bus_codec import (
     PayloadError,

@@ -12,8 +12,8 @@ through each elementary operation.
 
 import numpy as np
 
-from sim_vehicles.jit import kernel
-from sim_vehicles.quaternion import dot3, qconj, qmul
+from sim_vehicles.common.jit import kernel
+from sim_vehicles.common.quaternion import dot3, qconj, qmul
 
 
 class SingularCommandError(ValueError):

@@ -29,10 +29,10 @@ from typing import NamedTuple
 
 import numpy as np
 
-from sim_vehicles import mavlink_signing, tick_frames
-from sim_vehicles.autopilot import AttitudeCommand
-from sim_vehicles.lifeline import mark, settle_heap
-from sim_vehicles.row_log import RowLog
+from sim_vehicles.mavlink import signing, tick_frames
+from sim_vehicles.plant.autopilot import AttitudeCommand
+from sim_vehicles.runtime.lifeline import mark, settle_heap
+from sim_vehicles.runtime.row_log import RowLog
 from swarm_sitl.assembly import build_controller
 from swarm_sitl.bus import NodeBus
 from swarm_sitl.bus_codec import Status
@@ -226,7 +226,7 @@ def _warm_up(cfg: SwarmConfig, i: int, link: VehicleLink) -> None:
     """Two steps of a scratch controller and a call of each per-tick frame kernel: the compiled
     kernels load now, not in the first ticks."""
     tick_frames.warm_up()
-    mavlink_signing.warm_up()
+    signing.warm_up()
     scratch = build_controller(cfg, i, link.params["MASS_KG"], link.params["MAX_THRUST_N"])
     x = np.zeros(3)
     msg = EstimateMessage(0, 0, 0.0, x, x, x, x)

@@ -35,12 +35,9 @@ _BY_FILE = (  # (activity, path fragments), first match wins
     (
         "physics and laws",
         (
-            "sim_vehicles/autopilot.py",
-            "sim_vehicles/lockstep_tick.py",  # the plant's period, then two frames packed
-            "sim_vehicles/rigid_body.py",
-            "sim_vehicles/torque_law.py",
-            "sim_vehicles/failsafe.py",
-            "sim_vehicles/quaternion.py",
+            "sim_vehicles/plant/",
+            "sim_vehicles/common/",
+            "sim_vehicles/vehicle/lockstep_tick.py",  # the plant's period, then two frames packed
             "swarm_sitl/follower.py",
             "swarm_sitl/follower_law.py",
             "swarm_sitl/estimator.py",
@@ -53,12 +50,8 @@ _BY_FILE = (  # (activity, path fragments), first match wins
     (
         "MAVLink",
         (
-            "sim_vehicles/mavlink_",
-            "sim_vehicles/tick_frames.py",
-            "sim_vehicles/wire_format.py",
-            "sim_vehicles/sha256.py",
-            "sim_vehicles/frames.py",
-            "sim_vehicles/px4_profile.py",
+            "sim_vehicles/mavlink/",
+            "sim_vehicles/vehicle/",
             "swarm_sitl/vehicle_link.py",
             "swarm_sitl/link_faults.py",
             "/pymavlink/",
@@ -66,11 +59,11 @@ _BY_FILE = (  # (activity, path fragments), first match wins
     ),
     ("zenoh", ("swarm_sitl/bus", "swarm_sitl/zenoh_")),
 )
-#: the vehicle endpoint's loop and scheduling (the rest of ``mavlink_endpoint`` is MAVLink)
+#: the vehicle endpoint's loop and scheduling (the rest of ``vehicle.endpoint`` is MAVLink)
 _VEHICLE_LOOP = ("run_lockstep", "run_realtime", "step", "_failsafe_check", "heartbeat_tick")
 _WAITS = ("select.select", "time.sleep", "'epoll' objects")
 #: helpers shared by the link and the bus (``udp_arrival.Waiting``: a poll(2) that does not block)
-_SHARED = ("sim_vehicles/udp_arrival.py",)
+_SHARED = ("sim_vehicles/runtime/udp_arrival.py",)
 _BLOCKING_RECV = ("run_lockstep",)  #: callers whose ``recvfrom`` blocks for the next datagram
 
 
@@ -86,7 +79,7 @@ def activity_of(func: tuple[str, int, str]) -> str | None:
     path = path.replace("\\", "/")
     if path.endswith(_SHARED):
         return None  # its caller's: the vehicle link's or the bus's
-    if path.endswith("sim_vehicles/mavlink_endpoint.py") and name in _VEHICLE_LOOP:
+    if path.endswith("sim_vehicles/vehicle/endpoint.py") and name in _VEHICLE_LOOP:
         return "loop and other"
     for activity, fragments in _BY_FILE:
         if any(f in path for f in fragments):

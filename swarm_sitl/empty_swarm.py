@@ -38,8 +38,8 @@ from typing import TYPE_CHECKING, Any
 
 import zenoh
 
-from sim_vehicles.lifeline import batch_scheduling
-from sim_vehicles.udp_arrival import block_reads
+from sim_vehicles.runtime.lifeline import batch_scheduling
+from sim_vehicles.runtime.udp_arrival import block_reads
 from swarm_sitl import zenoh_keys
 
 if TYPE_CHECKING:
@@ -55,7 +55,7 @@ STALL_S = 10.0  #: a process of the empty swarm that waits this long for a messa
 def _signed_len(*msgs: Any) -> int:
     from pymavlink.dialects.v20 import common as mav
 
-    from sim_vehicles.mavlink_signing import SIGNATURE_LEN
+    from sim_vehicles.mavlink.signing import SIGNATURE_LEN
 
     link = mav.MAVLink(None, 1, 1)
     return sum(len(m.pack(link)) + SIGNATURE_LEN for m in msgs)

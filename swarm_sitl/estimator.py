@@ -28,7 +28,7 @@ Neighbour table (one row per in-neighbour, the leader included as node 0), colum
 
 import numpy as np
 
-from sim_vehicles.jit import kernel
+from sim_vehicles.common.jit import kernel
 
 NB_WEIGHT = 0
 NB_P = slice(1, 4)

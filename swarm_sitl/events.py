@@ -20,7 +20,7 @@ import json
 from pathlib import Path
 from typing import Any
 
-from sim_vehicles.event_log import EventLog
+from sim_vehicles.runtime.event_log import EventLog
 from swarm_sitl.config import SwarmConfig
 
 __all__ = ["EventLog", "merge_events", "plan_events", "read_events", "write_events"]

@@ -13,8 +13,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-from sim_vehicles.jit import kernel
-from sim_vehicles.quaternion import body_z_axis, dot3
+from sim_vehicles.common.jit import kernel
+from sim_vehicles.common.quaternion import body_z_axis, dot3
 from swarm_sitl.command_attitude import command_attitude_kernel
 from swarm_sitl.estimator import acceleration_estimate_ddot, estimator_rhs
 from swarm_sitl.position_loop import (

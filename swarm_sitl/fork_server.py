@@ -38,7 +38,7 @@ from typing import IO, Any
 
 from setproctitle import setproctitle
 
-from sim_vehicles.lifeline import ENV as PARENT_ENV
+from sim_vehicles.runtime.lifeline import ENV as PARENT_ENV
 
 ENTRY_MODULES = ("sim_vehicles", "swarm_sitl")
 
@@ -105,7 +105,7 @@ def _warm_up(config_path: str | None) -> None:
     import swarm_sitl.leader_node
     import swarm_sitl.node_main
     import swarm_sitl.vehicle_link
-    from sim_vehicles.params import AttitudeGains, VehicleParams
+    from sim_vehicles.plant.params import AttitudeGains, VehicleParams
 
     swarm_sitl.cli.build_parser()  # what the command line imports to build itself
     # the kernels a vehicle and a controller load before they declare themselves ready: the plant,
@@ -128,7 +128,7 @@ def _send(out: IO[str], msg: dict[str, Any]) -> None:
 def serve(config_path: str | None) -> int:
     """The server's loop: warm up, then fork a child per request line on stdin until stdin closes
     and every child has ended."""
-    from sim_vehicles.lifeline import hold_on, settle_heap
+    from sim_vehicles.runtime.lifeline import hold_on, settle_heap
 
     hold_on()
     _warm_up(config_path)

@@ -8,7 +8,7 @@ say where they are), so a follower never has an unbounded backlog.
 import math
 import time
 
-from sim_vehicles.lifeline import settle_heap
+from sim_vehicles.runtime.lifeline import settle_heap
 from swarm_sitl.assembly import build_leader
 from swarm_sitl.bus import NodeBus
 from swarm_sitl.config import SwarmConfig

@@ -13,7 +13,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from sim_vehicles.lifeline import mark, process_figures
+from sim_vehicles.runtime.lifeline import mark, process_figures
 from swarm_sitl.config import SwarmConfig
 from swarm_sitl.zenoh_access import node_keys
 
@@ -43,8 +43,8 @@ def _session(cfg: SwarmConfig, connect: list[str]) -> Any:
 def _guarded(name: str, body: Any, lockstep: bool) -> int:
     import zenoh
 
-    from sim_vehicles.lifeline import batch_scheduling, hold_on, profiled
-    from sim_vehicles.mavlink_signing import SigningKeyError
+    from sim_vehicles.mavlink.signing import SigningKeyError
+    from sim_vehicles.runtime.lifeline import batch_scheduling, hold_on, profiled
     from swarm_sitl.bus import error_line
     from swarm_sitl.command_attitude import SingularCommandError
     from swarm_sitl.node_clock import StallError
@@ -90,8 +90,8 @@ def in_edge_stats(zbus: Any, faulty: Any) -> dict[int, dict[str, int]]:
 
 
 def cmd_controller(cfg: SwarmConfig, args: argparse.Namespace) -> int:
-    from sim_vehicles.mavlink_signing import read_key
-    from sim_vehicles.row_log import RowLog
+    from sim_vehicles.mavlink.signing import read_key
+    from sim_vehicles.runtime.row_log import RowLog
     from swarm_sitl.bus import NodeBus, ZenohNodeBus
     from swarm_sitl.bus_faults import FaultyBus, acts_on
     from swarm_sitl.controller_node import CONTROLLER_COLUMNS, run_controller

@@ -17,7 +17,7 @@ with ``p_tilde = p - p_hat - delta - eta`` and ``v_tilde = v - v_hat - eta_dot``
 
 import numpy as np
 
-from sim_vehicles.jit import kernel
+from sim_vehicles.common.jit import kernel
 
 
 @kernel

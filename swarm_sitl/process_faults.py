@@ -26,7 +26,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from sim_vehicles.event_log import EventLog
+from sim_vehicles.runtime.event_log import EventLog
 from swarm_sitl.config import ConfigError, SwarmConfig
 from swarm_sitl.fault_plan import FaultSpec, tick_of
 

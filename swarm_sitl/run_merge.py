@@ -13,9 +13,9 @@ from typing import Any
 
 import numpy as np
 
-from sim_vehicles.mavlink_endpoint import TRUTH_COLUMNS
-from sim_vehicles.rigid_body import POS, QUAT, VEL
-from sim_vehicles.row_log import RowLogError, read_rows
+from sim_vehicles.plant.rigid_body import POS, QUAT, VEL
+from sim_vehicles.runtime.row_log import RowLogError, read_rows
+from sim_vehicles.vehicle.endpoint import TRUTH_COLUMNS
 from swarm_sitl.config import SwarmConfig
 from swarm_sitl.controller_node import CONTROLLER_COLUMNS
 from swarm_sitl.events import merge_events

@@ -13,7 +13,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from sim_vehicles.wire_format import (
+from sim_vehicles.mavlink.wire_format import (
     SAMPLE_P,
     SAMPLE_Q,
     SAMPLE_V,

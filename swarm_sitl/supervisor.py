@@ -32,9 +32,9 @@ from typing import IO, Any
 
 import numpy as np
 
-from sim_vehicles.lifeline import ENV as PARENT_ENV
-from sim_vehicles.lifeline import settle_heap
-from sim_vehicles.mavlink_signing import SigningKeyError, read_key
+from sim_vehicles.mavlink.signing import SigningKeyError, read_key
+from sim_vehicles.runtime.lifeline import ENV as PARENT_ENV
+from sim_vehicles.runtime.lifeline import settle_heap
 from swarm_sitl import zenoh_keys
 from swarm_sitl.bus_codec import Status, decode_status, decode_waiting
 from swarm_sitl.config import SwarmConfig

@@ -16,7 +16,7 @@ import zenoh
 from hypothesis import given
 from hypothesis import strategies as st
 
-from sim_vehicles.row_log import RowLog, read_rows
+from sim_vehicles.runtime.row_log import RowLog, read_rows
 from swarm_sitl import zenoh_keys
 from swarm_sitl.bus import ROUTER_RUNTIME, RUNTIME_ENV, ZenohNodeBus, open_session, router_runtime
 from swarm_sitl.bus_codec import (

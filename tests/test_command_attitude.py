@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from hypothesis import assume, given
 
-from sim_vehicles.quaternion import rotation_matrix
+from sim_vehicles.common.quaternion import rotation_matrix
 from swarm_sitl.command_attitude import SingularCommandError, command_attitude
 from tests.strategies import vec3
 
@@ -41,7 +41,7 @@ def test_printed_formula_is_not_a_unit_quaternion_at_hover():
 
 def test_command_rates_are_finite_differences_of_the_command_attitude():
     """omega_c = 2 vec(conj(Q_c) dQ_c/dt) and its derivative, along u(t) = u0 + u' t + u'' t^2 / 2."""
-    from sim_vehicles.quaternion import qconj, qmul
+    from sim_vehicles.common.quaternion import qconj, qmul
 
     u0, ud, udd = np.array([1.2, -0.7, 9.0]), np.array([0.4, 0.9, -0.3]), np.array([-0.8, 0.5, 0.6])
 

@@ -8,7 +8,7 @@ import time
 
 import pytest
 
-from sim_vehicles.lifeline import thread_cpu_s
+from sim_vehicles.runtime.lifeline import thread_cpu_s
 from swarm_sitl.cost_split import ACTIVITIES, activity_of, activity_split
 
 _BURN = """
@@ -26,17 +26,17 @@ def burn_in_a_builtin(n):
 
 def _module(tmp_path, package: str, name: str):
     folder = tmp_path / package
-    folder.mkdir(exist_ok=True)
+    folder.mkdir(parents=True, exist_ok=True)
     path = folder / f"{name}.py"
     path.write_text(_BURN)
-    spec = importlib.util.spec_from_file_location(f"{package}_{name}", path)
+    spec = importlib.util.spec_from_file_location(f"{package.replace('/', '_')}_{name}", path)
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)
     return mod
 
 
 def test_time_goes_to_the_activity_of_the_file_and_builtins_to_their_caller(tmp_path):
-    laws = _module(tmp_path, "sim_vehicles", "autopilot")  # physics and laws
+    laws = _module(tmp_path, "sim_vehicles/plant", "autopilot")  # physics and laws
     bus = _module(tmp_path, "swarm_sitl", "bus")  # zenoh
     link = _module(tmp_path, "swarm_sitl", "vehicle_link")  # MAVLink
 
@@ -64,10 +64,10 @@ def test_builtins_are_named_by_what_they_do():
     assert activity_of(("~", 0, "<built-in method select.select>")) == "waking up"
     assert activity_of(("~", 0, "<method 'put' of 'builtins.Publisher' objects>")) == "zenoh"
     assert activity_of(("~", 0, "<built-in method builtins.len>")) is None  # its caller's
-    assert activity_of(("/x/sim_vehicles/mavlink_endpoint.py", 1, "run_lockstep")) == "loop and other"
-    assert activity_of(("/x/sim_vehicles/mavlink_endpoint.py", 1, "_send_attitude")) == "MAVLink"
-    assert activity_of(("/x/sim_vehicles/row_log.py", 1, "append")) == "logs"
-    assert activity_of(("/x/sim_vehicles/udp_arrival.py", 56, "__call__")) is None  # link's or bus's
+    assert activity_of(("/x/sim_vehicles/vehicle/endpoint.py", 1, "run_lockstep")) == "loop and other"
+    assert activity_of(("/x/sim_vehicles/vehicle/endpoint.py", 1, "_send_attitude")) == "MAVLink"
+    assert activity_of(("/x/sim_vehicles/runtime/row_log.py", 1, "append")) == "logs"
+    assert activity_of(("/x/sim_vehicles/runtime/udp_arrival.py", 56, "__call__")) is None  # link's or bus's
     assert activity_of(("~", 0, "<method 'poll' of 'select.poll' objects>")) is None  # poll(0): a look
 
 

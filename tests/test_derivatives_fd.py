@@ -13,7 +13,7 @@ errors 2 (Gamma with tanh(gamma_dot)) and 3 (Dbar, Sbar): with either, u_ddot is
 import numpy as np
 import pytest
 
-from sim_vehicles.quaternion import qconj, qmul
+from sim_vehicles.common.quaternion import qconj, qmul
 from swarm_sitl.estimator import acceleration_estimate
 from swarm_sitl.follower import EstimateMessage
 from swarm_sitl.follower_law import (

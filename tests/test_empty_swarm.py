@@ -3,9 +3,8 @@
 import numpy as np
 import pytest
 
-from sim_vehicles import mavlink_frames as frames
-from sim_vehicles import tick_frames
-from sim_vehicles.mavlink_signing import Signer
+from sim_vehicles.mavlink import frames, tick_frames
+from sim_vehicles.mavlink.signing import Signer
 from swarm_sitl.empty_swarm import measure_empty, message_sizes
 
 

@@ -8,8 +8,9 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from sim_vehicles.autopilot import Autopilot
-from sim_vehicles.failsafe import (
+from sim_vehicles.common.quaternion import qconj, qmul, rotation_matrix
+from sim_vehicles.plant.autopilot import Autopilot
+from sim_vehicles.plant.failsafe import (
     ACTION_HOLD,
     ACTION_LAND,
     FAILSAFE_PERIOD_S,
@@ -18,9 +19,8 @@ from sim_vehicles.failsafe import (
     failsafe_command,
     hold_at,
 )
-from sim_vehicles.params import AttitudeGains, VehicleParams
-from sim_vehicles.quaternion import qconj, qmul, rotation_matrix
-from sim_vehicles.rigid_body import POS, VEL, make_state
+from sim_vehicles.plant.params import AttitudeGains, VehicleParams
+from sim_vehicles.plant.rigid_body import POS, VEL, make_state
 
 PARAMS = VehicleParams(0.85, (0.04856, 0.04856, 0.08801), 25.0)
 GAINS = AttitudeGains(16.0, 16.0)

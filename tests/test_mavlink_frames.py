@@ -17,7 +17,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from pymavlink.dialects.v20 import common as mav
 
-from sim_vehicles import mavlink_frames as frames
+from sim_vehicles.mavlink import frames
 
 pytestmark = pytest.mark.unit
 
@@ -257,7 +257,7 @@ def test_a_signed_link_reads_its_sample_and_refuses_the_rest():
     """On a signed link a sample datagram is checked, unsigned and read as the sample; anything
     else it takes goes on to the general reader, and what it refuses is counted: unsigned or
     replayed as refused, wrongly signed as bad."""
-    from sim_vehicles.mavlink_signing import Signer, key_from_passphrase
+    from sim_vehicles.mavlink.signing import Signer, key_from_passphrase
 
     key = key_from_passphrase("run key")
     signer = Signer(key)

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from sim_vehicles.quaternion import rotation_matrix
+from sim_vehicles.common.quaternion import rotation_matrix
 from swarm_sitl.assembly import reported_vehicle_params
 from swarm_sitl.sim import run_sim
 

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 
-from sim_vehicles.quaternion import (
+from sim_vehicles.common.quaternion import (
     body_z_axis,
     from_axis_angle,
     from_rotation_matrix,

@@ -20,9 +20,9 @@ import pytest
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import common as mav
 
-import sim_vehicles.mavlink_signing as signing
-from sim_vehicles.mavlink_signing import Signer, Verifier, key_from_passphrase
-from sim_vehicles.sha256 import sha256_into
+import sim_vehicles.mavlink.signing as signing
+from sim_vehicles.mavlink.sha256 import sha256_into
+from sim_vehicles.mavlink.signing import Signer, Verifier, key_from_passphrase
 
 KEY = key_from_passphrase("correct horse battery staple")
 

@@ -15,7 +15,7 @@ import pytest
 import yaml
 from pymavlink import mavutil
 
-from sim_vehicles.row_log import read_rows
+from sim_vehicles.runtime.row_log import read_rows
 from swarm_sitl.sim import run_sim
 from tests.conftest import CONFIGS
 

@@ -12,10 +12,10 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from pymavlink.dialects.v20 import common as mav
 
-from sim_vehicles import mavlink_frames as frames
-from sim_vehicles import tick_frames as tf
-from sim_vehicles.frames import swap_frames_wxyz
-from sim_vehicles.wire_format import AttitudeTargetFields, decode_attitude_target
+from sim_vehicles.mavlink import frames
+from sim_vehicles.mavlink import tick_frames as tf
+from sim_vehicles.mavlink.enu_ned import swap_frames_wxyz
+from sim_vehicles.mavlink.wire_format import AttitudeTargetFields, decode_attitude_target
 from tests.strategies import unit_quaternions, vec3
 
 pytestmark = pytest.mark.unit

@@ -3,11 +3,11 @@
 import numpy as np
 import pytest
 
-from sim_vehicles.autopilot import AttitudeCommand, Autopilot
-from sim_vehicles.params import AttitudeGains, VehicleParams
-from sim_vehicles.quaternion import from_axis_angle, qmul
-from sim_vehicles.rigid_body import QUAT, RATE, make_state, rk4_step
-from sim_vehicles.torque_law import attitude_error, torque
+from sim_vehicles.common.quaternion import from_axis_angle, qmul
+from sim_vehicles.plant.autopilot import AttitudeCommand, Autopilot
+from sim_vehicles.plant.params import AttitudeGains, VehicleParams
+from sim_vehicles.plant.rigid_body import QUAT, RATE, make_state, rk4_step
+from sim_vehicles.plant.torque_law import attitude_error, torque
 
 pytestmark = pytest.mark.unit
 PARAMS = VehicleParams(0.85, (4.856e-2, 4.856e-2, 8.801e-2), 25.0)

@@ -13,12 +13,12 @@ import pytest
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import common as mavlink2
 
-from sim_vehicles import udp_arrival
-from sim_vehicles.autopilot import Autopilot
-from sim_vehicles.mavlink_endpoint import VehicleEndpoint
-from sim_vehicles.params import AttitudeGains, VehicleParams
-from sim_vehicles.rigid_body import make_state
-from sim_vehicles.row_log import read_rows
+from sim_vehicles.plant.autopilot import Autopilot
+from sim_vehicles.plant.params import AttitudeGains, VehicleParams
+from sim_vehicles.plant.rigid_body import make_state
+from sim_vehicles.runtime import udp_arrival
+from sim_vehicles.runtime.row_log import read_rows
+from sim_vehicles.vehicle.endpoint import VehicleEndpoint
 
 pytestmark = pytest.mark.integration
 mav = mavutil.mavlink
@@ -230,12 +230,12 @@ import socket
 import sys
 import numba
 from sim_vehicles.__main__ import warm_up
-from sim_vehicles.autopilot import Autopilot
+from sim_vehicles.plant.autopilot import Autopilot
 from pymavlink.dialects.v20 import common as mav
-from sim_vehicles.mavlink_endpoint import MODE_OFFBOARD, VehicleEndpoint
-from sim_vehicles.mavlink_signing import Signer
-from sim_vehicles.params import AttitudeGains, VehicleParams
-from sim_vehicles.rigid_body import make_state
+from sim_vehicles.vehicle.endpoint import MODE_OFFBOARD, VehicleEndpoint
+from sim_vehicles.mavlink.signing import Signer
+from sim_vehicles.plant.params import AttitudeGains, VehicleParams
+from sim_vehicles.plant.rigid_body import make_state
 
 def loaded():
     return {

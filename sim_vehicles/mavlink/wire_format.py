@@ -22,8 +22,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-from sim_vehicles.autopilot import AttitudeCommand
-from sim_vehicles.jit import kernel, kernel_array
+from sim_vehicles.common.jit import kernel, kernel_array
+from sim_vehicles.plant.autopilot import AttitudeCommand
 
 _S = math.sqrt(0.5)
 

@@ -40,10 +40,10 @@ import numpy as np
 from fastcrc import crc16
 from pymavlink.dialects.v20 import common as mav
 
-from sim_vehicles.jit import kernel
+from sim_vehicles.common.jit import kernel
 
 if sys.byteorder != "little":  # the kernels write native floats as wire bytes
-    raise ImportError("sim_vehicles.mavlink_frames needs a little-endian host")
+    raise ImportError("sim_vehicles.mavlink.frames needs a little-endian host")
 
 MAGIC_V2 = 0xFD
 _HEADER = struct.Struct("<BBBBBBBHB")

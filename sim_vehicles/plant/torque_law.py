@@ -11,8 +11,8 @@ which gives ``J rdot = -k_q r`` exactly.
 
 import numpy as np
 
-from sim_vehicles.jit import kernel
-from sim_vehicles.quaternion import matTvec, qconj, qmul, rotation_matrix
+from sim_vehicles.common.jit import kernel
+from sim_vehicles.common.quaternion import matTvec, qconj, qmul, rotation_matrix
 
 
 @kernel

@@ -13,7 +13,7 @@ Words are held in int64 and masked to 32 bits (numba's uint32 arithmetic promote
 
 import numpy as np
 
-from sim_vehicles.jit import kernel
+from sim_vehicles.common.jit import kernel
 
 _M = 0xFFFFFFFF
 _K = np.array(

@@ -7,7 +7,7 @@ All functions are pure and compiled; they take and return float64 numpy arrays.
 
 import numpy as np
 
-from sim_vehicles.jit import kernel
+from sim_vehicles.common.jit import kernel
 
 
 @kernel

@@ -90,17 +90,23 @@ from typing import Any, BinaryIO, NamedTuple
 import numpy as np
 from pymavlink.dialects.v20 import common as mav
 
-from sim_vehicles import lockstep_tick, tick_frames, udp_arrival
-from sim_vehicles import mavlink_frames as frames
-from sim_vehicles import px4_profile as px4
-from sim_vehicles.autopilot import AttitudeCommand, Autopilot
-from sim_vehicles.event_log import EventLog
-from sim_vehicles.failsafe import ACTION_HOLD, FAILSAFE_PERIOD_S, failsafe_command, hold_at
-from sim_vehicles.mavlink_signing import SIGNATURE_LEN, Signer, Verifier
-from sim_vehicles.quaternion import rotation_matrix
-from sim_vehicles.rigid_body import QUAT, RATE
-from sim_vehicles.row_log import RowLog
-from sim_vehicles.wire_format import CMD_VALID, command_from_fields, command_of, encode_attitude_quaternion
+from sim_vehicles.common.quaternion import rotation_matrix
+from sim_vehicles.mavlink import frames, tick_frames
+from sim_vehicles.mavlink import px4_profile as px4
+from sim_vehicles.mavlink.signing import SIGNATURE_LEN, Signer, Verifier
+from sim_vehicles.mavlink.wire_format import (
+    CMD_VALID,
+    command_from_fields,
+    command_of,
+    encode_attitude_quaternion,
+)
+from sim_vehicles.plant.autopilot import AttitudeCommand, Autopilot
+from sim_vehicles.plant.failsafe import ACTION_HOLD, FAILSAFE_PERIOD_S, failsafe_command, hold_at
+from sim_vehicles.plant.rigid_body import QUAT, RATE
+from sim_vehicles.runtime import udp_arrival
+from sim_vehicles.runtime.event_log import EventLog
+from sim_vehicles.runtime.row_log import RowLog
+from sim_vehicles.vehicle import lockstep_tick
 
 #: the two messages of a lockstep sample, sent at every period
 LPOS_ID, ATTQ_ID = mav.MAVLINK_MSG_ID_LOCAL_POSITION_NED, mav.MAVLINK_MSG_ID_ATTITUDE_QUATERNION

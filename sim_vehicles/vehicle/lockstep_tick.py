@@ -13,9 +13,9 @@ bit. ``mavlink_endpoint`` decides when a tick is the usual one and keeps the boo
 (sequence numbers, stream schedule, ``.tlog``); anything else takes the general path.
 """
 
-from sim_vehicles.autopilot import advance_kernel
-from sim_vehicles.jit import kernel
-from sim_vehicles.tick_frames import attitude_quaternion_into, local_position_into
+from sim_vehicles.common.jit import kernel
+from sim_vehicles.mavlink.tick_frames import attitude_quaternion_into, local_position_into
+from sim_vehicles.plant.autopilot import advance_kernel
 
 #: room for the two frames of a sample
 SAMPLE_BYTES = 128

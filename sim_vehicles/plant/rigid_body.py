@@ -13,8 +13,8 @@ Dynamics: ``pdot = v``, ``vdot = -g e3 + (T/m) R(Q) e3``, ``Qdot = 0.5 Q (x) [0,
 
 import numpy as np
 
-from sim_vehicles.jit import kernel
-from sim_vehicles.quaternion import body_z_axis, quaternion_rate
+from sim_vehicles.common.jit import kernel
+from sim_vehicles.common.quaternion import body_z_axis, quaternion_rate
 
 STATE_SIZE = 13
 POS = slice(0, 3)

@@ -34,9 +34,9 @@ from pathlib import Path
 import numpy as np
 from fastcrc import crc16
 
-from sim_vehicles.jit import kernel
-from sim_vehicles.mavlink_frames import MAGIC_V2
-from sim_vehicles.sha256 import sha256_into
+from sim_vehicles.common.jit import kernel
+from sim_vehicles.mavlink.frames import MAGIC_V2
+from sim_vehicles.mavlink.sha256 import sha256_into
 
 SIGNED = 0x01  #: incompat flag of a signed frame
 MAGIC_V1 = 0xFE

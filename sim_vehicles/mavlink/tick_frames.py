@@ -25,8 +25,8 @@ frame (``mavlink_frames``: the bytes pymavlink would write, tested against it) i
 
 import numpy as np
 
-from sim_vehicles.jit import kernel
-from sim_vehicles.mavlink_frames import (
+from sim_vehicles.common.jit import kernel
+from sim_vehicles.mavlink.frames import (
     ATTITUDE_QUATERNION,
     LOCAL_POSITION_NED,
     SET_ATTITUDE_TARGET,
@@ -35,7 +35,7 @@ from sim_vehicles.mavlink_frames import (
     pack_into,
     read_into,
 )
-from sim_vehicles.wire_format import (
+from sim_vehicles.mavlink.wire_format import (
     attitude_quaternion_fields,
     attitude_target_fields,
     command_from_fields,

@@ -21,13 +21,13 @@ _PACKAGES = ("sim_vehicles", "swarm_sitl")
 
 def _cache_dir() -> Path:
     """``$NUMBA_CACHE_DIR`` (default ``~/.cache/swarm-sitl/numba``) / a hash of the kernel sources."""
-    root = Path(__file__).resolve().parent.parent
+    root = Path(__file__).resolve().parents[2]
     h = hashlib.sha256(numba.__version__.encode())
     for package in _PACKAGES:
-        for path in sorted((root / package).glob("*.py")):
+        for path in sorted((root / package).rglob("*.py")):
             text = path.read_bytes()
             if b"@kernel" in text:
-                h.update(path.name.encode() + b"\0" + text)
+                h.update(path.relative_to(root).as_posix().encode() + b"\0" + text)
     base = os.environ.get("NUMBA_CACHE_DIR") or str(Path.home() / ".cache" / "swarm-sitl" / "numba")
     return Path(base) / h.hexdigest()[:16]
 

@@ -18,10 +18,10 @@ from typing import NamedTuple
 
 import numpy as np
 
-from sim_vehicles.jit import kernel, kernel_array
-from sim_vehicles.params import AttitudeGains, VehicleParams
-from sim_vehicles.rigid_body import QUAT, STATE_SIZE, rk4_step
-from sim_vehicles.torque_law import torque
+from sim_vehicles.common.jit import kernel, kernel_array
+from sim_vehicles.plant.params import AttitudeGains, VehicleParams
+from sim_vehicles.plant.rigid_body import QUAT, STATE_SIZE, rk4_step
+from sim_vehicles.plant.torque_law import torque
 
 _ZERO3 = np.zeros(3)
 _ZERO3.flags.writeable = False

@@ -1,0 +1,6 @@
+"""What a long-running process of the bench needs besides its work: when each UDP datagram
+arrived (``udp_arrival``), its life as a supervised child (``lifeline``), and files that a crash
+cannot make unreadable (``row_log``, ``event_log``). No numerics.
+
+May import: nothing of ours.
+"""
