@@ -15,13 +15,13 @@ from pathlib import Path
 import numpy as np
 from pymavlink.dialects.v20 import common as mav
 
+from sim_vehicles.common.state import QUAT, RATE, make_state
 from sim_vehicles.mavlink import frames, signing, tick_frames
 from sim_vehicles.mavlink.signing import read_key
 from sim_vehicles.mavlink.wire_format import command_roundtrip, encode_attitude_quaternion
 from sim_vehicles.plant.autopilot import Autopilot
 from sim_vehicles.plant.failsafe import ACTION_LAND, ACTIONS, failsafe_command, hold_at
 from sim_vehicles.plant.params import MAX_RATE_DEFAULT_RPS, AttitudeGains, VehicleParamError, VehicleParams
-from sim_vehicles.plant.rigid_body import QUAT, RATE, make_state
 from sim_vehicles.runtime.lifeline import (
     batch_scheduling,
     hold_on,

@@ -2,9 +2,9 @@
 
 import numpy as np
 
+from sim_vehicles.common.state import make_state
 from sim_vehicles.mavlink.wire_format import f32
 from sim_vehicles.plant.autopilot import Autopilot
-from sim_vehicles.plant.rigid_body import make_state
 from swarm_sitl.config import SwarmConfig
 from swarm_sitl.follower import FollowerController, LeaderNode
 

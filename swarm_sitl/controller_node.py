@@ -29,8 +29,8 @@ from typing import NamedTuple
 
 import numpy as np
 
+from sim_vehicles.common.command import AttitudeCommand
 from sim_vehicles.mavlink import signing, tick_frames
-from sim_vehicles.plant.autopilot import AttitudeCommand
 from sim_vehicles.runtime.lifeline import mark, settle_heap
 from sim_vehicles.runtime.row_log import RowLog
 from swarm_sitl.assembly import build_controller

@@ -25,7 +25,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from sim_vehicles.plant.autopilot import AttitudeCommand
+from sim_vehicles.common.command import AttitudeCommand
 from swarm_sitl.command_attitude import SingularCommandError
 from swarm_sitl.follower_law import (
     CTRL_SIZE,

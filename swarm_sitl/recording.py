@@ -36,7 +36,7 @@ from pathlib import Path
 
 import numpy as np
 
-from sim_vehicles.plant.rigid_body import POS, QUAT, RATE, STATE_SIZE, VEL
+from sim_vehicles.common.state import POS, QUAT, RATE, STATE_SIZE, VEL
 from swarm_sitl.estimator import EST_GAMMA, EST_GAMMA_DOT, EST_P, EST_V
 from swarm_sitl.follower import ControllerStep
 from swarm_sitl.follower_law import (

@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from sim_vehicles.plant.rigid_body import POS, QUAT, VEL
+from sim_vehicles.common.state import POS, QUAT, STATE_SIZE, VEL
 from sim_vehicles.runtime.row_log import RowLogError, read_rows
 from sim_vehicles.vehicle.endpoint import TRUTH_COLUMNS
 from swarm_sitl.config import SwarmConfig
@@ -72,7 +72,7 @@ def merge_run(cfg: SwarmConfig, run_dir: Path) -> Recording:
             if at is not None:
                 state = truth[at, 1:]
             else:
-                state = np.full(13, np.nan)
+                state = np.full(STATE_SIZE, np.nan)
                 s = row[_SAMPLE]
                 state[POS], state[VEL], state[QUAT] = s[0:3], s[3:6], s[6:10]
             series.record_vehicle(k, row[_C["t_s"]], state, row[_C["sample_t_s"]])

@@ -32,11 +32,11 @@ os.environ.setdefault("MAVLINK20", "1")  # before pymavlink picks its wire proto
 import numpy as np
 from pymavlink import mavutil
 
+from sim_vehicles.common.command import AttitudeCommand
 from sim_vehicles.mavlink import frames, tick_frames
 from sim_vehicles.mavlink import px4_profile as px4
 from sim_vehicles.mavlink.signing import Signer, Verifier
 from sim_vehicles.mavlink.wire_format import SAMPLE_P, SAMPLE_Q, SAMPLE_V, sample_from_fields
-from sim_vehicles.plant.autopilot import AttitudeCommand
 from sim_vehicles.runtime import udp_arrival
 from sim_vehicles.vehicle.endpoint import IGNORE_ALL
 

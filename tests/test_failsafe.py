@@ -9,6 +9,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from sim_vehicles.common.quaternion import qconj, qmul, rotation_matrix
+from sim_vehicles.common.state import POS, VEL, make_state
 from sim_vehicles.plant.autopilot import Autopilot
 from sim_vehicles.plant.failsafe import (
     ACTION_HOLD,
@@ -20,7 +21,6 @@ from sim_vehicles.plant.failsafe import (
     hold_at,
 )
 from sim_vehicles.plant.params import AttitudeGains, VehicleParams
-from sim_vehicles.plant.rigid_body import POS, VEL, make_state
 
 PARAMS = VehicleParams(0.85, (0.04856, 0.04856, 0.08801), 25.0)
 GAINS = AttitudeGains(16.0, 16.0)

@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 
 from sim_vehicles.common.quaternion import from_axis_angle, rotation_matrix
-from sim_vehicles.plant.rigid_body import POS, QUAT, RATE, VEL, make_state, rk4_step
+from sim_vehicles.common.state import POS, QUAT, RATE, VEL, make_state
+from sim_vehicles.plant.rigid_body import rk4_step
 
 pytestmark = pytest.mark.unit
 M, G = 0.85, 9.81

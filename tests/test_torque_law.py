@@ -3,10 +3,12 @@
 import numpy as np
 import pytest
 
+from sim_vehicles.common.command import AttitudeCommand
 from sim_vehicles.common.quaternion import from_axis_angle, qmul
-from sim_vehicles.plant.autopilot import AttitudeCommand, Autopilot
+from sim_vehicles.common.state import QUAT, RATE, make_state
+from sim_vehicles.plant.autopilot import Autopilot
 from sim_vehicles.plant.params import AttitudeGains, VehicleParams
-from sim_vehicles.plant.rigid_body import QUAT, RATE, make_state, rk4_step
+from sim_vehicles.plant.rigid_body import rk4_step
 from sim_vehicles.plant.torque_law import attitude_error, torque
 
 pytestmark = pytest.mark.unit

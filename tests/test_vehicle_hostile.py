@@ -17,10 +17,10 @@ from hypothesis import given
 from hypothesis import strategies as st
 from pymavlink.dialects.v20 import common as mav
 
+from sim_vehicles.common.state import make_state
 from sim_vehicles.mavlink.frames import _crc
 from sim_vehicles.plant.autopilot import Autopilot
 from sim_vehicles.plant.params import AttitudeGains, VehicleParams
-from sim_vehicles.plant.rigid_body import make_state
 from sim_vehicles.vehicle.endpoint import COMMAND_PARAMS, MODE_OFFBOARD, PEER_SILENT_S, VehicleEndpoint
 from tests.strategies import FUZZ, FUZZ_TIMEOUT
 

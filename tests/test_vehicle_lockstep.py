@@ -13,9 +13,9 @@ import pytest
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import common as mavlink2
 
+from sim_vehicles.common.state import make_state
 from sim_vehicles.plant.autopilot import Autopilot
 from sim_vehicles.plant.params import AttitudeGains, VehicleParams
-from sim_vehicles.plant.rigid_body import make_state
 from sim_vehicles.runtime import udp_arrival
 from sim_vehicles.runtime.row_log import read_rows
 from sim_vehicles.vehicle.endpoint import VehicleEndpoint
@@ -235,7 +235,7 @@ from pymavlink.dialects.v20 import common as mav
 from sim_vehicles.vehicle.endpoint import MODE_OFFBOARD, VehicleEndpoint
 from sim_vehicles.mavlink.signing import Signer
 from sim_vehicles.plant.params import AttitudeGains, VehicleParams
-from sim_vehicles.plant.rigid_body import make_state
+from sim_vehicles.common.state import make_state
 
 def loaded():
     return {

@@ -4,10 +4,10 @@ import numpy as np
 import pytest
 from hypothesis import given
 
+from sim_vehicles.common.command import AttitudeCommand
 from sim_vehicles.common.quaternion import from_axis_angle, rotation_matrix
 from sim_vehicles.mavlink.enu_ned import enu_to_ned, flu_to_frd, q_enu_flu_to_ned_frd, q_ned_frd_to_enu_flu
 from sim_vehicles.mavlink.wire_format import command_roundtrip, decode_attitude_target, encode_attitude_target
-from sim_vehicles.plant.autopilot import AttitudeCommand
 from tests.strategies import unit_quaternions, vec3
 
 pytestmark = pytest.mark.unit

@@ -7,7 +7,7 @@ field, that costs more than the laws: these kernels do the conversion (``wire_fo
 frame (``mavlink_frames``: the bytes pymavlink would write, tested against it) in one call each.
 
 - ``pack_local_position`` / ``pack_attitude_quaternion`` (vehicle): the message of state ``x``
-  (``rigid_body`` layout) at ``time_boot_ms``, written to ``out``; returns its length.
+  (``common.state``) at ``time_boot_ms``, written to ``out``; returns its length.
 - ``read_sample`` (controller): a datagram holding those two frames from ``(sysid, compid)``, of
   the same ``time_boot_ms`` and with good CRCs, as ``[1, time_boot_ms, p_W, v_W, q_WB, frames,
   bad]`` (``RS_*``). Other frames may come with them if ``ignored[msg_id]`` gives their CRC extra:
@@ -26,6 +26,7 @@ frame (``mavlink_frames``: the bytes pymavlink would write, tested against it) i
 import numpy as np
 
 from sim_vehicles.common.jit import kernel
+from sim_vehicles.common.state import POS, QUAT, QUAT0, RATE, STATE_SIZE, VEL
 from sim_vehicles.mavlink.frames import (
     ATTITUDE_QUATERNION,
     LOCAL_POSITION_NED,
@@ -57,7 +58,7 @@ def local_position_into(out, at, seq, sysid, compid, spec, time_boot_ms, x):
     """LOCAL_POSITION_NED of state ``x`` written at ``out[at:]``; returns the index after it."""
     v = np.empty(7)
     v[0] = time_boot_ms
-    v[1:7] = local_position_fields(x[0:3], x[3:6])
+    v[1:7] = local_position_fields(x[POS], x[VEL])
     return pack_into(out, at, seq, sysid, compid, spec, v)
 
 
@@ -66,7 +67,7 @@ def attitude_quaternion_into(out, at, seq, sysid, compid, spec, time_boot_ms, x)
     """ATTITUDE_QUATERNION of state ``x`` written at ``out[at:]``; returns the index after it."""
     v = np.empty(8)
     v[0] = time_boot_ms
-    v[1:8] = attitude_quaternion_fields(x[6:10], x[10:13])
+    v[1:8] = attitude_quaternion_fields(x[QUAT], x[RATE])
     return pack_into(out, at, seq, sysid, compid, spec, v)
 
 
@@ -168,14 +169,14 @@ def warm_up() -> None:
     cache (milliseconds each, and 16 processes at once on a small machine) happens at start-up
     and not at the first tick: without this a real-time swarm16 run lost its first 180 ms."""
     out = np.zeros(FRAME_BYTES, np.uint8)
-    x = np.zeros(13)
-    x[6] = 1.0
+    x = np.zeros(STATE_SIZE)
+    x[QUAT0] = 1.0
     n = pack_local_position(out, 0, 1, 1, LOCAL_POSITION_NED.spec, 0, x)
     sample = out[:n].tobytes()
     n = pack_attitude_quaternion(out, 0, 1, 1, ATTITUDE_QUATERNION.spec, 0, x)
     sample += out[:n].tobytes()
     read_sample(sample, 1, 1, LOCAL_POSITION_NED.spec, ATTITUDE_QUATERNION.spec, np.full(1, -1, np.int64))
     n = pack_setpoint(
-        out, 0, 1, 1, SET_ATTITUDE_TARGET.spec, 0, 1, 1, x[6:10].copy(), x[10:13].copy(), 1.0, 2.0
+        out, 0, 1, 1, SET_ATTITUDE_TARGET.spec, 0, 1, 1, x[QUAT].copy(), x[RATE].copy(), 1.0, 2.0
     )
     read_setpoint(out[:n].tobytes(), SET_ATTITUDE_TARGET.spec, 2.0)

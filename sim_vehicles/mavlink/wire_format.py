@@ -22,8 +22,9 @@ from typing import NamedTuple
 
 import numpy as np
 
+from sim_vehicles.common.command import AttitudeCommand
 from sim_vehicles.common.jit import kernel, kernel_array
-from sim_vehicles.plant.autopilot import AttitudeCommand
+from sim_vehicles.common.state import POS, QUAT, RATE, VEL
 
 _S = math.sqrt(0.5)
 
@@ -94,10 +95,11 @@ def attitude_quaternion_fields(q_WB, omega_B):
 
 @kernel
 def sample_fields(x):
-    """Both sample messages' fields of the vehicle state ``x`` (``rigid_body`` layout)."""
+    """Both sample messages' fields of the vehicle state ``x`` (``common.state``): LOCAL_POSITION_NED's
+    ``(x..vz)`` then ATTITUDE_QUATERNION's ``(q1..q4, rollspeed, pitchspeed, yawspeed)``."""
     f = np.empty(13)
-    f[0:6] = local_position_fields(x[0:3], x[3:6])
-    f[6:13] = attitude_quaternion_fields(x[6:10], x[10:13])
+    f[0:6] = local_position_fields(x[POS], x[VEL])
+    f[6:13] = attitude_quaternion_fields(x[QUAT], x[RATE])
     return f
 
 

@@ -14,32 +14,16 @@ Sampled-data semantics (the vehicle side):
   part is non-negative, which is the paper's operating region).
 """
 
-from typing import NamedTuple
-
 import numpy as np
 
+from sim_vehicles.common.command import ZERO3, AttitudeCommand
 from sim_vehicles.common.jit import kernel, kernel_array
+from sim_vehicles.common.state import QUAT, RATE, STATE_SIZE
 from sim_vehicles.plant.params import AttitudeGains, VehicleParams
-from sim_vehicles.plant.rigid_body import QUAT, STATE_SIZE, rk4_step
+from sim_vehicles.plant.rigid_body import rk4_step
 from sim_vehicles.plant.torque_law import torque
 
-_ZERO3 = np.zeros(3)
-_ZERO3.flags.writeable = False
-_ZERO3_ARG = np.zeros(3)  #: what the kernel gets for ``_ZERO3``: writable (one signature), never written
-
-
-class AttitudeCommand(NamedTuple):
-    """What an attitude loop is asked to track, held until the next command."""
-
-    q_c: np.ndarray  #: command attitude [Hamilton w,x,y,z; body FLU -> world ENU]
-    thrust_N: float  #: collective thrust [N]
-    omega_c_B: np.ndarray = _ZERO3  #: command body rates [rad/s; command body frame]
-    omegadot_c_B: np.ndarray = _ZERO3  #: their derivative [rad/s^2]; zeros where unknown
-
-    @staticmethod
-    def hover(params: VehicleParams, q_c: np.ndarray | None = None) -> "AttitudeCommand":
-        q = np.array([1.0, 0.0, 0.0, 0.0]) if q_c is None else q_c
-        return AttitudeCommand(q_c=q, thrust_N=params.hover_thrust_N)
+_ZERO3_ARG = np.zeros(3)  #: what the kernel gets for ``ZERO3``: writable (one signature), never written
 
 
 @kernel
@@ -66,10 +50,10 @@ def advance_kernel(
     if np.any(np.abs(omega_c) > max_rate):
         omega_c = np.minimum(np.maximum(omega_c, -max_rate), max_rate)
     for _ in range(n_steps):
-        q = x[6:10]
+        q = x[QUAT]
         dot = q[0] * q_c[0] + q[1] * q_c[1] + q[2] * q_c[2] + q[3] * q_c[3]
         qc = q_c if dot >= 0.0 else qc_neg
-        tau = torque(q, x[10:13], qc, omega_c, omegadot_c, inertia_kgm2, l_q, k_q)
+        tau = torque(q, x[RATE], qc, omega_c, omegadot_c, inertia_kgm2, l_q, k_q)
         x = rk4_step(x, T, tau, mass_kg, inertia_kgm2, g_mps2, dt_s)
     return x
 
@@ -78,7 +62,7 @@ def _kernel_arg(v: np.ndarray) -> np.ndarray:
     """A writable C-contiguous float64 array: one compiled signature of the kernel whatever the
     command's arrays are (the read-only default rates would otherwise compile a second one in
     every vehicle process)."""
-    if v is _ZERO3:  # the default rates of nearly every command: no new array per setpoint
+    if v is ZERO3:  # the default rates of nearly every command: no new array per setpoint
         return _ZERO3_ARG
     return kernel_array(v)
 
@@ -98,7 +82,7 @@ class Autopilot:
         self._inertia = params.inertia
         #: the body-rate limit in force [rad/s], from ``params.max_rate_rps`` (a PARAM_SET may change it)
         self.max_rate_rps = np.array(params.max_rate_rps, dtype=float)
-        self.set_command(AttitudeCommand.hover(params, self.state[QUAT].copy()))
+        self.set_command(AttitudeCommand(q_c=self.state[QUAT].copy(), thrust_N=params.hover_thrust_N))
 
     @property
     def time_s(self) -> float:

@@ -18,10 +18,10 @@ from typing import NamedTuple
 
 import numpy as np
 
+from sim_vehicles.common.command import AttitudeCommand
 from sim_vehicles.common.quaternion import qmul, rotation_matrix
-from sim_vehicles.plant.autopilot import AttitudeCommand
+from sim_vehicles.common.state import POS, QUAT, VEL
 from sim_vehicles.plant.params import VehicleParams
-from sim_vehicles.plant.rigid_body import POS, QUAT, VEL
 
 ACTION_LAND = 0
 ACTION_HOLD = 1

@@ -90,7 +90,9 @@ from typing import Any, BinaryIO, NamedTuple
 import numpy as np
 from pymavlink.dialects.v20 import common as mav
 
+from sim_vehicles.common.command import AttitudeCommand
 from sim_vehicles.common.quaternion import rotation_matrix
+from sim_vehicles.common.state import POS, QUAT, RATE, STATE_COLUMNS, VEL
 from sim_vehicles.mavlink import frames, tick_frames
 from sim_vehicles.mavlink import px4_profile as px4
 from sim_vehicles.mavlink.signing import SIGNATURE_LEN, Signer, Verifier
@@ -100,9 +102,8 @@ from sim_vehicles.mavlink.wire_format import (
     command_of,
     encode_attitude_quaternion,
 )
-from sim_vehicles.plant.autopilot import AttitudeCommand, Autopilot
+from sim_vehicles.plant.autopilot import Autopilot
 from sim_vehicles.plant.failsafe import ACTION_HOLD, FAILSAFE_PERIOD_S, failsafe_command, hold_at
-from sim_vehicles.plant.rigid_body import QUAT, RATE
 from sim_vehicles.runtime import udp_arrival
 from sim_vehicles.runtime.event_log import EventLog
 from sim_vehicles.runtime.row_log import RowLog
@@ -222,7 +223,8 @@ LOCKSTEP_WAIT_S = 0.2  #: lockstep: longest wait for a datagram before the heart
 LOCKSTEP_GCS_EVERY_S = 0.005
 
 
-TRUTH_COLUMNS = ["time_boot_s", "px", "py", "pz", "vx", "vy", "vz", "qw", "qx", "qy", "qz", "wx", "wy", "wz"]
+#: a truth log's columns: the vehicle's boot time [s], then its true state (``common.state``)
+TRUTH_COLUMNS = ["time_boot_s", *STATE_COLUMNS]
 
 
 class _Setpoint(NamedTuple):
@@ -1110,13 +1112,13 @@ class VehicleEndpoint:
 
     def _global(self) -> tuple[int, int, int, int]:
         """(lat, lon [deg 1e7], alt AMSL, alt above home [mm]) of the current position."""
-        p = self.autopilot.state[0:3]
+        p = self.autopilot.state[POS]
         lat, lon, alt = self.home.global_of(float(p[0]), float(p[1]), float(p[2]))
         return round(lat * 1e7), round(lon * 1e7), round(alt * 1000), round(float(p[2]) * 1000)
 
     def _send_global_position(self, ms: int) -> None:
         lat, lon, alt, rel = self._global()
-        v = self.autopilot.state[3:6]  # ENU -> NED [cm/s]
+        v = self.autopilot.state[VEL]  # ENU -> NED [cm/s]
         heading = self._heading_cdeg()
         self._send(
             self.mav.global_position_int_encode(
@@ -1131,7 +1133,7 @@ class VehicleEndpoint:
 
     def _send_gps_raw(self, ms: int) -> None:
         lat, lon, alt, _ = self._global()
-        v = self.autopilot.state[3:6]
+        v = self.autopilot.state[VEL]
         speed = round(math.hypot(v[0], v[1]) * 100)
         fix = mav.GPS_FIX_TYPE_3D_FIX
         self._send(self.mav.gps_raw_int_encode(ms * 1000, fix, lat, lon, alt, 80, 120, speed, 65535, 12))
