@@ -12,8 +12,8 @@ controller's link use them to fill and read fields, through ``tick_frames`` on t
 
 The conversions are compiled kernels on float64 arrays, so the per-tick frames can convert and
 pack in one compiled call; the Python functions below wrap them for everything else. Float32
-rounding is the C cast MAVLink's packing does (round to nearest even); the quaternion map is
-``frames.swap_frames_wxyz`` (the same IEEE operations in the same order).
+rounding is the C cast MAVLink's packing does (round to nearest even); ENU/FLU <-> NED/FRD is
+``enu_ned``'s.
 """
 
 import math
@@ -25,8 +25,7 @@ import numpy as np
 from sim_vehicles.common.command import AttitudeCommand
 from sim_vehicles.common.jit import kernel, kernel_array
 from sim_vehicles.common.state import POS, QUAT, RATE, VEL
-
-_S = math.sqrt(0.5)
+from sim_vehicles.mavlink.enu_ned import attitude_into, body_into, world_into
 
 #: ``command_from_fields``: q_c [w,x,y,z; FLU -> ENU], omega_c [rad/s; FLU], thrust [N], valid flag
 CMD_Q, CMD_OMEGA, CMD_THRUST, CMD_VALID = slice(0, 4), slice(4, 7), 7, 8
@@ -60,25 +59,11 @@ def _round_f32(f):
 
 
 @kernel
-def _swap_into(out, at, w, x, y, z):
-    """``frames.swap_frames_wxyz(w, x, y, z)`` written to ``out[at:at + 4]``."""
-    s = _S if w + z >= 0 else -_S
-    out[at] = s * (w + z)
-    out[at + 1] = s * (x + y)
-    out[at + 2] = s * (x - y)
-    out[at + 3] = s * (w - z)
-
-
-@kernel
 def local_position_fields(p_W, v_W):
     """LOCAL_POSITION_NED ``(x, y, z, vx, vy, vz)``, float32 values."""
     f = np.empty(6)
-    f[0] = p_W[1]
-    f[1] = p_W[0]
-    f[2] = -p_W[2]
-    f[3] = v_W[1]
-    f[4] = v_W[0]
-    f[5] = -v_W[2]
+    world_into(f, 0, p_W)
+    world_into(f, 3, v_W)
     return _round_f32(f)
 
 
@@ -86,10 +71,8 @@ def local_position_fields(p_W, v_W):
 def attitude_quaternion_fields(q_WB, omega_B):
     """ATTITUDE_QUATERNION ``(q1..q4, rollspeed, pitchspeed, yawspeed)``, float32 values."""
     f = np.empty(7)
-    _swap_into(f, 0, q_WB[0], q_WB[1], q_WB[2], q_WB[3])
-    f[4] = omega_B[0]
-    f[5] = -omega_B[1]
-    f[6] = -omega_B[2]
+    attitude_into(f, 0, q_WB[0], q_WB[1], q_WB[2], q_WB[3])
+    body_into(f, 4, omega_B)
     return _round_f32(f)
 
 
@@ -108,15 +91,11 @@ def sample_from_fields(lpos, attq):
     """``[p_W, v_W, q_WB]`` (``SAMPLE_*``) from LOCAL_POSITION_NED ``(x..vz)`` and the quaternion
     of ATTITUDE_QUATERNION ``(q1..q4, ...)``, renormalised (float32 leaves it a little off)."""
     out = np.empty(10)
-    out[0] = lpos[1]
-    out[1] = lpos[0]
-    out[2] = -lpos[2]
-    out[3] = lpos[4]
-    out[4] = lpos[3]
-    out[5] = -lpos[5]
+    world_into(out, 0, lpos[0:3])
+    world_into(out, 3, lpos[3:6])
     q0, q1, q2, q3 = attq[0], attq[1], attq[2], attq[3]
     n = math.sqrt(q0 * q0 + q1 * q1 + q2 * q2 + q3 * q3)
-    _swap_into(out, 6, q0 / n, q1 / n, q2 / n, q3 / n)
+    attitude_into(out, 6, q0 / n, q1 / n, q2 / n, q3 / n)
     return out
 
 
@@ -125,10 +104,8 @@ def attitude_target_fields(q_c, omega_c_B, thrust_N, max_thrust_N):
     """SET_ATTITUDE_TARGET ``(q[4], body rates[3], thrust)``, float32 values; thrust clipped to
     ``0..1`` (NaN passes through, to be refused by the receiver)."""
     f = np.empty(8)
-    _swap_into(f, 0, q_c[0], q_c[1], q_c[2], q_c[3])
-    f[4] = omega_c_B[0]
-    f[5] = -omega_c_B[1]
-    f[6] = -omega_c_B[2]
+    attitude_into(f, 0, q_c[0], q_c[1], q_c[2], q_c[3])
+    body_into(f, 4, omega_c_B)
     u = thrust_N / max_thrust_N
     if u < 0.0:
         u = 0.0
@@ -148,10 +125,8 @@ def command_from_fields(f, max_thrust_N):
     n = math.sqrt(q0 * q0 + q1 * q1 + q2 * q2 + q3 * q3)
     rotation = math.isfinite(n) and abs(n - 1.0) <= 1e-3
     ok = rotation and math.isfinite(f[4] + f[5] + f[6]) and 0.0 <= f[7] <= 1.0
-    _swap_into(out, 0, q0 / n, q1 / n, q2 / n, q3 / n)
-    out[4] = f[4]
-    out[5] = -f[5]
-    out[6] = -f[6]
+    attitude_into(out, 0, q0 / n, q1 / n, q2 / n, q3 / n)
+    body_into(out, 4, f[4:7])
     out[7] = f[7] * max_thrust_N
     out[8] = 1.0 if ok else 0.0
     return out
@@ -195,3 +170,14 @@ def command_roundtrip(cmd: AttitudeCommand, max_thrust_N: float) -> AttitudeComm
 def encode_attitude_quaternion(q_WB: np.ndarray, omega_B: np.ndarray) -> tuple[float, ...]:
     """``(q1..q4, rollspeed, pitchspeed, yawspeed)`` NED/FRD float32."""
     return tuple(attitude_quaternion_fields(kernel_array(q_WB), kernel_array(omega_B)).tolist())
+
+
+def encode_attitude(q_WB: np.ndarray, omega_B: np.ndarray) -> tuple[float, ...]:
+    """ATTITUDE's ``(roll, pitch, yaw, rollspeed, pitchspeed, yawspeed)``: the Euler angles (ZYX,
+    FRD -> NED) of ATTITUDE_QUATERNION's float32 quaternion, and its rates."""
+    f = encode_attitude_quaternion(q_WB, omega_B)
+    w, qx, qy, qz = f[0:4]
+    roll = math.atan2(2 * (w * qx + qy * qz), 1 - 2 * (qx * qx + qy * qy))
+    pitch = math.asin(max(-1.0, min(1.0, 2 * (w * qy - qz * qx))))
+    yaw = math.atan2(2 * (w * qz + qx * qy), 1 - 2 * (qy * qy + qz * qz))
+    return roll, pitch, yaw, f[4], f[5], f[6]

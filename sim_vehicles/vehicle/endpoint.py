@@ -95,11 +95,13 @@ from sim_vehicles.common.quaternion import rotation_matrix
 from sim_vehicles.common.state import POS, QUAT, RATE, STATE_COLUMNS, VEL
 from sim_vehicles.mavlink import frames, tick_frames
 from sim_vehicles.mavlink import px4_profile as px4
+from sim_vehicles.mavlink.enu_ned import enu_to_ned, flu_to_frd
 from sim_vehicles.mavlink.signing import SIGNATURE_LEN, Signer, Verifier
 from sim_vehicles.mavlink.wire_format import (
     CMD_VALID,
     command_from_fields,
     command_of,
+    encode_attitude,
     encode_attitude_quaternion,
 )
 from sim_vehicles.plant.autopilot import Autopilot
@@ -1077,12 +1079,7 @@ class VehicleEndpoint:
 
     def _send_attitude(self, ms: int) -> None:
         x = self.autopilot.state
-        f = encode_attitude_quaternion(x[QUAT], x[RATE])
-        w, qx, qy, qz = f[0:4]
-        roll = math.atan2(2 * (w * qx + qy * qz), 1 - 2 * (qx * qx + qy * qy))
-        pitch = math.asin(max(-1.0, min(1.0, 2 * (w * qy - qz * qx))))
-        yaw = math.atan2(2 * (w * qz + qx * qy), 1 - 2 * (qy * qy + qz * qz))
-        self._send_fields(frames.ATTITUDE, (ms, roll, pitch, yaw, f[4], f[5], f[6]))
+        self._send_fields(frames.ATTITUDE, (ms, *encode_attitude(x[QUAT], x[RATE])))
 
     def _send_attitude_target(self, ms: int) -> None:
         ap = self.autopilot
@@ -1099,10 +1096,10 @@ class VehicleEndpoint:
             f_b = np.array([0.0, 0.0, T / p.mass_kg])
         else:
             f_b = rotation_matrix(x[QUAT]).T @ np.array([0.0, 0.0, p.g_mps2])
-        w = x[RATE]
+        acc, gyro = flu_to_frd(f_b), flu_to_frd(x[RATE])
         self._send_fields(
             frames.HIGHRES_IMU,
-            (ms * 1000, f_b[0], -f_b[1], -f_b[2], w[0], -w[1], -w[2], 0, 0, 0, 1013.25, 0, 0, 0.0, 0b111111),
+            (ms * 1000, *acc, *gyro, 0, 0, 0, 1013.25, 0, 0, 0.0, 0b111111),
         )
 
     def _send_sys_status(self, ms: int) -> None:
@@ -1118,18 +1115,18 @@ class VehicleEndpoint:
 
     def _send_global_position(self, ms: int) -> None:
         lat, lon, alt, rel = self._global()
-        v = self.autopilot.state[VEL]  # ENU -> NED [cm/s]
+        v = enu_to_ned(self.autopilot.state[VEL])
         heading = self._heading_cdeg()
         self._send(
             self.mav.global_position_int_encode(
-                ms, lat, lon, alt, rel, round(v[1] * 100), round(v[0] * 100), round(-v[2] * 100), heading
+                ms, lat, lon, alt, rel, round(v[0] * 100), round(v[1] * 100), round(v[2] * 100), heading
             )
         )
 
     def _heading_cdeg(self) -> int:
         """Yaw of the body x axis from north, clockwise [cdeg 0..35999]."""
-        x_W = rotation_matrix(self.autopilot.state[QUAT])[:, 0]
-        return round(math.degrees(math.atan2(x_W[0], x_W[1])) % 360.0 * 100) % 36000
+        x_N = enu_to_ned(rotation_matrix(self.autopilot.state[QUAT])[:, 0])
+        return round(math.degrees(math.atan2(x_N[1], x_N[0])) % 360.0 * 100) % 36000
 
     def _send_gps_raw(self, ms: int) -> None:
         lat, lon, alt, _ = self._global()
