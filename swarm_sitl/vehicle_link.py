@@ -36,9 +36,8 @@ from sim_vehicles.common.command import AttitudeCommand
 from sim_vehicles.mavlink import frames, tick_frames
 from sim_vehicles.mavlink import px4_profile as px4
 from sim_vehicles.mavlink.signing import Signer, Verifier
-from sim_vehicles.mavlink.wire_format import SAMPLE_P, SAMPLE_Q, SAMPLE_V, sample_from_fields
+from sim_vehicles.mavlink.wire_format import IGNORE_ALL, SAMPLE_P, SAMPLE_Q, SAMPLE_V, sample_from_fields
 from sim_vehicles.runtime import udp_arrival
-from sim_vehicles.vehicle.endpoint import IGNORE_ALL
 
 mav = mavutil.mavlink
 COMP_ONBOARD = 191  # MAV_COMP_ID_ONBOARD_COMPUTER

@@ -21,7 +21,10 @@ from sim_vehicles.common.state import make_state
 from sim_vehicles.mavlink.frames import _crc
 from sim_vehicles.plant.autopilot import Autopilot
 from sim_vehicles.plant.params import AttitudeGains, VehicleParams
-from sim_vehicles.vehicle.endpoint import COMMAND_PARAMS, MODE_OFFBOARD, PEER_SILENT_S, VehicleEndpoint
+from sim_vehicles.vehicle.endpoint import VehicleEndpoint
+from sim_vehicles.vehicle.modes import MODE_OFFBOARD
+from sim_vehicles.vehicle.port import PEER_SILENT_S
+from sim_vehicles.vehicle.services import COMMAND_PARAMS
 from tests.strategies import FUZZ, FUZZ_TIMEOUT
 
 SYS = 3
@@ -54,12 +57,12 @@ def flying():
     """A vehicle armed in offboard, flying a valid setpoint from ``PEER``."""
     ap = Autopilot(PARAMS, AttitudeGains(16.0, 16.0), make_state([0.0, 0.0, 10.0]), 0.001)
     ep = VehicleEndpoint(ap, SYS)
-    ep.sock.close()  # driven in process: what it sends goes nowhere
-    ep.sock = _NullSocket()
-    ep._datagram(_command(mav.MAV_CMD_COMPONENT_ARM_DISARM, 1), PEER)
-    ep._datagram(_setpoint(thrust=0.35), PEER)  # PX4's rule: a stream before OFFBOARD
-    ep._datagram(_command(mav.MAV_CMD_DO_SET_MODE, 29, 6, 0), PEER)
-    ep._datagram(_setpoint(thrust=0.35), PEER)
+    ep.port.sock.close()  # driven in process: what it sends goes nowhere
+    ep.port.sock = _NullSocket()
+    ep.datagram(_command(mav.MAV_CMD_COMPONENT_ARM_DISARM, 1), PEER)
+    ep.datagram(_setpoint(thrust=0.35), PEER)  # PX4's rule: a stream before OFFBOARD
+    ep.datagram(_command(mav.MAV_CMD_DO_SET_MODE, 29, 6, 0), PEER)
+    ep.datagram(_setpoint(thrust=0.35), PEER)
     assert ep.armed and ep.mode == MODE_OFFBOARD and ep.stats.setpoints == 2
     yield ep
     ep.close()
@@ -83,9 +86,9 @@ def _held(ep: VehicleEndpoint) -> tuple:
         tuple(ep.autopilot.state.tolist()),
         ep.armed,
         ep.mode,
-        ep.peer,
+        ep.port.peer,
         tuple(sorted(ep.params.items())),
-        tuple(sorted(ep._rate_hz.items())),
+        tuple(sorted(ep.port.streams.rate_hz.items())),
         tuple(ep.autopilot.max_rate_rps.tolist()),
     )
 
@@ -97,7 +100,7 @@ def _refused(ep: VehicleEndpoint) -> int:
 
 def _assert_refused(ep: VehicleEndpoint, data: bytes, addr=PEER) -> None:
     before, n0 = _held(ep), _refused(ep)
-    ep._datagram(data, addr)
+    ep.datagram(data, addr)
     ep.flush()
     assert ep.stats.handler_errors == 0, ep.stats.last_handler_error
     assert _held(ep) == before
@@ -152,7 +155,7 @@ def test_a_stranger_is_refused_and_cannot_take_the_telemetry(flying):
         _frame(mav.MAVLink_heartbeat_message(6, 8, 0, 0, 0, 3)),
     ):
         _assert_refused(flying, data, STRANGER)
-    assert flying.peer == PEER
+    assert flying.port.peer == PEER
 
 
 def test_a_silent_peer_gives_the_link_up(flying, monkeypatch):
@@ -160,19 +163,19 @@ def test_a_silent_peer_gives_the_link_up(flying, monkeypatch):
     message the vehicle knows (one it does not know claims nothing)."""
     now = time.monotonic()
     monkeypatch.setattr(time, "monotonic", lambda: now + PEER_SILENT_S + 0.1)
-    flying._datagram(_frame(mav.MAVLink_system_time_message(0, 0)), STRANGER)  # one it does not use
-    assert flying.peer == PEER and flying.stats.rx_unhandled == 1
-    flying._datagram(_setpoint(thrust=0.5), STRANGER)
-    assert flying.peer == STRANGER and flying.autopilot.command.thrust_N == pytest.approx(0.5 * 25.0)
+    flying.datagram(_frame(mav.MAVLink_system_time_message(0, 0)), STRANGER)  # one it does not use
+    assert flying.port.peer == PEER and flying.stats.rx_unhandled == 1
+    flying.datagram(_setpoint(thrust=0.5), STRANGER)
+    assert flying.port.peer == STRANGER and flying.autopilot.command.thrust_N == pytest.approx(0.5 * 25.0)
 
 
 def test_a_forced_disarm_and_a_settable_parameter_are_taken(flying):
-    flying._datagram(
+    flying.datagram(
         _frame(mav.MAVLink_param_set_message(SYS, 1, b"MC_PITCHRATE_MAX", 90.0, mav.MAV_PARAM_TYPE_REAL32)),
         PEER,
     )
     assert flying.autopilot.max_rate_rps[1] == pytest.approx(math.radians(90.0))
-    flying._datagram(_command(mav.MAV_CMD_COMPONENT_ARM_DISARM, 0, 21196), PEER)
+    flying.datagram(_command(mav.MAV_CMD_COMPONENT_ARM_DISARM, 0, 21196), PEER)
     assert not flying.armed
 
 
@@ -181,7 +184,7 @@ def test_body_rates_are_clipped_to_the_rate_limits_and_the_state_stays_finite(fl
     tumbled it. Clipped to MC_*RATE_MAX, the body rates stay near the limit."""
     limit = flying.autopilot.max_rate_rps
     for rates in ((1e30, -1e30, 1e30), (50.0, 50.0, -50.0)):
-        flying._datagram(_setpoint(rates=rates, thrust=0.34), PEER)
+        flying.datagram(_setpoint(rates=rates, thrust=0.34), PEER)
         for _ in range(20):
             flying.step(50)
             w = flying.autopilot.state[10:13]
@@ -281,7 +284,7 @@ def test_fuzz_vehicle_refuses_and_counts_every_hostile_datagram(flying, data):
 def test_fuzz_vehicle_survives_random_bytes_from_anyone(flying, data, sender):
     # the peer keeps speaking (a long run of this test would otherwise leave it silent for more
     # than PEER_SILENT_S, and a frame hidden in random bytes may then claim the link, as it should)
-    flying._datagram(_frame(mav.MAVLink_heartbeat_message(18, 8, 0, 0, 0, 3)), PEER)
+    flying.datagram(_frame(mav.MAVLink_heartbeat_message(18, 8, 0, 0, 0, 3)), PEER)
     _assert_refused(flying, data, sender)
 
 

@@ -1,6 +1,7 @@
 """The vehicle's clocks, driven over real UDP by a pymavlink client (endpoint in-process)."""
 
 import copy
+import operator
 import os
 import socket
 import subprocess
@@ -134,7 +135,7 @@ def test_real_time_setpoint_acts_from_its_arrival_though_read_later(tmp_path, st
         f"udpout:127.0.0.1:{ep.address[1]}", source_system=7, source_component=191
     )
     hover = params.hover_thrust_N / params.max_thrust_N
-    ep._stamped = stamped  # without stamps (other systems) the loop wakes for each datagram
+    ep.port.stamped = stamped  # without stamps (other systems) the loop wakes for each datagram
     try:
         conn.mav.command_long_send(7, 1, mav.MAV_CMD_COMPONENT_ARM_DISARM, 0, 1, 0, 0, 0, 0, 0, 0)
         conn.mav.set_attitude_target_send(0, 7, 1, 0b1100_0111, [1.0, 0, 0, 0], 0, 0, 0, 0)  # a stream
@@ -232,7 +233,8 @@ import numba
 from sim_vehicles.__main__ import warm_up
 from sim_vehicles.plant.autopilot import Autopilot
 from pymavlink.dialects.v20 import common as mav
-from sim_vehicles.vehicle.endpoint import MODE_OFFBOARD, VehicleEndpoint
+from sim_vehicles.vehicle.endpoint import VehicleEndpoint
+from sim_vehicles.vehicle.modes import MODE_OFFBOARD
 from sim_vehicles.mavlink.signing import Signer
 from sim_vehicles.plant.params import AttitudeGains, VehicleParams
 from sim_vehicles.common.state import make_state
@@ -264,9 +266,9 @@ controller = mav.MAVLink(None, 7, 191)
 for _ in range(3):
     sp = controller.set_attitude_target_encode(ep.time_boot_ms, 7, 1, 0, [1.0, 0, 0, 0], 0, 0, 0, 0.4)
     k = ep.autopilot.step_index
-    ep._datagram(Signer(bytes(32)).seal(sp.pack(controller)), ("127.0.0.1", 9))
+    ep.datagram(Signer(bytes(32)).seal(sp.pack(controller)), ("127.0.0.1", 9))
     assert ep.autopilot.step_index == k + 10, "the setpoint did not step the vehicle"
-ep._datagram(Signer(bytes(32)).seal(bytes([253, 0, 0, 0, 0, 9, 1, 0, 0, 0, 0, 0])), ("127.0.0.1", 9))
+ep.datagram(Signer(bytes(32)).seal(bytes([253, 0, 0, 0, 0, 9, 1, 0, 0, 0, 0, 0])), ("127.0.0.1", 9))
 after = loaded()
 ep.close()
 print({k: (before.get(k, 0), n) for k, n in after.items() if n != before.get(k, 0)})
@@ -295,7 +297,7 @@ def test_a_ground_station_port_packs_nothing_until_someone_speaks_to_it(tmp_path
     try:
         for _ in range(100):  # 1 s
             ep.step(10)
-        assert ep._gcs["mav"].total_packets_sent == 0
+        assert ep.gcs.mav.total_packets_sent == 0
         gcs.mav.heartbeat_send(mav.MAV_TYPE_GCS, mav.MAV_AUTOPILOT_INVALID, 0, 0, 0)
         time.sleep(0.05)
         ep.poll_gcs()
@@ -311,8 +313,9 @@ def test_a_ground_station_port_packs_nothing_until_someone_speaks_to_it(tmp_path
 
 
 #: what an endpoint keeps besides its state and counters
-_BOOKS = ("_next_send", "_next_any_s", "_next_other_s", "_last_setpoint_s", "_offboard_signal_s")
-_BOOKS += ("_accepted", "_accepted_from", "mode", "armed")
+_BOOKS = ("port.streams.next_send", "port.streams.next_any_s", "port.streams.next_other_s")
+_BOOKS += ("flight.last_setpoint_s", "flight.offboard_signal_s", "flight.mode", "flight.armed")
+_BOOKS += ("port.accepted", "port.accepted_from")
 
 
 def _fly_setpoints(
@@ -346,9 +349,9 @@ def _fly_setpoints(
             sp = controller.set_attitude_target_encode(
                 ep.time_boot_ms, 7, 1, mask, q.tolist(), *rates.tolist(), float(rng.uniform(0.2, 0.5))
             )
-            ep._datagram(sp.pack(controller), rx.getsockname())
+            ep.datagram(sp.pack(controller), rx.getsockname())
             ep.flush()
-            books.append({b: copy.copy(getattr(ep, b)) for b in (*_BOOKS, "stats")})
+            books.append({b: copy.copy(operator.attrgetter(b)(ep)) for b in (*_BOOKS, "stats")})
         rx.setblocking(False)
         while True:
             try:
@@ -372,7 +375,10 @@ def test_the_one_call_lockstep_tick_is_the_general_path_bit_for_bit(tmp_path):
     assert fast.autopilot.state.tobytes() == slow.autopilot.state.tobytes()
     assert len(fast_sent) >= 120 and fast_sent == slow_sent
     assert fast.stats == slow.stats and fast.stats.setpoints == 120
-    assert (fast.mav.seq, fast.mav.total_bytes_sent) == (slow.mav.seq, slow.mav.total_bytes_sent)
+    assert (fast.port.mav.seq, fast.port.mav.total_bytes_sent) == (
+        slow.port.mav.seq,
+        slow.port.mav.total_bytes_sent,
+    )
     assert fast_books == slow_books  # after every setpoint
     (fast_columns, fast_rows), (slow_columns, slow_rows) = (
         read_rows(tmp_path / f"{n}.rows") for n in ("fast", "slow")

@@ -3,6 +3,8 @@
 MAVSDK, MAVProxy and QGroundControl read a vehicle that says ``MAV_AUTOPILOT_PX4`` with PX4's
 conventions; this module holds them, pure, so the endpoint only sends and receives:
 
+- component ids: the autopilot is MAV_COMP_ID_AUTOPILOT1, its offboard controller the companion
+  computer of the same system (``AUTOPILOT``, ``COMPANION``);
 - modes: PX4 packs its main mode in bits 16-23 of ``custom_mode`` and its sub mode in bits 24-31
   (``px4_custom_mode.h``). The vehicle's modes are AUTO.LOITER (PX4's "Hold": ``MODE_HOLD``) and
   OFFBOARD (main mode 6). Its failsafe is reported as what it flies, AUTO.LOITER or AUTO.LAND,
@@ -19,6 +21,10 @@ import math
 from dataclasses import dataclass
 
 from pymavlink.dialects.v20 import common as mav
+
+AUTOPILOT = mav.MAV_COMP_ID_AUTOPILOT1  #: the vehicle's component id (its system id: the follower's)
+#: its controller's: the companion computer of the same system (MAV_COMP_ID_ONBOARD_COMPUTER)
+COMPANION = mav.MAV_COMP_ID_ONBOARD_COMPUTER
 
 MAIN_AUTO = 4
 MAIN_OFFBOARD = 6

@@ -260,6 +260,12 @@ class Verifier:
             return None
         return self._out[:n].tobytes()
 
+    def unseal(self, datagram: bytes) -> tuple[bytes | None, bool]:
+        """``open``, and whether a refusal was of a bad datagram (a wrong signature, not frames)
+        rather than an unsigned or replayed one: what a receiver counts apart."""
+        bad = self.bad
+        return self.open(datagram), self.bad > bad
+
     def _rising(self, frames: list[list[int]]) -> bool:
         """Whether each frame's timestamp moves its stream forward (the table updated if so)."""
         seen: dict[tuple[int, int, int], int] = {}

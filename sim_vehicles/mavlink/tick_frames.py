@@ -19,6 +19,7 @@ frame (``mavlink_frames``: the bytes pymavlink would write, tested against it) i
 - ``read_setpoint`` (vehicle): a datagram made of exactly one SET_ATTITUDE_TARGET frame with a
   good CRC, as ``[1, sysid, compid, time_boot_ms, target_system, target_component, type_mask]``
   followed by ``wire_format.command_from_fields`` of its fields; else ``[0, ...]``.
+  ``setpoint_of(r)`` gives it as a ``wire_format.Setpoint``.
 
 ``spec`` arguments are ``mavlink_frames.Layout.spec`` of the message named.
 """
@@ -37,6 +38,7 @@ from sim_vehicles.mavlink.frames import (
     read_into,
 )
 from sim_vehicles.mavlink.wire_format import (
+    Setpoint,
     attitude_quaternion_fields,
     attitude_target_fields,
     command_from_fields,
@@ -162,6 +164,17 @@ def read_setpoint(data, spec, max_thrust_N):
     res[3:7] = v[0:4]
     res[7:16] = command_from_fields(v[4:12], max_thrust_N)
     return res
+
+
+def setpoint_of(r: np.ndarray) -> Setpoint:
+    """``read_setpoint``'s result (a setpoint was read) as a ``Setpoint``; its command is a view."""
+    return Setpoint(
+        int(r[SP_TIME_MS]),
+        int(r[SP_TARGET_SYSTEM]),
+        int(r[SP_TARGET_COMPONENT]),
+        int(r[SP_TYPE_MASK]),
+        r[SP_COMMAND],
+    )
 
 
 def warm_up() -> None:

@@ -18,7 +18,7 @@ rounding is the C cast MAVLink's packing does (round to nearest even); ENU/FLU <
 
 import math
 import struct
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -31,6 +31,21 @@ from sim_vehicles.mavlink.enu_ned import attitude_into, body_into, world_into
 CMD_Q, CMD_OMEGA, CMD_THRUST, CMD_VALID = slice(0, 4), slice(4, 7), 7, 8
 #: ``sample_from_fields``: p [m; ENU], v [m/s; ENU], q [w,x,y,z; FLU -> ENU]
 SAMPLE_P, SAMPLE_V, SAMPLE_Q = slice(0, 3), slice(3, 6), slice(6, 10)
+#: SET_ATTITUDE_TARGET's ``type_mask`` bits (MAVLink's ATTITUDE_TARGET_TYPEMASK): what is ignored
+IGNORE_RATES = 0b0000_0111
+IGNORE_THROTTLE = 0b0100_0000
+IGNORE_ATTITUDE = 0b1000_0000
+IGNORE_ALL = IGNORE_RATES | IGNORE_THROTTLE | IGNORE_ATTITUDE  #: a lockstep clock-only setpoint
+
+
+class Setpoint(NamedTuple):
+    """SET_ATTITUDE_TARGET as a vehicle reads it, its fields converted (``command_from_fields``)."""
+
+    time_boot_ms: int
+    target_system: int
+    target_component: int
+    type_mask: int
+    command: np.ndarray  #: ``command_from_fields`` (ENU/FLU, thrust [N], valid flag)
 
 
 class AttitudeTargetFields(NamedTuple):
@@ -160,6 +175,14 @@ def decode_attitude_target(fields: AttitudeTargetFields, max_thrust_N: float) ->
             f"{fields.thrust} is outside 0..1"
         )
     return command_of(decoded)
+
+
+def setpoint_of(m: Any, max_thrust_N: float) -> Setpoint:
+    """The ``Setpoint`` of pymavlink's SET_ATTITUDE_TARGET message ``m``."""
+    f = np.array([*m.q, m.body_roll_rate, m.body_pitch_rate, m.body_yaw_rate, m.thrust], dtype=float)
+    return Setpoint(
+        m.time_boot_ms, m.target_system, m.target_component, m.type_mask, command_from_fields(f, max_thrust_N)
+    )
 
 
 def command_roundtrip(cmd: AttitudeCommand, max_thrust_N: float) -> AttitudeCommand:
