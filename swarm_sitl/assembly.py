@@ -6,7 +6,7 @@ from sim_vehicles.common.state import make_state
 from sim_vehicles.mavlink.wire_format import f32
 from sim_vehicles.plant.autopilot import Autopilot
 from swarm_sitl.config import SwarmConfig
-from swarm_sitl.follower import FollowerController, LeaderNode
+from swarm_sitl.laws.follower import FollowerController, LeaderNode
 
 
 def build_leader(cfg: SwarmConfig) -> LeaderNode:

@@ -47,7 +47,7 @@ from swarm_sitl.bus_codec import (
     encode_status,
 )
 from swarm_sitl.config import ZenohSpec
-from swarm_sitl.follower import EstimateMessage
+from swarm_sitl.laws.follower import EstimateMessage
 from swarm_sitl.zenoh_access import NodeKeys
 
 

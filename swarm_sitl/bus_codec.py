@@ -17,7 +17,7 @@ from typing import Any, NamedTuple, TypeVar
 
 import numpy as np
 
-from swarm_sitl.follower import EstimateMessage
+from swarm_sitl.laws.follower import EstimateMessage
 
 VERSION = 2
 _EST = struct.Struct("<BHId12dI")

@@ -40,7 +40,7 @@ from swarm_sitl.bus import ZenohNodeBus
 from swarm_sitl.bus_codec import PayloadError, Status, decode_estimate, encode_estimate
 from swarm_sitl.fault_plan import FaultPlan, FaultSpec, down_at, fate, uniform
 from swarm_sitl.fault_plan import edge_channel as channel_of
-from swarm_sitl.follower import EstimateMessage
+from swarm_sitl.laws.follower import EstimateMessage
 from swarm_sitl.node_clock import POLL_S, RunClock, StallError, wait_until
 
 _CORRUPT_BYTE = 3  #: salt of the draw that picks the byte a corruption flips

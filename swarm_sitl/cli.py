@@ -14,9 +14,9 @@ from datetime import datetime
 from pathlib import Path
 from typing import Any
 
-from swarm_sitl.command_attitude import SingularCommandError
 from swarm_sitl.config import ConfigError, SwarmConfig, load_config
-from swarm_sitl.graph import GraphError
+from swarm_sitl.laws.command_attitude import SingularCommandError
+from swarm_sitl.laws.graph import GraphError
 from swarm_sitl.node_main import add_node_parsers
 from swarm_sitl.recording import RunDirError
 
@@ -49,8 +49,8 @@ def _with_duration(cfg: SwarmConfig, duration_s: float | None) -> SwarmConfig:
 
 
 def cmd_check(args: argparse.Namespace) -> int:
-    from swarm_sitl.gain_conditions import check_gains
-    from swarm_sitl.gain_report import render
+    from swarm_sitl.laws.gain_conditions import check_gains
+    from swarm_sitl.laws.gain_report import render
 
     cfg = _load(args.config)
     report = check_gains(

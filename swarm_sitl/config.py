@@ -15,9 +15,9 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 
 from sim_vehicles.plant.params import MAX_RATE_DEFAULT_RPS, AttitudeGains, VehicleParams
 from swarm_sitl.fault_plan import FaultPlan
-from swarm_sitl.follower_law import HOLD_EXTRAPOLATE, HOLD_ZERO_ORDER, ControlGains
-from swarm_sitl.graph import Graph, GraphError
-from swarm_sitl.trajectories import FigureEight, Helix, Line, Trajectory
+from swarm_sitl.laws.follower_law import HOLD_EXTRAPOLATE, HOLD_ZERO_ORDER, ControlGains
+from swarm_sitl.laws.graph import Graph, GraphError
+from swarm_sitl.laws.trajectories import FigureEight, Helix, Line, Trajectory
 
 #: libyaml's safe loader where PyYAML was built with it (7x faster: every process of a run reads
 #: the run's config at start), else the pure-Python one; both accept exactly safe YAML

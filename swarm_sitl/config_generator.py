@@ -15,7 +15,7 @@ import numpy as np
 import yaml
 
 from swarm_sitl.config import LeaderSpec, SwarmConfig, parse_config
-from swarm_sitl.gain_conditions import check_gains
+from swarm_sitl.laws.gain_conditions import check_gains
 
 GRAPHS = ("ring", "tree", "layered", "random")
 FORMATIONS = ("circle", "grid", "line")

@@ -36,11 +36,11 @@ from sim_vehicles.runtime.row_log import RowLog
 from swarm_sitl.assembly import build_controller
 from swarm_sitl.bus import NodeBus
 from swarm_sitl.bus_codec import Status
-from swarm_sitl.command_attitude import SingularCommandError
 from swarm_sitl.config import SwarmConfig
 from swarm_sitl.events import EventLog
-from swarm_sitl.follower import EstimateMessage, VehicleSample
-from swarm_sitl.follower_law import CTRL_SIZE, OUT_SIZE
+from swarm_sitl.laws.command_attitude import SingularCommandError
+from swarm_sitl.laws.follower import EstimateMessage, VehicleSample
+from swarm_sitl.laws.follower_law import CTRL_SIZE, OUT_SIZE
 from swarm_sitl.neighbour_inbox import NeighbourInbox
 from swarm_sitl.node_clock import (
     RunClock,

@@ -38,13 +38,8 @@ _BY_FILE = (  # (activity, path fragments), first match wins
             "sim_vehicles/plant/",
             "sim_vehicles/common/",
             "sim_vehicles/vehicle/lockstep_tick.py",  # the plant's period, then two frames packed
-            "swarm_sitl/follower.py",
-            "swarm_sitl/follower_law.py",
-            "swarm_sitl/estimator.py",
-            "swarm_sitl/position_loop.py",
-            "swarm_sitl/command_attitude.py",
+            "swarm_sitl/laws/",
             "swarm_sitl/neighbour_inbox.py",
-            "swarm_sitl/trajectories.py",
         ),
     ),
     (

@@ -67,7 +67,7 @@ def message_sizes() -> tuple[int, int, int]:
     from pymavlink.dialects.v20 import common as mav
 
     from swarm_sitl.bus_codec import encode_estimate
-    from swarm_sitl.follower import EstimateMessage
+    from swarm_sitl.laws.follower import EstimateMessage
 
     sample = _signed_len(
         mav.MAVLink_local_position_ned_message(1, 1.5, 2.5, 3.5, 0.1, 0.2, 0.3),

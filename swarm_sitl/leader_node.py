@@ -13,7 +13,7 @@ from swarm_sitl.assembly import build_leader
 from swarm_sitl.bus import NodeBus
 from swarm_sitl.config import SwarmConfig
 from swarm_sitl.controller_node import NodeReport, wait_for_start
-from swarm_sitl.follower import EstimateMessage
+from swarm_sitl.laws.follower import EstimateMessage
 from swarm_sitl.node_clock import (
     RunClock,
     linger_after_last_tick,

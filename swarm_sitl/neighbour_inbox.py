@@ -13,7 +13,7 @@ in-neighbours' estimates of tick ``k - 1``.
 from collections.abc import Callable
 
 from swarm_sitl.events import EventLog
-from swarm_sitl.follower import EstimateMessage
+from swarm_sitl.laws.follower import EstimateMessage
 
 
 class NeighbourInbox:

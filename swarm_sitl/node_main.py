@@ -46,7 +46,7 @@ def _guarded(name: str, body: Any, lockstep: bool) -> int:
     from sim_vehicles.mavlink.signing import SigningKeyError
     from sim_vehicles.runtime.lifeline import batch_scheduling, hold_on, profiled
     from swarm_sitl.bus import error_line
-    from swarm_sitl.command_attitude import SingularCommandError
+    from swarm_sitl.laws.command_attitude import SingularCommandError
     from swarm_sitl.node_clock import StallError
     from swarm_sitl.vehicle_link import LinkError
 

@@ -37,9 +37,9 @@ from pathlib import Path
 import numpy as np
 
 from sim_vehicles.common.state import POS, QUAT, RATE, STATE_SIZE, VEL
-from swarm_sitl.estimator import EST_GAMMA, EST_GAMMA_DOT, EST_P, EST_V
-from swarm_sitl.follower import ControllerStep
-from swarm_sitl.follower_law import (
+from swarm_sitl.laws.estimator import EST_GAMMA, EST_GAMMA_DOT, EST_P, EST_V
+from swarm_sitl.laws.follower import ControllerStep
+from swarm_sitl.laws.follower_law import (
     CTRL_ETA,
     CTRL_ETA_DOT,
     CTRL_SIZE,
@@ -54,7 +54,7 @@ from swarm_sitl.follower_law import (
     OUT_U_DDOT,
     OUT_U_DOT,
 )
-from swarm_sitl.trajectories import Trajectory
+from swarm_sitl.laws.trajectories import Trajectory
 
 
 class FollowerSeries:

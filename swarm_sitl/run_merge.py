@@ -19,7 +19,7 @@ from sim_vehicles.vehicle.endpoint import TRUTH_COLUMNS
 from swarm_sitl.config import SwarmConfig
 from swarm_sitl.controller_node import CONTROLLER_COLUMNS
 from swarm_sitl.events import merge_events
-from swarm_sitl.follower_law import CTRL_SIZE, OUT_SIZE
+from swarm_sitl.laws.follower_law import CTRL_SIZE, OUT_SIZE
 from swarm_sitl.recording import (
     FollowerSeries,
     Recording,

@@ -31,7 +31,7 @@ from swarm_sitl.bus_codec import (
     encode_status,
 )
 from swarm_sitl.config import ZenohSpec
-from swarm_sitl.follower import EstimateMessage
+from swarm_sitl.laws.follower import EstimateMessage
 from swarm_sitl.supervisor import child_env, free_tcp_port
 
 pytestmark = pytest.mark.unit

@@ -5,7 +5,7 @@ import pytest
 from hypothesis import assume, given
 
 from sim_vehicles.common.quaternion import rotation_matrix
-from swarm_sitl.command_attitude import SingularCommandError, command_attitude
+from swarm_sitl.laws.command_attitude import SingularCommandError, command_attitude
 from tests.strategies import vec3
 
 pytestmark = pytest.mark.unit

@@ -16,7 +16,7 @@ from swarm_sitl.config_generator import (
     generate,
     layer_width,
 )
-from swarm_sitl.gain_conditions import check_gains
+from swarm_sitl.laws.gain_conditions import check_gains
 from swarm_sitl.sim import run_sim
 
 pytestmark = pytest.mark.unit

@@ -14,9 +14,9 @@ import numpy as np
 import pytest
 
 from sim_vehicles.common.quaternion import qconj, qmul
-from swarm_sitl.estimator import acceleration_estimate
-from swarm_sitl.follower import EstimateMessage
-from swarm_sitl.follower_law import (
+from swarm_sitl.laws.estimator import acceleration_estimate
+from swarm_sitl.laws.follower import EstimateMessage
+from swarm_sitl.laws.follower_law import (
     HOLD_EXTRAPOLATE,
     OUT_OMEGA_C,
     OUT_OMEGADOT_C,
@@ -29,8 +29,8 @@ from swarm_sitl.follower_law import (
     controller_output,
     neighbours_at,
 )
-from swarm_sitl.position_loop import command_force
-from swarm_sitl.trajectories import Helix
+from swarm_sitl.laws.position_loop import command_force
+from swarm_sitl.laws.trajectories import Helix
 
 pytestmark = pytest.mark.unit
 

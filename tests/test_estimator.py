@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from swarm_sitl.follower import EstimateMessage, FollowerController, LeaderNode, VehicleSample
-from swarm_sitl.gain_conditions import check_gains
+from swarm_sitl.laws.follower import EstimateMessage, FollowerController, LeaderNode, VehicleSample
+from swarm_sitl.laws.gain_conditions import check_gains
 
 pytestmark = pytest.mark.integration
 

@@ -31,8 +31,8 @@ the draws are checked to put both signs through it.
 import numpy as np
 import pytest
 
-from swarm_sitl.estimator import acceleration_estimate, acceleration_estimate_ddot, estimator_rhs
-from swarm_sitl.trajectories import Helix, Line
+from swarm_sitl.laws.estimator import acceleration_estimate, acceleration_estimate_ddot, estimator_rhs
+from swarm_sitl.laws.trajectories import Helix, Line
 
 pytestmark = pytest.mark.unit
 

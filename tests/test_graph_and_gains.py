@@ -5,9 +5,9 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from swarm_sitl.gain_conditions import check_gains
-from swarm_sitl.graph import Graph, GraphError
-from swarm_sitl.trajectories import Helix
+from swarm_sitl.laws.gain_conditions import check_gains
+from swarm_sitl.laws.graph import Graph, GraphError
+from swarm_sitl.laws.trajectories import Helix
 
 pytestmark = pytest.mark.unit
 PAPER_GAINS = dict(k_p=8.0, k_v=8.0, l_a=12.0, k_a=4.0, k_eta=4.0, k_gamma=0.5)
@@ -146,7 +146,7 @@ def test_theorem_1_bounds_on_a_two_follower_chain_worked_by_hand():
 
 
 def test_out_neighbours_edges_as_objects_and_zero_weights():
-    from swarm_sitl.graph import Edge
+    from swarm_sitl.laws.graph import Edge
 
     g = Graph.from_edges(4, [(0, 1), (0, 2), Edge(1, 3, 2.5), (2, 3), (3, 4), (1, 4)])
     assert [g.out_neighbours(i) for i in range(5)] == [(1, 2), (3, 4), (3,), (4,), ()]
@@ -176,7 +176,7 @@ def test_qus_theta_is_p_over_q_and_the_report_says_whose_theta_it_uses():
 
 
 def test_conditions_are_named_as_the_paper_writes_them_and_compare_strictly():
-    from swarm_sitl.gain_conditions import Condition
+    from swarm_sitl.laws.gain_conditions import Condition
 
     tree = Graph.from_edges(4, [(0, 1), (0, 2), (0, 3), (1, 4), (2, 4)])
     names = [c.name for c in check_gains(tree, PAPER_GAINS, HELIX, 9.81, 100).conditions]
@@ -200,7 +200,7 @@ def _la_bound(r, k):
 
 
 def _ka_bound(r, n, l_a):
-    from swarm_sitl.trajectories import sup_Np
+    from swarm_sitl.laws.trajectories import sup_Np
 
     return 2 * np.sqrt(n) * r.norm_theta_m * sup_Np(HELIX, l_a, 100) / r.lambda_min_xi
 
@@ -254,7 +254,7 @@ def test_the_suggestion_is_the_smallest_k_a_on_its_documented_grid(edges, gains)
 
 
 def test_a_line_leader_needs_no_acceleration_bound_and_its_k_a_bound_is_zero():
-    from swarm_sitl.trajectories import Line
+    from swarm_sitl.laws.trajectories import Line
 
     tree = Graph.from_edges(4, [(0, 1), (0, 2), (0, 3), (1, 4), (2, 4)])
     r = check_gains(tree, PAPER_GAINS, Line((0.0, 0.0, 0.0), (1.0, 2.0, 0.5)), 9.81, 100)

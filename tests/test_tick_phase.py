@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from swarm_sitl.assembly import build_controller
-from swarm_sitl.follower import EstimateMessage, VehicleSample
+from swarm_sitl.laws.follower import EstimateMessage, VehicleSample
 from swarm_sitl.recording import Recording, leader_series
 
 pytestmark = pytest.mark.unit

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from swarm_sitl.trajectories import FigureEight, Helix, Line
+from swarm_sitl.laws.trajectories import FigureEight, Helix, Line
 
 pytestmark = pytest.mark.unit
 TRAJS = [
@@ -42,7 +42,7 @@ def test_paper_helix():
 def test_n_p_is_minus_l_a_jerk_minus_snap_by_finite_differences_of_the_acceleration():
     """N_p as derived (NOTES.md item 8: -l_a p_r^(3) - p_r^(4), the paper prints +l_a), against
     central differences of the trajectory's own acceleration, not its derivative formulas."""
-    from swarm_sitl.trajectories import N_p
+    from swarm_sitl.laws.trajectories import N_p
 
     l_a, h = 12.0, 1e-3
     for traj in (Helix(5.0, 0.2, 1.0), FigureEight(6.0, 3.0, 0.4), Helix(2.0, -1.3, 0.0, phase_rad=0.7)):
@@ -58,7 +58,7 @@ def test_n_p_is_minus_l_a_jerk_minus_snap_by_finite_differences_of_the_accelerat
 def test_sup_n_p_of_the_helix_is_its_closed_form_for_all_time():
     """Helix: p''' = R w^3 [sin, -cos, 0] and p'''' = R w^4 [cos, sin, 0] are orthogonal, so
     |N_p| = R |w|^3 sqrt(l_a^2 + w^2) at every instant."""
-    from swarm_sitl.trajectories import sup_Np
+    from swarm_sitl.laws.trajectories import sup_Np
 
     for R, w, l_a in ((5.0, 0.2, 12.0), (3.0, -0.9, 4.0), (0.5, 2.0, 30.0)):
         expected = R * abs(w) ** 3 * np.sqrt(l_a**2 + w**2)
@@ -69,7 +69,7 @@ def test_sup_n_p_of_the_figure_eight_matches_its_closed_form_components():
     """Figure eight x = A sin(w t), y = B sin(2 w t): N_p = [A w^3 (l_a cos wt - w sin wt),
     8 B w^3 (l_a cos 2wt - 2 w sin 2wt), 0], written out here; its sup over a period taken on a grid
     of 2 million points, and the sup does not depend on the horizon asked for (a full period is)."""
-    from swarm_sitl.trajectories import sup_Np
+    from swarm_sitl.laws.trajectories import sup_Np
 
     A, B, w, l_a = 6.0, 3.0, 0.4, 12.0
     t = np.linspace(0.0, 2 * np.pi / w, 2_000_001)
@@ -109,7 +109,7 @@ def test_positions_are_the_closed_forms_about_their_centres():
 
 
 def test_periods_and_suprema_of_the_shipped_kinds():
-    from swarm_sitl.trajectories import period_s, sup_norm, sup_Np
+    from swarm_sitl.laws.trajectories import period_s, sup_norm, sup_Np
 
     assert period_s(Helix(1.0, 1.0, 0.0)) == pytest.approx(2 * np.pi, rel=1e-15)
     assert period_s(FigureEight(1.0, 1.0, -0.25)) == pytest.approx(8 * np.pi, rel=1e-15)
@@ -126,7 +126,7 @@ def test_the_supremum_is_found_wherever_the_peak_lies_in_the_period(peak_at):
     """``_sup`` over one period of a FigureEight (2 pi / w = 10 s) of a smooth bump whose peak
     sits at ``peak_at`` of the period (wrapped, as a periodic function's would): the grid's best
     point refined to the float's precision, the value at the peak."""
-    from swarm_sitl.trajectories import _sup
+    from swarm_sitl.laws.trajectories import _sup
 
     traj = FigureEight(1.0, 1.0, 2 * np.pi / 10.0)
     t0 = 10.0 * peak_at
@@ -139,7 +139,7 @@ def test_the_supremum_is_found_wherever_the_peak_lies_in_the_period(peak_at):
 
 
 def test_suprema_are_over_all_time_for_periodic_derivatives_and_over_the_horizon_for_position():
-    from swarm_sitl.trajectories import sup_norm
+    from swarm_sitl.laws.trajectories import sup_norm
 
     eight = FigureEight(4.0, 2.0, 0.3)  # period 20.9 s; |a| is 0 at t = 0 and peaks later
     period = np.linspace(0.0, 2 * np.pi / 0.3, 2_000_001)

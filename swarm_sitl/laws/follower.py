@@ -26,8 +26,8 @@ from typing import NamedTuple
 import numpy as np
 
 from sim_vehicles.common.command import AttitudeCommand
-from swarm_sitl.command_attitude import SingularCommandError
-from swarm_sitl.follower_law import (
+from swarm_sitl.laws.command_attitude import SingularCommandError
+from swarm_sitl.laws.follower_law import (
     CTRL_SIZE,
     HOLD_EXTRAPOLATE,
     MSG_COLS,
@@ -45,7 +45,7 @@ from swarm_sitl.follower_law import (
     controller_tick,
     gains_vector,
 )
-from swarm_sitl.trajectories import Trajectory
+from swarm_sitl.laws.trajectories import Trajectory
 
 #: a controller whose output is not finite and whose inputs are older than this many periods says
 #: so: on a saturated machine in real time the estimator diverges on old estimates

@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from swarm_sitl.gain_conditions import GainReport
+from swarm_sitl.laws.gain_conditions import GainReport
 
 COVERED_BRACKET = "sliding_surface"  #: the estimator form Theorem 1's proof is written for
 

@@ -8,8 +8,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from swarm_sitl.graph import Graph
-from swarm_sitl.trajectories import Trajectory, sup_norm, sup_Np
+from swarm_sitl.laws.graph import Graph
+from swarm_sitl.laws.trajectories import Trajectory, sup_norm, sup_Np
 
 
 @dataclass(frozen=True)

@@ -15,9 +15,9 @@ import numpy as np
 
 from sim_vehicles.common.jit import kernel
 from sim_vehicles.common.quaternion import body_z_axis, dot3
-from swarm_sitl.command_attitude import command_attitude_kernel
-from swarm_sitl.estimator import acceleration_estimate_ddot, estimator_rhs
-from swarm_sitl.position_loop import (
+from swarm_sitl.laws.command_attitude import command_attitude_kernel
+from swarm_sitl.laws.estimator import acceleration_estimate_ddot, estimator_rhs
+from swarm_sitl.laws.position_loop import (
     auxiliary_jerk,
     auxiliary_rhs,
     command_force,
