@@ -36,12 +36,12 @@ import time
 from dataclasses import dataclass, field
 from typing import Any
 
-from swarm_sitl.bus import ZenohNodeBus
-from swarm_sitl.bus_codec import PayloadError, Status, decode_estimate, encode_estimate
+from swarm_sitl.bus.clock import POLL_S, RunClock, StallError, wait_until
+from swarm_sitl.bus.codec import PayloadError, Status, decode_estimate, encode_estimate
+from swarm_sitl.bus.node_bus import ZenohNodeBus
 from swarm_sitl.fault_plan import FaultPlan, FaultSpec, down_at, fate, uniform
 from swarm_sitl.fault_plan import edge_channel as channel_of
 from swarm_sitl.laws.follower import EstimateMessage
-from swarm_sitl.node_clock import POLL_S, RunClock, StallError, wait_until
 
 _CORRUPT_BYTE = 3  #: salt of the draw that picks the byte a corruption flips
 #: longest block between two looks at the out-neighbours' progress before a planned kill (the

@@ -61,7 +61,7 @@ def cmd_check(args: argparse.Namespace) -> int:
 
 
 def cmd_router(args: argparse.Namespace) -> int:
-    from swarm_sitl.bus import error_line, open_plain_router, router_runtime
+    from swarm_sitl.bus.session import error_line, open_plain_router, router_runtime
 
     if args.users_file and not Path(args.users_file).is_file():
         raise CliError(f"--users-file {args.users_file}: no such file")

@@ -14,6 +14,8 @@ import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from sim_vehicles.plant.params import MAX_RATE_DEFAULT_RPS, AttitudeGains, VehicleParams
+from swarm_sitl.bus.access import NodeKeys, node_keys
+from swarm_sitl.bus.session import ZenohSpec
 from swarm_sitl.fault_plan import FaultPlan
 from swarm_sitl.laws.follower_law import HOLD_EXTRAPOLATE, HOLD_ZERO_ORDER, ControlGains
 from swarm_sitl.laws.graph import Graph, GraphError
@@ -158,27 +160,6 @@ class EstimatorSpec(_Strict):
     staleness_s: Positive = 0.5
 
 
-class ZenohSpec(_Strict):
-    """How each process joins the zenoh bus; everything stays on loopback unless configured.
-
-    - ``router`` (default): the supervisor's session is the run's zenoh router, on ``listen`` (the
-      first endpoint is the nodes'; ``tcp/127.0.0.1:0``: a free port); every node is a client of
-      it that authenticates with its own user and password, and the router's access control lets
-      each use only its own keys (``zenoh_access``);
-    - ``peer``: no authentication, no access control: the nodes are peers that listen on
-      ``listen``, meet at the supervisor's session and connect to each other directly;
-    - ``client``: the supervisor and every node are clients of the router(s) in ``connect`` (a
-      zenohd of your own: its authentication and access control are its config; a node gives
-      the user and password in ``SWARM_SITL_ZENOH_USER``/``SWARM_SITL_ZENOH_PASSWORD`` if set).
-    """
-
-    mode: Literal["router", "peer", "client"] = "router"  #: who routes the bus (above)
-    #: zenoh endpoints to listen on: the router's (``router``) or each peer's (``peer``)
-    listen: list[str] = ["tcp/127.0.0.1:0"]
-    connect: list[str] = []  #: zenoh endpoints every session connects to (a router, other peers)
-    multicast_scouting: bool = False  #: find peers by multicast (off: nothing leaves loopback unasked)
-
-
 class SigningSpec(_Strict):
     """MAVLink 2 signing of every vehicle link (``sim_vehicles.mavlink_signing``): unsigned or
     wrongly signed messages, and replays, are refused by vehicle and controller alike."""
@@ -286,6 +267,11 @@ class SwarmConfig(_Strict):
     def graph_edges(self) -> list[tuple[int, int]]:
         """``(src, dst)`` of every edge, in config order."""
         return [(int(e[0]), int(e[1])) for e in self.graph.edges]
+
+    def node_keys(self, node: int) -> NodeKeys:
+        """The zenoh keys node ``node`` uses (``bus.access``): its graph edges, and under a fault
+        plan that kills processes the status and liveliness of its out-neighbours too."""
+        return node_keys(self.build_graph(), node, watch=any(f.kill for f in self.faults.plan))
 
     def trajectory(self) -> Trajectory:
         return self.leader.trajectory.build()

@@ -1,4 +1,5 @@
-"""The config reference (``docs/config.md``), generated from the schema in ``config`` and ``fault_plan``.
+"""The config reference (``docs/config.md``), generated from the schema: ``SwarmConfig`` and the
+sections it holds, each read from the module that defines it.
 
 Every key of a config file, with its type, default and meaning: the meaning is the ``#:`` comment
 on or above the field in the source (or the section's docstring), so the schema is the only place
@@ -16,7 +17,6 @@ from typing import Any
 from pydantic import BaseModel
 from pydantic_core import PydanticUndefined
 
-from swarm_sitl import config, fault_plan
 from swarm_sitl.config import SwarmConfig
 
 
@@ -104,12 +104,23 @@ def _section(model: type[BaseModel], path: str, docs: dict[tuple[str, str], str]
         _section(sub, key, docs, out)
 
 
+def _sections(model: type[BaseModel]) -> list[type[BaseModel]]:
+    """``model`` and every section under it, each once, in the order they are written."""
+    out = [model]
+    for field in model.model_fields.values():
+        for sub in _models(field.annotation):
+            out += [m for m in _sections(sub) if m not in out]
+    return out
+
+
 def reference() -> str:
-    docs = {**_comments(config), **_comments(fault_plan)}
+    modules = list(dict.fromkeys(sys.modules[m.__module__] for m in _sections(SwarmConfig)))
+    docs = {k: v for module in modules for k, v in _comments(module).items()}
+    files = ", ".join(f"`{m.__name__.replace('.', '/')}.py`" for m in modules)
     out = [
         "# Config reference",
         "",
-        "Generated from the schema (`swarm_sitl/config.py`, `swarm_sitl/fault_plan.py`) by",
+        f"Generated from the schema ({files}) by",
         "`python -m swarm_sitl.config_reference > docs/config.md`; do not edit by hand. Units are in",
         "the key names (`_m`, `_s`, `_hz`, `_kg`, `_N`, `_rps`); vectors are ENU, quaternions",
         "`[w, x, y, z]` body (FLU) to world. Unknown keys are errors; `swarm-sitl check CONFIG` validates",

@@ -34,15 +34,7 @@ from sim_vehicles.mavlink import signing, tick_frames
 from sim_vehicles.runtime.lifeline import mark, settle_heap
 from sim_vehicles.runtime.row_log import RowLog
 from swarm_sitl.assembly import build_controller
-from swarm_sitl.bus import NodeBus
-from swarm_sitl.bus_codec import Status
-from swarm_sitl.config import SwarmConfig
-from swarm_sitl.events import EventLog
-from swarm_sitl.laws.command_attitude import SingularCommandError
-from swarm_sitl.laws.follower import EstimateMessage, VehicleSample
-from swarm_sitl.laws.follower_law import CTRL_SIZE, OUT_SIZE
-from swarm_sitl.neighbour_inbox import NeighbourInbox
-from swarm_sitl.node_clock import (
+from swarm_sitl.bus.clock import (
     RunClock,
     StallError,
     linger_after_last_tick,
@@ -50,6 +42,14 @@ from swarm_sitl.node_clock import (
     wait_until,
     wall_epoch_to_monotonic,
 )
+from swarm_sitl.bus.codec import Status
+from swarm_sitl.bus.node_bus import NodeBus
+from swarm_sitl.config import SwarmConfig
+from swarm_sitl.events import EventLog
+from swarm_sitl.laws.command_attitude import SingularCommandError
+from swarm_sitl.laws.follower import EstimateMessage, VehicleSample
+from swarm_sitl.laws.follower_law import CTRL_SIZE, OUT_SIZE
+from swarm_sitl.neighbour_inbox import NeighbourInbox
 from swarm_sitl.vehicle_link import VehicleLink
 
 CONTROLLER_COLUMNS = [

@@ -40,7 +40,7 @@ import zenoh
 
 from sim_vehicles.runtime.lifeline import batch_scheduling
 from sim_vehicles.runtime.udp_arrival import block_reads
-from swarm_sitl import zenoh_keys
+from swarm_sitl.bus import keys as zenoh_keys
 
 if TYPE_CHECKING:
     from swarm_sitl.config import SwarmConfig
@@ -66,7 +66,7 @@ def message_sizes() -> tuple[int, int, int]:
     import numpy as np
     from pymavlink.dialects.v20 import common as mav
 
-    from swarm_sitl.bus_codec import encode_estimate
+    from swarm_sitl.bus.codec import encode_estimate
     from swarm_sitl.laws.follower import EstimateMessage
 
     sample = _signed_len(
@@ -256,7 +256,7 @@ def _line(p: subprocess.Popen[str], what: str) -> str:
 
 def measure_empty(cfg: "SwarmConfig", ticks: int) -> EmptyRun:
     """The empty swarm of ``cfg``'s graph for ``ticks`` lockstep ticks (the module doc)."""
-    from swarm_sitl.bus import error_line, open_plain_router, router_runtime
+    from swarm_sitl.bus.session import error_line, open_plain_router, router_runtime
     from swarm_sitl.leader_node import LEADER_POLL_S
 
     edges = cfg.graph_edges()
@@ -353,7 +353,7 @@ def main(argv: list[str]) -> None:
         else:
             _leader(args)
     except (OSError, zenoh.ZError) as e:  # a stall (socket timeout) or zenoh: one line, exit 1
-        from swarm_sitl.bus import error_line
+        from swarm_sitl.bus.session import error_line
 
         raise SystemExit(f"empty swarm {role}: {type(e).__name__}: {error_line(e)}") from None
 

@@ -99,7 +99,7 @@ def module_argv(module: str) -> list[str]:
 def _warm_up(config_path: str | None) -> None:
     """Import what the children run and load the compiled kernels into this process."""
     import sim_vehicles.__main__
-    import swarm_sitl.bus
+    import swarm_sitl.bus.node_bus
     import swarm_sitl.cli
     import swarm_sitl.controller_node
     import swarm_sitl.leader_node

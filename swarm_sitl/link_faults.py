@@ -22,9 +22,9 @@ import itertools
 from collections.abc import Callable
 from typing import Any
 
+from swarm_sitl.bus.clock import RunClock
 from swarm_sitl.bus_faults import EdgeStats
 from swarm_sitl.fault_plan import FaultPlan, fate, mavlink_channel, uniform
-from swarm_sitl.node_clock import RunClock
 
 _LOCAL_POSITION_NED = 32
 _CORRUPT_BYTE = 3

@@ -15,10 +15,9 @@ from typing import TYPE_CHECKING, Any
 
 from sim_vehicles.runtime.lifeline import mark, process_figures
 from swarm_sitl.config import SwarmConfig
-from swarm_sitl.zenoh_access import node_keys
 
 if TYPE_CHECKING:
-    from swarm_sitl.node_clock import RunClock
+    from swarm_sitl.bus.clock import RunClock
 
 
 def _terminate(signum: int, frame: object) -> None:
@@ -34,8 +33,8 @@ def _horizon(clock: "RunClock", last_tick: int) -> Callable[[], int]:
 
 
 def _session(cfg: SwarmConfig, connect: list[str]) -> Any:
-    from swarm_sitl.bus import open_session
-    from swarm_sitl.zenoh_access import credentials_from_env
+    from swarm_sitl.bus.access import credentials_from_env
+    from swarm_sitl.bus.session import open_session
 
     return open_session(cfg.zenoh, connect, credentials_from_env())
 
@@ -45,9 +44,9 @@ def _guarded(name: str, body: Any, lockstep: bool) -> int:
 
     from sim_vehicles.mavlink.signing import SigningKeyError
     from sim_vehicles.runtime.lifeline import batch_scheduling, hold_on, profiled
-    from swarm_sitl.bus import error_line
+    from swarm_sitl.bus.clock import StallError
+    from swarm_sitl.bus.session import error_line
     from swarm_sitl.laws.command_attitude import SingularCommandError
-    from swarm_sitl.node_clock import StallError
     from swarm_sitl.vehicle_link import LinkError
 
     hold_on()
@@ -92,13 +91,13 @@ def in_edge_stats(zbus: Any, faulty: Any) -> dict[int, dict[str, int]]:
 def cmd_controller(cfg: SwarmConfig, args: argparse.Namespace) -> int:
     from sim_vehicles.mavlink.signing import read_key
     from sim_vehicles.runtime.row_log import RowLog
-    from swarm_sitl.bus import NodeBus, ZenohNodeBus
+    from swarm_sitl.bus.clock import RunClock
+    from swarm_sitl.bus.node_bus import NodeBus, ZenohNodeBus
     from swarm_sitl.bus_faults import FaultyBus, acts_on
     from swarm_sitl.controller_node import CONTROLLER_COLUMNS, run_controller
     from swarm_sitl.events import EventLog
     from swarm_sitl.link_faults import MavlinkFaults
     from swarm_sitl.metrics import describe_inputs
-    from swarm_sitl.node_clock import RunClock
     from swarm_sitl.recording import controller_events_path, controller_rows_path, controller_stats_path
     from swarm_sitl.vehicle_link import VehicleLink
 
@@ -130,7 +129,7 @@ def cmd_controller(cfg: SwarmConfig, args: argparse.Namespace) -> int:
             )
             session = _session(cfg, args.connect)
             mark("zenoh")
-            bus = zbus = ZenohNodeBus.of(session, cfg.name, node_keys(cfg, i))
+            bus = zbus = ZenohNodeBus.of(session, cfg.name, cfg.node_keys(i))
             zbus.horizon = _horizon(clock, cfg.n_control_steps)
             if args.lockstep:
                 zbus.counted_steps = range(args.resume_tick, cfg.n_control_steps)
@@ -168,14 +167,14 @@ def cmd_controller(cfg: SwarmConfig, args: argparse.Namespace) -> int:
 
 
 def cmd_leader(cfg: SwarmConfig, args: argparse.Namespace) -> int:
-    from swarm_sitl.bus import NodeBus, ZenohNodeBus
+    from swarm_sitl.bus.clock import RunClock
+    from swarm_sitl.bus.node_bus import NodeBus, ZenohNodeBus
     from swarm_sitl.bus_faults import FaultyBus, acts_on
     from swarm_sitl.leader_node import run_leader
-    from swarm_sitl.node_clock import RunClock
     from swarm_sitl.recording import leader_stats_path
 
     mark("main")
-    outs = node_keys(cfg, 0).out_dests
+    outs = cfg.node_keys(0).out_dests
     edges = cfg.graph_edges()
 
     def body() -> str:
@@ -185,7 +184,7 @@ def cmd_leader(cfg: SwarmConfig, args: argparse.Namespace) -> int:
             session = _session(cfg, args.connect)
             mark("zenoh")
             clock = RunClock(args.lockstep, cfg.control_dt_s)
-            zbus = ZenohNodeBus.of(session, cfg.name, node_keys(cfg, 0))
+            zbus = ZenohNodeBus.of(session, cfg.name, cfg.node_keys(0))
             zbus.horizon = _horizon(clock, cfg.n_control_steps)
             node_bus: NodeBus = zbus
             if acts_on(cfg.faults, 0, edges):

@@ -29,7 +29,6 @@ writes ``logs/``, ``tlogs/`` and ``procs/`` (each process's own rows, as they ha
 
 import io
 import json
-import os
 import zipfile
 from dataclasses import dataclass
 from pathlib import Path
@@ -283,12 +282,3 @@ def signing_key_path(run_dir: Path) -> Path:
 def zenoh_users_path(run_dir: Path) -> Path:
     """The zenoh router's ``user:password`` dictionary of a run (mode 0600)."""
     return run_dir / "zenoh_users.txt"
-
-
-def write_secret(path: Path, text: str) -> None:
-    """Write ``text`` to a new file ``path`` that only this user can read (an old one is replaced;
-    the file is created 0600, never readable by others even for an instant)."""
-    path.unlink(missing_ok=True)
-    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
-    with os.fdopen(fd, "w") as f:
-        f.write(text)

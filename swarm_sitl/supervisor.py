@@ -35,8 +35,9 @@ import numpy as np
 from sim_vehicles.mavlink.signing import SigningKeyError, read_key
 from sim_vehicles.runtime.lifeline import ENV as PARENT_ENV
 from sim_vehicles.runtime.lifeline import settle_heap
-from swarm_sitl import zenoh_keys
-from swarm_sitl.bus_codec import Status, decode_status, decode_waiting
+from sim_vehicles.runtime.secret_file import write_secret
+from swarm_sitl.bus import keys as zenoh_keys
+from swarm_sitl.bus.codec import Status, decode_status, decode_waiting
 from swarm_sitl.config import SwarmConfig
 from swarm_sitl.fork_server import ENTRY_MODULES, ForkedProcess, ForkServer, ForkServerError, module_argv
 from swarm_sitl.recording import (
@@ -47,7 +48,6 @@ from swarm_sitl.recording import (
     vehicle_events_path,
     vehicle_stats_path,
     vehicle_truth_path,
-    write_secret,
     zenoh_users_path,
 )
 
@@ -482,7 +482,7 @@ def open_hub(cfg: SwarmConfig, run_dir: Path, sup: Supervisor) -> tuple[str | No
     the peers meet; in ``client`` mode a client of the configured router, and no endpoint of ours."""
     import zenoh
 
-    from swarm_sitl.bus import error_line
+    from swarm_sitl.bus.session import error_line
 
     try:
         return _open_hub(cfg, run_dir, sup)
@@ -491,8 +491,8 @@ def open_hub(cfg: SwarmConfig, run_dir: Path, sup: Supervisor) -> tuple[str | No
 
 
 def _open_hub(cfg: SwarmConfig, run_dir: Path, sup: Supervisor) -> tuple[str | None, Any]:
-    from swarm_sitl import zenoh_access
-    from swarm_sitl.bus import open_router, open_session, router_runtime
+    from swarm_sitl.bus import access as zenoh_access
+    from swarm_sitl.bus.session import open_router, open_session, router_runtime
 
     if cfg.zenoh.mode == "client":
         return None, open_session(cfg.zenoh, credentials=zenoh_access.credentials_from_env())
@@ -500,10 +500,13 @@ def _open_hub(cfg: SwarmConfig, run_dir: Path, sup: Supervisor) -> tuple[str | N
         hub = f"tcp/127.0.0.1:{free_tcp_port()}"
         return hub, open_session(cfg.zenoh.model_copy(update={"listen": [hub]}))
     listen = [_with_free_port(e) for e in cfg.zenoh.listen]
-    passwords = zenoh_access.write_credentials(cfg, run_dir)
+    passwords = zenoh_access.write_credentials(cfg.n_followers, zenoh_users_path(run_dir))
     sup.env_for = lambda process: zenoh_access.credentials_env(process, passwords)
+    nodes = [cfg.node_keys(n) for n in range(cfg.n_followers + 1)]
     with router_runtime():
-        router = open_router(listen, str(zenoh_users_path(run_dir)), zenoh_access.access_control(cfg))
+        router = open_router(
+            listen, str(zenoh_users_path(run_dir)), zenoh_access.access_control(cfg.name, nodes)
+        )
     return listen[0].replace("/0.0.0.0:", "/127.0.0.1:"), router
 
 
@@ -532,7 +535,7 @@ def run_swarm(
 ) -> RunResult:
     """Run the swarm; vehicles are spawned (on ``base_port``'s ports, ``start_vehicles``; their
     ports go to ``on_vehicles``) unless ``mavlink`` gives each follower's endpoint."""
-    from swarm_sitl.bus import publish_start
+    from swarm_sitl.bus.session import publish_start
     from swarm_sitl.process_faults import LostAircraftError, ProcessFaults, check_lockstep
 
     if lockstep:

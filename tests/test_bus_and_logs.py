@@ -17,9 +17,8 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from sim_vehicles.runtime.row_log import RowLog, read_rows
-from swarm_sitl import zenoh_keys
-from swarm_sitl.bus import ROUTER_RUNTIME, RUNTIME_ENV, ZenohNodeBus, open_session, router_runtime
-from swarm_sitl.bus_codec import (
+from swarm_sitl.bus import keys as zenoh_keys
+from swarm_sitl.bus.codec import (
     PayloadError,
     Status,
     decode_estimate,
@@ -30,7 +29,8 @@ from swarm_sitl.bus_codec import (
     encode_start,
     encode_status,
 )
-from swarm_sitl.config import ZenohSpec
+from swarm_sitl.bus.node_bus import ZenohNodeBus
+from swarm_sitl.bus.session import ROUTER_RUNTIME, RUNTIME_ENV, ZenohSpec, open_session, router_runtime
 from swarm_sitl.laws.follower import EstimateMessage
 from swarm_sitl.supervisor import child_env, free_tcp_port
 
@@ -231,7 +231,7 @@ def test_row_log_survives_a_cut_mid_row(tmp_path):
 
 
 def test_the_horizon_is_the_run_in_lockstep_and_half_a_second_ahead_in_real_time():
-    from swarm_sitl.node_clock import HORIZON_LEAD_S, RunClock
+    from swarm_sitl.bus.clock import HORIZON_LEAD_S, RunClock
 
     assert RunClock(True, 0.01).horizon(6000) == 6000
     rt = RunClock(False, 0.01)

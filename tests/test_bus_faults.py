@@ -8,14 +8,14 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from swarm_sitl.bus import ZenohNodeBus
-from swarm_sitl.bus_codec import PayloadError, decode_estimate, encode_estimate
+from swarm_sitl.bus.clock import RunClock
+from swarm_sitl.bus.codec import PayloadError, decode_estimate, encode_estimate
+from swarm_sitl.bus.node_bus import ZenohNodeBus
 from swarm_sitl.bus_faults import FaultyBus
 from swarm_sitl.events import EventLog
 from swarm_sitl.fault_plan import FaultPlan
 from swarm_sitl.laws.follower import EstimateMessage
 from swarm_sitl.neighbour_inbox import NeighbourInbox
-from swarm_sitl.node_clock import RunClock
 
 pytestmark = pytest.mark.integration
 

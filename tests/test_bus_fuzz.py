@@ -17,9 +17,9 @@ import pytest
 from hypothesis import event, given
 from hypothesis import strategies as st
 
-from swarm_sitl import zenoh_keys
-from swarm_sitl.bus import ZenohNodeBus, open_session
-from swarm_sitl.config import ZenohSpec
+from swarm_sitl.bus import keys as zenoh_keys
+from swarm_sitl.bus.node_bus import ZenohNodeBus
+from swarm_sitl.bus.session import ZenohSpec, open_session
 from tests.strategies import FUZZ, FUZZ_TIMEOUT
 
 pytestmark = pytest.mark.unit

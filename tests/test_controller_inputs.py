@@ -9,10 +9,10 @@ import pytest
 
 from swarm_sitl import controller_node
 from swarm_sitl.assembly import build_controller
+from swarm_sitl.bus.clock import StallError
 from swarm_sitl.controller_node import _Inputs
 from swarm_sitl.laws.command_attitude import SingularCommandError
 from swarm_sitl.laws.follower import EstimateMessage, VehicleSample
-from swarm_sitl.node_clock import StallError
 
 pytestmark = pytest.mark.unit
 

@@ -1,6 +1,6 @@
 """zenoh's own authentication and access control hold every node to its keys.
 
-A router built as ``run`` builds it (``bus.open_router`` with ``zenoh_access``'s rules for
+A router built as ``run`` builds it (``bus.session.open_router`` with ``bus.access``'s rules for
 paper.yaml) and client sessions that use only zenoh's public API: which sessions get in, and which
 puts and subscriptions zenoh itself lets through. Every refusal is checked against a message that
 the same session sends after it and that does arrive (so "nothing came" is not "too early").
@@ -13,11 +13,11 @@ import time
 import pytest
 import zenoh
 
-from swarm_sitl import zenoh_keys
-from swarm_sitl.bus import open_router
+from swarm_sitl.bus import keys as zenoh_keys
+from swarm_sitl.bus.access import access_control, user, write_credentials
+from swarm_sitl.bus.session import open_router
 from swarm_sitl.recording import zenoh_users_path
 from swarm_sitl.supervisor import free_tcp_port
-from swarm_sitl.zenoh_access import access_control, node_keys, user, write_credentials
 from tests.zenoh_client import client_session
 
 pytestmark = pytest.mark.unit
@@ -26,9 +26,10 @@ SWARM = "paper"
 
 @pytest.fixture
 def router(paper_cfg, tmp_path):
-    passwords = write_credentials(paper_cfg, tmp_path)
+    passwords = write_credentials(paper_cfg.n_followers, zenoh_users_path(tmp_path))
     endpoint = f"tcp/127.0.0.1:{free_tcp_port()}"
-    r = open_router([endpoint], str(zenoh_users_path(tmp_path)), access_control(paper_cfg))
+    nodes = [paper_cfg.node_keys(n) for n in range(paper_cfg.n_followers + 1)]
+    r = open_router([endpoint], str(zenoh_users_path(tmp_path)), access_control(paper_cfg.name, nodes))
     sessions: list[zenoh.Session] = []
 
     def node(n: int) -> zenoh.Session:
@@ -123,7 +124,7 @@ def test_the_start_signal_status_and_liveliness_reach_the_nodes_that_use_them(ro
     liveliness one node declares for another."""
     _, _, node, _ = router
     n0, n1, n4 = node(0), node(1), node(4)
-    assert node_keys(paper_cfg, 0).watch_status == [1, 2, 3] and node_keys(paper_cfg, 4).in_sources == [1, 2]
+    assert paper_cfg.node_keys(0).watch_status == [1, 2, 3] and paper_cfg.node_keys(4).in_sources == [1, 2]
     start = Inbox(n1, zenoh_keys.start(SWARM))
     _put_until(node.router, zenoh_keys.start(SWARM), b"epoch", start)
     status = Inbox(n0, zenoh_keys.status(SWARM, 1))

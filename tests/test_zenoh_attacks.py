@@ -17,7 +17,7 @@ import pytest
 import yaml
 import zenoh
 
-from swarm_sitl import zenoh_keys
+from swarm_sitl.bus import keys as zenoh_keys
 from swarm_sitl.recording import zenoh_users_path
 from swarm_sitl.sim import run_sim
 from swarm_sitl.supervisor import free_tcp_port

@@ -1,8 +1,8 @@
 """The estimate bus of one node over zenoh: its in-edges in, its out-edges out, nothing else.
 
 ``NodeBus`` is the interface the leader and controller loops use; ``ZenohNodeBus`` implements it
-on an embedded zenoh session (keys in ``zenoh_keys``, payloads in ``bus_codec``). Faults (loss,
-delay, partitions) are a wrapper of this interface (``bus_faults.FaultyBus``), not in the loops:
+on an embedded zenoh session (``session``; keys in ``keys``, payloads in ``codec``). Faults (loss,
+delay, partitions) are a wrapper of this interface (``faults.edges.FaultyBus``), not in the loops:
 every estimate a ``ZenohNodeBus`` decodes goes through ``deliver``, which files it (``file``) or,
 under a wrapper, hands it to the fault stage that files it when the plan lets it through.
 
@@ -17,126 +17,33 @@ then backs up to the sender, as a full channel did).
 Malformed payloads are dropped and counted in ``dropped``; well-formed ones that cannot be what
 their key says (another sender, a tick that does not follow the last one taken from that sender,
 or past ``horizon()``) are dropped and counted per sender in ``refused``. Access control
-(``zenoh_access``) keeps anyone but the sender off a key; these checks keep a faulty sender from
+(``access``) keeps anyone but the sender off a key; these checks keep a faulty sender from
 freezing a neighbour's table (one estimate of tick 2^32-1 would otherwise stay the newest for
 good).
 """
 
 import contextlib
-import json
-import os
-import re
 import socket
 import time
 from collections import deque
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable, Iterable
 from typing import Any, Protocol, TypeVar
 
 import zenoh
 
 from sim_vehicles.runtime import udp_arrival
-from swarm_sitl import zenoh_keys
-from swarm_sitl.bus_codec import (
+from swarm_sitl.bus import keys as zenoh_keys
+from swarm_sitl.bus.access import NodeKeys
+from swarm_sitl.bus.codec import (
     PayloadError,
     Status,
     decode_estimate,
     decode_start,
     decode_status,
     encode_estimate,
-    encode_start,
     encode_status,
 )
-from swarm_sitl.config import ZenohSpec
 from swarm_sitl.laws.follower import EstimateMessage
-from swarm_sitl.zenoh_access import NodeKeys
-
-
-def zenoh_config(
-    spec: ZenohSpec, extra_connect: Iterable[str] = (), credentials: tuple[str, str] | None = None
-) -> zenoh.Config:
-    """A node's session: a client of the run's router (``router``, ``client``) or a peer, with
-    ``credentials`` (user, password) to authenticate with if given."""
-    c = zenoh.Config()
-    c.insert_json5("mode", json.dumps("peer" if spec.mode == "peer" else "client"))
-    if spec.mode == "peer":
-        c.insert_json5("listen/endpoints", json.dumps(list(spec.listen)))
-    c.insert_json5("connect/endpoints", json.dumps([*spec.connect, *extra_connect]))
-    c.insert_json5("scouting/multicast/enabled", json.dumps(spec.multicast_scouting))
-    if credentials is not None:
-        c.insert_json5(
-            "transport/auth/usrpwd", json.dumps({"user": credentials[0], "password": credentials[1]})
-        )
-    return c
-
-
-def open_session(
-    spec: ZenohSpec, extra_connect: Iterable[str] = (), credentials: tuple[str, str] | None = None
-) -> zenoh.Session:
-    return zenoh.open(zenoh_config(spec, extra_connect, credentials))
-
-
-RUNTIME_ENV = "ZENOH_RUNTIME"  #: the variable zenoh reads its threads from
-#: zenoh's runtime (``ZENOH_RUNTIME``, RON) for a process whose session routes the swarm: one worker
-#: thread that receives, routes and sends. zenoh's default gives receiving (two threads), sending,
-#: accepting, its network tasks and the application pools of their own, so each routed estimate
-#: crosses from thread to thread, a wake-up at each. Measured (``docs/performance.md``): 10-14 % less
-#: wall time and 7-11 % less CPU for a lockstep run; the nodes' sessions were slower with it and
-#: keep zenoh's default.
-ROUTER_RUNTIME = (
-    "(app: (worker_threads: 1), rx: (handover: app), tx: (handover: app), "
-    "acc: (handover: app), net: (handover: app))"
-)
-
-
-@contextlib.contextmanager
-def router_runtime() -> Iterator[None]:
-    """Open the process's first zenoh session inside this to give it ``ROUTER_RUNTIME``.
-
-    zenoh reads ``ZENOH_RUNTIME`` once per process, when its first session starts: a process that
-    opened one before keeps the runtime it has, and a runtime the user set is left alone. The
-    variable is taken back on the way out, so the processes started afterwards keep zenoh's
-    defaults."""
-    if RUNTIME_ENV in os.environ:
-        yield
-        return
-    os.environ[RUNTIME_ENV] = ROUTER_RUNTIME
-    try:
-        yield
-    finally:
-        os.environ.pop(RUNTIME_ENV, None)
-
-
-def open_router(listen: list[str], users_file: str, access_control: dict[str, Any]) -> zenoh.Session:
-    """The run's router (``zenoh.mode: router``): it authenticates every session against
-    ``users_file`` (``user:password`` lines) and applies ``access_control`` to what they send and
-    receive (``zenoh_access``). Its own puts and subscriptions are local, not subject to it."""
-    c = zenoh.Config()
-    c.insert_json5("mode", json.dumps("router"))
-    c.insert_json5("listen/endpoints", json.dumps(listen))
-    c.insert_json5("scouting/multicast/enabled", "false")
-    c.insert_json5("transport/auth/usrpwd", json.dumps({"dictionary_file": users_file}))
-    c.insert_json5("access_control", json.dumps(access_control))
-    return zenoh.open(c)
-
-
-def open_plain_router(listen: list[str], users_file: str | None = None) -> zenoh.Session:
-    """A router for a swarm over several hosts (``swarm-sitl router``): no access control, and
-    authentication against ``users_file`` if given (``user:password`` lines)."""
-    c = zenoh.Config()
-    c.insert_json5("mode", json.dumps("router"))
-    c.insert_json5("listen/endpoints", json.dumps(listen))
-    c.insert_json5("scouting/multicast/enabled", "false")
-    if users_file:
-        c.insert_json5("transport/auth/usrpwd", json.dumps({"dictionary_file": users_file}))
-    return zenoh.open(c)
-
-
-def error_line(e: Exception) -> str:
-    """The first line of a zenoh error (they carry the Rust source location after it)."""
-    text = str(e).strip()
-    if not text:
-        return type(e).__name__
-    return re.sub(r"\s+at\s+/\S+:\d+\.?$", "", text.splitlines()[0])  # not zenoh's source location
 
 
 def _matched(pub: zenoh.Publisher) -> bool:
@@ -460,7 +367,3 @@ class ZenohNodeBus:
             self._open = False
             self._wake_r.close()
             self._wake_w.close()
-
-
-def publish_start(session: zenoh.Session, swarm: str, epoch_unix_s: float) -> None:
-    session.put(zenoh_keys.start(swarm), encode_start(epoch_unix_s))

@@ -13,7 +13,7 @@ access control (default deny) lets node ``i`` (user ``node_<i>``; 0 is the leade
 and nothing else: a put on another node's edge or on ``start``, a subscription to another node's
 in-edge or to a wildcard, is dropped by zenoh itself. Only the supervisor's own session, inside
 the router, publishes ``start``. ``NodeKeys`` is also what the
-node's bus declares (``node_main``), so the rules and the bus cannot disagree.
+node's bus declares (``node_bus``), so the rules and the bus cannot disagree.
 """
 
 import os
@@ -22,9 +22,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from swarm_sitl import zenoh_keys
-from swarm_sitl.config import SwarmConfig
-from swarm_sitl.recording import write_secret, zenoh_users_path
+from sim_vehicles.runtime.secret_file import write_secret
+from swarm_sitl.bus import keys as zenoh_keys
+from swarm_sitl.laws.graph import Graph
 
 USER_ENV = "SWARM_SITL_ZENOH_USER"  #: the user name a node's session authenticates with
 PASSWORD_ENV = "SWARM_SITL_ZENOH_PASSWORD"  #: and its password (environment: not on a command line)
@@ -41,15 +41,15 @@ class NodeKeys:
     watch_alive: list[int]  #: nodes besides ``in_sources`` whose liveliness it follows
 
 
-def node_keys(cfg: SwarmConfig, node: int) -> NodeKeys:
-    graph = cfg.build_graph()
+def node_keys(graph: Graph, node: int, watch: bool) -> NodeKeys:
+    """Node ``node``'s keys on ``graph``. ``watch`` (a fault plan that kills processes): a node
+    follows its out-neighbours' liveliness and status too (lockstep: a restarted one resumes where
+    the slowest reader is)."""
     outs = list(graph.out_neighbours(node))
-    # a fault plan that kills processes: a node follows its out-neighbours' liveliness and status
-    # (lockstep: a restarted one resumes where the slowest reader is)
-    watch = sorted(set(outs)) if any(f.kill for f in cfg.faults.plan) else []
+    watched = sorted(set(outs)) if watch else []
     if node == 0:
-        return NodeKeys(0, [], outs, outs, watch)
-    return NodeKeys(node, [s for s, _ in graph.in_neighbours(node)], outs, watch, watch)
+        return NodeKeys(0, [], outs, outs, watched)
+    return NodeKeys(node, [s for s, _ in graph.in_neighbours(node)], outs, watched, watched)
 
 
 def user(node: int) -> str:
@@ -95,11 +95,11 @@ def _rules(swarm: str, k: NodeKeys) -> dict[str, list[str]]:
     return {kind: keys for kind, keys in rules.items() if keys}
 
 
-def access_control(cfg: SwarmConfig) -> dict[str, Any]:
-    """The router's ``access_control`` section for the swarm of ``cfg``: default deny; each node's
-    ingress limited to its keys (``_rules``); egress (what the router forwards to a node) to the
-    swarm's keys, of which a node receives only what it subscribed to."""
-    swarm = cfg.name
+def access_control(swarm: str, nodes: list[NodeKeys]) -> dict[str, Any]:
+    """The router's ``access_control`` section for swarm ``swarm`` of ``nodes`` (the leader's keys
+    and each follower's): default deny; each node's ingress limited to its keys (``_rules``);
+    egress (what the router forwards to a node) to the swarm's keys, of which a node receives only
+    what it subscribed to."""
     rules: list[dict[str, Any]] = [
         {
             "id": "egress",
@@ -118,9 +118,10 @@ def access_control(cfg: SwarmConfig) -> dict[str, Any]:
     ]
     subjects: list[dict[str, Any]] = []
     policies: list[dict[str, Any]] = []
-    for node in range(cfg.n_followers + 1):
+    for k in nodes:
+        node = k.node
         ids = []
-        for kind, keys in _rules(swarm, node_keys(cfg, node)).items():
+        for kind, keys in _rules(swarm, k).items():
             ids.append(f"{user(node)}_{kind}")
             rules.append(
                 {
@@ -142,9 +143,9 @@ def access_control(cfg: SwarmConfig) -> dict[str, Any]:
     }
 
 
-def write_credentials(cfg: SwarmConfig, run_dir: Path) -> dict[int, str]:
-    """A fresh random password per node, and the router's dictionary of them in
-    ``RUN_DIR/zenoh_users.txt`` (``user:password`` lines, readable by this user only)."""
-    passwords = {n: secrets.token_hex(16) for n in range(cfg.n_followers + 1)}
-    write_secret(zenoh_users_path(run_dir), "".join(f"{user(n)}:{pw}\n" for n, pw in passwords.items()))
+def write_credentials(n_followers: int, path: Path) -> dict[int, str]:
+    """A fresh random password for each node of a swarm of ``n_followers``, and the router's
+    dictionary of them at ``path`` (``user:password`` lines, readable by this user only)."""
+    passwords = {n: secrets.token_hex(16) for n in range(n_followers + 1)}
+    write_secret(path, "".join(f"{user(n)}:{pw}\n" for n, pw in passwords.items()))
     return passwords
