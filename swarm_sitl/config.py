@@ -16,7 +16,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 from sim_vehicles.plant.params import MAX_RATE_DEFAULT_RPS, AttitudeGains, VehicleParams
 from swarm_sitl.bus.access import NodeKeys, node_keys
 from swarm_sitl.bus.session import ZenohSpec
-from swarm_sitl.fault_plan import FaultPlan
+from swarm_sitl.faults.plan import FaultPlan
 from swarm_sitl.laws.follower_law import HOLD_EXTRAPOLATE, HOLD_ZERO_ORDER, ControlGains
 from swarm_sitl.laws.graph import Graph, GraphError
 from swarm_sitl.laws.trajectories import FigureEight, Helix, Line, Trajectory

@@ -48,11 +48,11 @@ _BY_FILE = (  # (activity, path fragments), first match wins
             "sim_vehicles/mavlink/",
             "sim_vehicles/vehicle/",
             "swarm_sitl/vehicle_link.py",
-            "swarm_sitl/link_faults.py",
+            "swarm_sitl/faults/mavlink.py",
             "/pymavlink/",
         ),
     ),
-    ("zenoh", ("swarm_sitl/bus", "swarm_sitl/zenoh_")),
+    ("zenoh", ("swarm_sitl/bus/", "swarm_sitl/faults/edges.py")),
 )
 #: the vehicle endpoint's loop and scheduling (the rest of ``vehicle.endpoint`` is MAVLink)
 _VEHICLE_LOOP = ("run_lockstep", "run_realtime", "step", "_failsafe_check", "heartbeat_tick")

@@ -93,10 +93,10 @@ def cmd_controller(cfg: SwarmConfig, args: argparse.Namespace) -> int:
     from sim_vehicles.runtime.row_log import RowLog
     from swarm_sitl.bus.clock import RunClock
     from swarm_sitl.bus.node_bus import NodeBus, ZenohNodeBus
-    from swarm_sitl.bus_faults import FaultyBus, acts_on
     from swarm_sitl.controller_node import CONTROLLER_COLUMNS, run_controller
     from swarm_sitl.events import EventLog
-    from swarm_sitl.link_faults import MavlinkFaults
+    from swarm_sitl.faults.edges import FaultyBus, acts_on
+    from swarm_sitl.faults.mavlink import MavlinkFaults
     from swarm_sitl.metrics import describe_inputs
     from swarm_sitl.recording import controller_events_path, controller_rows_path, controller_stats_path
     from swarm_sitl.vehicle_link import VehicleLink
@@ -169,7 +169,7 @@ def cmd_controller(cfg: SwarmConfig, args: argparse.Namespace) -> int:
 def cmd_leader(cfg: SwarmConfig, args: argparse.Namespace) -> int:
     from swarm_sitl.bus.clock import RunClock
     from swarm_sitl.bus.node_bus import NodeBus, ZenohNodeBus
-    from swarm_sitl.bus_faults import FaultyBus, acts_on
+    from swarm_sitl.faults.edges import FaultyBus, acts_on
     from swarm_sitl.leader_node import run_leader
     from swarm_sitl.recording import leader_stats_path
 

@@ -38,7 +38,7 @@ from sim_vehicles.runtime.lifeline import settle_heap
 from sim_vehicles.runtime.secret_file import write_secret
 from swarm_sitl.bus import keys as zenoh_keys
 from swarm_sitl.bus.codec import Status, decode_status, decode_waiting
-from swarm_sitl.config import SwarmConfig
+from swarm_sitl.config import ConfigError, SwarmConfig
 from swarm_sitl.fork_server import ENTRY_MODULES, ForkedProcess, ForkServer, ForkServerError, module_argv
 from swarm_sitl.recording import (
     procs_dir,
@@ -79,6 +79,10 @@ class Child:
     process: str = ""  #: the process it is an incarnation of (``controller_2`` for ``controller_2.1``)
     retired: bool = False  #: gone as the fault plan said (killed, or replaced by a restart)
     stopped_since: float = math.inf  #: when it was first seen stopped [monotonic s]
+
+    @property
+    def pid(self) -> int:
+        return self.proc.pid
 
     def stopped(self) -> bool:
         """Whether the process is stopped (SIGSTOP, or a debugger), from ``/proc`` (Linux)."""
@@ -536,10 +540,13 @@ def run_swarm(
     """Run the swarm; vehicles are spawned (on ``base_port``'s ports, ``start_vehicles``; their
     ports go to ``on_vehicles``) unless ``mavlink`` gives each follower's endpoint."""
     from swarm_sitl.bus.session import publish_start
-    from swarm_sitl.process_faults import LostAircraftError, ProcessFaults, check_lockstep
+    from swarm_sitl.faults.processes import LostAircraftError, ProcessFaults
 
     if lockstep:
-        check_lockstep(cfg)
+        try:
+            cfg.faults.check_lockstep()
+        except ValueError as e:
+            raise ConfigError(str(e)) from None
     run_dir.mkdir(parents=True, exist_ok=True)
     cfg_path = run_dir / "config.yaml"
     cfg_path.write_text(cfg.to_yaml())
@@ -552,7 +559,11 @@ def run_swarm(
         compile_kernels(cfg)
     hub, session = open_hub(cfg, run_dir, sup)
     monitor = RunMonitor(session, cfg)
-    faults = ProcessFaults(cfg, sup, lockstep, supervisor_events_path(run_dir)) if cfg.faults.plan else None
+    faults = None
+    if cfg.faults.plan:
+        events = supervisor_events_path(run_dir)
+        faults = ProcessFaults(cfg.faults, cfg.control_dt_s, cfg.run.stop_on_loss, sup, lockstep, events)
+        sup.planned_exit = faults.planned_exit
     try:
         key_file = signing_key_file(cfg, run_dir, own_vehicles=mavlink is None)
         if mavlink is None:

@@ -11,9 +11,9 @@ from hypothesis import strategies as st
 from swarm_sitl.bus.clock import RunClock
 from swarm_sitl.bus.codec import PayloadError, decode_estimate, encode_estimate
 from swarm_sitl.bus.node_bus import ZenohNodeBus
-from swarm_sitl.bus_faults import FaultyBus
 from swarm_sitl.events import EventLog
-from swarm_sitl.fault_plan import FaultPlan
+from swarm_sitl.faults.edges import FaultyBus
+from swarm_sitl.faults.plan import FaultPlan
 from swarm_sitl.laws.follower import EstimateMessage
 from swarm_sitl.neighbour_inbox import NeighbourInbox
 
@@ -241,7 +241,7 @@ def _lpos_datagram(ms: int) -> bytes:
 
 
 def test_a_lockstep_mavlink_loss_sends_a_clock_only_setpoint_and_settles_a_lost_sample():
-    from swarm_sitl.link_faults import MavlinkFaults, sample_ms
+    from swarm_sitl.faults.mavlink import MavlinkFaults, sample_ms
 
     assert sample_ms(_lpos_datagram(1230)) == 1230 and sample_ms(b"\xfd\x00" * 10) is None
     plan = FaultPlan(seed=1, plan=[{"mavlink": 2, "loss": 0.3}])
@@ -271,7 +271,7 @@ def test_a_lockstep_mavlink_loss_sends_a_clock_only_setpoint_and_settles_a_lost_
 
 
 def test_a_corrupted_sample_repeated_in_lockstep_reaches_the_receiver_once():
-    from swarm_sitl.link_faults import MavlinkFaults
+    from swarm_sitl.faults.mavlink import MavlinkFaults
 
     lf = MavlinkFaults(
         FaultPlan(plan=[{"mavlink": 2, "direction": "down", "corrupt": 1.0}]), 2, RunClock(True, DT), 60.0
@@ -283,7 +283,7 @@ def test_a_corrupted_sample_repeated_in_lockstep_reaches_the_receiver_once():
 
 
 def test_a_real_time_mavlink_delay_holds_datagrams_until_due():
-    from swarm_sitl.link_faults import MavlinkFaults
+    from swarm_sitl.faults.mavlink import MavlinkFaults
 
     now = [10.0]
 

@@ -10,7 +10,7 @@ import pytest
 import yaml
 
 from swarm_sitl.config import ConfigError, parse_config, with_faults
-from swarm_sitl.fault_plan import FaultPlan, FaultSpec, edge_channel, fate, uniform
+from swarm_sitl.faults.plan import FaultPlan, FaultSpec, edge_channel, fate, uniform
 from tests.conftest import CONFIGS
 
 pytestmark = pytest.mark.unit

@@ -242,6 +242,22 @@ class FaultPlan(BaseModel):
                         raise ValueError(f"faults.plan.{j}: {name} is killed again before it is back")
                     killed[name] = math.inf if f.restart_after_s is None else f.from_s + f.restart_after_s
 
+    def check_lockstep(self) -> None:
+        """What a lockstep run cannot do, as a ``ValueError`` naming the entry (one line)."""
+        for j, f in enumerate(self.plan):
+            if f.mavlink is not None and f.how.split()[0] not in ("drop", "loss", "corrupt"):
+                raise ValueError(
+                    f"faults.plan.{j}: in lockstep a MAVLink link fails by drop, loss or corrupt "
+                    "(a lost setpoint or sample is a period on what was there); "
+                    f"{f.how} it in a real-time run"
+                )
+            if f.vehicle is not None and f.kill and not f.with_controller:
+                raise ValueError(
+                    f"faults.plan.{j}: in lockstep a lost vehicle takes its controller with it "
+                    "(its controller would wait for samples that never come); "
+                    "lose a vehicle alone in a real-time run"
+                )
+
     def outages(self, period_s: float) -> dict[int, list[tuple[int, int | None]]]:
         """Lockstep: per node (0 the leader, i a follower's controller) the ticks it is down,
         ``(first, back)`` with ``back`` the tick it resumes at (None: never)."""

@@ -24,14 +24,32 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import Any, Protocol
 
 from sim_vehicles.runtime.event_log import EventLog
-from swarm_sitl.config import ConfigError, SwarmConfig
-from swarm_sitl.fault_plan import FaultSpec, tick_of
+from swarm_sitl.faults.plan import FaultPlan, FaultSpec, tick_of
 
-if TYPE_CHECKING:
-    from swarm_sitl.supervisor import Child, Supervisor
+
+class Incarnation(Protocol):
+    """One process as the supervisor runs it (``running.supervisor.Child``)."""
+
+    process: str  #: the process it is an incarnation of (``controller_2`` for ``controller_2.1``)
+    retired: bool  #: gone as the fault plan said (killed, or replaced by a restart)
+
+    @property
+    def pid(self) -> int: ...
+
+
+class Processes(Protocol):
+    """What the plan acts on: the supervisor's children (``running.supervisor.Supervisor``)."""
+
+    def child(self, process: str) -> Incarnation | None:
+        """The live incarnation of ``process``, if any."""
+        ...
+
+    def spawn(self, name: str, argv: list[str], must_finish: bool, process: str | None = None) -> Any:
+        """Start ``argv`` as incarnation ``name`` of ``process``."""
+        ...
 
 
 class LostAircraftError(RuntimeError):
@@ -47,27 +65,22 @@ class _Action:
     done: bool = False
 
 
-def check_lockstep(cfg: SwarmConfig) -> None:
-    """What a lockstep run cannot do, as a one-line ``ConfigError``."""
-    for j, f in enumerate(cfg.faults.plan):
-        if f.mavlink is not None and f.how.split()[0] not in ("drop", "loss", "corrupt"):
-            raise ConfigError(
-                f"faults.plan.{j}: in lockstep a MAVLink link fails by drop, loss or corrupt "
-                f"(a lost setpoint or sample is a period on what was there); {f.how} it in a real-time run"
-            )
-        if f.vehicle is not None and f.kill and not f.with_controller:
-            raise ConfigError(
-                f"faults.plan.{j}: in lockstep a lost vehicle takes its controller with it (its controller "
-                "would wait for samples that never come); lose a vehicle alone in a real-time run"
-            )
-
-
 class ProcessFaults:
-    """Carries out the plan's process faults on ``sup``'s children (``supervisor.Supervisor``)."""
+    """Carries out ``plan``'s process faults on ``processes``, at ticks of ``period_s`` in
+    lockstep. The supervisor asks ``planned_exit`` and ``frozen`` whether what it sees is planned.
+    ``stop_on_loss``: a lost vehicle ends the run (``LostAircraftError``)."""
 
-    def __init__(self, cfg: SwarmConfig, sup: "Supervisor", lockstep: bool, events_path: Path):
-        self.cfg = cfg
-        self.sup = sup
+    def __init__(
+        self,
+        plan: FaultPlan,
+        period_s: float,
+        stop_on_loss: bool,
+        processes: Processes,
+        lockstep: bool,
+        events_path: Path,
+    ):
+        self.sup = processes
+        self.stop_on_loss = stop_on_loss
         self.lockstep = lockstep
         self.events = EventLog(events_path, "supervisor")
         self.incarnation: dict[str, int] = {}
@@ -76,14 +89,12 @@ class ProcessFaults:
         self._frozen: dict[str, float] = {}  #: process -> when it is thawed [monotonic s]
         self._actions: list[_Action] = []
         self._restart_argv: Callable[[str, int, int], list[str]] | None = None
-        dt = cfg.control_dt_s
-        for j, f in cfg.faults.process_faults():
+        for j, f in plan.process_faults():
             if f.kill:
                 self._actions.append(_Action(j, f, f.from_s, "kill"))
             else:
                 self._actions.append(_Action(j, f, f.from_s, "freeze"))
-        self._dt = dt
-        sup.planned_exit = self._planned_exit
+        self._dt = period_s
 
     def set_restart(self, argv: Callable[[str, int, int], list[str]]) -> None:
         """``argv(process, incarnation, resume_tick)``: how to start a process again."""
@@ -130,7 +141,7 @@ class ProcessFaults:
             return
         child.retired = True
         with contextlib.suppress(ProcessLookupError):
-            os.killpg(child.proc.pid, signal.SIGKILL)
+            os.killpg(child.pid, signal.SIGKILL)
         self._after_death(name, spec, run_s)
 
     def _after_death(self, name: str, spec: FaultSpec, t_s: float) -> None:
@@ -139,7 +150,7 @@ class ProcessFaults:
         if name.startswith("vehicle_") and node is not None:
             self.lost.add(node)
             self._event("vehicle_lost", name, t_s, vehicle=node)
-            if self.cfg.run.stop_on_loss:
+            if self.stop_on_loss:
                 raise LostAircraftError(f"{name} lost at {t_s:g} s (run.stop_on_loss)")
         if name.startswith("controller_") and node is not None:
             self.down.add(node)
@@ -160,7 +171,7 @@ class ProcessFaults:
         if node is not None:
             self.down.discard(node)
 
-    def _planned_exit(self, child: "Child", code: int) -> bool:
+    def planned_exit(self, child: Incarnation, code: int) -> bool:
         """Whether ``child``'s exit with ``code`` is one the plan made (else it is a failure)."""
         if child.retired:
             return True
@@ -186,7 +197,7 @@ class ProcessFaults:
         child = self.sup.child(name)
         if child is not None:
             with contextlib.suppress(ProcessLookupError):
-                os.killpg(child.proc.pid, sig)
+                os.killpg(child.pid, sig)
 
     def _event(self, kind: str, name: str, t_s: float, **fields: object) -> None:
         self.events.add(round(t_s, 3), kind, process=name, **fields)

@@ -39,8 +39,8 @@ from typing import Any
 from swarm_sitl.bus.clock import POLL_S, RunClock, StallError, wait_until
 from swarm_sitl.bus.codec import PayloadError, Status, decode_estimate, encode_estimate
 from swarm_sitl.bus.node_bus import ZenohNodeBus
-from swarm_sitl.fault_plan import FaultPlan, FaultSpec, down_at, fate, uniform
-from swarm_sitl.fault_plan import edge_channel as channel_of
+from swarm_sitl.faults.plan import FaultPlan, FaultSpec, down_at, fate, uniform
+from swarm_sitl.faults.plan import edge_channel as channel_of
 from swarm_sitl.laws.follower import EstimateMessage
 
 _CORRUPT_BYTE = 3  #: salt of the draw that picks the byte a corruption flips

@@ -23,8 +23,8 @@ from collections.abc import Callable
 from typing import Any
 
 from swarm_sitl.bus.clock import RunClock
-from swarm_sitl.bus_faults import EdgeStats
-from swarm_sitl.fault_plan import FaultPlan, fate, mavlink_channel, uniform
+from swarm_sitl.faults.edges import EdgeStats
+from swarm_sitl.faults.plan import FaultPlan, fate, mavlink_channel, uniform
 
 _LOCAL_POSITION_NED = 32
 _CORRUPT_BYTE = 3

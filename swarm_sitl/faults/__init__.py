@@ -1,0 +1,13 @@
+"""Faults as a test input: the plan (what fails x how x when) and the wrappers that carry it out.
+
+- ``plan``: the ``faults:`` section of a config, validated at load, and each message's fate, a
+  pure function of the plan's seed and the message (``fate``): the same plan, the same run;
+- ``edges``: the plan on a node's in-edges, a wrapper of its bus (``FaultyBus``);
+- ``mavlink``: the plan on a vehicle's MAVLink link, a wrapper of the controller's datagrams;
+- ``processes``: killing, freezing and restarting processes, through a small protocol of the
+  supervisor's.
+
+Nothing in the loops or the laws knows about faults: they are wrappers of injected interfaces.
+
+May import: sim_vehicles.runtime, laws, bus.
+"""
