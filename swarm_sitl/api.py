@@ -27,7 +27,8 @@ from typing import Any
 
 import numpy as np
 
-from swarm_sitl.config import ConfigError, SwarmConfig, load_config, parse_config
+from swarm_sitl.config.load import ConfigError, load_config, parse_config
+from swarm_sitl.config.schema import SwarmConfig
 
 
 @dataclass

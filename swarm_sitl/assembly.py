@@ -5,7 +5,7 @@ import numpy as np
 from sim_vehicles.common.state import make_state
 from sim_vehicles.mavlink.wire_format import f32
 from sim_vehicles.plant.autopilot import Autopilot
-from swarm_sitl.config import SwarmConfig
+from swarm_sitl.config.schema import SwarmConfig
 from swarm_sitl.laws.follower import FollowerController, LeaderNode
 
 

@@ -44,8 +44,9 @@ import numpy as np
 import yaml
 
 from swarm_sitl.bench import late_ticks, sim_in_process_s
-from swarm_sitl.config import SwarmConfig, parse_config
-from swarm_sitl.config_generator import generate
+from swarm_sitl.config.generator import generate
+from swarm_sitl.config.load import parse_config
+from swarm_sitl.config.schema import SwarmConfig
 from swarm_sitl.recording import procs_dir
 from swarm_sitl.supervisor import RunFailedError
 

@@ -14,7 +14,8 @@ from datetime import datetime
 from pathlib import Path
 from typing import Any
 
-from swarm_sitl.config import ConfigError, SwarmConfig, load_config
+from swarm_sitl.config.load import ConfigError, load_config
+from swarm_sitl.config.schema import SwarmConfig
 from swarm_sitl.laws.command_attitude import SingularCommandError
 from swarm_sitl.laws.graph import GraphError
 from swarm_sitl.node_main import add_node_parsers
@@ -42,7 +43,7 @@ def _with_duration(cfg: SwarmConfig, duration_s: float | None) -> SwarmConfig:
         return cfg
     if not 0 < duration_s < math.inf:
         raise CliError(f"--duration must be a number of seconds > 0, got {duration_s}")
-    from swarm_sitl.config import parse_config
+    from swarm_sitl.config.load import parse_config
 
     # validated again: a fault plan's times must fall within the new duration
     return parse_config({**cfg.model_dump(mode="json"), "duration_s": float(duration_s)}, "--duration")
@@ -84,7 +85,7 @@ def cmd_router(args: argparse.Namespace) -> int:
 
 
 def cmd_new(args: argparse.Namespace) -> int:
-    from swarm_sitl.config_generator import GeneratorError, generate
+    from swarm_sitl.config.generator import GeneratorError, generate
 
     try:
         text = generate(args.followers, args.graph, args.formation, args.trajectory, args.seed, args.duration)
@@ -267,7 +268,7 @@ def _degraded_lines(summary: dict) -> list[str]:
 
 
 def _with_fault_file(cfg: SwarmConfig, path: str | None) -> SwarmConfig:
-    from swarm_sitl.config import with_faults
+    from swarm_sitl.config.load import with_faults
 
     return cfg if path is None else with_faults(cfg, path)
 
@@ -450,7 +451,7 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("config")
     c.set_defaults(func=cmd_check)
 
-    from swarm_sitl.config_generator import FORMATIONS, GRAPHS, TRAJECTORIES
+    from swarm_sitl.config.generator import FORMATIONS, GRAPHS, TRAJECTORIES
 
     n = sub.add_parser("new", help="write a config for a generated swarm (graph, formation, trajectory)")
     n.add_argument("--followers", type=int, required=True, metavar="N", help="how many followers (1..254)")

@@ -44,7 +44,7 @@ from swarm_sitl.bus.clock import (
 )
 from swarm_sitl.bus.codec import Status
 from swarm_sitl.bus.node_bus import NodeBus
-from swarm_sitl.config import SwarmConfig
+from swarm_sitl.config.schema import SwarmConfig
 from swarm_sitl.events import EventLog
 from swarm_sitl.laws.command_attitude import SingularCommandError
 from swarm_sitl.laws.follower import EstimateMessage, VehicleSample

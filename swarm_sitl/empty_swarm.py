@@ -43,7 +43,7 @@ from sim_vehicles.runtime.udp_arrival import block_reads
 from swarm_sitl.bus import keys as zenoh_keys
 
 if TYPE_CHECKING:
-    from swarm_sitl.config import SwarmConfig
+    from swarm_sitl.config.schema import SwarmConfig
 
 # the processes import this module and zenoh only (each of 2N + 1 starts in a fraction of a second);
 # what only the measuring process needs is imported in its functions

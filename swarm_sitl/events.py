@@ -21,7 +21,7 @@ from pathlib import Path
 from typing import Any
 
 from sim_vehicles.runtime.event_log import EventLog
-from swarm_sitl.config import SwarmConfig
+from swarm_sitl.config.schema import SwarmConfig
 
 __all__ = ["EventLog", "merge_events", "plan_events", "read_events", "write_events"]
 

@@ -114,7 +114,7 @@ def _warm_up(config_path: str | None) -> None:
     vehicle = VehicleParams(1.0, (0.01, 0.01, 0.02), 20.0)
     sim_vehicles.__main__.warm_up(vehicle, AttitudeGains(1.0, 1.0), 1000.0)  # frames' kernels too
     if config_path:
-        from swarm_sitl.config import load_config
+        from swarm_sitl.config.load import load_config
         from swarm_sitl.sim import run_sim
 
         run_sim(load_config(config_path), n_steps=1)

@@ -18,7 +18,7 @@ from swarm_sitl.bus.clock import (
     wall_epoch_to_monotonic,
 )
 from swarm_sitl.bus.node_bus import NodeBus
-from swarm_sitl.config import SwarmConfig
+from swarm_sitl.config.schema import SwarmConfig
 from swarm_sitl.controller_node import NodeReport, wait_for_start
 from swarm_sitl.laws.follower import EstimateMessage
 

@@ -30,7 +30,7 @@ from typing import Any
 import numpy as np
 from mcap.writer import Writer
 
-from swarm_sitl.config import load_config
+from swarm_sitl.config.load import load_config
 from swarm_sitl.recording import load_run
 
 _VEC = {"type": "object", "properties": {k: {"type": "number"} for k in "xyz"}}

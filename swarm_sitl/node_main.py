@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from sim_vehicles.runtime.lifeline import mark, process_figures
-from swarm_sitl.config import SwarmConfig
+from swarm_sitl.config.schema import SwarmConfig
 
 if TYPE_CHECKING:
     from swarm_sitl.bus.clock import RunClock

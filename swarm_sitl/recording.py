@@ -167,7 +167,7 @@ class RunDirError(ValueError):
 
 
 def load_run(run_dir: str | Path) -> Recording:
-    from swarm_sitl.config import ConfigError, load_config
+    from swarm_sitl.config.load import ConfigError, load_config
 
     d = Path(run_dir)
     if not (d / "leader.npz").is_file():
@@ -194,7 +194,7 @@ def load_run(run_dir: str | Path) -> Recording:
 def _merged_from_procs(d: Path) -> Recording:
     """A run whose supervisor died before it wrote the arrays (SIGKILL): what every process
     recorded, merged now."""
-    from swarm_sitl.config import ConfigError, load_config
+    from swarm_sitl.config.load import ConfigError, load_config
     from swarm_sitl.run_merge import merge_run
 
     try:

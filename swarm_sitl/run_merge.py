@@ -16,7 +16,7 @@ import numpy as np
 from sim_vehicles.common.state import POS, QUAT, STATE_SIZE, VEL
 from sim_vehicles.runtime.row_log import RowLogError, read_rows
 from sim_vehicles.vehicle.endpoint import TRUTH_COLUMNS
-from swarm_sitl.config import SwarmConfig
+from swarm_sitl.config.schema import SwarmConfig
 from swarm_sitl.controller_node import CONTROLLER_COLUMNS
 from swarm_sitl.events import merge_events
 from swarm_sitl.laws.follower_law import CTRL_SIZE, OUT_SIZE

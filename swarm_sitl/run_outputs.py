@@ -12,7 +12,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from swarm_sitl.config import SwarmConfig
+from swarm_sitl.config.schema import SwarmConfig
 from swarm_sitl.recording import Recording
 
 

@@ -22,7 +22,7 @@ from sim_vehicles.mavlink.wire_format import (
     sample_from_fields,
 )
 from swarm_sitl.assembly import build_autopilot, build_controller, build_leader, reported_vehicle_params
-from swarm_sitl.config import SwarmConfig
+from swarm_sitl.config.schema import SwarmConfig
 from swarm_sitl.laws.follower import EstimateMessage, VehicleSample
 from swarm_sitl.recording import FollowerSeries, Recording, leader_series
 

@@ -38,7 +38,8 @@ from sim_vehicles.runtime.lifeline import settle_heap
 from sim_vehicles.runtime.secret_file import write_secret
 from swarm_sitl.bus import keys as zenoh_keys
 from swarm_sitl.bus.codec import Status, decode_status, decode_waiting
-from swarm_sitl.config import ConfigError, SwarmConfig
+from swarm_sitl.config.load import ConfigError
+from swarm_sitl.config.schema import SwarmConfig
 from swarm_sitl.fork_server import ENTRY_MODULES, ForkedProcess, ForkServer, ForkServerError, module_argv
 from swarm_sitl.recording import (
     procs_dir,

@@ -13,13 +13,13 @@ CONFIGS = ROOT / "configs"
 
 @pytest.fixture(scope="session")
 def paper_cfg():
-    from swarm_sitl.config import load_config
+    from swarm_sitl.config.load import load_config
 
     return load_config(CONFIGS / "paper.yaml")
 
 
 @pytest.fixture(scope="session")
 def ring_cfg():
-    from swarm_sitl.config import load_config
+    from swarm_sitl.config.load import load_config
 
     return load_config(CONFIGS / "ring.yaml")

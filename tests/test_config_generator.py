@@ -7,8 +7,7 @@ import pytest
 import yaml
 
 from swarm_sitl.cli import main
-from swarm_sitl.config import parse_config
-from swarm_sitl.config_generator import (
+from swarm_sitl.config.generator import (
     FORMATIONS,
     GRAPHS,
     SPACING_M,
@@ -16,6 +15,7 @@ from swarm_sitl.config_generator import (
     generate,
     layer_width,
 )
+from swarm_sitl.config.load import parse_config
 from swarm_sitl.laws.gain_conditions import check_gains
 from swarm_sitl.sim import run_sim
 

@@ -4,7 +4,7 @@ from pathlib import Path
 
 import pytest
 
-from swarm_sitl.config_reference import reference
+from swarm_sitl.config.reference import reference
 
 pytestmark = pytest.mark.unit
 DOC = Path(__file__).resolve().parents[1] / "docs" / "config.md"
@@ -12,7 +12,7 @@ DOC = Path(__file__).resolve().parents[1] / "docs" / "config.md"
 
 def test_the_config_reference_is_current():
     assert DOC.read_text() == reference(), (
-        "docs/config.md is out of date: python -m swarm_sitl.config_reference > docs/config.md"
+        "docs/config.md is out of date: python -m swarm_sitl.config.reference > docs/config.md"
     )
 
 

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import yaml
 
-from swarm_sitl.config import ConfigError, parse_config, with_faults
+from swarm_sitl.config.load import ConfigError, parse_config, with_faults
 from swarm_sitl.faults.plan import FaultPlan, FaultSpec, edge_channel, fate, uniform
 from tests.conftest import CONFIGS
 

@@ -14,7 +14,8 @@ from collections.abc import Callable
 import numpy as np
 import yaml
 
-from swarm_sitl.config import LeaderSpec, SwarmConfig, parse_config
+from swarm_sitl.config.load import parse_config
+from swarm_sitl.config.schema import LeaderSpec, SwarmConfig
 from swarm_sitl.laws.gain_conditions import check_gains
 
 GRAPHS = ("ring", "tree", "layered", "random")

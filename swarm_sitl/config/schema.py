@@ -1,17 +1,17 @@
-"""The one config schema of a swarm run, validated at load.
+"""The one config schema of a swarm run: ``SwarmConfig`` and its sections, frozen and strict.
 
-``load_config(path)`` returns a frozen ``SwarmConfig`` or raises ``ConfigError`` whose message is
-one line naming the offending key. Unknown keys are errors. Cross-field checks (graph nodes exist
-and have a spanning tree from the leader, rates divide evenly, unit quaternions, thrust above
-weight) happen here, not mid-flight.
+Unknown keys are errors. Cross-field checks (graph nodes exist and have a spanning tree from the
+leader, rates divide evenly, unit quaternions, thrust above weight, the fault plan against the
+graph and the duration) happen at validation, not mid-flight; ``load`` reads a file into one.
+Two sections are defined where they are used: ``zenoh`` (``bus.session.ZenohSpec``) and
+``faults`` (``faults.plan.FaultPlan``).
 """
 
-from pathlib import Path
 from typing import Annotated, Literal
 
 import numpy as np
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
 from sim_vehicles.plant.params import MAX_RATE_DEFAULT_RPS, AttitudeGains, VehicleParams
 from swarm_sitl.bus.access import NodeKeys, node_keys
@@ -20,14 +20,6 @@ from swarm_sitl.faults.plan import FaultPlan
 from swarm_sitl.laws.follower_law import HOLD_EXTRAPOLATE, HOLD_ZERO_ORDER, ControlGains
 from swarm_sitl.laws.graph import Graph, GraphError
 from swarm_sitl.laws.trajectories import FigureEight, Helix, Line, Trajectory
-
-#: libyaml's safe loader where PyYAML was built with it (7x faster: every process of a run reads
-#: the run's config at start), else the pure-Python one; both accept exactly safe YAML
-_YAML_LOADER = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
-
-
-class ConfigError(ValueError):
-    """A config file is unreadable or invalid; the message is one line naming the problem."""
 
 
 class _Strict(BaseModel):
@@ -321,82 +313,3 @@ class SwarmConfig(_Strict):
 
     def to_yaml(self) -> str:
         return yaml.safe_dump(self.model_dump(mode="json"), sort_keys=False)
-
-
-def _describe(err: ValidationError) -> str:
-    e = err.errors()[0]
-    loc = ".".join(
-        str(p) for p in e["loc"] if not (isinstance(p, str) and p in {"helix", "figure_eight", "line"})
-    )
-    kind = e["type"]
-    if kind == "missing":
-        return f"{loc}: missing key"
-    if kind == "extra_forbidden":
-        return f"{loc}: unknown key"
-    msg = e["msg"].removeprefix("Value error, ")
-    where = f"{loc}: " if loc else ""
-    got = e.get("input")
-    shown = "" if kind.startswith("value_error") or isinstance(got, dict | list) else f" (got {got!r})"
-    return f"{where}{msg}{shown}"
-
-
-def parse_config(data: object, source: str = "config") -> SwarmConfig:
-    if not isinstance(data, dict):
-        raise ConfigError(f"{source}: expected a mapping of keys at the top level")
-    try:
-        return SwarmConfig.model_validate(data)
-    except ValidationError as err:
-        raise ConfigError(f"{source}: {_describe(err)}") from None
-
-
-def _read_text(p: Path) -> str:
-    try:
-        return p.read_text()
-    except OSError as e:
-        raise ConfigError(f"{p}: cannot read ({e.strerror})") from None
-    except UnicodeDecodeError:
-        raise ConfigError(f"{p}: not a text file") from None
-
-
-def _read_yaml(p: Path, text: str | None = None) -> object:
-    text = _read_text(p) if text is None else text
-    try:
-        return yaml.load(text, Loader=_YAML_LOADER)
-    except yaml.YAMLError as e:
-        mark = getattr(e, "problem_mark", None)
-        where = f" at line {mark.line + 1}" if mark is not None else ""
-        raise ConfigError(f"{p}: not valid YAML{where}") from None
-
-
-#: the last config loaded, by (path, text): a process forked from one that loaded the run's config
-#: (``fork_server``) gets it without parsing and validating it again (12-15 ms of CPU for a
-#: 64-follower config, in each of 129 processes)
-_LAST: dict[tuple[str, str], SwarmConfig] = {}
-
-
-def load_config(path: str | Path) -> SwarmConfig:
-    p = Path(path)
-    text = _read_text(p)
-    key = (str(p), text)
-    cfg = _LAST.get(key)
-    if cfg is None:
-        cfg = parse_config(_read_yaml(p, text), str(p))
-        _LAST.clear()
-        _LAST[key] = cfg
-    return cfg
-
-
-def with_faults(cfg: SwarmConfig, path: str | Path) -> SwarmConfig:
-    """``cfg`` with the fault plan of the YAML file ``path`` (the mapping that goes under
-    ``faults:``, with or without that key) in place of its own, validated against it."""
-    p = Path(path)
-    data = _read_yaml(p)
-    if isinstance(data, dict) and set(data) == {"faults"}:
-        data = data["faults"]
-    if not isinstance(data, dict):
-        raise ConfigError(f"{p}: expected a fault plan (seed, plan) at the top level")
-    merged = {**cfg.model_dump(mode="json"), "faults": data}
-    try:
-        return SwarmConfig.model_validate(merged)
-    except ValidationError as err:
-        raise ConfigError(f"{p}: {_describe(err)}") from None

@@ -3,7 +3,7 @@ sections it holds, each read from the module that defines it.
 
 Every key of a config file, with its type, default and meaning: the meaning is the ``#:`` comment
 on or above the field in the source (or the section's docstring), so the schema is the only place
-it is written. ``python -m swarm_sitl.config_reference > docs/config.md`` writes it;
+it is written. ``python -m swarm_sitl.config.reference > docs/config.md`` writes it;
 ``tests/test_config_reference.py`` fails when the file is not what the schema gives.
 """
 
@@ -17,7 +17,7 @@ from typing import Any
 from pydantic import BaseModel
 from pydantic_core import PydanticUndefined
 
-from swarm_sitl.config import SwarmConfig
+from swarm_sitl.config.schema import SwarmConfig
 
 
 def _comments(module: types.ModuleType) -> dict[tuple[str, str], str]:
@@ -121,7 +121,7 @@ def reference() -> str:
         "# Config reference",
         "",
         f"Generated from the schema ({files}) by",
-        "`python -m swarm_sitl.config_reference > docs/config.md`; do not edit by hand. Units are in",
+        "`python -m swarm_sitl.config.reference > docs/config.md`; do not edit by hand. Units are in",
         "the key names (`_m`, `_s`, `_hz`, `_kg`, `_N`, `_rps`); vectors are ENU, quaternions",
         "`[w, x, y, z]` body (FLU) to world. Unknown keys are errors; `swarm-sitl check CONFIG` validates",
         "a file.",

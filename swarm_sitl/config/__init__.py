@@ -1,0 +1,6 @@
+"""A run described by one file: the schema (``schema``), reading a file into it with one-line
+errors (``load``), a generated swarm's config (``generator``, ``swarm-sitl new``) and the
+reference of every key (``reference``, ``docs/config.md``).
+
+May import: sim_vehicles.common, sim_vehicles.plant, laws, bus, faults.
+"""
