@@ -89,6 +89,10 @@ class VehicleLink:
         datagrams it sends and receives. ``signing_key``: MAVLink 2 signing
         (``sim_vehicles.mavlink_signing``), between the link and its fault plan: what it sends is
         signed before the plan acts on it, what it receives is checked after."""
+        # pymavlink picks the wire protocol of a connection from the environment when it opens it:
+        # a process whose environment was replaced after this module was imported (a fork
+        # server's child) would otherwise speak MAVLink 1, which cannot be signed
+        os.environ.setdefault("MAVLINK20", "1")
         try:
             self.conn: Any = mavutil.mavlink_connection(
                 url, source_system=system_id, source_component=COMP_ONBOARD, dialect="common"

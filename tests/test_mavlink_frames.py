@@ -215,6 +215,31 @@ def _vehicle_and_link(**link_kwargs: Any) -> Iterator[tuple[socket.socket, Any, 
         vehicle.close()
 
 
+@pytest.mark.parametrize("signed", [False, True])
+def test_a_link_speaks_mavlink_2_whatever_its_environment(monkeypatch, signed):
+    """pymavlink takes a connection's wire protocol from the environment when it opens it: a
+    controller forked from a server whose environment was replaced after the import spoke
+    MAVLink 1, which cannot be signed, and its signed vehicle refused every message."""
+    from sim_vehicles.mavlink.signing import SIGNED
+    from swarm_sitl.vehicle_link import VehicleLink
+
+    monkeypatch.delenv("MAVLINK20", raising=False)
+    vehicle = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    vehicle.bind(("127.0.0.1", 0))
+    vehicle.settimeout(5)
+    key = bytes(32) if signed else None
+    link = VehicleLink(
+        f"udpout:127.0.0.1:{vehicle.getsockname()[1]}", 3, stamp_arrivals=False, signing_key=key
+    )
+    try:
+        link.send_heartbeat_if_due()
+        data, _ = vehicle.recvfrom(512)
+    finally:
+        link.close()
+        vehicle.close()
+    assert data[0] == frames.MAGIC_V2 and bool(data[2] & SIGNED) == signed
+
+
 def test_a_link_checks_the_telemetry_it_ignores_and_counts_what_is_bad():
     """The controller's link decodes only the messages it uses; a frame it skips still has its
     CRC checked, and a bad one (or an unknown message) is counted, as pymavlink's parser would."""

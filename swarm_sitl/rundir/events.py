@@ -1,0 +1,75 @@
+"""What happened during a run, as events: one JSON object per line, each with its time.
+
+A process appends its events to ``procs/<process>.events`` as they happen
+(``sim_vehicles.runtime.event_log``: one flushed line each, so a killed process keeps what it
+wrote); the run's ``events.jsonl`` merges them with the fault plan's own intervals, in time order.
+Every event has ``t_s`` (simulated seconds in lockstep, run seconds
+in real time), ``kind`` and ``source`` (the process that saw it), plus fields of its kind:
+
+    fault_start, fault_end     fault (plan entry), what, how          (from the plan)
+    neighbour_lost             follower, neighbour, age_s             (its estimate is past staleness)
+    neighbour_regained         follower, neighbour, age_s
+    no_live_in_edge            follower                               (its estimator runs on its own)
+    failsafe_enter             vehicle, action, p_W                   (its setpoints stopped)
+    failsafe_exit              vehicle                                (a valid setpoint came)
+
+A vehicle stamps its events with its boot time and the UNIX time; in real time the merge puts
+them on the run's clock (``t_s`` = UNIX time - the start epoch).
+"""
+
+import json
+from pathlib import Path
+from typing import Any
+
+from swarm_sitl.config.schema import SwarmConfig
+
+
+def plan_events(cfg: SwarmConfig) -> list[dict[str, Any]]:
+    """The start and end of every entry of the config's fault plan."""
+    out = []
+    for j, f in enumerate(cfg.faults.plan):
+        common = {"source": "plan", "fault": j, "what": f.what, "how": f.how}
+        lasts = f.restart_after_s or f.freeze_s
+        end = f.until_s if f.until_s is not None else (f.from_s + lasts if lasts else cfg.duration_s)
+        out.append({"t_s": f.from_s, "kind": "fault_start", **common})
+        out.append({"t_s": end, "kind": "fault_end", **common})
+    return out
+
+
+def read_events(path: Path) -> list[dict[str, Any]]:
+    """The complete lines of an event file (a line cut short by a kill is left out)."""
+    out: list[dict[str, Any]] = []
+    try:
+        text = path.read_text()
+    except OSError:
+        return out
+    for line in text.splitlines():
+        try:
+            e = json.loads(line)
+        except ValueError:
+            continue
+        if isinstance(e, dict) and isinstance(e.get("t_s"), int | float) and "kind" in e:
+            out.append(e)
+    return out
+
+
+def merge_events(
+    cfg: SwarmConfig, files: list[Path], epoch_unix_s: float | None = None
+) -> list[dict[str, Any]]:
+    """The plan's events and every file's, in time order (ties: plan first, then by source).
+    ``epoch_unix_s``: a real-time run's start, which puts events stamped with the UNIX time
+    (``unix_s``, a vehicle's) on the run's clock; the UNIX time is dropped either way, so a
+    lockstep run's events are the same twice."""
+    events = plan_events(cfg)
+    for p in sorted(files):
+        for e in read_events(p):
+            unix_s = e.pop("unix_s", None)
+            if epoch_unix_s is not None and isinstance(unix_s, int | float):
+                e["t_s"] = round(unix_s - epoch_unix_s, 6)
+            events.append(e)
+    events.sort(key=lambda e: (e["t_s"], e.get("source") != "plan", str(e.get("source")), e["kind"]))
+    return events
+
+
+def write_events(path: Path, events: list[dict[str, Any]]) -> None:
+    path.write_text("".join(json.dumps(e, sort_keys=True) + "\n" for e in events))

@@ -1,0 +1,167 @@
+"""Merge what the processes of a run recorded into one ``Recording`` (the layout ``sim`` writes).
+
+Inputs in ``RUN_DIR/procs/``: ``controller_<i>.rows`` (one row per tick: the tick, the vehicle
+sample it used, controller state and output) and ``vehicle_<i>.truth`` (the vehicle's true state at
+every LOCAL_POSITION_NED it sent). Row ``k`` of follower ``i`` takes the true state at the sample's
+``time_boot_ms``; without a truth file (a vehicle that is not ours) it takes the sample itself
+(float32 as received, no body rates). Ticks nobody recorded stay NaN.
+"""
+
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from sim_vehicles.common.state import POS, QUAT, STATE_SIZE, VEL
+from sim_vehicles.runtime.row_log import RowLogError, read_rows
+from swarm_sitl.config.schema import SwarmConfig
+from swarm_sitl.laws.follower_law import CTRL_SIZE, OUT_SIZE
+from swarm_sitl.rundir.events import merge_events
+from swarm_sitl.rundir.layout import (
+    CONTROLLER_COLUMNS,
+    TRUTH_COLUMNS,
+    controller_incarnations,
+    leader_stats_path,
+    read_start,
+    supervisor_events_path,
+    vehicle_events_path,
+    vehicle_stats_path,
+    vehicle_truth_path,
+)
+from swarm_sitl.rundir.recording import FollowerSeries, Recording, leader_series
+
+_C = {name: j for j, name in enumerate(CONTROLLER_COLUMNS)}
+_SAMPLE = slice(_C["sample_px"], _C["sample_qz"] + 1)
+_CTRL = slice(_C["ctrl_0"], _C["ctrl_0"] + CTRL_SIZE)
+_OUT = slice(_C["out_0"], _C["out_0"] + OUT_SIZE)
+
+
+def _rows(path: Path, width: int) -> np.ndarray:
+    if not path.is_file():
+        return np.empty((0, width))
+    try:
+        cols, rows = read_rows(path)
+    except RowLogError:
+        return np.empty((0, width))
+    return rows if len(cols) == width else np.empty((0, width))
+
+
+def merge_run(cfg: SwarmConfig, run_dir: Path) -> Recording:
+    n = cfg.n_control_steps
+    dt = cfg.control_dt_s
+    followers = {}
+    offsets = {}
+    for f in cfg.followers:
+        i = f.id
+        series = FollowerSeries(n + 1)
+        width = len(CONTROLLER_COLUMNS)
+        parts = [_rows(p, width) for p in controller_incarnations(run_dir, i, ".rows")]
+        ctrl = np.concatenate(parts) if parts else np.empty((0, width))
+        truth = _rows(vehicle_truth_path(run_dir, i), len(TRUTH_COLUMNS))
+        by_ms: dict[int, int] = {}
+        for j, ms in enumerate(np.round(truth[:, 0] * 1000).astype(np.int64)):
+            by_ms.setdefault(int(ms), j)
+        for row in ctrl:
+            k = int(row[_C["k"]])
+            if not 0 <= k <= n:
+                continue
+            at = by_ms.get(round(row[_C["sample_boot_s"]] * 1000))
+            if at is not None:
+                state = truth[at, 1:]
+            else:
+                state = np.full(STATE_SIZE, np.nan)
+                s = row[_SAMPLE]
+                state[POS], state[VEL], state[QUAT] = s[0:3], s[3:6], s[6:10]
+            series.record_vehicle(k, row[_C["t_s"]], state, row[_C["sample_t_s"]])
+            series.ctrl_state[k] = row[_CTRL]
+            series.ctrl_out[k] = row[_OUT]
+        followers[i] = series.arrays()
+        offsets[i] = np.asarray(f.offset_m, dtype=float)
+    t_s = np.arange(n + 1) * dt
+    trajectory = cfg.trajectory()
+    return Recording(leader_series(trajectory, t_s), followers, offsets).with_errors(trajectory)
+
+
+def _stats(path: Path) -> dict[str, Any]:
+    try:
+        s = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return {}
+    return s if isinstance(s, dict) else {}
+
+
+def _add(into: dict[str, Any], more: dict[str, Any]) -> None:
+    """Counts added, ``max_*`` figures maxed, anything else (a delay distribution) the latest."""
+    for key, v in more.items():
+        if key not in into:
+            into[key] = v
+        elif key.startswith("max_") and isinstance(v, int | float):
+            into[key] = max(into[key], v)
+        elif isinstance(v, int | float) and not isinstance(v, bool):
+            into[key] = into[key] + v
+        else:
+            into[key] = v
+
+
+#: report fields that count what the machine's load did, not what the run did: a setpoint resent
+#: after a wall-clock timeout. They stay in ``procs/`` and the controller's log, out of the summary,
+#: which a lockstep run keeps byte for byte the same.
+WALL_CLOCK_ONLY = ("resends",)
+
+
+def inputs_and_links(cfg: SwarmConfig, run_dir: Path) -> tuple[dict[str, Any], dict[str, Any]]:
+    """What each controller reported of its inputs (``NodeReport``), and per edge what its
+    receiver counted under the fault plan (``bus_faults.EdgeStats``; edges without a fault on
+    them deliver what arrives), summed over a restarted controller's incarnations. A controller
+    that did not finish reports nothing."""
+    inputs: dict[str, Any] = {}
+    links: dict[str, Any] = {}
+    published: dict[int, int] = {}
+    for n in range(100):  # the leader and its restarts
+        s = _stats(leader_stats_path(run_dir, n))
+        if not s:
+            break
+        published[0] = published.get(0, 0) + s.get("published", 0)
+    for f in cfg.followers:
+        for path in controller_incarnations(run_dir, f.id, ".stats.json"):
+            s = _stats(path)
+            published[f.id] = published.get(f.id, 0) + s.get("published", 0)
+            if "report" in s:
+                report = {k: v for k, v in s["report"].items() if k not in WALL_CLOCK_ONLY}
+                _add(inputs.setdefault(str(f.id), {}), report)
+            for src, st in s.get("in_edges", {}).items():
+                _add(links.setdefault(f"{src}->{f.id}", {}), st)
+            for way, st in s.get("mavlink", {}).items():
+                _add(links.setdefault(f"mavlink {f.id} {way}", {}), st)
+    for src, dst in cfg.graph_edges():  # what each sender published, killed incarnations aside
+        if f"{src}->{dst}" in links and src in published:
+            links[f"{src}->{dst}"]["sent"] = published[src]
+    return inputs, links
+
+
+#: what a vehicle refused (``sim_vehicles.mavlink_endpoint.EndpointStats``): the summary's part of
+#: its counts (the others count heartbeats, which follow the wall clock)
+VEHICLE_REFUSALS = ("rx_bad", "rx_refused", "rx_invalid", "rx_unhandled", "handler_errors")
+
+
+def vehicle_refusals(cfg: SwarmConfig, run_dir: Path) -> dict[str, Any]:
+    """Per vehicle that reported (ours, and not killed), what it received and refused."""
+    out: dict[str, Any] = {}
+    for f in cfg.followers:
+        s = _stats(vehicle_stats_path(run_dir, f.id))
+        if s:
+            out[str(f.id)] = {k: s.get(k, 0) for k in VEHICLE_REFUSALS}
+            if s.get("last_handler_error"):
+                out[str(f.id)]["last_handler_error"] = s["last_handler_error"]
+    return out
+
+
+def run_events(cfg: SwarmConfig, run_dir: Path) -> list[dict[str, Any]]:
+    """The plan's fault intervals and every process's events, in time order."""
+    files = [p for f in cfg.followers for p in controller_incarnations(run_dir, f.id, ".events")]
+    files += [vehicle_events_path(run_dir, f.id) for f in cfg.followers]
+    files.append(supervisor_events_path(run_dir))
+    start = read_start(run_dir)
+    realtime = start is not None and not start.get("lockstep", True)
+    return merge_events(cfg, files, start["epoch_unix_s"] if start is not None and realtime else None)

@@ -1,0 +1,124 @@
+"""Summary figures of a recorded run: final and peak errors, time to converge, invariants."""
+
+from typing import Any
+
+import numpy as np
+
+from swarm_sitl.rundir.recording import Recording
+
+
+def _norm(a: np.ndarray) -> np.ndarray:
+    return np.linalg.norm(a, axis=1)
+
+
+def time_to_converge(t: np.ndarray, err: np.ndarray, tol: float) -> float | None:
+    """First time after which ``err`` stays at or below ``tol`` to the end (None if never)."""
+    above = np.nonzero(~(err <= tol))[0]
+    if above.size == 0:
+        return float(t[0])
+    last = above[-1]
+    return None if last + 1 >= t.size else float(t[last + 1])
+
+
+def summarize(
+    rec: Recording,
+    gains: dict[str, float],
+    mass_kg: dict[int, float],
+    g_mps2: float,
+    settle_from_s: float = 20.0,
+) -> dict:
+    """Per-follower and swarm-wide figures (all errors are 2-norms of the error vector)."""
+    out: dict[str, Any] = {"followers": {}}
+    k_eta, k_gamma = gains["k_eta"], gains["k_gamma"]
+    uz_floor = g_mps2 - k_gamma - 2 * k_eta
+    worst: dict[str, Any] = {
+        "final_pos_err_m": 0.0,
+        "peak_pos_err_after_settle_m": None,  # None: no follower recorded past settle_from_s
+        "peak_vel_err_after_settle_mps": None,
+        "min_u_z_mps2": np.inf,
+        "max_thrust_over_bound": -np.inf,
+        "time_to_0.1m_s": 0.0,
+        "time_to_0.01m_s": 0.0,
+    }
+    for i, full in rec.followers.items():
+        # rows a run did not record (ticks skipped in real time, a run cut short) are NaN: left out
+        ok = np.isfinite(full["t_s"]) & np.isfinite(full["pos_err_m"]).all(axis=1)
+        if not ok.any():
+            out["followers"][str(i)] = {"recorded_ticks": 0}
+            continue
+        a = {key: v[ok] for key, v in full.items()}
+        t = a["t_s"]
+        pe, ve = _norm(a["pos_err_m"]), _norm(a["vel_err_mps"])
+        late = t >= settle_from_s
+        t_bound = mass_kg[i] * (g_mps2 + 2 * np.sqrt(3) * k_eta + np.sqrt(3) * k_gamma)
+        f = {
+            "recorded_ticks": int(ok.sum()),
+            "final_pos_err_m": float(pe[-1]),
+            "final_vel_err_mps": float(ve[-1]),
+            "peak_pos_err_m": float(pe.max()),
+            "peak_vel_err_mps": float(ve.max()),
+            "peak_pos_err_after_settle_m": float(pe[late].max()) if late.any() else None,
+            "peak_vel_err_after_settle_mps": float(ve[late].max()) if late.any() else None,
+            "final_est_pos_err_m": float(_norm(a["est_pos_err_m"])[-1]),
+            "time_to_0.1m_s": time_to_converge(t, pe, 0.1),
+            "time_to_0.01m_s": time_to_converge(t, pe, 0.01),
+            "min_u_z_mps2": float(np.min(a["u"][:, 2])),
+            "u_z_floor_mps2": uz_floor,
+            "max_thrust_N": float(np.max(a["thrust_N"])),
+            "thrust_bound_N": float(t_bound),
+        }
+        out["followers"][str(i)] = f
+        worst["final_pos_err_m"] = max(worst["final_pos_err_m"], f["final_pos_err_m"])
+        for key in ("peak_pos_err_after_settle_m", "peak_vel_err_after_settle_mps"):
+            if f[key] is not None:
+                worst[key] = f[key] if worst[key] is None else max(worst[key], f[key])
+        worst["min_u_z_mps2"] = min(worst["min_u_z_mps2"], f["min_u_z_mps2"])
+        worst["max_thrust_over_bound"] = max(worst["max_thrust_over_bound"], f["max_thrust_N"] / t_bound)
+        for key in ("time_to_0.1m_s", "time_to_0.01m_s"):
+            worst[key] = None if f[key] is None or worst[key] is None else max(worst[key], f[key])
+    worst["u_z_floor_mps2"] = uz_floor
+    worst["settle_from_s"] = settle_from_s
+    out["swarm"] = worst
+    return out
+
+
+def bound_failures(summary: dict, bound_m: float | None) -> list[str]:
+    """One line per follower whose formation error after the settling time exceeds ``bound_m``
+    (``run.max_formation_error_m``), naming its degraded inputs where the run recorded them."""
+    if bound_m is None:
+        return []
+    settle = summary["swarm"]["settle_from_s"]
+    inputs = summary.get("inputs", {})
+    lost = set(summary.get("lost", []))  # a lost aircraft is recorded, not held to the bound
+    out = []
+    for i, f in sorted(summary["followers"].items(), key=lambda kv: int(kv[0])):
+        if int(i) in lost:
+            continue
+        peak = f.get("peak_pos_err_after_settle_m")
+        if peak is None:
+            if f.get("recorded_ticks", 0) == 0 or settle > 0:
+                out.append(f"follower {i}: nothing recorded after {settle:g} s to hold to the bound")
+            continue
+        if peak > bound_m:
+            line = (
+                f"follower {i}: formation error {peak:.3g} m after {settle:g} s exceeds "
+                f"run.max_formation_error_m = {bound_m:g} m"
+            )
+            why = describe_inputs(inputs.get(i, {}))
+            out.append(line + (f"; stale inputs: {why}" if why else ""))
+    return out
+
+
+def describe_inputs(report: dict) -> str:
+    """A controller's degraded inputs (``controller_node.NodeReport`` as a dict) in words, "" if none."""
+    parts = []
+    if report.get("old_samples"):
+        parts.append(
+            f"{report['old_samples']} vehicle samples older than a control period "
+            f"(max {report['max_sample_age_s']:.3f} s)"
+        )
+    if report.get("stale_estimates"):
+        parts.append(f"{report['stale_estimates']} neighbour estimates past staleness")
+    if report.get("late_ticks"):
+        parts.append(f"{report['late_ticks']} late ticks")
+    return ", ".join(parts)

@@ -1,0 +1,162 @@
+"""The run directory: what a run writes and what plotting reads.
+
+Layout::
+
+    RUN_DIR/config.yaml        the resolved config (every default filled in)
+    RUN_DIR/leader.npz         t_s, p_r, v_r, a_r              (N,), (N, 3) ...
+    RUN_DIR/follower_<i>.npz   per-follower time series, one row per control tick (below)
+    RUN_DIR/summary.json       final and peak errors, time to converge, invariant checks
+
+Follower arrays (row k is tick k at ``t_s[k] = k * dt``, plus the follower's tick phase in a
+staggered real-time run; vectors world ENU unless noted):
+
+    t_s                         [s] the control tick
+    sample_t_s                  [s] instant of the vehicle sample used at that tick (= t_s in sim and
+                                lockstep; in real time the latest sample, up to a period older)
+    p_W, v_W                    vehicle position [m], velocity [m/s] (true state)
+    q_WB, omega_B               vehicle attitude [w,x,y,z; FLU->ENU], body rates [rad/s; FLU]
+    p_hat, v_hat, a_hat, a_hat_dot   estimates of the leader's p, v, a, jerk
+    gamma, gamma_dot, eta, eta_dot   estimator and auxiliary-system states
+    u, u_dot, u_ddot            command force [m/s^2] and its derivatives
+    thrust_N                    commanded thrust [N]
+    q_c, omega_c, omegadot_c    command attitude, rate [rad/s; body], rate derivative [rad/s^2]
+    pos_err_m, vel_err_mps      p - p_r - delta_i, v - v_r (p, v at sample_t_s, so is the reference)
+    est_pos_err_m, est_vel_err_mps, est_acc_err_mps2   p_hat - p_r, v_hat - v_r, a_hat - a_r
+
+Load with ``numpy.load(path)``; ``load.load_run(RUN_DIR)`` gives them all. ``swarm-sitl run`` also
+writes ``logs/``, ``tlogs/`` and ``procs/`` (each process's own rows, as they happen: ``layout``).
+"""
+
+import io
+import json
+import zipfile
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from sim_vehicles.common.state import POS, QUAT, RATE, STATE_SIZE, VEL
+from swarm_sitl.laws.estimator import EST_GAMMA, EST_GAMMA_DOT, EST_P, EST_V
+from swarm_sitl.laws.follower import ControllerStep
+from swarm_sitl.laws.follower_law import (
+    CTRL_ETA,
+    CTRL_ETA_DOT,
+    CTRL_SIZE,
+    OUT_A_HAT,
+    OUT_A_HAT_DOT,
+    OUT_OMEGA_C,
+    OUT_OMEGADOT_C,
+    OUT_Q_C,
+    OUT_SIZE,
+    OUT_THRUST,
+    OUT_U,
+    OUT_U_DDOT,
+    OUT_U_DOT,
+)
+from swarm_sitl.laws.trajectories import Trajectory
+
+
+class FollowerSeries:
+    """Preallocated rows for one follower; ``arrays()`` splits them into the named series."""
+
+    def __init__(self, n_rows: int):
+        self.n = n_rows
+        self.t_s = np.full(n_rows, np.nan)
+        self.vehicle = np.full((n_rows, STATE_SIZE), np.nan)
+        self.ctrl_state = np.full((n_rows, CTRL_SIZE), np.nan)
+        self.ctrl_out = np.full((n_rows, OUT_SIZE), np.nan)
+
+        self.sample_t_s = np.full(n_rows, np.nan)
+
+    def record_vehicle(self, k: int, t_s: float, state: np.ndarray, sample_t_s: float | None = None) -> None:
+        self.t_s[k] = t_s
+        self.sample_t_s[k] = t_s if sample_t_s is None else sample_t_s
+        self.vehicle[k] = state
+
+    def record_controller(self, k: int, step: ControllerStep) -> None:
+        self.ctrl_state[k] = step.state
+        self.ctrl_out[k] = step.output
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        x, c, o = self.vehicle, self.ctrl_state, self.ctrl_out
+        return {
+            "t_s": self.t_s,
+            "sample_t_s": self.sample_t_s,
+            "p_W": x[:, POS],
+            "v_W": x[:, VEL],
+            "q_WB": x[:, QUAT],
+            "omega_B": x[:, RATE],
+            "p_hat": c[:, EST_P],
+            "v_hat": c[:, EST_V],
+            "gamma": c[:, EST_GAMMA],
+            "gamma_dot": c[:, EST_GAMMA_DOT],
+            "eta": c[:, CTRL_ETA],
+            "eta_dot": c[:, CTRL_ETA_DOT],
+            "u": o[:, OUT_U],
+            "u_dot": o[:, OUT_U_DOT],
+            "u_ddot": o[:, OUT_U_DDOT],
+            "thrust_N": o[:, OUT_THRUST],
+            "q_c": o[:, OUT_Q_C],
+            "omega_c": o[:, OUT_OMEGA_C],
+            "omegadot_c": o[:, OUT_OMEGADOT_C],
+            "a_hat": o[:, OUT_A_HAT],
+            "a_hat_dot": o[:, OUT_A_HAT_DOT],
+        }
+
+
+@dataclass
+class Recording:
+    """Everything a run produced, in memory."""
+
+    leader: dict[str, np.ndarray]
+    followers: dict[int, dict[str, np.ndarray]]
+    offsets: dict[int, np.ndarray]
+
+    def with_errors(self, trajectory: Trajectory | None = None) -> "Recording":
+        """Add the error series (idempotent). Where a follower's samples are not at the leader's
+        ticks (``sample_t_s``, real time), ``trajectory`` gives the reference at the sample
+        instants; where its own ticks are not (``t_s``, staggered real time), at its ticks."""
+        L = self.leader
+
+        def reference(t_s: np.ndarray, at_leader_ticks: bool) -> tuple[np.ndarray, ...]:
+            if trajectory is None or at_leader_ticks:
+                return L["p_r"], L["v_r"], L["a_r"]
+            d = trajectory.derivatives(np.nan_to_num(t_s, nan=0.0))
+            missing = np.isnan(t_s)[:, None]
+            return tuple(np.where(missing, np.nan, d[:, j]) for j in range(3))
+
+        for i, a in self.followers.items():
+            t = a["t_s"]
+            ts = a.get("sample_t_s", t)
+            p_r, v_r, _ = reference(ts, np.array_equal(ts, L["t_s"], equal_nan=True))
+            a["pos_err_m"] = a["p_W"] - p_r - self.offsets[i]
+            a["vel_err_mps"] = a["v_W"] - v_r
+            p_r, v_r, a_r = reference(t, np.array_equal(t, L["t_s"], equal_nan=True))
+            a["est_pos_err_m"] = a["p_hat"] - p_r
+            a["est_vel_err_mps"] = a["v_hat"] - v_r
+            a["est_acc_err_mps2"] = a["a_hat"] - a_r
+        return self
+
+
+def leader_series(trajectory: Trajectory, t_s: np.ndarray) -> dict[str, np.ndarray]:
+    d = trajectory.derivatives(t_s)
+    return {"t_s": t_s, "p_r": d[:, 0], "v_r": d[:, 1], "a_r": d[:, 2]}
+
+
+def save_npz(path: Path, arrays: dict[str, np.ndarray]) -> None:
+    """``numpy.savez`` with fixed member dates, so the same arrays give the same bytes (numpy
+    stamps each member with the time of writing); ``numpy.load`` reads it as any .npz."""
+    with zipfile.ZipFile(path, "w", zipfile.ZIP_STORED, allowZip64=True) as z:
+        for name, a in arrays.items():
+            buf = io.BytesIO()
+            np.lib.format.write_array(buf, np.asanyarray(a), allow_pickle=False)
+            z.writestr(zipfile.ZipInfo(f"{name}.npy", date_time=(1980, 1, 1, 0, 0, 0)), buf.getvalue())
+
+
+def write_run(run_dir: Path, config_yaml: str, rec: Recording, summary: dict) -> None:
+    run_dir.mkdir(parents=True, exist_ok=True)
+    (run_dir / "config.yaml").write_text(config_yaml)
+    save_npz(run_dir / "leader.npz", rec.leader)
+    for i, arrays in rec.followers.items():
+        save_npz(run_dir / f"follower_{i}.npz", {"offset_m": rec.offsets[i], **arrays})
+    (run_dir / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
