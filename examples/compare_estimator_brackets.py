@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from swarm_sitl.config.load import load_config
-from swarm_sitl.metrics import time_to_converge
+from swarm_sitl.rundir.metrics import time_to_converge
 from swarm_sitl.sim import run_sim
 
 CONFIGS = Path(__file__).resolve().parent.parent / "configs"

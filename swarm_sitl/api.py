@@ -146,7 +146,7 @@ class Swarm:
 
     def run(self, duration_s: float | None = None) -> SwarmResult:
         """Run the swarm (``duration_s`` overrides the config's) and return what it recorded."""
-        from swarm_sitl.run_outputs import record_run
+        from swarm_sitl.rundir.outputs import record_run
 
         cfg = self.config
         if duration_s is not None:
@@ -165,7 +165,7 @@ def load_result(
     bound_failures: list[str] | None = None,
 ) -> SwarmResult:
     """A run directory's results as objects."""
-    from swarm_sitl.recording import load_run
+    from swarm_sitl.rundir.load import load_run
 
     d = Path(run_dir)
     rec = load_run(d)

@@ -47,7 +47,7 @@ from swarm_sitl.bench import late_ticks, sim_in_process_s
 from swarm_sitl.config.generator import generate
 from swarm_sitl.config.load import parse_config
 from swarm_sitl.config.schema import SwarmConfig
-from swarm_sitl.recording import procs_dir
+from swarm_sitl.rundir.layout import procs_dir
 from swarm_sitl.supervisor import RunFailedError
 
 COLUMNS = (

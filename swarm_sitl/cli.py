@@ -19,7 +19,7 @@ from swarm_sitl.config.schema import SwarmConfig
 from swarm_sitl.laws.command_attitude import SingularCommandError
 from swarm_sitl.laws.graph import GraphError
 from swarm_sitl.node_main import add_node_parsers
-from swarm_sitl.recording import RunDirError
+from swarm_sitl.rundir.load import RunDirError
 
 EXIT_FAILED = 1  #: a process of the run failed
 EXIT_USAGE = 2
@@ -158,8 +158,8 @@ def cmd_sim(args: argparse.Namespace) -> int:
 
             rec = run_sim(cfg, progress=progress)
     wall = time.monotonic() - t0
-    from swarm_sitl.metrics import bound_failures
-    from swarm_sitl.run_outputs import write_outputs
+    from swarm_sitl.rundir.metrics import bound_failures
+    from swarm_sitl.rundir.outputs import write_outputs
 
     summary = write_outputs(cfg, rec, run_dir)
     print(
@@ -218,7 +218,7 @@ def _run_and_record(
     kind: str,
     base_port: int = 0,
 ) -> int:
-    from swarm_sitl.run_outputs import record_run
+    from swarm_sitl.rundir.outputs import record_run
 
     clock = "lockstep" if lockstep else "real time"
     progress = _RunProgress(cfg, f"{kind} {cfg.name} ({clock})", quiet)
@@ -249,7 +249,7 @@ def _run_and_record(
 def _degraded_lines(summary: dict) -> list[str]:
     """What the controllers reported of late, old or missing inputs, one line per follower."""
     out = []
-    from swarm_sitl.metrics import describe_inputs
+    from swarm_sitl.rundir.metrics import describe_inputs
 
     for i, rep in sorted(summary.get("inputs", {}).items(), key=lambda kv: int(kv[0])):
         why = describe_inputs(rep)
@@ -341,7 +341,7 @@ def cmd_vehicles(args: argparse.Namespace) -> int:
 
 
 def cmd_export(args: argparse.Namespace) -> int:
-    from swarm_sitl.mcap_export import write_mcap
+    from swarm_sitl.rundir.mcap_export import write_mcap
 
     run_dir = Path(args.run_dir)
     if not (run_dir / "config.yaml").is_file():
@@ -353,8 +353,8 @@ def cmd_export(args: argparse.Namespace) -> int:
 
 
 def cmd_plot(args: argparse.Namespace) -> int:
-    from swarm_sitl.plots import plot_run
-    from swarm_sitl.recording import load_run
+    from swarm_sitl.rundir.load import load_run
+    from swarm_sitl.rundir.plots import plot_run
 
     run_dir = Path(args.run_dir)
     rec = load_run(run_dir)
@@ -365,7 +365,7 @@ def cmd_plot(args: argparse.Namespace) -> int:
         bounds = {int(i): f["thrust_bound_N"] for i, f in summary["followers"].items()}
     events = []
     if (run_dir / "events.jsonl").is_file():
-        from swarm_sitl.events import read_events
+        from swarm_sitl.rundir.events import read_events
 
         events = read_events(run_dir / "events.jsonl")
     if "links" in (summary or {}):

@@ -31,6 +31,7 @@ import numpy as np
 
 from sim_vehicles.common.command import AttitudeCommand
 from sim_vehicles.mavlink import signing, tick_frames
+from sim_vehicles.runtime.event_log import EventLog
 from sim_vehicles.runtime.lifeline import mark, settle_heap
 from sim_vehicles.runtime.row_log import RowLog
 from swarm_sitl.assembly import build_controller
@@ -45,24 +46,11 @@ from swarm_sitl.bus.clock import (
 from swarm_sitl.bus.codec import Status
 from swarm_sitl.bus.node_bus import NodeBus
 from swarm_sitl.config.schema import SwarmConfig
-from swarm_sitl.events import EventLog
 from swarm_sitl.laws.command_attitude import SingularCommandError
 from swarm_sitl.laws.follower import EstimateMessage, VehicleSample
-from swarm_sitl.laws.follower_law import CTRL_SIZE, OUT_SIZE
 from swarm_sitl.neighbour_inbox import NeighbourInbox
 from swarm_sitl.vehicle_link import VehicleLink
 
-CONTROLLER_COLUMNS = [
-    "k",
-    "t_s",
-    "sample_boot_s",
-    "sample_t_s",
-    "late_s",
-    "done_s",
-    *[f"sample_{n}" for n in ("px", "py", "pz", "vx", "vy", "vz", "qw", "qx", "qy", "qz")],
-    *[f"ctrl_{j}" for j in range(CTRL_SIZE)],
-    *[f"out_{j}" for j in range(OUT_SIZE)],
-]
 RESEND_AFTER_S = 0.25
 #: real time: how long before its first tick a controller arms and switches its vehicle to offboard [s]
 ARM_LEAD_S = 0.1

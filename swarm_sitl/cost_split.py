@@ -31,7 +31,7 @@ from pathlib import Path
 ACTIVITIES = ("physics and laws", "MAVLink", "zenoh", "waking up", "logs", "loop and other")
 
 _BY_FILE = (  # (activity, path fragments), first match wins
-    ("logs", ("row_log.py", "event_log.py", "swarm_sitl/events.py", "recording.py")),
+    ("logs", ("sim_vehicles/runtime/row_log.py", "sim_vehicles/runtime/event_log.py", "swarm_sitl/rundir/")),
     (
         "physics and laws",
         (

@@ -12,7 +12,7 @@ in-neighbours' estimates of tick ``k - 1``.
 
 from collections.abc import Callable
 
-from swarm_sitl.events import EventLog
+from sim_vehicles.runtime.event_log import EventLog
 from swarm_sitl.laws.follower import EstimateMessage
 
 

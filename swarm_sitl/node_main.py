@@ -90,15 +90,20 @@ def in_edge_stats(zbus: Any, faulty: Any) -> dict[int, dict[str, int]]:
 
 def cmd_controller(cfg: SwarmConfig, args: argparse.Namespace) -> int:
     from sim_vehicles.mavlink.signing import read_key
+    from sim_vehicles.runtime.event_log import EventLog
     from sim_vehicles.runtime.row_log import RowLog
     from swarm_sitl.bus.clock import RunClock
     from swarm_sitl.bus.node_bus import NodeBus, ZenohNodeBus
-    from swarm_sitl.controller_node import CONTROLLER_COLUMNS, run_controller
-    from swarm_sitl.events import EventLog
+    from swarm_sitl.controller_node import run_controller
     from swarm_sitl.faults.edges import FaultyBus, acts_on
     from swarm_sitl.faults.mavlink import MavlinkFaults
-    from swarm_sitl.metrics import describe_inputs
-    from swarm_sitl.recording import controller_events_path, controller_rows_path, controller_stats_path
+    from swarm_sitl.rundir.layout import (
+        CONTROLLER_COLUMNS,
+        controller_events_path,
+        controller_rows_path,
+        controller_stats_path,
+    )
+    from swarm_sitl.rundir.metrics import describe_inputs
     from swarm_sitl.vehicle_link import VehicleLink
 
     mark("main")
@@ -171,7 +176,7 @@ def cmd_leader(cfg: SwarmConfig, args: argparse.Namespace) -> int:
     from swarm_sitl.bus.node_bus import NodeBus, ZenohNodeBus
     from swarm_sitl.faults.edges import FaultyBus, acts_on
     from swarm_sitl.leader_node import run_leader
-    from swarm_sitl.recording import leader_stats_path
+    from swarm_sitl.rundir.layout import leader_stats_path
 
     mark("main")
     outs = cfg.node_keys(0).out_dests

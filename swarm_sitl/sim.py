@@ -24,7 +24,7 @@ from sim_vehicles.mavlink.wire_format import (
 from swarm_sitl.assembly import build_autopilot, build_controller, build_leader, reported_vehicle_params
 from swarm_sitl.config.schema import SwarmConfig
 from swarm_sitl.laws.follower import EstimateMessage, VehicleSample
-from swarm_sitl.recording import FollowerSeries, Recording, leader_series
+from swarm_sitl.rundir.recording import FollowerSeries, Recording, leader_series
 
 
 def sample_through_wire(t_s: float, state: np.ndarray) -> VehicleSample:

@@ -41,7 +41,7 @@ from swarm_sitl.bus.codec import Status, decode_status, decode_waiting
 from swarm_sitl.config.load import ConfigError
 from swarm_sitl.config.schema import SwarmConfig
 from swarm_sitl.fork_server import ENTRY_MODULES, ForkedProcess, ForkServer, ForkServerError, module_argv
-from swarm_sitl.recording import (
+from swarm_sitl.rundir.layout import (
     procs_dir,
     signing_key_path,
     start_path,

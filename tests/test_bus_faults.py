@@ -8,10 +8,10 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
+from sim_vehicles.runtime.event_log import EventLog
 from swarm_sitl.bus.clock import RunClock
 from swarm_sitl.bus.codec import PayloadError, decode_estimate, encode_estimate
 from swarm_sitl.bus.node_bus import ZenohNodeBus
-from swarm_sitl.events import EventLog
 from swarm_sitl.faults.edges import FaultyBus
 from swarm_sitl.faults.plan import FaultPlan
 from swarm_sitl.laws.follower import EstimateMessage

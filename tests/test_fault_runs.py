@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 import yaml
 
-from swarm_sitl.recording import load_run
+from swarm_sitl.rundir.load import load_run
 from tests.conftest import CONFIGS
 from tests.test_swarm_processes import (
     _cmdline,

@@ -7,8 +7,8 @@ import pytest
 from mcap.reader import make_reader
 
 from swarm_sitl.cli import main
-from swarm_sitl.recording import load_run
-from swarm_sitl.run_outputs import write_outputs
+from swarm_sitl.rundir.load import load_run
+from swarm_sitl.rundir.outputs import write_outputs
 from swarm_sitl.sim import run_sim
 
 pytestmark = pytest.mark.integration

@@ -6,7 +6,7 @@ import pytest
 
 from swarm_sitl.assembly import build_controller
 from swarm_sitl.laws.follower import EstimateMessage, VehicleSample
-from swarm_sitl.recording import Recording, leader_series
+from swarm_sitl.rundir.recording import Recording, leader_series
 
 pytestmark = pytest.mark.unit
 

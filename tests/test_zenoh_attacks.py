@@ -18,7 +18,7 @@ import yaml
 import zenoh
 
 from swarm_sitl.bus import keys as zenoh_keys
-from swarm_sitl.recording import zenoh_users_path
+from swarm_sitl.rundir.layout import zenoh_users_path
 from swarm_sitl.sim import run_sim
 from swarm_sitl.supervisor import free_tcp_port
 from tests.conftest import CONFIGS

@@ -7,7 +7,7 @@
 
 Compiled kernels slice with the same globals (numba folds them into constants: the machine code is
 that of a literal ``x[6:10]``); one component is ``x[VEL0 + 2]``. ``STATE_COLUMNS`` names the
-entries where a state is written as a row (a vehicle's truth log).
+entries where a state is written as a row, ``TRUTH_COLUMNS`` a vehicle's truth log's.
 """
 
 import numpy as np
@@ -19,6 +19,9 @@ VEL = slice(VEL0, VEL0 + 3)
 QUAT = slice(QUAT0, QUAT0 + 4)
 RATE = slice(RATE0, RATE0 + 3)
 STATE_COLUMNS = ("px", "py", "pz", "vx", "vy", "vz", "qw", "qx", "qy", "qz", "wx", "wy", "wz")
+#: a truth log's row (what a vehicle writes and a run directory merges): the vehicle's boot time
+#: [s], then its true state
+TRUTH_COLUMNS = ["time_boot_s", *STATE_COLUMNS]
 
 
 def make_state(

@@ -42,7 +42,7 @@ import numpy as np
 from pymavlink.dialects.v20 import common as mav
 
 from sim_vehicles.common.command import AttitudeCommand
-from sim_vehicles.common.state import STATE_COLUMNS
+from sim_vehicles.common.state import TRUTH_COLUMNS
 from sim_vehicles.mavlink import decoder, frames, tick_frames
 from sim_vehicles.mavlink import px4_profile as px4
 from sim_vehicles.mavlink.wire_format import (
@@ -65,8 +65,6 @@ from sim_vehicles.vehicle.port import ATTQ_ID, LPOS_ID, EndpointStats, Port, Tlo
 from sim_vehicles.vehicle.telemetry import GCS_RATES, Telemetry, TelemetryRates
 
 MAX_CLOCK_STEP_S = 3600.0  #: the furthest a clock-only setpoint may move a lockstep vehicle [s]
-#: a truth log's columns: the vehicle's boot time [s], then its true state (``common.state``)
-TRUTH_COLUMNS = ["time_boot_s", *STATE_COLUMNS]
 
 
 _SETPOINT = frames.SET_ATTITUDE_TARGET

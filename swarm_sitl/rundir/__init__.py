@@ -1,0 +1,14 @@
+"""The run directory: what a run writes, and everything that reads it afterwards.
+
+- ``layout``: where each file is, and the columns of the rows the processes write;
+- ``recording``: the arrays of a run in memory (``Recording``) and writing them;
+- ``events``: what happened, merged from every process and the plan;
+- ``merge``: the processes' raw records into a ``Recording``, and the summary's per-edge counts;
+- ``load``: a run directory read back;
+- ``metrics``: the summary's figures; ``plots``: the figures as PNG; ``mcap_export``: MCAP;
+- ``outputs``: the run directory written from what was recorded.
+
+Compute, record, plot: nothing here runs a swarm.
+
+May import: sim_vehicles.common, sim_vehicles.runtime, laws, faults, config.
+"""

@@ -1,0 +1,123 @@
+"""Where a run directory keeps what, and the columns of the rows its processes write.
+
+Layout (``recording`` has the arrays and their units)::
+
+    RUN_DIR/config.yaml            the resolved config (every default filled in)
+    RUN_DIR/leader.npz             the reference at each tick
+    RUN_DIR/follower_<i>.npz       one row per control tick
+    RUN_DIR/summary.json           final and peak errors, time to converge, invariants; a run adds
+                                   links, inputs, lost, faults and vehicles
+    RUN_DIR/events.jsonl           what happened, in time order (``events``)
+    RUN_DIR/logs/<process>.log     each process's output
+    RUN_DIR/tlogs/vehicle_<i>.tlog every MAVLink message in and out of vehicle i
+    RUN_DIR/procs/                 each process's own rows, events and figures, written as they
+                                   happen (merged by ``merge``):
+        controller_<i>[.<n>].rows        ``CONTROLLER_COLUMNS`` (incarnation n of a restarted one)
+        controller_<i>[.<n>].events      and .stats.json
+        vehicle_<i>.truth                ``TRUTH_COLUMNS``: the true state at each sample it sent
+        vehicle_<i>.events, vehicle_<i>.stats.json, leader[.<n>].stats.json
+        supervisor.events, start.json
+    RUN_DIR/mavlink_signing.key    the run's MAVLink signing passphrase (0600)
+    RUN_DIR/zenoh_users.txt        the run's zenoh router's users and passwords (0600)
+"""
+
+import json
+from pathlib import Path
+
+from sim_vehicles.common.state import TRUTH_COLUMNS
+from swarm_sitl.laws.follower_law import CTRL_SIZE, OUT_SIZE
+
+__all__ = ["CONTROLLER_COLUMNS", "TRUTH_COLUMNS"]
+
+#: a controller's row per tick (``procs/controller_<i>.rows``): the tick and its instants [s],
+#: the vehicle sample it used [ENU/FLU], the controller's state and output (``follower_law``)
+CONTROLLER_COLUMNS = [
+    "k",
+    "t_s",
+    "sample_boot_s",
+    "sample_t_s",
+    "late_s",
+    "done_s",
+    *[f"sample_{n}" for n in ("px", "py", "pz", "vx", "vy", "vz", "qw", "qx", "qy", "qz")],
+    *[f"ctrl_{j}" for j in range(CTRL_SIZE)],
+    *[f"out_{j}" for j in range(OUT_SIZE)],
+]
+
+
+def procs_dir(run_dir: Path) -> Path:
+    return run_dir / "procs"
+
+
+def _incarnated(name: str, incarnation: int) -> str:
+    """A process's file stem: ``controller_2``, then ``controller_2.1`` once restarted, ..."""
+    return name if incarnation == 0 else f"{name}.{incarnation}"
+
+
+def controller_rows_path(run_dir: Path, i: int, incarnation: int = 0) -> Path:
+    return procs_dir(run_dir) / f"{_incarnated(f'controller_{i}', incarnation)}.rows"
+
+
+def controller_incarnations(run_dir: Path, i: int, suffix: str) -> list[Path]:
+    """Follower ``i``'s controller files of kind ``suffix`` (``.rows``, ``.events``,
+    ``.stats.json``) that exist, one per incarnation (each has its rows from the start), in order.
+    A killed incarnation wrote no ``.stats.json``: its counts died with it."""
+    found = []
+    for n in range(1000):
+        stem = procs_dir(run_dir) / _incarnated(f"controller_{i}", n)
+        if not stem.with_name(stem.name + ".rows").is_file():
+            break
+        p = stem.with_name(stem.name + suffix)
+        if p.is_file():
+            found.append(p)
+    return found
+
+
+def vehicle_truth_path(run_dir: Path, i: int) -> Path:
+    return procs_dir(run_dir) / f"vehicle_{i}.truth"
+
+
+def controller_events_path(run_dir: Path, i: int, incarnation: int = 0) -> Path:
+    return procs_dir(run_dir) / f"{_incarnated(f'controller_{i}', incarnation)}.events"
+
+
+def controller_stats_path(run_dir: Path, i: int, incarnation: int = 0) -> Path:
+    return procs_dir(run_dir) / f"{_incarnated(f'controller_{i}', incarnation)}.stats.json"
+
+
+def leader_stats_path(run_dir: Path, incarnation: int = 0) -> Path:
+    return procs_dir(run_dir) / f"{_incarnated('leader', incarnation)}.stats.json"
+
+
+def supervisor_events_path(run_dir: Path) -> Path:
+    return procs_dir(run_dir) / "supervisor.events"
+
+
+def vehicle_stats_path(run_dir: Path, i: int) -> Path:
+    return procs_dir(run_dir) / f"vehicle_{i}.stats.json"
+
+
+def vehicle_events_path(run_dir: Path, i: int) -> Path:
+    return procs_dir(run_dir) / f"vehicle_{i}.events"
+
+
+def start_path(run_dir: Path) -> Path:
+    """The start signal of a multi-process run: ``{"epoch_unix_s": ..., "lockstep": ...}``."""
+    return procs_dir(run_dir) / "start.json"
+
+
+def read_start(run_dir: Path) -> dict | None:
+    try:
+        d = json.loads(start_path(run_dir).read_text())
+    except (OSError, ValueError):
+        return None
+    return d if isinstance(d, dict) and isinstance(d.get("epoch_unix_s"), int | float) else None
+
+
+def signing_key_path(run_dir: Path) -> Path:
+    """The MAVLink signing passphrase of a run's own vehicles (mode 0600)."""
+    return run_dir / "mavlink_signing.key"
+
+
+def zenoh_users_path(run_dir: Path) -> Path:
+    """The zenoh router's ``user:password`` dictionary of a run (mode 0600)."""
+    return run_dir / "zenoh_users.txt"
