@@ -48,8 +48,8 @@ from swarm_sitl.bus.node_bus import NodeBus
 from swarm_sitl.config.schema import SwarmConfig
 from swarm_sitl.laws.command_attitude import SingularCommandError
 from swarm_sitl.laws.follower import EstimateMessage, VehicleSample
+from swarm_sitl.link.vehicle_link import VehicleLink
 from swarm_sitl.neighbour_inbox import NeighbourInbox
-from swarm_sitl.vehicle_link import VehicleLink
 
 RESEND_AFTER_S = 0.25
 #: real time: how long before its first tick a controller arms and switches its vehicle to offboard [s]

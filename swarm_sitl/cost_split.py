@@ -47,7 +47,7 @@ _BY_FILE = (  # (activity, path fragments), first match wins
         (
             "sim_vehicles/mavlink/",
             "sim_vehicles/vehicle/",
-            "swarm_sitl/vehicle_link.py",
+            "swarm_sitl/link/",
             "swarm_sitl/faults/mavlink.py",
             "/pymavlink/",
         ),

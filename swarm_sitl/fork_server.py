@@ -103,8 +103,8 @@ def _warm_up(config_path: str | None) -> None:
     import swarm_sitl.cli
     import swarm_sitl.controller_node
     import swarm_sitl.leader_node
+    import swarm_sitl.link.vehicle_link
     import swarm_sitl.node_main
-    import swarm_sitl.vehicle_link
     from sim_vehicles.plant.params import AttitudeGains, VehicleParams
 
     swarm_sitl.cli.build_parser()  # what the command line imports to build itself

@@ -47,7 +47,7 @@ def _guarded(name: str, body: Any, lockstep: bool) -> int:
     from swarm_sitl.bus.clock import StallError
     from swarm_sitl.bus.session import error_line
     from swarm_sitl.laws.command_attitude import SingularCommandError
-    from swarm_sitl.vehicle_link import LinkError
+    from swarm_sitl.link.transport import LinkError
 
     hold_on()
     if lockstep:  # before zenoh starts its threads, so they inherit it
@@ -97,6 +97,7 @@ def cmd_controller(cfg: SwarmConfig, args: argparse.Namespace) -> int:
     from swarm_sitl.controller_node import run_controller
     from swarm_sitl.faults.edges import FaultyBus, acts_on
     from swarm_sitl.faults.mavlink import MavlinkFaults
+    from swarm_sitl.link.vehicle_link import VehicleLink
     from swarm_sitl.rundir.layout import (
         CONTROLLER_COLUMNS,
         controller_events_path,
@@ -104,7 +105,6 @@ def cmd_controller(cfg: SwarmConfig, args: argparse.Namespace) -> int:
         controller_stats_path,
     )
     from swarm_sitl.rundir.metrics import describe_inputs
-    from swarm_sitl.vehicle_link import VehicleLink
 
     mark("main")
     i = args.id

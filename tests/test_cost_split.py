@@ -38,7 +38,7 @@ def _module(tmp_path, package: str, name: str):
 def test_time_goes_to_the_activity_of_the_file_and_builtins_to_their_caller(tmp_path):
     laws = _module(tmp_path, "sim_vehicles/plant", "autopilot")  # physics and laws
     bus = _module(tmp_path, "swarm_sitl/bus", "node_bus")  # zenoh
-    link = _module(tmp_path, "swarm_sitl", "vehicle_link")  # MAVLink
+    link = _module(tmp_path, "swarm_sitl/link", "decoding")  # MAVLink
 
     def body():
         laws.burn(0.06)

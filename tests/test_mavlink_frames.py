@@ -161,7 +161,7 @@ def test_pack_frame_leaves_signing_to_pymavlink():
 
 @pytest.mark.skipif(os.uname().sysname != "Linux", reason="kernel receive timestamps are Linux only")
 def test_a_udp_link_knows_when_a_sample_arrived_without_reading_it_then():
-    from swarm_sitl.vehicle_link import VehicleLink
+    from swarm_sitl.link.vehicle_link import VehicleLink
 
     vehicle = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     vehicle.bind(("127.0.0.1", 0))
@@ -200,7 +200,7 @@ def _sample_pass(tx: Any, ms: int, down_m: float = -3.0) -> bytes:
 def _vehicle_and_link(**link_kwargs: Any) -> Iterator[tuple[socket.socket, Any, Any]]:
     """A bare UDP socket standing in for vehicle 3, and a controller's ``VehicleLink`` to it (no
     arrival stamps) that has spoken once: yields the socket, the link and the link's address."""
-    from swarm_sitl.vehicle_link import VehicleLink
+    from swarm_sitl.link.vehicle_link import VehicleLink
 
     vehicle = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     vehicle.bind(("127.0.0.1", 0))
@@ -221,7 +221,7 @@ def test_a_link_speaks_mavlink_2_whatever_its_environment(monkeypatch, signed):
     controller forked from a server whose environment was replaced after the import spoke
     MAVLink 1, which cannot be signed, and its signed vehicle refused every message."""
     from sim_vehicles.mavlink.signing import SIGNED
-    from swarm_sitl.vehicle_link import VehicleLink
+    from swarm_sitl.link.vehicle_link import VehicleLink
 
     monkeypatch.delenv("MAVLINK20", raising=False)
     vehicle = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)

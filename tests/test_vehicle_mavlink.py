@@ -182,12 +182,12 @@ def test_offboard_refused_for_a_lost_setpoint_is_asked_again(vehicle):
     """On a lossy link the setpoint sent ahead of DO_SET_MODE can be lost while the command gets
     through: the vehicle answers TEMPORARILY_REJECTED (PX4's rule), and the controller's link asks
     again, with a setpoint ahead, rather than give up the run."""
-    from swarm_sitl.vehicle_link import VehicleLink
+    from swarm_sitl.link.vehicle_link import VehicleLink
 
     port, _, _ = vehicle
     link = VehicleLink(f"udpout:127.0.0.1:{port}", 3, stamp_arrivals=False)
     sent_clock, answers = [], []
-    real_clock, real_handle = link.send_clock_only, link._handle
+    real_clock, real_handle = link.send_clock_only, link.downlink.handle
 
     def lossy_clock(ms):  # the first setpoint is lost on the way
         sent_clock.append(ms)
@@ -199,7 +199,7 @@ def test_offboard_refused_for_a_lost_setpoint_is_asked_again(vehicle):
             answers.append(m.result)
         real_handle(m, arrival)
 
-    link.send_clock_only, link._handle = lossy_clock, handle
+    link.send_clock_only, link.downlink.handle = lossy_clock, handle
     try:
         link.connect(10.0)
         link.arm_offboard(10.0)

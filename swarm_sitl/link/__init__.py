@@ -1,0 +1,7 @@
+"""A controller's MAVLink link to its vehicle, in layers: ``transport`` (the datagrams each way,
+signed, through a fault plan, with arrival stamps), ``decoding`` (the sample and the messages
+read from them), ``setpoints`` (what is sent), ``handshake`` (the start-up with the autopilot),
+and ``vehicle_link`` (the link a controller holds: the four together).
+
+May import: sim_vehicles.common, sim_vehicles.mavlink, sim_vehicles.runtime.
+"""

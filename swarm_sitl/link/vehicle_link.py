@@ -1,0 +1,138 @@
+"""A controller's MAVLink link to its vehicle, through any pymavlink connection string.
+
+It is what an offboard companion computer is to PX4, in layers: the datagrams each way with
+their signing, fault plan and arrival stamps (``transport``), what is read from them: the sample,
+heartbeat, parameters and acks (``decoding``), what is sent: setpoints, heartbeat, commands
+(``setpoints``), and the start-up sequence (``handshake``). NED/FRD exists only in
+``sim_vehicles.mavlink``.
+
+Incoming messages are read with ``poll()`` (non-blocking; ``fileno()`` is there for ``select``).
+The latest vehicle sample is the last LOCAL_POSITION_NED and ATTITUDE_QUATERNION of the same
+``time_boot_ms``; ``sample_arrival_mono`` is when it arrived (``time.monotonic`` seconds): the
+kernel's receive stamp on a ``udpout:`` link where it has them (``stamps_arrivals``), else when
+``poll()`` read it.
+"""
+
+from typing import Any
+
+import numpy as np
+
+from sim_vehicles.common.command import AttitudeCommand
+from swarm_sitl.link import handshake
+from swarm_sitl.link.decoding import Downlink
+from swarm_sitl.link.setpoints import Setpoints
+from swarm_sitl.link.transport import Transport
+
+
+class VehicleLink:
+    """Controller ``system_id``'s link to its vehicle at ``url`` (``transport.Transport`` says
+    what ``stamp_arrivals``, ``faults`` and ``signing_key`` do)."""
+
+    def __init__(
+        self,
+        url: str,
+        system_id: int,
+        stamp_arrivals: bool = True,
+        faults: Any = None,
+        signing_key: bytes | None = None,
+    ):
+        self.url = url
+        self.system_id = system_id
+        self.faults = faults
+        self.transport = Transport(url, system_id, stamp_arrivals, faults, signing_key)
+        self.conn = self.transport.conn
+        self.downlink = Downlink(system_id, self.conn.mav, self.transport.whole_datagrams)
+        self.setpoints = Setpoints(self.transport, system_id)
+        self.params = self.downlink.params  #: the vehicle's parameters, as it reported them
+        self.acks = self.downlink.acks  #: the latest COMMAND_ACK's result by command
+
+    # -- receive ---------------------------------------------------------------------------------
+    def poll(self, readable: bool = False, until_ms: int = -1) -> int:
+        """Read everything waiting; returns the number of messages handled. ``readable``: a
+        ``select`` on ``fileno()`` has just said so (the first read needs no check). ``until_ms``:
+        stop once the sample of that instant has come (lockstep: what else waits is read at the
+        next tick, whose wait finds the socket readable), saving a look at an empty socket."""
+        n = 0
+        read = self.downlink.read
+        for data, arrival in self.transport.datagrams(readable):
+            got, sample_ms = read(data, arrival)
+            n += got
+            if sample_ms >= 0 and sample_ms == until_ms:
+                break
+        return n
+
+    @property
+    def heartbeat(self) -> Any:
+        """The autopilot's latest HEARTBEAT (None until one came)."""
+        return self.downlink.heartbeat
+
+    @property
+    def sample_ms(self) -> int:
+        """``time_boot_ms`` of the latest complete sample (-1: none yet)."""
+        return self.downlink.sample_ms
+
+    @property
+    def sample_arrival_mono(self) -> float:
+        return self.downlink.sample_arrival_mono
+
+    def sample(self) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
+        """``(time_boot_s, p_W, v_W, q_WB)`` of the latest complete sample, in ENU/FLU."""
+        return self.downlink.sample()
+
+    def sample_settled(self, time_boot_ms: int) -> bool:
+        """Lockstep: whether the sample of ``time_boot_ms`` has come, or a fault plan lost it."""
+        if self.downlink.sample_ms == time_boot_ms:
+            return True
+        return self.faults is not None and self.faults.lost_ms == time_boot_ms
+
+    @property
+    def rx_bad(self) -> int:
+        """What was dropped: bad signatures, bad CRCs, frames that do not decode, garbage."""
+        return self.transport.rx_bad + self.downlink.rx_bad
+
+    @property
+    def rx_refused(self) -> int:
+        """Unsigned or replayed datagrams on a signed link."""
+        return self.transport.rx_refused
+
+    @property
+    def stamps_arrivals(self) -> bool:
+        return self.transport.stamps_arrivals
+
+    def fileno(self) -> int:
+        return self.transport.fileno()
+
+    def block_reads(self, timeout_s: float) -> None:
+        self.transport.block_reads(timeout_s)
+
+    def close(self) -> None:
+        self.transport.close()
+
+    # -- send ------------------------------------------------------------------------------------
+    def send_setpoint(self, cmd: AttitudeCommand, time_boot_ms: int) -> None:
+        self.setpoints.send(cmd, time_boot_ms, self.params["MAX_THRUST_N"])
+
+    def send_clock_only(self, time_boot_ms: int) -> None:
+        self.setpoints.clock_only(time_boot_ms)
+
+    def send_heartbeat_if_due(self) -> None:
+        self.setpoints.heartbeat_if_due()
+
+    def command(self, command: int, *params: float) -> None:
+        self.setpoints.command(command, *params)
+
+    # -- the start-up handshake (``handshake``) ---------------------------------------------------
+    def connect(self, timeout_s: float) -> None:
+        handshake.connect(self, timeout_s)
+
+    def request_rates(self, period_s: float, other_hz: float, timeout_s: float) -> None:
+        handshake.request_rates(self, period_s, other_hz, timeout_s)
+
+    def arm_offboard(self, timeout_s: float) -> None:
+        handshake.arm_offboard(self, timeout_s)
+
+    def advance_to(self, time_boot_ms: int, timeout_s: float) -> None:
+        handshake.advance_to(self, time_boot_ms, timeout_s)
+
+    def request_sample(self, timeout_s: float) -> None:
+        handshake.request_sample(self, timeout_s)
