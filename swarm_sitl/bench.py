@@ -25,9 +25,9 @@ from pathlib import Path
 import numpy as np
 
 from sim_vehicles.runtime.row_log import read_rows
-from swarm_sitl.assembly import build_autopilot
 from swarm_sitl.config.load import load_config
 from swarm_sitl.config.schema import SwarmConfig
+from swarm_sitl.nodes.assembly import build_autopilot
 from swarm_sitl.rundir.layout import CONTROLLER_COLUMNS, controller_rows_path
 from swarm_sitl.supervisor import RunFailedError, child_env, module_argv
 

@@ -14,11 +14,11 @@ from datetime import datetime
 from pathlib import Path
 from typing import Any
 
-from swarm_sitl.config.load import ConfigError, load_config
+from swarm_sitl.config.load import ConfigError, load_config, with_duration
 from swarm_sitl.config.schema import SwarmConfig
 from swarm_sitl.laws.command_attitude import SingularCommandError
 from swarm_sitl.laws.graph import GraphError
-from swarm_sitl.node_main import add_node_parsers
+from swarm_sitl.nodes.entry import add_node_parsers
 from swarm_sitl.rundir.load import RunDirError
 
 EXIT_FAILED = 1  #: a process of the run failed
@@ -36,17 +36,6 @@ def _load(path: str) -> SwarmConfig:
 
 def _default_run_dir(cfg: SwarmConfig, kind: str) -> Path:
     return Path("runs") / f"{cfg.name}-{kind}-{datetime.now().strftime('%Y%m%d-%H%M%S')}"
-
-
-def _with_duration(cfg: SwarmConfig, duration_s: float | None) -> SwarmConfig:
-    if duration_s is None:
-        return cfg
-    if not 0 < duration_s < math.inf:
-        raise CliError(f"--duration must be a number of seconds > 0, got {duration_s}")
-    from swarm_sitl.config.load import parse_config
-
-    # validated again: a fault plan's times must fall within the new duration
-    return parse_config({**cfg.model_dump(mode="json"), "duration_s": float(duration_s)}, "--duration")
 
 
 def cmd_check(args: argparse.Namespace) -> int:
@@ -138,7 +127,7 @@ def _held_to_bound(failures: list[str]) -> int:
 
 
 def cmd_sim(args: argparse.Namespace) -> int:
-    cfg = _with_duration(_load(args.config), args.duration)
+    cfg = with_duration(_load(args.config), args.duration)
     from swarm_sitl.sim import run_sim
 
     run_dir = Path(args.out) if args.out else _default_run_dir(cfg, "sim")
@@ -274,7 +263,7 @@ def _with_fault_file(cfg: SwarmConfig, path: str | None) -> SwarmConfig:
 
 
 def cmd_run(args: argparse.Namespace) -> int:
-    cfg = _with_fault_file(_with_duration(_load(args.config), args.duration), args.faults)
+    cfg = _with_fault_file(with_duration(_load(args.config), args.duration), args.faults)
     _check_base_port(cfg, args.base_port)
     run_dir = Path(args.out) if args.out else _default_run_dir(cfg, "run")
     return _run_and_record(cfg, run_dir, not args.realtime, args.quiet, None, "run", args.base_port)
@@ -292,7 +281,7 @@ def _check_base_port(cfg: SwarmConfig, base_port: int) -> None:
 
 
 def cmd_controllers(args: argparse.Namespace) -> int:
-    cfg = _with_fault_file(_with_duration(_load(args.config), args.duration), args.faults)
+    cfg = _with_fault_file(with_duration(_load(args.config), args.duration), args.faults)
     if len(args.mavlink) != cfg.n_followers:
         raise CliError(
             f"--mavlink needs one connection string per follower ({cfg.n_followers}, in id order), "
@@ -508,7 +497,7 @@ def build_parser() -> argparse.ArgumentParser:
     _run_outputs(cs, "controllers")
     cs.set_defaults(func=cmd_controllers)
 
-    add_node_parsers(sub, lambda a: _with_duration(_load(a.config), a.duration))
+    add_node_parsers(sub)
 
     ro = sub.add_parser("router", help="a zenoh router for a swarm spread over several hosts")
     ro.add_argument(

@@ -39,7 +39,7 @@ _BY_FILE = (  # (activity, path fragments), first match wins
             "sim_vehicles/common/",
             "sim_vehicles/vehicle/lockstep_tick.py",  # the plant's period, then two frames packed
             "swarm_sitl/laws/",
-            "swarm_sitl/neighbour_inbox.py",
+            "swarm_sitl/nodes/neighbour_inbox.py",
         ),
     ),
     (

@@ -257,7 +257,7 @@ def _line(p: subprocess.Popen[str], what: str) -> str:
 def measure_empty(cfg: "SwarmConfig", ticks: int) -> EmptyRun:
     """The empty swarm of ``cfg``'s graph for ``ticks`` lockstep ticks (the module doc)."""
     from swarm_sitl.bus.session import error_line, open_plain_router, router_runtime
-    from swarm_sitl.leader_node import LEADER_POLL_S
+    from swarm_sitl.nodes.leader import LEADER_POLL_S
 
     edges = cfg.graph_edges()
     ids = [f.id for f in cfg.followers]

@@ -1,17 +1,17 @@
 """Start a run's processes by forking one warmed-up parent: each vehicle and node without its own
 interpreter start, imports and kernel loads.
 
-A fresh ``python -m swarm_sitl controller ...`` spends about a second of CPU importing numpy,
+A fresh ``python -m swarm_sitl.nodes controller ...`` spends about a second of CPU importing numpy,
 numba, pydantic, pymavlink and zenoh and loading its compiled kernels before it does anything;
 a run of N followers starts 2N + 1 of them on a machine of two cores. The fork server is one
 process that does that once (``serve``), then forks a child per request. Each child is still its
 own process with its own sockets, zenoh session, pid and log, in its own session (``setsid``),
-exactly as ``subprocess.Popen`` would have started it; it then runs the same ``main(argv)`` the
-command line would have run.
+exactly as ``subprocess.Popen`` would have started it; it then runs the same ``main(argv)`` as
+``python -m`` of its module would have (``sim_vehicles``' or ``swarm_sitl.nodes``').
 
 Protocol (pipes between the supervisor and the server, one JSON object per line):
 
-- supervisor -> server: ``{"module": "sim_vehicles" | "swarm_sitl", "argv": [...], "env": {...},
+- supervisor -> server: ``{"module": "sim_vehicles" | "swarm_sitl.nodes", "argv": [...], "env": {...},
   "log": PATH}``;
 - server -> supervisor: ``{"ready": true}`` once warmed up; ``{"pid": N}`` for each request, in
   order; ``{"exit": N, "code": C}`` when child N ends (C as ``Popen.returncode``: -signal if a
@@ -40,7 +40,8 @@ from setproctitle import setproctitle
 
 from sim_vehicles.runtime.lifeline import ENV as PARENT_ENV
 
-ENTRY_MODULES = ("sim_vehicles", "swarm_sitl")
+#: the modules a child may run: a vehicle, or a node (``nodes.entry``)
+ENTRY_MODULES = ("sim_vehicles", "swarm_sitl.nodes")
 
 
 class ForkServerError(RuntimeError):
@@ -72,14 +73,16 @@ def _run_child(request: dict[str, Any], fd: int) -> int:
     random.seed()  # the parent's generator state is not this process's
     module, argv = request["module"], list(request["argv"])
     sys.argv = [module, *argv]
+    # imported here, not at the top: this module is also the supervisor's side of the server
+    # (``ForkServer``), which needs none of what the children run; the server has them already
     try:
         if module == "sim_vehicles":
             from sim_vehicles.__main__ import main as vehicle_main
 
             return int(vehicle_main(argv) or 0)
-        from swarm_sitl.cli import main as cli_main
+        from swarm_sitl.nodes.entry import main as node_main
 
-        return int(cli_main(argv) or 0)
+        return int(node_main(argv) or 0)
     except SystemExit as e:
         return e.code if isinstance(e.code, int) else (0 if e.code is None else 1)
     except BaseException:
@@ -97,17 +100,12 @@ def module_argv(module: str) -> list[str]:
 
 
 def _warm_up(config_path: str | None) -> None:
-    """Import what the children run and load the compiled kernels into this process."""
+    """Import what the children run and load the compiled kernels into this process (the server's
+    work, so imported here: the supervisor imports this module for ``ForkServer`` only)."""
     import sim_vehicles.__main__
-    import swarm_sitl.bus.node_bus
-    import swarm_sitl.cli
-    import swarm_sitl.controller_node
-    import swarm_sitl.leader_node
-    import swarm_sitl.link.vehicle_link
-    import swarm_sitl.node_main
+    import swarm_sitl.nodes.entry  # noqa: F401  (every node's modules: its link, bus, faults, laws)
     from sim_vehicles.plant.params import AttitudeGains, VehicleParams
 
-    swarm_sitl.cli.build_parser()  # what the command line imports to build itself
     # the kernels a vehicle and a controller load before they declare themselves ready: the plant,
     # the attitude loop and the per-tick MAVLink frames (each child loaded them from numba's cache,
     # over 0.1 s of CPU apiece, 64 of them at once on two cores in a 64-follower start)

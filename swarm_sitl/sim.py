@@ -21,9 +21,9 @@ from sim_vehicles.mavlink.wire_format import (
     sample_fields,
     sample_from_fields,
 )
-from swarm_sitl.assembly import build_autopilot, build_controller, build_leader, reported_vehicle_params
 from swarm_sitl.config.schema import SwarmConfig
 from swarm_sitl.laws.follower import EstimateMessage, VehicleSample
+from swarm_sitl.nodes.assembly import build_autopilot, build_controller, build_leader, reported_vehicle_params
 from swarm_sitl.rundir.recording import FollowerSeries, Recording, leader_series
 
 

@@ -396,7 +396,7 @@ def node_argv(
 ) -> list[str]:
     """A node's command line; ``hub`` is the supervisor's zenoh endpoint (peer mode) or None
     (client mode: the nodes reach the router the config names)."""
-    argv = [*module_argv("swarm_sitl"), role, str(cfg_path), "--out", str(run_dir), *extra]
+    argv = [*module_argv("swarm_sitl.nodes"), role, str(cfg_path), "--out", str(run_dir), *extra]
     if hub is not None:
         argv += ["--connect", hub]
     return [*argv, "--lockstep"] if lockstep else argv

@@ -15,7 +15,7 @@ from swarm_sitl.bus.node_bus import ZenohNodeBus
 from swarm_sitl.faults.edges import FaultyBus
 from swarm_sitl.faults.plan import FaultPlan
 from swarm_sitl.laws.follower import EstimateMessage
-from swarm_sitl.neighbour_inbox import NeighbourInbox
+from swarm_sitl.nodes.neighbour_inbox import NeighbourInbox
 
 pytestmark = pytest.mark.integration
 

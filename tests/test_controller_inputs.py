@@ -7,12 +7,12 @@ import math
 import numpy as np
 import pytest
 
-from swarm_sitl import controller_node
-from swarm_sitl.assembly import build_controller
 from swarm_sitl.bus.clock import StallError
-from swarm_sitl.controller_node import _Inputs
 from swarm_sitl.laws.command_attitude import SingularCommandError
 from swarm_sitl.laws.follower import EstimateMessage, VehicleSample
+from swarm_sitl.nodes import controller as controller_node
+from swarm_sitl.nodes.assembly import build_controller
+from swarm_sitl.nodes.controller import _Inputs
 
 pytestmark = pytest.mark.unit
 

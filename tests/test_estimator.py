@@ -53,8 +53,8 @@ def test_a_tick_after_a_long_gap_keeps_the_internal_step(tmp_path):
     follower 8 stalled 1.28 s between two ticks. Advancing over the gap in the 10 RK4 substeps of
     one period (h = 128 ms) turned its estimator into NaN; at the configured internal step
     (1 ms) it stays finite and its estimate moves to where its neighbours say the leader is."""
-    from swarm_sitl.assembly import build_controller, reported_vehicle_params
     from swarm_sitl.config.load import load_config
+    from swarm_sitl.nodes.assembly import build_controller, reported_vehicle_params
     from tests.conftest import CONFIGS
 
     cfg = load_config(CONFIGS / "swarm16.yaml")

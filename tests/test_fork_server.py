@@ -40,11 +40,11 @@ def _alive(pid: int) -> bool:
 def test_children_are_their_own_processes_with_their_exit_codes_and_logs(server, tmp_path):
     env = {**child_env(), "SWARM_SITL_TEST_MARK": "hello"}
     bad = server.spawn("sim_vehicles", ["--id", "0"], env, tmp_path / "bad.log")  # a usage error
-    helped = server.spawn("swarm_sitl", ["--help"], env, tmp_path / "help.log")
+    helped = server.spawn("swarm_sitl.nodes", ["--help"], env, tmp_path / "help.log")
     assert bad.wait(timeout=30) == 2
     assert "--id must be 1..255, got 0" in (tmp_path / "bad.log").read_text()
     assert helped.wait(timeout=30) == 0
-    assert "Software-in-the-loop bench" in (tmp_path / "help.log").read_text()
+    assert "python -m swarm_sitl.nodes" in (tmp_path / "help.log").read_text()
     assert len({bad.pid, helped.pid, server.proc.pid, os.getpid()}) == 4
 
 

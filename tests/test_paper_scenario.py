@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from sim_vehicles.common.quaternion import rotation_matrix
-from swarm_sitl.assembly import reported_vehicle_params
+from swarm_sitl.nodes.assembly import reported_vehicle_params
 from swarm_sitl.sim import run_sim
 
 pytestmark = pytest.mark.integration

@@ -4,8 +4,8 @@ that a tick phase only shifts the follower's time, in its law and in the recorde
 import numpy as np
 import pytest
 
-from swarm_sitl.assembly import build_controller
 from swarm_sitl.laws.follower import EstimateMessage, VehicleSample
+from swarm_sitl.nodes.assembly import build_controller
 from swarm_sitl.rundir.recording import Recording, leader_series
 
 pytestmark = pytest.mark.unit

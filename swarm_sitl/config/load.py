@@ -5,6 +5,7 @@ one line naming the offending key (``schema`` says what a config is). ``with_fau
 plan file in place of a config's own plan, validated against it.
 """
 
+import math
 from pathlib import Path
 
 import yaml
@@ -82,6 +83,16 @@ def load_config(path: str | Path) -> SwarmConfig:
         _LAST.clear()
         _LAST[key] = cfg
     return cfg
+
+
+def with_duration(cfg: SwarmConfig, duration_s: float | None) -> SwarmConfig:
+    """``cfg`` with ``duration_s`` (``--duration``) in place of its own, validated again (a fault
+    plan's times must fall within it); ``cfg`` itself for None."""
+    if duration_s is None:
+        return cfg
+    if not 0 < duration_s < math.inf:
+        raise ConfigError(f"--duration must be a number of seconds > 0, got {duration_s}")
+    return parse_config({**cfg.model_dump(mode="json"), "duration_s": float(duration_s)}, "--duration")
 
 
 def with_faults(cfg: SwarmConfig, path: str | Path) -> SwarmConfig:

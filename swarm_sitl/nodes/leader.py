@@ -9,7 +9,6 @@ import math
 import time
 
 from sim_vehicles.runtime.lifeline import settle_heap
-from swarm_sitl.assembly import build_leader
 from swarm_sitl.bus.clock import (
     RunClock,
     linger_after_last_tick,
@@ -19,8 +18,9 @@ from swarm_sitl.bus.clock import (
 )
 from swarm_sitl.bus.node_bus import NodeBus
 from swarm_sitl.config.schema import SwarmConfig
-from swarm_sitl.controller_node import NodeReport, wait_for_start
 from swarm_sitl.laws.follower import EstimateMessage
+from swarm_sitl.nodes.assembly import build_leader
+from swarm_sitl.nodes.controller import NodeReport, wait_for_start
 
 #: lockstep: how long the leader sleeps when it is ``lockstep_window`` ticks ahead of a follower.
 #: Long enough that it wakes a few times per window, not per tick, and publishes the ticks it may

@@ -34,7 +34,6 @@ from sim_vehicles.mavlink import signing, tick_frames
 from sim_vehicles.runtime.event_log import EventLog
 from sim_vehicles.runtime.lifeline import mark, settle_heap
 from sim_vehicles.runtime.row_log import RowLog
-from swarm_sitl.assembly import build_controller
 from swarm_sitl.bus.clock import (
     RunClock,
     StallError,
@@ -49,7 +48,8 @@ from swarm_sitl.config.schema import SwarmConfig
 from swarm_sitl.laws.command_attitude import SingularCommandError
 from swarm_sitl.laws.follower import EstimateMessage, VehicleSample
 from swarm_sitl.link.vehicle_link import VehicleLink
-from swarm_sitl.neighbour_inbox import NeighbourInbox
+from swarm_sitl.nodes.assembly import build_controller
+from swarm_sitl.nodes.neighbour_inbox import NeighbourInbox
 
 RESEND_AFTER_S = 0.25
 #: real time: how long before its first tick a controller arms and switches its vehicle to offboard [s]

@@ -1,30 +1,58 @@
-"""Entry points of the per-node processes: ``swarm-sitl controller`` and ``swarm-sitl leader``.
+"""The entry of the node processes: ``python -m swarm_sitl.nodes controller|leader CONFIG ...``.
 
-These are the building blocks ``run`` and ``controllers`` spawn; they are public so a node can be
-started by hand (another host, a debugger). Each prints one line when it is done, or one error line
-(exit 1) naming what failed; SIGTERM/SIGINT end it cleanly (its recording is flushed).
+``run`` and ``controllers`` start these (forked from the fork server, or as new interpreters);
+``swarm-sitl controller`` and ``swarm-sitl leader`` are the same, for a node started by hand
+(another host, a debugger). Each builds its node from the config (its vehicle link, its bus, the
+fault plan's wrappers, its recording), runs it (``controller``, ``leader``) and prints one line
+when it is done, or one error line naming what failed (exit 1; a bad config or argument: exit 2);
+SIGTERM/SIGINT end it cleanly (its recording is flushed, exit 130).
 """
 
 import argparse
 import json
 import signal
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
-from sim_vehicles.runtime.lifeline import mark, process_figures
+import zenoh
+
+from sim_vehicles.mavlink.signing import SigningKeyError, read_key
+from sim_vehicles.runtime.event_log import EventLog
+from sim_vehicles.runtime.lifeline import batch_scheduling, hold_on, mark, process_figures, profiled
+from sim_vehicles.runtime.row_log import RowLog
+from swarm_sitl.bus.access import credentials_from_env
+from swarm_sitl.bus.clock import RunClock, StallError
+from swarm_sitl.bus.node_bus import NodeBus, ZenohNodeBus
+from swarm_sitl.bus.session import error_line, open_session
+from swarm_sitl.config.load import ConfigError, load_config, with_duration
 from swarm_sitl.config.schema import SwarmConfig
+from swarm_sitl.faults.edges import FaultyBus, acts_on
+from swarm_sitl.faults.mavlink import MavlinkFaults
+from swarm_sitl.laws.command_attitude import SingularCommandError
+from swarm_sitl.laws.graph import GraphError
+from swarm_sitl.link.transport import LinkError
+from swarm_sitl.link.vehicle_link import VehicleLink
+from swarm_sitl.nodes.controller import run_controller
+from swarm_sitl.nodes.leader import run_leader
+from swarm_sitl.rundir.layout import (
+    CONTROLLER_COLUMNS,
+    controller_events_path,
+    controller_rows_path,
+    controller_stats_path,
+    leader_stats_path,
+)
+from swarm_sitl.rundir.metrics import describe_inputs
 
-if TYPE_CHECKING:
-    from swarm_sitl.bus.clock import RunClock
+EXIT_USAGE = 2
 
 
 def _terminate(signum: int, frame: object) -> None:
     raise KeyboardInterrupt
 
 
-def _horizon(clock: "RunClock", last_tick: int) -> Callable[[], int]:
+def _horizon(clock: RunClock, last_tick: int) -> Callable[[], int]:
     """The bus's ``horizon``, asked for every estimate and status: ``clock.horizon``, a constant
     in lockstep."""
     if clock.lockstep:
@@ -33,22 +61,10 @@ def _horizon(clock: "RunClock", last_tick: int) -> Callable[[], int]:
 
 
 def _session(cfg: SwarmConfig, connect: list[str]) -> Any:
-    from swarm_sitl.bus.access import credentials_from_env
-    from swarm_sitl.bus.session import open_session
-
     return open_session(cfg.zenoh, connect, credentials_from_env())
 
 
 def _guarded(name: str, body: Any, lockstep: bool) -> int:
-    import zenoh
-
-    from sim_vehicles.mavlink.signing import SigningKeyError
-    from sim_vehicles.runtime.lifeline import batch_scheduling, hold_on, profiled
-    from swarm_sitl.bus.clock import StallError
-    from swarm_sitl.bus.session import error_line
-    from swarm_sitl.laws.command_attitude import SingularCommandError
-    from swarm_sitl.link.transport import LinkError
-
     hold_on()
     if lockstep:  # before zenoh starts its threads, so they inherit it
         batch_scheduling()
@@ -69,7 +85,7 @@ def _guarded(name: str, body: Any, lockstep: bool) -> int:
 
 
 def _write_stats(path: Path, stats: dict[str, Any]) -> None:
-    """A node's figures at its end, for the run's summary (``run_merge``)."""
+    """A node's figures at its end, for the run's summary (``rundir.merge``)."""
     tmp = path.with_suffix(".tmp")
     tmp.write_text(json.dumps(stats, indent=1, sort_keys=True) + "\n")
     tmp.replace(path)
@@ -89,27 +105,15 @@ def in_edge_stats(zbus: Any, faulty: Any) -> dict[int, dict[str, int]]:
 
 
 def cmd_controller(cfg: SwarmConfig, args: argparse.Namespace) -> int:
-    from sim_vehicles.mavlink.signing import read_key
-    from sim_vehicles.runtime.event_log import EventLog
-    from sim_vehicles.runtime.row_log import RowLog
-    from swarm_sitl.bus.clock import RunClock
-    from swarm_sitl.bus.node_bus import NodeBus, ZenohNodeBus
-    from swarm_sitl.controller_node import run_controller
-    from swarm_sitl.faults.edges import FaultyBus, acts_on
-    from swarm_sitl.faults.mavlink import MavlinkFaults
-    from swarm_sitl.link.vehicle_link import VehicleLink
-    from swarm_sitl.rundir.layout import (
-        CONTROLLER_COLUMNS,
-        controller_events_path,
-        controller_rows_path,
-        controller_stats_path,
-    )
-    from swarm_sitl.rundir.metrics import describe_inputs
-
+    """Follower ``args.id``'s controller process."""
     mark("main")
     i = args.id
     if i not in {f.id for f in cfg.followers}:
-        raise ValueError(f"--id {i} is not a follower of {cfg.name} (ids 1..{cfg.n_followers})")
+        print(
+            f"swarm-sitl: error: --id {i} is not a follower of {cfg.name} (ids 1..{cfg.n_followers})",
+            file=sys.stderr,
+        )
+        return EXIT_USAGE
     edges = cfg.graph_edges()
 
     def body() -> str:
@@ -172,12 +176,7 @@ def cmd_controller(cfg: SwarmConfig, args: argparse.Namespace) -> int:
 
 
 def cmd_leader(cfg: SwarmConfig, args: argparse.Namespace) -> int:
-    from swarm_sitl.bus.clock import RunClock
-    from swarm_sitl.bus.node_bus import NodeBus, ZenohNodeBus
-    from swarm_sitl.faults.edges import FaultyBus, acts_on
-    from swarm_sitl.leader_node import run_leader
-    from swarm_sitl.rundir.layout import leader_stats_path
-
+    """The leader's process."""
     mark("main")
     outs = cfg.node_keys(0).out_dests
     edges = cfg.graph_edges()
@@ -212,7 +211,8 @@ def cmd_leader(cfg: SwarmConfig, args: argparse.Namespace) -> int:
     return _guarded("leader", body, args.lockstep)
 
 
-def add_node_parsers(sub: Any, load: Any) -> None:
+def add_node_parsers(sub: Any) -> None:
+    """The ``controller`` and ``leader`` subcommands (of this entry, and of ``swarm-sitl``)."""
     c = sub.add_parser("controller", help="one follower's controller process (spawned by run/controllers)")
     c.add_argument("config")
     c.add_argument("--id", type=int, required=True, help="follower id (= its vehicle's MAVLink system id)")
@@ -221,11 +221,30 @@ def add_node_parsers(sub: Any, load: Any) -> None:
     )
     c.add_argument("--signing-key-file", help="sign the MAVLink link with this passphrase file's key")
     _common(c)
-    c.set_defaults(func=lambda a: cmd_controller(load(a), a))
+    c.set_defaults(func=lambda a: run_node(cmd_controller, a))
     ld = sub.add_parser("leader", help="the leader's process (spawned by run/controllers)")
     ld.add_argument("config")
     _common(ld)
-    ld.set_defaults(func=lambda a: cmd_leader(load(a), a))
+    ld.set_defaults(func=lambda a: run_node(cmd_leader, a))
+
+
+def run_node(cmd: Callable[[SwarmConfig, argparse.Namespace], int], args: argparse.Namespace) -> int:
+    """``cmd`` with the config ``args`` name (its duration overridden by ``--duration``); a config
+    that does not load is one line and exit 2."""
+    try:
+        cfg = with_duration(load_config(args.config), args.duration)
+    except (ConfigError, GraphError) as e:
+        print(f"swarm-sitl: error: {e}", file=sys.stderr)
+        return EXIT_USAGE
+    return cmd(cfg, args)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """``python -m swarm_sitl.nodes controller|leader CONFIG ...``."""
+    p = argparse.ArgumentParser(prog="python -m swarm_sitl.nodes", description=__doc__)
+    add_node_parsers(p.add_subparsers(dest="role", required=True, metavar="ROLE"))
+    args = p.parse_args(argv)
+    return int(args.func(args))
 
 
 def _common(p: argparse.ArgumentParser) -> None:

@@ -1,0 +1,11 @@
+"""The processes of a swarm but the vehicles: each follower's controller and the leader.
+
+- ``assembly``: the laws of a node built from the config (``sim`` builds them the same way);
+- ``controller``: follower i's loop: its vehicle over MAVLink, its neighbours over the bus, both
+  clocks; ``neighbour_inbox``: which neighbour estimates a tick uses (riding through silent ones);
+- ``leader``: node 0, the reference, on the wall clock or a window ahead of the followers;
+- ``entry``: the process entry (``python -m swarm_sitl.nodes controller|leader``): a node built
+  from its config, its link, bus, fault wrappers and recording, run, its figures written.
+
+May import: sim_vehicles (all but vehicle), laws, bus, faults, config, rundir, link.
+"""
