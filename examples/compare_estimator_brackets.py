@@ -23,7 +23,7 @@ import numpy as np
 
 from swarm_sitl.config.load import load_config
 from swarm_sitl.rundir.metrics import time_to_converge
-from swarm_sitl.sim import run_sim
+from swarm_sitl.running.sim import run_sim
 
 CONFIGS = Path(__file__).resolve().parent.parent / "configs"
 SETTLE_S = 20.0

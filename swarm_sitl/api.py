@@ -146,7 +146,7 @@ class Swarm:
 
     def run(self, duration_s: float | None = None) -> SwarmResult:
         """Run the swarm (``duration_s`` overrides the config's) and return what it recorded."""
-        from swarm_sitl.rundir.outputs import record_run
+        from swarm_sitl.running.run import record_run
 
         cfg = self.config
         if duration_s is not None:

@@ -29,7 +29,8 @@ from swarm_sitl.config.load import load_config
 from swarm_sitl.config.schema import SwarmConfig
 from swarm_sitl.nodes.assembly import build_autopilot
 from swarm_sitl.rundir.layout import CONTROLLER_COLUMNS, controller_rows_path
-from swarm_sitl.supervisor import RunFailedError, child_env, module_argv
+from swarm_sitl.running.children import child_env, module_argv
+from swarm_sitl.running.supervisor import RunFailedError
 
 
 def _vehicle_step_cost_us(
@@ -78,7 +79,7 @@ def _sim_wall_s(cfg_path: str, repeats: int) -> list[float]:
 
 def sim_in_process_s(cfg: SwarmConfig) -> tuple[float, float]:
     """Wall and CPU seconds of ``sim`` of ``cfg`` in this process, its kernels loaded first."""
-    from swarm_sitl.sim import run_sim
+    from swarm_sitl.running.sim import run_sim
 
     run_sim(cfg, n_steps=2)  # kernels loaded
     t0, c0 = time.monotonic(), time.process_time()
@@ -99,7 +100,7 @@ def late_ticks(cfg: SwarmConfig, run_dir: Path) -> tuple[int, int, np.ndarray]:
 
 
 def run_bench(cfg_path: str, scale_cfg_path: str, repeats: int = 3, realtime_s: float = 20.0) -> int:
-    from swarm_sitl.supervisor import run_swarm
+    from swarm_sitl.running.run import run_swarm
 
     cfg = load_config(cfg_path)
     print(

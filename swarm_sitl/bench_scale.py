@@ -48,7 +48,7 @@ from swarm_sitl.config.generator import generate
 from swarm_sitl.config.load import parse_config
 from swarm_sitl.config.schema import SwarmConfig
 from swarm_sitl.rundir.layout import procs_dir
-from swarm_sitl.supervisor import RunFailedError
+from swarm_sitl.running.supervisor import RunFailedError
 
 COLUMNS = (
     "followers",
@@ -117,7 +117,7 @@ def _median_mark(procs: list[dict[str, Any]], name: str) -> float:
 def measure(
     n: int, duration_s: float, work: Path, start: str = "fork", empty: bool = False
 ) -> dict[str, float]:
-    from swarm_sitl.supervisor import run_swarm
+    from swarm_sitl.running.run import run_swarm
 
     cfg = scale_config(n, duration_s, start)
     sim_wall, sim_cpu = sim_in_process_s(cfg)
@@ -179,7 +179,7 @@ SATURATED_LATE = 0.10  #: a real-time run with more late ticks than this: the ma
 
 def measure_realtime(n: int, duration_s: float, work: Path, start: str = "fork") -> dict[str, float]:
     """Late ticks and when setpoints go out after their tick's instant, in real time."""
-    from swarm_sitl.supervisor import run_swarm
+    from swarm_sitl.running.run import run_swarm
 
     cfg = scale_config(n, duration_s, start)
     run_dir = work / f"rt{n}"
@@ -197,7 +197,7 @@ def measure_split(n: int, duration_s: float, work: Path, start: str = "fork") ->
     """Per process kind, the main thread's CPU by activity (``cost_split``), in shares, from a
     lockstep run with every process profiled."""
     from swarm_sitl.cost_split import activity_split
-    from swarm_sitl.supervisor import run_swarm
+    from swarm_sitl.running.run import run_swarm
 
     cfg = scale_config(n, duration_s, start)
     folder = work / f"profile{n}"

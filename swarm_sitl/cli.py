@@ -128,7 +128,7 @@ def _held_to_bound(failures: list[str]) -> int:
 
 def cmd_sim(args: argparse.Namespace) -> int:
     cfg = with_duration(_load(args.config), args.duration)
-    from swarm_sitl.sim import run_sim
+    from swarm_sitl.running.sim import run_sim
 
     run_dir = Path(args.out) if args.out else _default_run_dir(cfg, "sim")
     n = cfg.n_control_steps
@@ -207,7 +207,7 @@ def _run_and_record(
     kind: str,
     base_port: int = 0,
 ) -> int:
-    from swarm_sitl.rundir.outputs import record_run
+    from swarm_sitl.running.run import record_run
 
     clock = "lockstep" if lockstep else "real time"
     progress = _RunProgress(cfg, f"{kind} {cfg.name} ({clock})", quiet)
@@ -270,7 +270,7 @@ def cmd_run(args: argparse.Namespace) -> int:
 
 
 def _check_base_port(cfg: SwarmConfig, base_port: int) -> None:
-    from swarm_sitl.supervisor import GCS_PORT_OFFSET
+    from swarm_sitl.running.vehicles import GCS_PORT_OFFSET
 
     if not (base_port == 0 or 1024 <= base_port <= 65535 - GCS_PORT_OFFSET - cfg.n_followers):
         raise CliError(
@@ -295,14 +295,9 @@ def cmd_controllers(args: argparse.Namespace) -> int:
 
 
 def cmd_vehicles(args: argparse.Namespace) -> int:
-    from swarm_sitl.supervisor import (
-        RunFailedError,
-        Supervisor,
-        compile_kernels,
-        port_lines,
-        signing_key_file,
-        start_vehicles,
-    )
+    from swarm_sitl.running.run import compile_kernels
+    from swarm_sitl.running.supervisor import RunFailedError, Supervisor
+    from swarm_sitl.running.vehicles import port_lines, signing_key_file, start_vehicles
 
     cfg = _load(args.config)
     _check_base_port(cfg, args.base_port)
@@ -370,7 +365,7 @@ def cmd_plot(args: argparse.Namespace) -> int:
 
 def cmd_bench(args: argparse.Namespace) -> int:
     from swarm_sitl.bench import run_bench
-    from swarm_sitl.supervisor import RunFailedError
+    from swarm_sitl.running.supervisor import RunFailedError
 
     if args.repeats < 1 or not args.realtime_s > 0 or not 0 < args.scale_duration < math.inf:
         raise CliError("--repeats must be >= 1, --realtime-s and --scale-duration > 0")

@@ -23,7 +23,7 @@ import numpy as np
 import pytest
 import yaml
 
-from swarm_sitl.supervisor import child_env, module_argv
+from swarm_sitl.running.children import child_env, module_argv
 
 pytestmark = pytest.mark.system
 ROOT = Path(__file__).resolve().parents[1]

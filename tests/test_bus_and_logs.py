@@ -32,7 +32,8 @@ from swarm_sitl.bus.codec import (
 from swarm_sitl.bus.node_bus import ZenohNodeBus
 from swarm_sitl.bus.session import ROUTER_RUNTIME, RUNTIME_ENV, ZenohSpec, open_session, router_runtime
 from swarm_sitl.laws.follower import EstimateMessage
-from swarm_sitl.supervisor import child_env, free_tcp_port
+from swarm_sitl.running.children import child_env
+from swarm_sitl.running.hub import free_tcp_port
 
 pytestmark = pytest.mark.unit
 

@@ -167,7 +167,7 @@ def test_children_import_what_the_supervisor_imports_not_the_working_directory(t
     an installed package) must not run its children from those copies; and a run from a checkout
     that is not installed (no PYTHONPATH either) must still find its own packages in the children."""
     import sim_vehicles
-    from swarm_sitl.supervisor import child_env, module_argv
+    from swarm_sitl.running.children import child_env, module_argv
 
     for pkg in ("sim_vehicles", "swarm_sitl"):
         (tmp_path / pkg).mkdir()

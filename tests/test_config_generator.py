@@ -17,7 +17,7 @@ from swarm_sitl.config.generator import (
 )
 from swarm_sitl.config.load import parse_config
 from swarm_sitl.laws.gain_conditions import check_gains
-from swarm_sitl.sim import run_sim
+from swarm_sitl.running.sim import run_sim
 
 pytestmark = pytest.mark.unit
 

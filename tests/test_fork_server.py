@@ -8,8 +8,8 @@ from pathlib import Path
 
 import pytest
 
-from swarm_sitl.fork_server import ForkServer
-from swarm_sitl.supervisor import PARENT_ENV, child_env, module_argv
+from swarm_sitl.running.children import PARENT_ENV, child_env, module_argv
+from swarm_sitl.running.fork_server import ForkServer
 
 pytestmark = [
     pytest.mark.system,
@@ -20,7 +20,7 @@ pytestmark = [
 @pytest.fixture
 def server(tmp_path):
     env = {**child_env(), PARENT_ENV: str(os.getpid())}
-    s = ForkServer(module_argv("swarm_sitl.fork_server"), env, tmp_path / "server.log")
+    s = ForkServer(module_argv("swarm_sitl.running.fork_server"), env, tmp_path / "server.log")
     yield s
     s.close()
 

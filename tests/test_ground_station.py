@@ -16,7 +16,7 @@ import pytest
 import yaml
 from pymavlink import mavutil
 
-from swarm_sitl.sim import run_sim
+from swarm_sitl.running.sim import run_sim
 from tests.conftest import CONFIGS
 from tests.test_vehicle_mavlink import _free_udp_port, spawn_vehicle
 

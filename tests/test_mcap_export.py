@@ -9,7 +9,7 @@ from mcap.reader import make_reader
 from swarm_sitl.cli import main
 from swarm_sitl.rundir.load import load_run
 from swarm_sitl.rundir.outputs import write_outputs
-from swarm_sitl.sim import run_sim
+from swarm_sitl.running.sim import run_sim
 
 pytestmark = pytest.mark.integration
 

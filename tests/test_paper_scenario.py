@@ -5,7 +5,7 @@ import pytest
 
 from sim_vehicles.common.quaternion import rotation_matrix
 from swarm_sitl.nodes.assembly import reported_vehicle_params
-from swarm_sitl.sim import run_sim
+from swarm_sitl.running.sim import run_sim
 
 pytestmark = pytest.mark.integration
 

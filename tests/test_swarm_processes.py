@@ -16,7 +16,7 @@ import yaml
 from pymavlink import mavutil
 
 from sim_vehicles.runtime.row_log import read_rows
-from swarm_sitl.sim import run_sim
+from swarm_sitl.running.sim import run_sim
 from tests.conftest import CONFIGS
 
 pytestmark = pytest.mark.system

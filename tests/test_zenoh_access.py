@@ -17,7 +17,7 @@ from swarm_sitl.bus import keys as zenoh_keys
 from swarm_sitl.bus.access import access_control, user, write_credentials
 from swarm_sitl.bus.session import open_router
 from swarm_sitl.rundir.layout import zenoh_users_path
-from swarm_sitl.supervisor import free_tcp_port
+from swarm_sitl.running.hub import free_tcp_port
 from tests.zenoh_client import client_session
 
 pytestmark = pytest.mark.unit

@@ -19,8 +19,8 @@ import zenoh
 
 from swarm_sitl.bus import keys as zenoh_keys
 from swarm_sitl.rundir.layout import zenoh_users_path
-from swarm_sitl.sim import run_sim
-from swarm_sitl.supervisor import free_tcp_port
+from swarm_sitl.running.hub import free_tcp_port
+from swarm_sitl.running.sim import run_sim
 from tests.conftest import CONFIGS
 from tests.zenoh_client import client_session
 

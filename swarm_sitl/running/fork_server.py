@@ -38,7 +38,7 @@ from typing import IO, Any
 
 from setproctitle import setproctitle
 
-from sim_vehicles.runtime.lifeline import ENV as PARENT_ENV
+from swarm_sitl.running.children import PARENT_ENV, module_argv
 
 #: the modules a child may run: a vehicle, or a node (``nodes.entry``)
 ENTRY_MODULES = ("sim_vehicles", "swarm_sitl.nodes")
@@ -90,15 +90,6 @@ def _run_child(request: dict[str, Any], fd: int) -> int:
         return 1
 
 
-def module_argv(module: str) -> list[str]:
-    """``python -P -m module``, to run with ``supervisor.child_env()``: a child imports the modules
-    its parent imported. Without ``-P``, ``-m`` puts the working directory first on ``sys.path``,
-    so a run started from a checkout beside an installed package ran its children from the
-    checkout's sources, compiling every kernel again in each child (about 40 s of start-up on a
-    fresh install) where the supervisor had just compiled them for the installed package."""
-    return [sys.executable, "-P", "-m", module]
-
-
 def _warm_up(config_path: str | None) -> None:
     """Import what the children run and load the compiled kernels into this process (the server's
     work, so imported here: the supervisor imports this module for ``ForkServer`` only)."""
@@ -113,7 +104,7 @@ def _warm_up(config_path: str | None) -> None:
     sim_vehicles.__main__.warm_up(vehicle, AttitudeGains(1.0, 1.0), 1000.0)  # frames' kernels too
     if config_path:
         from swarm_sitl.config.load import load_config
-        from swarm_sitl.sim import run_sim
+        from swarm_sitl.running.sim import run_sim
 
         run_sim(load_config(config_path), n_steps=1)
 

@@ -1,0 +1,212 @@
+"""The swarm as processes, start to end: ``run_swarm`` runs it, ``record_run`` runs it and writes
+its run directory whatever happened.
+
+``run_swarm``: vehicles (optional: ``controllers`` uses endpoints given by the user), then the
+leader and one controller per follower, all-or-nothing: each must report ready (its zenoh
+liveliness token, declared once its MAVLink handshake is done) within ``run.start_timeout_s`` or
+the run ends before it starts. Then the start signal, the fault plan's process faults, progress
+while it runs, and every process torn down at the end (``supervisor``).
+"""
+
+import json
+import os
+import sys
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from sim_vehicles.runtime.lifeline import settle_heap
+from swarm_sitl.bus.session import publish_start
+from swarm_sitl.config.load import ConfigError
+from swarm_sitl.config.schema import SwarmConfig
+from swarm_sitl.faults.processes import LostAircraftError, ProcessFaults
+from swarm_sitl.rundir.layout import procs_dir, start_path, supervisor_events_path
+from swarm_sitl.rundir.merge import merge_run
+from swarm_sitl.rundir.metrics import bound_failures
+from swarm_sitl.rundir.outputs import write_outputs
+from swarm_sitl.running.children import PARENT_ENV, child_env, module_argv
+from swarm_sitl.running.fork_server import ForkServer
+from swarm_sitl.running.hub import RunMonitor, open_hub
+from swarm_sitl.running.sim import run_sim
+from swarm_sitl.running.supervisor import SUPERVISE_EVERY_S, RunFailedError, Supervisor
+from swarm_sitl.running.vehicles import port_lines, signing_key_file, start_vehicles
+
+
+def compile_kernels(cfg: SwarmConfig) -> None:
+    """Compile (or load) the numerical kernels here, once, before the children start: on a fresh
+    install every vehicle and controller would otherwise compile the same kernels at the same time
+    (52 s of start-up for paper.yaml on 2 cores, instead of about 20 s)."""
+    run_sim(cfg, n_steps=1)
+    settle_heap()
+
+
+def start_fork_server(cfg_path: Path, run_dir: Path) -> ForkServer:
+    """A fork server (``fork_server``) that has imported everything and loaded the kernels of
+    ``cfg_path`` (compiling them on a fresh install), its errors in ``logs/fork_server.log``."""
+    log_dir = run_dir / "logs"
+    log_dir.mkdir(parents=True, exist_ok=True)
+    env = {**child_env(), PARENT_ENV: str(os.getpid()), "PYTHONUNBUFFERED": "1"}
+    argv = [*module_argv("swarm_sitl.running.fork_server"), str(cfg_path)]
+    return ForkServer(argv, env, log_dir / "fork_server.log")
+
+
+def uses_fork_server(cfg: SwarmConfig) -> bool:
+    return cfg.run.start == "fork" and sys.platform.startswith("linux")
+
+
+def node_argv(
+    cfg_path: Path, role: str, lockstep: bool, hub: str | None, run_dir: Path, extra: list[str]
+) -> list[str]:
+    """A node's command line; ``hub`` is the supervisor's zenoh endpoint (peer mode) or None
+    (client mode: the nodes reach the router the config names)."""
+    argv = [*module_argv("swarm_sitl.nodes"), role, str(cfg_path), "--out", str(run_dir), *extra]
+    if hub is not None:
+        argv += ["--connect", hub]
+    return [*argv, "--lockstep"] if lockstep else argv
+
+
+@dataclass
+class RunResult:
+    run_wall_s: float  #: from the start signal to the last controller done
+    startup_wall_s: float  #: from spawning to every process ready
+    endpoints: dict[int, str]
+
+
+def run_swarm(
+    cfg: SwarmConfig,
+    run_dir: Path,
+    lockstep: bool,
+    mavlink: dict[int, str] | None = None,
+    on_progress: Callable[[int, dict[int, float]], None] | None = None,
+    base_port: int = 0,
+    on_vehicles: Callable[[list[str]], None] | None = None,
+) -> RunResult:
+    """Run the swarm; vehicles are spawned (on ``base_port``'s ports, ``start_vehicles``; their
+    ports go to ``on_vehicles``) unless ``mavlink`` gives each follower's endpoint."""
+    if lockstep:
+        try:
+            cfg.faults.check_lockstep()
+        except ValueError as e:
+            raise ConfigError(str(e)) from None
+    run_dir.mkdir(parents=True, exist_ok=True)
+    cfg_path = run_dir / "config.yaml"
+    cfg_path.write_text(cfg.to_yaml())
+    procs_dir(run_dir).mkdir(parents=True, exist_ok=True)
+    t_spawn = time.monotonic()
+    sup = Supervisor(run_dir)
+    if uses_fork_server(cfg):
+        sup.fork_server = start_fork_server(cfg_path, run_dir)  # it compiles or loads the kernels
+    else:
+        compile_kernels(cfg)
+    hub, session = open_hub(cfg, run_dir, sup)
+    monitor = RunMonitor(session, cfg)
+    faults = None
+    if cfg.faults.plan:
+        events = supervisor_events_path(run_dir)
+        faults = ProcessFaults(cfg.faults, cfg.control_dt_s, cfg.run.stop_on_loss, sup, lockstep, events)
+        sup.planned_exit = faults.planned_exit
+    try:
+        key_file = signing_key_file(cfg, run_dir, own_vehicles=mavlink is None)
+        if mavlink is None:
+            endpoints, ground = start_vehicles(sup, cfg, lockstep, base_port, key_file)
+            if on_vehicles is not None:
+                on_vehicles(port_lines(endpoints, ground))
+        else:
+            endpoints = dict(mavlink)
+        signing = ["--signing-key-file", str(key_file)] if key_file is not None else []
+        node_args = {"leader": ["leader"]}
+        for f in cfg.followers:
+            url = endpoints[f.id]
+            url = "udpout:" + url.removeprefix("udp:") if mavlink is None else url
+            node_args[f"controller_{f.id}"] = ["controller", "--id", str(f.id), "--mavlink", url, *signing]
+
+        def argv(process: str, incarnation: int = 0, resume_tick: int = 0) -> list[str]:
+            role, *extra = node_args[process]
+            if incarnation:
+                extra += ["--incarnation", str(incarnation), "--resume-tick", str(resume_tick)]
+            return node_argv(cfg_path, role, lockstep, hub, run_dir, extra)
+
+        if faults is not None:
+            faults.set_restart(argv)
+            sup.planned_stop = faults.frozen
+        for process in node_args:
+            sup.spawn(process, argv(process), True)
+        end = time.monotonic() + cfg.run.start_timeout_s
+        while len(monitor.ready) < cfg.n_followers + 1:
+            sup.check()
+            if time.monotonic() > end:
+                missing = sorted(set(range(cfg.n_followers + 1)) - monitor.ready)
+                raise RunFailedError(f"node(s) {missing} not ready within {cfg.run.start_timeout_s:g} s")
+            time.sleep(0.02)
+        startup = time.monotonic() - t_spawn
+        epoch = time.time() + (0.0 if lockstep else 0.5)
+        start_path(run_dir).write_text(json.dumps({"epoch_unix_s": epoch, "lockstep": lockstep}) + "\n")
+        t_start = time.monotonic()
+        next_start_put = 0.0
+        next_progress = 0.0
+        while not sup.finished():
+            if faults is not None:
+                try:
+                    faults.act(time.time() - epoch, monitor.min_step(faults.down | faults.lost))
+                except LostAircraftError as e:
+                    raise RunFailedError(str(e)) from None
+            sup.check()
+            now = time.monotonic()
+            if now >= next_start_put:  # again and again: a late subscriber still gets it
+                publish_start(session, cfg.name, epoch)
+                next_start_put = now + 0.5
+            if on_progress is not None and now >= next_progress:
+                on_progress(monitor.min_step(), monitor.errors_m())
+                next_progress = now + 0.25
+            time.sleep(SUPERVISE_EVERY_S)
+        run_wall = time.monotonic() - t_start
+        if on_progress is not None:
+            on_progress(cfg.n_control_steps, monitor.errors_m())
+        return RunResult(run_wall, startup, endpoints)
+    finally:
+        if faults is not None:
+            faults.close()
+        monitor.close()
+        sup.close()
+        session.close()
+
+
+@dataclass
+class Outcome:
+    """How a multi-process run ended, and what it recorded."""
+
+    summary: dict[str, Any]
+    failure: str | None  #: the process that failed, in one line (None: none did)
+    interrupted: bool  #: Ctrl-C (or SIGTERM) ended it
+    run_wall_s: float  #: from the start signal to the last controller done (nan if it did not end)
+    startup_wall_s: float  #: from spawning to every process ready (nan if it did not start)
+    bound_failures: list[str]  #: followers past ``run.max_formation_error_m``, one line each
+
+
+def record_run(
+    cfg: SwarmConfig,
+    run_dir: Path,
+    lockstep: bool,
+    mavlink: dict[int, str] | None = None,
+    on_progress: Callable[[int, dict[int, float]], None] | None = None,
+    base_port: int = 0,
+    on_vehicles: Callable[[list[str]], None] | None = None,
+) -> Outcome:
+    """Run the swarm as processes (``run_swarm``) and write its run directory from
+    what the processes recorded, however the run ended (a ``KeyboardInterrupt`` is caught and
+    reported as ``interrupted``)."""
+    failure: str | None = None
+    interrupted = False
+    run_wall = startup = float("nan")
+    try:
+        result = run_swarm(cfg, run_dir, lockstep, mavlink, on_progress, base_port, on_vehicles)
+        run_wall, startup = result.run_wall_s, result.startup_wall_s
+    except RunFailedError as e:
+        failure = str(e)
+    except KeyboardInterrupt:
+        interrupted = True
+    summary = write_outputs(cfg, merge_run(cfg, run_dir), run_dir, processes=True)
+    bound = bound_failures(summary, cfg.run.max_formation_error_m) if failure is None else []
+    return Outcome(summary, failure, interrupted, run_wall, startup, bound)
