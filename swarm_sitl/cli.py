@@ -364,7 +364,7 @@ def cmd_plot(args: argparse.Namespace) -> int:
 
 
 def cmd_bench(args: argparse.Namespace) -> int:
-    from swarm_sitl.bench import run_bench
+    from swarm_sitl.bench.speed import run_bench
     from swarm_sitl.running.supervisor import RunFailedError
 
     if args.repeats < 1 or not args.realtime_s > 0 or not 0 < args.scale_duration < math.inf:
@@ -379,7 +379,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
         raise CliError(f"--against {args.against}: not a swarm-sitl source tree (no swarm_sitl/__init__.py)")
     try:
         if args.scale:
-            from swarm_sitl.bench_scale import run_scale
+            from swarm_sitl.bench.scale import run_scale
 
             try:
                 ns = [int(x) for x in args.scale.split(",")]
@@ -400,7 +400,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
                 args.empty,
             )
         if args.against:
-            from swarm_sitl.bench import compare_trees
+            from swarm_sitl.bench.speed import compare_trees
 
             return compare_trees(args.config, Path(args.against), args.repeats)
         return run_bench(args.config, args.scale_config, args.repeats, args.realtime_s)

@@ -9,7 +9,7 @@ import time
 import pytest
 
 from sim_vehicles.runtime.lifeline import thread_cpu_s
-from swarm_sitl.cost_split import ACTIVITIES, activity_of, activity_split
+from swarm_sitl.bench.cost_split import ACTIVITIES, activity_of, activity_split
 
 _BURN = """
 import time

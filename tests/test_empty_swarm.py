@@ -5,7 +5,7 @@ import pytest
 
 from sim_vehicles.mavlink import frames, tick_frames
 from sim_vehicles.mavlink.signing import Signer
-from swarm_sitl.empty_swarm import measure_empty, message_sizes
+from swarm_sitl.bench.empty_swarm import measure_empty, message_sizes
 
 
 def test_its_messages_are_the_size_of_a_signed_runs():

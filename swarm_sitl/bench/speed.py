@@ -30,6 +30,8 @@ from swarm_sitl.config.schema import SwarmConfig
 from swarm_sitl.nodes.assembly import build_autopilot
 from swarm_sitl.rundir.layout import CONTROLLER_COLUMNS, controller_rows_path
 from swarm_sitl.running.children import child_env, module_argv
+from swarm_sitl.running.run import run_swarm
+from swarm_sitl.running.sim import run_sim
 from swarm_sitl.running.supervisor import RunFailedError
 
 
@@ -79,8 +81,6 @@ def _sim_wall_s(cfg_path: str, repeats: int) -> list[float]:
 
 def sim_in_process_s(cfg: SwarmConfig) -> tuple[float, float]:
     """Wall and CPU seconds of ``sim`` of ``cfg`` in this process, its kernels loaded first."""
-    from swarm_sitl.running.sim import run_sim
-
     run_sim(cfg, n_steps=2)  # kernels loaded
     t0, c0 = time.monotonic(), time.process_time()
     run_sim(cfg)
@@ -100,8 +100,6 @@ def late_ticks(cfg: SwarmConfig, run_dir: Path) -> tuple[int, int, np.ndarray]:
 
 
 def run_bench(cfg_path: str, scale_cfg_path: str, repeats: int = 3, realtime_s: float = 20.0) -> int:
-    from swarm_sitl.running.run import run_swarm
-
     cfg = load_config(cfg_path)
     print(
         f"bench on {cfg_path}: {cfg.n_followers} followers, {cfg.duration_s:g} s, control "
@@ -182,7 +180,7 @@ def _lockstep_run_wall_s(cfg_path: str, tree: Path, out: Path) -> tuple[float, f
 def compare_trees(cfg_path: str, other: Path, pairs: int) -> int:
     """Lockstep ``run`` of ``cfg_path`` from this checkout and from ``other``, alternated ``pairs``
     times after one untimed run of each (compiled kernels cached); prints both and their ratio."""
-    here = Path(__file__).resolve().parents[1]
+    here = Path(__file__).resolve().parents[2]
     other = other.resolve()
     cfg = Path(cfg_path).resolve()
     got: dict[Path, list[tuple[float, float]]] = {here: [], other: []}

@@ -4,7 +4,7 @@ Two measurements, each for what it can see:
 
 - ``thread_split``: of each process's run-phase CPU, its main thread (the loop) against its other
   threads (zenoh's runtime: sending, receiving, routing), exact (``/proc/<pid>/task/*/schedstat``,
-  noted by ``sim_vehicles.lifeline.mark`` at ready and at exit);
+  noted by ``sim_vehicles.runtime.lifeline.mark`` at ready and at exit);
 - ``activity_split``: the main thread's time by activity, from the cProfile each process writes
   under ``SWARM_SITL_PROFILE`` (timed by the thread's CPU clock), in a separate profiled run:
 
@@ -55,7 +55,9 @@ _BY_FILE = (  # (activity, path fragments), first match wins
     ("zenoh", ("swarm_sitl/bus/", "swarm_sitl/faults/edges.py")),
 )
 #: the vehicle endpoint's loop and scheduling (the rest of ``vehicle.endpoint`` is MAVLink)
-_VEHICLE_LOOP = ("run_lockstep", "run_realtime", "step", "_failsafe_check", "heartbeat_tick")
+_VEHICLE_LOOP = ("run_lockstep", "run_realtime", "step", "heartbeat_tick")
+#: ... and the modules that are all loop: the run loops, the flight modes' checks
+_VEHICLE_LOOP_FILES = ("sim_vehicles/vehicle/loops.py", "sim_vehicles/vehicle/modes.py")
 _WAITS = ("select.select", "time.sleep", "'epoll' objects")
 #: helpers shared by the link and the bus (``udp_arrival.Waiting``: a poll(2) that does not block)
 _SHARED = ("sim_vehicles/runtime/udp_arrival.py",)
@@ -74,7 +76,9 @@ def activity_of(func: tuple[str, int, str]) -> str | None:
     path = path.replace("\\", "/")
     if path.endswith(_SHARED):
         return None  # its caller's: the vehicle link's or the bus's
-    if path.endswith("sim_vehicles/vehicle/endpoint.py") and name in _VEHICLE_LOOP:
+    if path.endswith(_VEHICLE_LOOP_FILES) or (
+        path.endswith("sim_vehicles/vehicle/endpoint.py") and name in _VEHICLE_LOOP
+    ):
         return "loop and other"
     for activity, fragments in _BY_FILE:
         if any(f in path for f in fragments):

@@ -239,7 +239,7 @@ def _leader(args: dict[str, Any]) -> None:
 
 def _spawn(role: str, args: dict[str, Any]) -> subprocess.Popen[str]:
     return subprocess.Popen(
-        [sys.executable, "-P", "-m", "swarm_sitl.empty_swarm", role, json.dumps(args)],
+        [sys.executable, "-P", "-m", "swarm_sitl.bench.empty_swarm", role, json.dumps(args)],
         stdin=subprocess.PIPE,
         stdout=subprocess.PIPE,
         text=True,

@@ -40,14 +40,21 @@ import time
 from pathlib import Path
 from typing import Any
 
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt
 import numpy as np
 import yaml
 
-from swarm_sitl.bench import late_ticks, sim_in_process_s
+from swarm_sitl.bench.cost_split import ACTIVITIES, activity_split
+from swarm_sitl.bench.empty_swarm import EmptySwarmError, measure_empty
+from swarm_sitl.bench.speed import late_ticks, sim_in_process_s
 from swarm_sitl.config.generator import generate
 from swarm_sitl.config.load import parse_config
 from swarm_sitl.config.schema import SwarmConfig
 from swarm_sitl.rundir.layout import procs_dir
+from swarm_sitl.running.run import run_swarm
 from swarm_sitl.running.supervisor import RunFailedError
 
 COLUMNS = (
@@ -117,8 +124,6 @@ def _median_mark(procs: list[dict[str, Any]], name: str) -> float:
 def measure(
     n: int, duration_s: float, work: Path, start: str = "fork", empty: bool = False
 ) -> dict[str, float]:
-    from swarm_sitl.running.run import run_swarm
-
     cfg = scale_config(n, duration_s, start)
     sim_wall, sim_cpu = sim_in_process_s(cfg)
     self0 = _cpu_s(resource.RUSAGE_SELF)
@@ -136,8 +141,6 @@ def measure(
     ctrl = kinds["controller"]
     empty_x = empty_cpu = math.nan
     if empty:
-        from swarm_sitl.empty_swarm import EmptySwarmError, measure_empty
-
         try:
             e = measure_empty(cfg, cfg.n_control_steps)
         except EmptySwarmError as err:  # the lockstep figures stand; this row's empty ones are NaN
@@ -179,8 +182,6 @@ SATURATED_LATE = 0.10  #: a real-time run with more late ticks than this: the ma
 
 def measure_realtime(n: int, duration_s: float, work: Path, start: str = "fork") -> dict[str, float]:
     """Late ticks and when setpoints go out after their tick's instant, in real time."""
-    from swarm_sitl.running.run import run_swarm
-
     cfg = scale_config(n, duration_s, start)
     run_dir = work / f"rt{n}"
     run_swarm(cfg, run_dir, lockstep=False)
@@ -196,9 +197,6 @@ def measure_realtime(n: int, duration_s: float, work: Path, start: str = "fork")
 def measure_split(n: int, duration_s: float, work: Path, start: str = "fork") -> dict[str, dict[str, float]]:
     """Per process kind, the main thread's CPU by activity (``cost_split``), in shares, from a
     lockstep run with every process profiled."""
-    from swarm_sitl.cost_split import activity_split
-    from swarm_sitl.running.run import run_swarm
-
     cfg = scale_config(n, duration_s, start)
     folder = work / f"profile{n}"
     before = os.environ.get("SWARM_SITL_PROFILE")
@@ -221,8 +219,6 @@ def measure_split(n: int, duration_s: float, work: Path, start: str = "fork") ->
 def _print_split(
     n: int, split: dict[str, dict[str, float]], row: dict[str, float] | None, path: Path
 ) -> None:
-    from swarm_sitl.cost_split import ACTIVITIES
-
     print(f"where the CPU goes at {n} followers (lockstep):")
     if row is not None:
         main, other = row["cpu_main_threads"], row["cpu_other_threads"]
@@ -245,11 +241,6 @@ def _print_split(
 
 
 def _plot(rows: list[dict[str, float]], path: Path) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     n = [r["followers"] for r in rows]
     fig, (a, b) = plt.subplots(1, 2, figsize=(11, 4.2))
     a.loglog(n, [r["cpu_per_sim_s"] for r in rows], "o-", label="lockstep run, every process")
