@@ -34,6 +34,7 @@ from swarm_sitl.laws.command_attitude import SingularCommandError
 from swarm_sitl.laws.graph import GraphError
 from swarm_sitl.link.transport import LinkError
 from swarm_sitl.link.vehicle_link import VehicleLink
+from swarm_sitl.nodes.arguments import add_node_parsers
 from swarm_sitl.nodes.controller import run_controller
 from swarm_sitl.nodes.leader import run_leader
 from swarm_sitl.rundir.layout import (
@@ -211,23 +212,6 @@ def cmd_leader(cfg: SwarmConfig, args: argparse.Namespace) -> int:
     return _guarded("leader", body, args.lockstep)
 
 
-def add_node_parsers(sub: Any) -> None:
-    """The ``controller`` and ``leader`` subcommands (of this entry, and of ``swarm-sitl``)."""
-    c = sub.add_parser("controller", help="one follower's controller process (spawned by run/controllers)")
-    c.add_argument("config")
-    c.add_argument("--id", type=int, required=True, help="follower id (= its vehicle's MAVLink system id)")
-    c.add_argument(
-        "--mavlink", required=True, help="pymavlink connection string, e.g. udpout:127.0.0.1:14561"
-    )
-    c.add_argument("--signing-key-file", help="sign the MAVLink link with this passphrase file's key")
-    _common(c)
-    c.set_defaults(func=lambda a: run_node(cmd_controller, a))
-    ld = sub.add_parser("leader", help="the leader's process (spawned by run/controllers)")
-    ld.add_argument("config")
-    _common(ld)
-    ld.set_defaults(func=lambda a: run_node(cmd_leader, a))
-
-
 def run_node(cmd: Callable[[SwarmConfig, argparse.Namespace], int], args: argparse.Namespace) -> int:
     """``cmd`` with the config ``args`` name (its duration overridden by ``--duration``); a config
     that does not load is one line and exit 2."""
@@ -239,25 +223,14 @@ def run_node(cmd: Callable[[SwarmConfig, argparse.Namespace], int], args: argpar
     return cmd(cfg, args)
 
 
+def run_role(role: str, args: argparse.Namespace) -> int:
+    """The node ``role`` (``controller`` or ``leader``) with its parsed arguments."""
+    return run_node(cmd_controller if role == "controller" else cmd_leader, args)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """``python -m swarm_sitl.nodes controller|leader CONFIG ...``."""
     p = argparse.ArgumentParser(prog="python -m swarm_sitl.nodes", description=__doc__)
-    add_node_parsers(p.add_subparsers(dest="role", required=True, metavar="ROLE"))
+    add_node_parsers(p.add_subparsers(dest="role", required=True, metavar="ROLE"), run_role)
     args = p.parse_args(argv)
     return int(args.func(args))
-
-
-def _common(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--lockstep", action="store_true", help="lockstep clock (default: real time)")
-    p.add_argument("--connect", action="append", default=[], help="extra zenoh endpoint to connect to")
-    p.add_argument("--out", help="run directory to record into")
-    p.add_argument("--duration", type=float, help="override duration_s [s]")
-    p.add_argument(
-        "--resume-tick",
-        type=int,
-        default=0,
-        help="lockstep: a node restarted by a fault plan resumes at this tick",
-    )
-    p.add_argument(
-        "--incarnation", type=int, default=0, help="how often this node was restarted (names its files)"
-    )

@@ -1,0 +1,265 @@
+"""The commands that fly a swarm: ``sim`` (in one process), ``run`` (as processes), ``vehicles``
+(only the simulated vehicles) and ``controllers`` (our controllers on given MAVLink endpoints).
+
+Imports are at the top but for three parts, each imported by the commands that run it: measured
+after the config schema every command needs (0.6 s), matplotlib costs 0.44 s (``plot``, and
+``bench``: 0.54 s with its runs), the run machinery (``running``) 0.12 s (``sim``, ``run``,
+``vehicles``, ``controllers``) and a node's own modules 0.17 s (``controller``, ``leader``).
+"""
+
+import argparse
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+from tqdm import tqdm
+
+from swarm_sitl.commands.common import (
+    EXIT_FAILED,
+    CliError,
+    add_base_port,
+    add_run_outputs,
+    check_base_port,
+    default_run_dir,
+    held_to_bound,
+    load,
+    summary_lines,
+)
+from swarm_sitl.config.load import with_duration, with_faults
+from swarm_sitl.config.schema import SwarmConfig
+from swarm_sitl.rundir.metrics import bound_failures, describe_inputs
+from swarm_sitl.rundir.outputs import write_outputs
+
+
+def cmd_sim(args: argparse.Namespace) -> int:
+    cfg = with_duration(load(args.config), args.duration)
+    from swarm_sitl.running.sim import run_sim  # the run machinery: 0.12 s (module doc)
+
+    run_dir = Path(args.out) if args.out else default_run_dir(cfg, "sim")
+    n = cfg.n_control_steps
+    t0 = time.monotonic()
+    if args.quiet:
+        rec = run_sim(cfg)
+    else:
+        with tqdm(total=n + 1, unit="tick", desc=f"sim {cfg.name}", mininterval=0.25, leave=False) as bar:
+            stride = max(1, (n + 1) // 100)
+
+            def progress(k: int) -> None:
+                if k % stride == 0 or k == n:
+                    bar.update(k + 1 - bar.n)
+
+            rec = run_sim(cfg, progress=progress)
+    wall = time.monotonic() - t0
+
+    summary = write_outputs(cfg, rec, run_dir)
+    print(
+        f"sim {cfg.name}: {cfg.duration_s:g} s simulated in {wall:.2f} s wall "
+        f"({cfg.duration_s / wall:.1f}x real time) -> {run_dir}"
+    )
+    print("\n".join(summary_lines(summary)))
+    return held_to_bound(bound_failures(summary, cfg.run.max_formation_error_m))
+
+
+class _RunProgress:
+    """A progress bar over ticks with each follower's formation error from its status messages."""
+
+    def __init__(self, cfg: SwarmConfig, label: str, quiet: bool):
+        self.cfg = cfg
+        self.bar: Any = None
+        if not quiet:
+            self.bar = tqdm(
+                total=cfg.n_control_steps + 1, unit="tick", desc=label, mininterval=0.25, leave=False
+            )
+
+    def __call__(self, step: int, errors_m: dict[int, float]) -> None:
+        if self.bar is None:
+            return
+        if step + 1 > self.bar.n:
+            self.bar.update(step + 1 - self.bar.n)
+        if errors_m:
+            worst = max(errors_m, key=lambda i: errors_m[i])
+            shown = (
+                " ".join(f"{i}:{e:.3f}" for i, e in sorted(errors_m.items()))
+                if len(errors_m) <= 6
+                else f"max {errors_m[worst]:.3f} (#{worst})"
+            )
+            self.bar.set_postfix_str(f"|p-p_r-d| m {shown}", refresh=False)
+
+    def note(self, lines: list[str]) -> None:
+        """Lines printed above the bar (the vehicles' ports, as they come up)."""
+        if self.bar is not None:
+            for line in lines:
+                self.bar.write(line)
+            sys.stdout.flush()  # a pipe's reader (a script waiting for the ports) gets them now
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.close()
+
+
+def _run_and_record(
+    cfg: SwarmConfig,
+    run_dir: Path,
+    lockstep: bool,
+    quiet: bool,
+    mavlink: dict[int, str] | None,
+    kind: str,
+    base_port: int = 0,
+) -> int:
+    from swarm_sitl.running.run import record_run  # the run machinery: 0.12 s (module doc)
+
+    clock = "lockstep" if lockstep else "real time"
+    progress = _RunProgress(cfg, f"{kind} {cfg.name} ({clock})", quiet)
+    try:
+        out = record_run(cfg, run_dir, lockstep, mavlink, progress, base_port, progress.note)
+    finally:
+        progress.close()
+    if out.failure is not None:
+        print(
+            f"swarm-sitl: error: {out.failure} (partial run in {run_dir}, logs in {run_dir / 'logs'})",
+            file=sys.stderr,
+        )
+        return EXIT_FAILED
+    if out.interrupted:
+        print(f"swarm-sitl: interrupted; partial run in {run_dir}", file=sys.stderr)
+        return 130
+    print(
+        f"{kind} {cfg.name} ({clock}): {cfg.duration_s:g} s simulated in {out.run_wall_s:.2f} s wall "
+        f"({cfg.duration_s / out.run_wall_s:.1f}x real time; start-up {out.startup_wall_s:.1f} s) "
+        f"-> {run_dir}"
+    )
+    print("\n".join(summary_lines(out.summary)))
+    for line in _degraded_lines(out.summary):
+        print(line)
+    return held_to_bound(out.bound_failures)
+
+
+def _degraded_lines(summary: dict) -> list[str]:
+    """What the controllers reported of late, old or missing inputs, one line per follower."""
+    out = []
+
+    for i, rep in sorted(summary.get("inputs", {}).items(), key=lambda kv: int(kv[0])):
+        why = describe_inputs(rep)
+        if why:
+            out.append(f"  follower {i} degraded inputs: {why}")
+    for i in summary.get("lost", []):
+        out.append(f"  vehicle {i} lost (a fault plan's): its follower is recorded up to the loss")
+    for edge, st in sorted(summary.get("links", {}).items()):
+        if st.get("lost") or st.get("corrupt") or st.get("delayed") or st.get("duplicated"):
+            out.append(
+                f"  {edge if edge.startswith('mavlink') else 'edge ' + edge}: "
+                f"{st['delivered']} of {st['received']} delivered, {st['lost']} lost, "
+                f"{st['corrupt']} corrupt, {st['delayed']} delayed, {st['duplicated']} duplicated"
+            )
+    return out
+
+
+def _with_fault_file(cfg: SwarmConfig, path: str | None) -> SwarmConfig:
+
+    return cfg if path is None else with_faults(cfg, path)
+
+
+def cmd_run(args: argparse.Namespace) -> int:
+    cfg = _with_fault_file(with_duration(load(args.config), args.duration), args.faults)
+    check_base_port(cfg, args.base_port)
+    run_dir = Path(args.out) if args.out else default_run_dir(cfg, "run")
+    return _run_and_record(cfg, run_dir, not args.realtime, args.quiet, None, "run", args.base_port)
+
+
+def cmd_controllers(args: argparse.Namespace) -> int:
+    cfg = _with_fault_file(with_duration(load(args.config), args.duration), args.faults)
+    if len(args.mavlink) != cfg.n_followers:
+        raise CliError(
+            f"--mavlink needs one connection string per follower ({cfg.n_followers}, in id order), "
+            f"got {len(args.mavlink)}"
+        )
+    run_dir = Path(args.out) if args.out else default_run_dir(cfg, "controllers")
+    mavlink = {
+        f.id: url for f, url in zip(sorted(cfg.followers, key=lambda f: f.id), args.mavlink, strict=True)
+    }
+    return _run_and_record(cfg, run_dir, args.lockstep, args.quiet, mavlink, "controllers")
+
+
+def cmd_vehicles(args: argparse.Namespace) -> int:
+    from swarm_sitl.running.run import compile_kernels  # the run machinery: 0.12 s (module doc)
+    from swarm_sitl.running.supervisor import RunFailedError, Supervisor
+    from swarm_sitl.running.vehicles import port_lines, signing_key_file, start_vehicles
+
+    cfg = load(args.config)
+    check_base_port(cfg, args.base_port)
+    run_dir = Path(args.out) if args.out else default_run_dir(cfg, "vehicles")
+    compile_kernels(cfg)
+    sup = Supervisor(run_dir)
+    try:
+        key_file = signing_key_file(cfg, run_dir, own_vehicles=False)
+        endpoints, ground = start_vehicles(sup, cfg, args.lockstep, args.base_port, key_file, args.host)
+        clock = f"lockstep, {cfg.control_dt_s:g} s per setpoint" if args.lockstep else "real time"
+        print(f"{cfg.n_followers} vehicles of {cfg.name} ({clock}); .tlogs in {run_dir / 'tlogs'}")
+        print(f"  MAVLink 2 signing with {key_file}" if key_file else "  MAVLink 2 signing off")
+        print("\n".join(port_lines(endpoints, ground)))
+        print("Ctrl-C stops them", flush=True)
+        while True:
+            sup.check()
+            time.sleep(0.1)
+    except RunFailedError as e:
+        raise CliError(str(e)) from None
+    except KeyboardInterrupt:
+        print("swarm-sitl: vehicles stopped", file=sys.stderr)
+        return 0
+    finally:
+        sup.close()
+
+
+def add_sim(sub: Any) -> None:
+    """``swarm-sitl sim``: the whole swarm in one process."""
+    s = sub.add_parser("sim", help="run the whole swarm in one process and write a run directory")
+    s.add_argument("config")
+    add_run_outputs(s, "sim")
+    s.set_defaults(func=cmd_sim)
+
+
+def add_run(sub: Any) -> None:
+    """``swarm-sitl run``: the swarm as processes."""
+    r = sub.add_parser("run", help="run the swarm as processes: vehicles, controllers, leader, zenoh")
+    r.add_argument("config")
+    r.add_argument("--realtime", action="store_true", help="wall clock, as in flight (default: lockstep)")
+    r.add_argument("--faults", metavar="FILE", help="fault plan (YAML: seed, plan) in place of the config's")
+    add_base_port(r)
+    add_run_outputs(r, "run")
+    r.set_defaults(func=cmd_run)
+
+
+def add_vehicles(sub: Any) -> None:
+    """``swarm-sitl vehicles``: the simulated vehicles alone."""
+    v = sub.add_parser("vehicles", help="start only the simulated vehicles and print their MAVLink endpoints")
+    v.add_argument("config")
+    v.add_argument("--lockstep", action="store_true", help="step one control period per stamped setpoint")
+    add_base_port(v)
+    v.add_argument(
+        "--host",
+        default="127.0.0.1",
+        help="address the vehicles bind (default 127.0.0.1; another host's controllers need this "
+        "machine's address on their network)",
+    )
+    v.add_argument("--out", help="directory for .tlogs and logs (default runs/<name>-vehicles-<time>)")
+    v.set_defaults(func=cmd_vehicles)
+
+
+def add_controllers(sub: Any) -> None:
+    """``swarm-sitl controllers``: our controllers on given MAVLink endpoints."""
+    cs = sub.add_parser("controllers", help="run the leader and controllers against given MAVLink endpoints")
+    cs.add_argument("config")
+    cs.add_argument(
+        "--mavlink",
+        nargs="+",
+        required=True,
+        metavar="URL",
+        help="one pymavlink connection string per follower",
+    )
+    cs.add_argument(
+        "--lockstep", action="store_true", help="the vehicles step in lockstep (default: real time)"
+    )
+    cs.add_argument("--faults", metavar="FILE", help="fault plan (YAML: seed, plan) in place of the config's")
+    add_run_outputs(cs, "controllers")
+    cs.set_defaults(func=cmd_controllers)
