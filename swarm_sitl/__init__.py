@@ -1,10 +1,12 @@
-"""swarm_sitl: the swarm side of the test bench.
+"""swarm_sitl: the swarm side of the test bench. It may use ``sim_vehicles``; never the reverse.
 
-Distributed estimator and position loop of each follower (the paper's laws, pure and compiled),
-the leader's reference, the graph and its gain conditions, and the tools that run a swarm in one
-process (``sim``) and plot what it recorded. It may use ``sim_vehicles``; never the reverse.
-
-``Swarm`` (``swarm_sitl.api``) runs a swarm from Python, with a fault plan, and returns its results.
+Its folders, each allowed to import only those before it (``tests/test_layout.py``): ``laws``
+(the paper's laws, pure), ``bus`` (zenoh), ``faults`` (the fault plan and its wrappers),
+``config`` (the schema), ``link`` (a controller's MAVLink link), ``rundir`` (the run directory),
+``nodes`` (the controller and leader processes), ``running`` (``sim``, the supervisor, a run),
+``bench`` (speed figures), ``commands`` (the CLI's subcommands). Above them all: ``cli``
+(``swarm-sitl``), ``api`` (``Swarm``: runs from Python, with a fault plan, as objects) and
+``pytest_plugin`` (the ``swarm`` fixture).
 """
 
 from typing import Any

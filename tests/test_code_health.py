@@ -1,6 +1,6 @@
-"""The code base itself: layering, lint, format and types (run by the same test command)."""
+"""The code base itself: lint, format and types (run by the same test command; its layout is
+``test_layout``'s)."""
 
-import ast
 import shutil
 import subprocess
 import sys
@@ -10,41 +10,6 @@ import pytest
 from tests.conftest import ROOT
 
 pytestmark = pytest.mark.unit
-
-
-def _imports(package: str) -> set[tuple[str, str]]:
-    found = set()
-    for path in (ROOT / package).rglob("*.py"):
-        for node in ast.walk(ast.parse(path.read_text())):
-            if isinstance(node, ast.Import):
-                found |= {(path.name, a.name) for a in node.names}
-            elif isinstance(node, ast.ImportFrom) and node.module:
-                found.add((path.name, node.module))
-    return found
-
-
-def test_sim_vehicles_does_not_depend_on_the_swarm():
-    bad = {(f, m) for f, m in _imports("sim_vehicles") if m.split(".")[0] == "swarm_sitl"}
-    assert not bad, f"sim_vehicles must be usable alone: {sorted(bad)}"
-
-
-def test_pure_laws_do_no_io():
-    pure = [
-        "quaternion.py",
-        "rigid_body.py",
-        "torque_law.py",
-        "estimator.py",
-        "position_loop.py",
-        "command_attitude.py",
-        "follower_law.py",
-        "graph.py",
-        "trajectories.py",
-    ]
-    io_modules = {"socket", "zenoh", "pymavlink", "subprocess", "time", "logging", "os", "threading"}
-    for pkg in ("sim_vehicles", "swarm_sitl"):
-        for f, m in _imports(pkg):
-            if f in pure:
-                assert m.split(".")[0] not in io_modules, f"{pkg}/{f} imports {m}"
 
 
 def _tool(name: str) -> list[str]:
