@@ -9,6 +9,19 @@ settings.load_profile("swarm")
 
 ROOT = Path(__file__).resolve().parents[1]
 CONFIGS = ROOT / "configs"
+#: every test is one of these (``pyproject.toml`` says what each means; ``-m`` selects them)
+LAYERS = ("unit", "integration", "system")
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """Tests that are not marked with exactly one layer fail the collection, each named."""
+    bad = []
+    for item in items:
+        layers = sorted(m.name for m in item.iter_markers() if m.name in LAYERS)
+        if len(layers) != 1:
+            bad.append(f"{item.nodeid}: {layers or 'none'}")
+    if bad:
+        raise pytest.UsageError(f"mark each test with one of {', '.join(LAYERS)}:\n" + "\n".join(bad))
 
 
 @pytest.fixture(scope="session")

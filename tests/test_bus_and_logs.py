@@ -35,11 +35,10 @@ from swarm_sitl.laws.follower import EstimateMessage
 from swarm_sitl.running.children import child_env
 from swarm_sitl.running.hub import free_tcp_port
 
-pytestmark = pytest.mark.unit
-
 finite = st.floats(allow_nan=False, allow_infinity=False, width=64)
 
 
+@pytest.mark.unit
 @given(st.integers(0, 65535), st.integers(0, 2**32 - 1), st.lists(finite, min_size=13, max_size=13))
 def test_estimate_roundtrip_is_exact(src, step, v):
     m = EstimateMessage(
@@ -51,6 +50,7 @@ def test_estimate_roundtrip_is_exact(src, step, v):
         assert np.array_equal(a, b)  # float64 end to end: lockstep runs equal sim bit for bit
 
 
+@pytest.mark.unit
 def test_status_and_start_roundtrip():
     s = decode_status(encode_status(Status(3, 70, 0.7, 0.69, np.array([1.0, 2.0, 3.0]))))
     assert (s.follower, s.step, s.t_s, s.sample_t_s) == (3, 70, 0.7, 0.69) and list(s.p_W) == [1, 2, 3]
@@ -65,6 +65,7 @@ def _with_crc(body: bytes, flip: int | None = None) -> bytes:
     return bytes(data)
 
 
+@pytest.mark.unit
 @pytest.mark.parametrize(
     "payload, match",
     [
@@ -81,6 +82,7 @@ def test_malformed_estimates_are_refused_with_one_line(payload, match):
     assert "\n" not in str(e.value)
 
 
+@pytest.mark.unit
 def test_each_node_subscribes_to_exactly_its_in_edges(paper_cfg):
     """The bus mirrors the graph: full keys, never a wildcard."""
     g = paper_cfg.build_graph()
@@ -99,6 +101,7 @@ def test_each_node_subscribes_to_exactly_its_in_edges(paper_cfg):
         session.close()
 
 
+@pytest.mark.unit
 def test_bad_payload_on_an_edge_is_dropped_and_counted():
     session = open_session(ZenohSpec(mode="peer", listen=[]))
     try:
@@ -117,6 +120,7 @@ def test_bad_payload_on_an_edge_is_dropped_and_counted():
         session.close()
 
 
+@pytest.mark.unit
 def test_decode_waiting_returns_the_good_payloads_in_order_and_counts_the_bad():
     class Sample:
         def __init__(self, data):
@@ -135,6 +139,7 @@ def test_decode_waiting_returns_the_good_payloads_in_order_and_counts_the_bad():
     assert [s.step for s in got] == [3, 4] and bad == 2 and sub.try_recv() is None
 
 
+@pytest.mark.unit
 def test_forget_before_drops_exactly_the_older_ticks_even_out_of_order():
     """Out of order as a fault plan's delay files them (the wire's order is refused, below)."""
     session = open_session(ZenohSpec(mode="peer", listen=[]))
@@ -167,6 +172,7 @@ def _drain(bus, until) -> None:
         time.sleep(0.01)
 
 
+@pytest.mark.unit
 def test_estimates_that_cannot_follow_the_last_are_refused_and_counted():
     """On node 2's in-edge from 1: another sender's estimate, a tick already taken (a replay, a
     duplicate, one out of order) and ticks past the horizon (2^32-1; past the run) are refused
@@ -201,6 +207,7 @@ def test_estimates_that_cannot_follow_the_last_are_refused_and_counted():
         session.close()
 
 
+@pytest.mark.unit
 def test_a_status_from_another_sender_or_past_the_horizon_does_not_pace_the_leader():
     session = open_session(ZenohSpec(mode="peer", listen=[]))
     try:
@@ -216,6 +223,7 @@ def test_a_status_from_another_sender_or_past_the_horizon_does_not_pace_the_lead
         session.close()
 
 
+@pytest.mark.unit
 def test_row_log_survives_a_cut_mid_row(tmp_path):
     path = tmp_path / "x.rows"
     log = RowLog(path, ["a", "b", "c"], flush_rows=2)
@@ -231,6 +239,7 @@ def test_row_log_survives_a_cut_mid_row(tmp_path):
     log.close()
 
 
+@pytest.mark.unit
 def test_the_horizon_is_the_run_in_lockstep_and_half_a_second_ahead_in_real_time():
     from swarm_sitl.bus.clock import HORIZON_LEAD_S, RunClock
 
@@ -243,6 +252,7 @@ def test_the_horizon_is_the_run_in_lockstep_and_half_a_second_ahead_in_real_time
     assert rt.horizon(210) == 210
 
 
+@pytest.mark.unit
 def test_the_bus_descriptor_wakes_a_select_when_an_estimate_comes_and_is_quiet_after_poll():
     """What a lockstep controller blocks on (``NodeBus.fileno``): readable once an estimate has
     come, quiet again once ``poll`` has taken it, and closed with the bus."""
@@ -304,6 +314,7 @@ def test_the_bus_descriptor_wakes_a_select_when_an_estimate_comes_and_is_quiet_a
         session.close()
 
 
+@pytest.mark.unit
 def test_router_runtime_is_taken_back_and_leaves_a_users_own(monkeypatch):
     """The supervisor's children must not inherit the router's runtime; a user's runtime wins."""
     monkeypatch.delenv(RUNTIME_ENV, raising=False)

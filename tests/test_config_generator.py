@@ -19,13 +19,12 @@ from swarm_sitl.config.load import parse_config
 from swarm_sitl.laws.gain_conditions import check_gains
 from swarm_sitl.running.sim import run_sim
 
-pytestmark = pytest.mark.unit
-
 
 def _load(text: str):
     return parse_config(yaml.safe_load(text), "generated")
 
 
+@pytest.mark.unit
 @pytest.mark.parametrize("graph, n", list(itertools.product(GRAPHS, (1, 2, 7, 16, 64))))
 def test_every_graph_reaches_every_follower_with_the_asked_shape(graph, n):
     cfg = _load(generate(n, graph, "grid", "helix", seed=n))
@@ -49,6 +48,7 @@ def test_every_graph_reaches_every_follower_with_the_asked_shape(graph, n):
         assert all(any(s < i for s in into[i]) for i in range(1, n + 1))
 
 
+@pytest.mark.unit
 @pytest.mark.parametrize("formation, n", list(itertools.product(FORMATIONS, (1, 3, 10, 64))))
 def test_formations_are_centred_and_spaced(formation, n):
     cfg = _load(generate(n, "layered", formation, "line"))
@@ -61,6 +61,7 @@ def test_formations_are_centred_and_spaced(formation, n):
         assert min(gaps) == pytest.approx(SPACING_M, abs=1e-4)  # nobody closer than the spacing
 
 
+@pytest.mark.unit
 @pytest.mark.parametrize("trajectory", TRAJECTORIES)
 def test_initial_positions_spread_around_the_places_at_the_leaders_start(trajectory):
     cfg = _load(generate(12, "random", "circle", trajectory, seed=5))
@@ -73,6 +74,7 @@ def test_initial_positions_spread_around_the_places_at_the_leaders_start(traject
     )
 
 
+@pytest.mark.unit
 @pytest.mark.parametrize(
     "graph, n", [("layered", 4), ("tree", 16), ("ring", 4), ("ring", 16), ("random", 32)]
 )
@@ -89,6 +91,7 @@ def test_the_gain_notes_say_what_check_finds(graph, n):
         assert report.all_hold  # "every condition holds": it does, with the gains written
 
 
+@pytest.mark.unit
 def test_the_same_seed_writes_the_same_file_and_another_seed_another_swarm():
     a = generate(10, "random", "grid", "figure_eight", seed=1)
     assert generate(10, "random", "grid", "figure_eight", seed=1) == a
@@ -96,6 +99,7 @@ def test_the_same_seed_writes_the_same_file_and_another_seed_another_swarm():
     assert _load(a).graph_edges() != _load(b).graph_edges()
 
 
+@pytest.mark.unit
 def test_new_writes_a_config_and_refuses_bad_requests_in_one_line(tmp_path, capsys):
     out = tmp_path / "s.yaml"
     assert main(["new", "--followers", "6", "--graph", "ring", "-o", str(out)]) == 0

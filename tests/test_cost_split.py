@@ -35,6 +35,7 @@ def _module(tmp_path, package: str, name: str):
     return mod
 
 
+@pytest.mark.unit
 def test_time_goes_to_the_activity_of_the_file_and_builtins_to_their_caller(tmp_path):
     laws = _module(tmp_path, "sim_vehicles/plant", "autopilot")  # physics and laws
     bus = _module(tmp_path, "swarm_sitl/bus", "node_bus")  # zenoh
@@ -60,6 +61,7 @@ def test_time_goes_to_the_activity_of_the_file_and_builtins_to_their_caller(tmp_
     assert s["waking up"] < 0.005 and s["logs"] == 0.0
 
 
+@pytest.mark.unit
 def test_builtins_are_named_by_what_they_do():
     assert activity_of(("~", 0, "<built-in method select.select>")) == "waking up"
     assert activity_of(("~", 0, "<method 'put' of 'builtins.Publisher' objects>")) == "zenoh"
@@ -71,6 +73,7 @@ def test_builtins_are_named_by_what_they_do():
     assert activity_of(("~", 0, "<method 'poll' of 'select.poll' objects>")) is None  # poll(0): a look
 
 
+@pytest.mark.unit
 @pytest.mark.skipif(not os.path.isdir("/proc/self/task"), reason="per-thread CPU is read from Linux /proc")
 def test_thread_cpu_tells_the_main_thread_from_the_others():
     def burn(seconds: float) -> None:

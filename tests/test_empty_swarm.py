@@ -8,6 +8,7 @@ from sim_vehicles.mavlink.signing import Signer
 from swarm_sitl.bench.empty_swarm import measure_empty, message_sizes
 
 
+@pytest.mark.unit
 def test_its_messages_are_the_size_of_a_signed_runs():
     """What the empty swarm sends is as long as what a signed lockstep run sends: a vehicle's
     sample (LOCAL_POSITION_NED and ATTITUDE_QUATERNION in one datagram), a controller's setpoint."""

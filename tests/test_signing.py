@@ -32,10 +32,12 @@ def _plain(sysid: int = 3) -> bytes:
     return bytes(msg.pack(mav.MAVLink(None, srcSystem=sysid, srcComponent=191)))
 
 
+@pytest.mark.unit
 def test_the_key_is_the_sha256_of_the_passphrase_as_mavproxy_derives_it():
     assert hashlib.sha256(b"correct horse battery staple").digest() == KEY and len(KEY) == 32
 
 
+@pytest.mark.unit
 def test_a_sealed_frame_is_byte_for_byte_what_pymavlink_signs(monkeypatch):
     link = mav.MAVLink(None, srcSystem=3, srcComponent=191)
     link.signing.secret_key, link.signing.sign_outgoing, link.signing.link_id = KEY, True, 0
@@ -49,6 +51,7 @@ def test_a_sealed_frame_is_byte_for_byte_what_pymavlink_signs(monkeypatch):
     assert [m.get_type() for m in receiver.parse_buffer(theirs)] == ["SET_ATTITUDE_TARGET"]
 
 
+@pytest.mark.unit
 def test_the_verifier_opens_what_is_signed_and_refuses_the_rest():
     s, v = Signer(KEY), Verifier(KEY)
     plain = _plain()
@@ -74,6 +77,7 @@ def test_the_verifier_opens_what_is_signed_and_refuses_the_rest():
     assert fresh.replayed == 1
 
 
+@pytest.mark.unit
 def test_the_compiled_sha256_is_hashlibs_for_any_length_and_split():
     out = np.zeros(32, np.uint8)
     rng = np.random.default_rng(5)
@@ -84,6 +88,7 @@ def test_the_compiled_sha256_is_hashlibs_for_any_length_and_split():
             assert out.tobytes() == hashlib.sha256(data).digest(), (n, cut)
 
 
+@pytest.mark.unit
 def test_a_pass_of_several_frames_is_sealed_and_opened_whole_as_pymavlink_reads_it():
     s, v = Signer(KEY), Verifier(KEY)
     frames = _plain() + _plain(sysid=4) + _plain()
@@ -99,6 +104,7 @@ def test_a_pass_of_several_frames_is_sealed_and_opened_whole_as_pymavlink_reads_
     assert s.seal(frames[:-1]) == frames[:-1] and s.seal(frames + b"\0") == frames + b"\0"
 
 
+@pytest.mark.unit
 def test_a_repeat_inside_one_datagram_is_a_replay():
     s, v = Signer(KEY), Verifier(KEY)
     one = s.seal(_plain())
@@ -117,6 +123,7 @@ def test_a_repeat_inside_one_datagram_is_a_replay():
     assert w.replayed == 2 and w.open(_forged_stamp(_plain(), t + 6)) == _plain()
 
 
+@pytest.mark.unit
 def test_a_key_of_the_wrong_length_is_refused_in_one_line():
     with pytest.raises(signing.SigningKeyError, match="32 bytes, not 16"):
         Signer(KEY[:16])

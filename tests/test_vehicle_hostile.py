@@ -143,10 +143,12 @@ NAN, INF = math.nan, math.inf
     ],
     ids=lambda d: d[:12].hex(),
 )
+@pytest.mark.integration
 def test_each_bad_input_is_refused_counted_and_changes_nothing(flying, data):
     _assert_refused(flying, data)
 
 
+@pytest.mark.integration
 def test_a_stranger_is_refused_and_cannot_take_the_telemetry(flying):
     for data in (
         _command(mav.MAV_CMD_COMPONENT_ARM_DISARM, 0, 21196),  # even a forced disarm
@@ -158,6 +160,7 @@ def test_a_stranger_is_refused_and_cannot_take_the_telemetry(flying):
     assert flying.port.peer == PEER
 
 
+@pytest.mark.integration
 def test_a_silent_peer_gives_the_link_up(flying, monkeypatch):
     """Its controller died: after ``PEER_SILENT_S`` another address may take the link, with a
     message the vehicle knows (one it does not know claims nothing)."""
@@ -169,6 +172,7 @@ def test_a_silent_peer_gives_the_link_up(flying, monkeypatch):
     assert flying.port.peer == STRANGER and flying.autopilot.command.thrust_N == pytest.approx(0.5 * 25.0)
 
 
+@pytest.mark.integration
 def test_a_forced_disarm_and_a_settable_parameter_are_taken(flying):
     flying.datagram(
         _frame(mav.MAVLink_param_set_message(SYS, 1, b"MC_PITCHRATE_MAX", 90.0, mav.MAV_PARAM_TYPE_REAL32)),
@@ -179,6 +183,7 @@ def test_a_forced_disarm_and_a_settable_parameter_are_taken(flying):
     assert not flying.armed
 
 
+@pytest.mark.integration
 def test_body_rates_are_clipped_to_the_rate_limits_and_the_state_stays_finite(flying):
     """1e30 rad/s (finite as float32) used to leave the state non-finite for good; 50 rad/s
     tumbled it. Clipped to MC_*RATE_MAX, the body rates stay near the limit."""
@@ -271,6 +276,7 @@ def _pack_raw(cls, payload: bytes) -> bytes:
     return header + payload + crc.to_bytes(2, "little")
 
 
+@pytest.mark.integration
 @FUZZ_TIMEOUT
 @FUZZ
 @given(data=hostile_datagrams())
@@ -278,6 +284,7 @@ def test_fuzz_vehicle_refuses_and_counts_every_hostile_datagram(flying, data):
     _assert_refused(flying, data)
 
 
+@pytest.mark.integration
 @FUZZ_TIMEOUT
 @FUZZ
 @given(data=st.binary(min_size=0, max_size=600), sender=st.sampled_from([PEER, STRANGER]))
@@ -288,6 +295,7 @@ def test_fuzz_vehicle_survives_random_bytes_from_anyone(flying, data, sender):
     _assert_refused(flying, data, sender)
 
 
+@pytest.mark.system
 def test_the_vehicle_process_keeps_flying_after_a_hostile_burst(tmp_path):
     """Across the real socket: a burst of the inputs above, then the vehicle still answers."""
     import subprocess
