@@ -1,4 +1,4 @@
-"""Command attitude extraction (Lemma 3.3 with NOTES.md fix 1)."""
+"""Command attitude extraction (Lemma 3.3 with docs/paper.md erratum 1)."""
 
 import numpy as np
 import pytest
@@ -30,7 +30,7 @@ def test_singular_set_gives_a_clear_error(u):
 
 
 def test_printed_formula_is_not_a_unit_quaternion_at_hover():
-    """NOTES.md error 1: the paper's sigma_c = sqrt(1/2 + (g - u_z)/(2|u|)) fails at u = g e3."""
+    """docs/paper.md, erratum 1: the paper's sigma_c = sqrt(1/2 + (g - u_z)/(2|u|)) fails at u = g e3."""
     g = 9.81
     u = np.array([0, 0, g])
     sigma_printed = np.sqrt(0.5 + (g - u[2]) / (2 * g))

@@ -106,7 +106,7 @@ def test_check_passes_paper_and_names_failures_on_ring(capsys):
 
 
 def test_check_warns_when_the_estimator_flies_the_printed_bracket(capsys, tmp_path):
-    """The conditions cover the sliding-surface bracket (NOTES.md item 7); `check` says so, and
+    """The conditions cover the sliding-surface bracket (docs/paper.md, erratum 7); `check` says so, and
     warns when the config flies the bracket as printed."""
     assert main(["check", str(CONFIGS / "paper.yaml")]) == 0
     out = capsys.readouterr().out

@@ -6,7 +6,7 @@ with RK4 at 1e-4 s. The sign term is taken with a boundary layer wide enough tha
 (asserted): the paper's sgn(S) switches within milliseconds, and no finite difference is meaningful
 across a switch; the derivative formulas take gamma_ddot from the estimator whatever its sign term.
 The analytic derivatives from ``controller_output`` must match fourth-order
-central differences of the recorded u and Q_c to a relative 1e-5. This is what catches NOTES.md
+central differences of the recorded u and Q_c to a relative 1e-5. This is what catches docs/paper.md
 errors 2 (Gamma with tanh(gamma_dot)) and 3 (Dbar, Sbar): with either, u_ddot is off by far more.
 """
 
@@ -142,7 +142,7 @@ def test_analytic_derivatives_match_finite_differences(trajectory, t_check):
 
 
 def test_printed_gamma_would_break_the_acceleration_error_dynamics(trajectory):
-    """NOTES.md error 2: a_hat_ddot = -l_a a_hat_dot - k_a (S + sat(S)) holds with tanh(gamma) only
+    """docs/paper.md, erratum 2: a_hat_ddot = -l_a a_hat_dot - k_a (S + sat(S)) holds with tanh(gamma) only
     (S with the bracket's weight l_a on its first sum: the default sliding-surface form)."""
     xs, msgs, _ = trajectory
     j = round(0.6 / H_INT)

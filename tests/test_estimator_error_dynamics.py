@@ -15,14 +15,14 @@ Each follower's estimator state (gamma, gamma_dot) is drawn at random, the leade
 derivatives of a helix at t = 3.7 s. With abar_i = a_hat_i - pddot_r, abardot_i = a_hat_dot_i - p_r^(3)
 and abarddot_i = a_hat_ddot_i - p_r^(4) (a_hat_ddot from the estimator's gamma_ddot through
 ``acceleration_estimate_ddot``, itself checked by finite differences in test_derivatives_fd.py),
-and N_p = -l_a p_r^(3) - p_r^(4) (NOTES.md item 8):
+and N_p = -l_a p_r^(3) - p_r^(4) (docs/paper.md, erratum 8):
 
 - the paper's printed error dynamics (its eq. for abarddot_i)
   ``abarddot_i = -l_a abardot_i - k_a (S_i + sgn(S_i)) + N_p``, ``S_i = sum_j m_ij (abar_j + abardot_j)``
   hold for ``bracket: printed``;
 - the proof's ``sdot = (M x I3)(-k_a s - k_a sgn(s) + 1 x N_p)``, with
   ``s = (M x I3)(l_a abar + abardot)``, holds for ``bracket: sliding_surface`` and misses by far on
-  the printed form (NOTES.md item 7).
+  the printed form (docs/paper.md, erratum 7).
 
 Both with the paper's sgn (boundary layer 0): at a generic state no component of S is zero, and
 the draws are checked to put both signs through it.
@@ -110,7 +110,7 @@ def test_sliding_form_follows_the_proofs_surface_dynamics(seed):
 
 @pytest.mark.parametrize("seed", SEEDS)
 def test_the_proofs_surface_dynamics_miss_the_printed_form(seed):
-    """NOTES.md item 7: the proof's sdot does not hold for the bracket as printed (l_a = 12)."""
+    """docs/paper.md, erratum 7: the proof's sdot does not hold for the bracket as printed (l_a = 12)."""
     res, _ = _sdot_residual(*_errors(1.0, seed))
     assert np.abs(res).max() > 1.0
 

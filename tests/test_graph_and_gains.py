@@ -89,7 +89,8 @@ def test_paper_gains_pass_on_the_tree_and_fail_on_the_ring():
 
 
 def test_l_a_bound_is_where_omega_stops_being_positive_definite():
-    """NOTES.md error 5: with +l_a lmin(M^T Theta M) in Omega(3,3), Sylvester gives the printed bound."""
+    """docs/paper.md, erratum 5: with +l_a lmin(M^T Theta M) in Omega(3,3), Sylvester gives the
+    printed bound."""
     ring = Graph.from_edges(4, [(0, 1), (1, 2), (2, 3), (3, 4), (4, 1)])
     r = check_gains(ring, PAPER_GAINS, HELIX, 9.81, 100)
     la = r.conditions[1].bound

@@ -45,7 +45,7 @@ def test_rotation_matrix_matches_sandwich_product(q, v):
 
 @given(unit_quaternions())
 def test_rotation_matrix_printed_formula(q):
-    """R(Q) = (w^2 - q.q) I + 2 q q^T + 2 w q^x (NOTES.md conventions)."""
+    """R(Q) = (w^2 - q.q) I + 2 q q^T + 2 w q^x (docs/paper.md, conventions)."""
     w, v = q[0], q[1:]
     R = (w * w - v @ v) * np.eye(3) + 2 * np.outer(v, v) + 2 * w * skew(v)
     np.testing.assert_allclose(rotation_matrix(q), R, atol=1e-12)

@@ -34,7 +34,7 @@ def test_ninety_degree_error_goes_to_zero():
 def test_sliding_surface_decays_as_j_rdot_equals_minus_kq_r():
     """With a rotating command (omega_c, omegadot_c known), r = l_q q_e + omega_e obeys J rdot = -k_q r.
 
-    Catches any sign error between R(Q), the error quaternion and the torque law (NOTES.md error 4).
+    Catches any sign error between R(Q), the error quaternion and the torque law (docs/paper.md, erratum 4).
     """
     dt = 1e-4
     w_cmd = np.array([0.3, -0.2, 0.5])  # constant command body rate

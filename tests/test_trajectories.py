@@ -40,7 +40,7 @@ def test_paper_helix():
 
 
 def test_n_p_is_minus_l_a_jerk_minus_snap_by_finite_differences_of_the_acceleration():
-    """N_p as derived (NOTES.md item 8: -l_a p_r^(3) - p_r^(4), the paper prints +l_a), against
+    """N_p as derived (docs/paper.md, erratum 8: -l_a p_r^(3) - p_r^(4), the paper prints +l_a), against
     central differences of the trajectory's own acceleration, not its derivative formulas."""
     from swarm_sitl.laws.trajectories import N_p
 
@@ -78,7 +78,7 @@ def test_sup_n_p_of_the_figure_eight_matches_its_closed_form_components():
     expected = float(np.max(np.hypot(nx, ny)))
     for horizon in (1.0, 60.0, 1000.0):
         assert sup_Np(FigureEight(A, B, w), l_a, horizon_s=horizon) == pytest.approx(expected, rel=1e-9)
-    # with the printed sign the sup is the same on this curve (NOTES.md item 8): the fix changes
+    # with the printed sign the sup is the same on this curve (docs/paper.md, erratum 8): the fix changes
     # no shipped verdict, only a user's trajectory's
     printed = np.hypot(
         -A * w**3 * (l_a * np.cos(w * t) + w * np.sin(w * t)),

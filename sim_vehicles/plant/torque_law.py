@@ -1,4 +1,4 @@
-"""The paper's applied torque (eq. torque), written in the Hamilton convention of NOTES.md.
+"""The paper's applied torque (eq. torque), written in the Hamilton convention of docs/paper.md (erratum 4).
 
 Attitude error ``Q_e = conj(Q_c) (x) Q``, ``omega_e = omega - R(Q_e)^T omega_c``,
 sliding surface ``r = l_q q_e + omega_e`` and

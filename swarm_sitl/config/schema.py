@@ -139,7 +139,7 @@ class GainsSpec(_Strict):
 
 
 class EstimatorSpec(_Strict):
-    #: the bracket inside gamma_ddot (NOTES.md item 7): ``sliding_surface`` weighs its acceleration
+    #: the bracket inside gamma_ddot (docs/paper.md, erratum 7): ``sliding_surface`` weighs its acceleration
     #: sum by l_a, the form Theorem 1's proof and ``swarm-sitl check`` cover; ``printed`` is the
     #: paper's equation as printed (no l_a), which the theorem does not cover unless l_a = 1
     bracket: Literal["sliding_surface", "printed"] = "sliding_surface"

@@ -1,4 +1,5 @@
-"""Command attitude from the command force (Lemma 3.3, NOTES.md fix 1), and its rate and acceleration.
+"""Command attitude from the command force (Lemma 3.3, docs/paper.md erratum 1), and its rate and
+acceleration.
 
 Hamilton convention, body FLU -> world ENU: ``R(Q_c) e3 = u / |u|`` with minimal rotation from e3::
 

@@ -1,4 +1,4 @@
-"""The paper's distributed estimator of the leader's state (eq. estimator), with NOTES.md fixes 2 and 7.
+"""The paper's distributed estimator of the leader's state (eq. estimator), with docs/paper.md errata 2 and 7.
 
 State of follower i (12 floats): ``[p_hat(3), v_hat(3), gamma(3), gamma_dot(3)]``, with
 ``a_hat = k_gamma tanh(gamma)`` and ``a_hat_dot = k_gamma Gammabar gamma_dot``,
@@ -15,7 +15,7 @@ The bracket's weight ``w_a`` (``bracket_a_weight``) is the one choice between th
 - ``w_a = l_a``, the **sliding-surface** form (``estimator.bracket: sliding_surface``, the default):
   ``S`` is then row i of the proof's surface ``s = (M x I3)(l_a abar + abardot)`` and
   ``sdot = (M x I3)(-k_a s - k_a sgn(s) + 1 x N_p)`` holds exactly, so Theorem 1's ``k_a`` bound
-  (``swarm-sitl check``) covers the law that runs (NOTES.md item 7);
+  (``swarm-sitl check``) covers the law that runs (docs/paper.md, erratum 7);
 - ``w_a = 1``, the bracket **as printed** (``estimator.bracket: printed``): equal to the other only
   when ``l_a = 1``; it converges in simulation, without the proof's guarantee.
 

@@ -44,7 +44,8 @@ def render(report: GainReport, name: str, bracket: str = COVERED_BRACKET) -> str
         lines.append("all conditions hold.")
     if bracket != COVERED_BRACKET:
         lines.append(
-            f"WARNING: estimator.bracket is {bracket}: Theorem 1 does not cover it (NOTES.md item 7), "
-            f"so the verdicts above are not a guarantee for this run; bracket {COVERED_BRACKET} is."
+            f"WARNING: estimator.bracket is {bracket}: Theorem 1 does not cover it "
+            f"(docs/paper.md, erratum 7), so the verdicts above are not a guarantee for this run; "
+            f"bracket {COVERED_BRACKET} is."
         )
     return "\n".join(lines)

@@ -5,7 +5,7 @@
     T         = m |u|
 
 with ``p_tilde = p - p_hat - delta - eta`` and ``v_tilde = v - v_hat - eta_dot``. The derivatives
-(section 3.4, with NOTES.md fix 3 for Dbar and Sbar)::
+(section 3.4, with docs/paper.md erratum 3 for Dbar and Sbar)::
 
     u_dot  = a_hat_dot - k_eta [D eta_dot + (D + S) eta_ddot]
     u_ddot = a_hat_ddot - k_eta [Dbar eta_dot + (Dbar + D + Sbar) eta_ddot + (D + S) eta_dddot]

@@ -116,7 +116,7 @@ def period_s(traj: Trajectory) -> float | None:
 
 
 def N_p(traj: Trajectory, l_a: float, t_s: float | np.ndarray) -> np.ndarray:
-    """``N_p = -l_a p_r^(3) - p_r^(4)`` as derived from the estimator (NOTES.md item 8: the paper
+    """``N_p = -l_a p_r^(3) - p_r^(4)`` as derived from the estimator (docs/paper.md, erratum 8: the paper
     prints ``+l_a``), at ``t_s``."""
     d = traj.derivatives(t_s)
     return -l_a * d[..., 3, :] - d[..., 4, :]
