@@ -1,8 +1,8 @@
 """``python -m sim_vehicles``: one simulated vehicle behind a MAVLink 2 UDP endpoint.
 
 Real time by default; ``--lockstep-period-s`` makes simulated time advance one period per
-SET_ATTITUDE_TARGET stamped with the vehicle's current time (see ``mavlink_endpoint``). SIGTERM or
-SIGINT closes the .tlog and the truth log and exits 0.
+SET_ATTITUDE_TARGET stamped with the vehicle's current time (see ``vehicle.endpoint``). SIGTERM
+or SIGINT closes the .tlog and the truth log and exits 0.
 """
 
 import argparse

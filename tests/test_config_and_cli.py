@@ -238,7 +238,7 @@ def test_router_refuses_a_bad_endpoint_or_users_file_in_one_line(capsys, tmp_pat
 
 def test_a_config_loaded_again_unchanged_is_the_same_object_and_a_changed_one_is_parsed(tmp_path):
     """The fork server loads the run's config once and its children get that object (see
-    ``config._LAST``); a file that changed in between is read anew."""
+    ``config.load._LAST``); a file that changed in between is read anew."""
     from swarm_sitl.config.load import load_config
 
     path = tmp_path / "c.yaml"

@@ -1,5 +1,5 @@
 """What a controller does with inputs that are missing or old: what a lockstep controller waits for
-when a neighbour's process is gone (``controller_node``), and what its error says when old inputs
+when a neighbour's process is gone (``nodes.controller``), and what its error says when old inputs
 made its estimator diverge (``follower``)."""
 
 import math

@@ -1,4 +1,4 @@
-"""The vehicle's own setpoint-loss failsafe (``sim_vehicles.failsafe``): the attitude it asks for,
+"""The vehicle's own setpoint-loss failsafe (``sim_vehicles.plant.failsafe``): the attitude it asks for,
 and the hold and the landing it flies, closed loop on the plant and the attitude loop."""
 
 import math

@@ -1,4 +1,4 @@
-"""The per-tick MAVLink path (``sim_vehicles.mavlink_frames``) against pymavlink itself: the same
+"""The per-tick MAVLink path (``sim_vehicles.mavlink.frames``) against pymavlink itself: the same
 bytes out, the same fields in, and anything it does not handle left to pymavlink whole."""
 
 import contextlib

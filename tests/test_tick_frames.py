@@ -1,4 +1,4 @@
-"""The per-tick frames in one compiled call (``sim_vehicles.tick_frames``) against pymavlink and an
+"""The per-tick frames in one compiled call (``sim_vehicles.mavlink.tick_frames``) against pymavlink and an
 independent reference of the wire conversions (Python floats through ``struct``'s float32)."""
 
 import os

@@ -2,7 +2,7 @@
 
 ``hashlib`` is faster per byte, but a signature covers under a hundred bytes, and calling it from
 Python costs a dozen interpreter operations around each frame (building the key + frame bytes,
-the digest object, slicing): more than the hash. ``sha256_into`` lets ``mavlink_signing`` sign and
+the digest object, slicing): more than the hash. ``sha256_into`` lets ``signing`` sign and
 check a whole datagram in one compiled call. Tested against ``hashlib``.
 
 - ``sha256_into(a, na, b, nb, out)``: the digest of ``a[:na] + b[:nb]`` (a key and a frame,

@@ -10,7 +10,7 @@ setup`` and QGroundControl derive from a passphrase (its SHA-256).
   signed (flag set, CRC updated, signature appended). Timestamps follow the wall clock and never
   repeat.
 - ``Verifier.open(datagram)``: the datagram's frames, checked and unsigned (flag cleared, CRC
-  updated): plain MAVLink 2 bytes for the parsers that follow (``tick_frames``, ``mavlink_frames``,
+  updated): plain MAVLink 2 bytes for the parsers that follow (``tick_frames``, ``frames``,
   pymavlink). ``None`` if any frame is not signed (``unsigned``, MAVLink 1 included), is signed wrongly
   or not a frame (``bad``), or repeats or goes back in time (``replayed``: each stream, a
   ``(system, component, link id)``, must move its timestamp forward; a new stream may start at most

@@ -4,7 +4,7 @@ converted) in one compiled call.
 A lockstep tick is a ping-pong: the vehicle sends its sample (LOCAL_POSITION_NED and
 ATTITUDE_QUATERNION), the controller answers with SET_ATTITUDE_TARGET. Done in Python, field by
 field, that costs more than the laws: these kernels do the conversion (``wire_format``) and the
-frame (``mavlink_frames``: the bytes pymavlink would write, tested against it) in one call each.
+frame (``frames``: the bytes pymavlink would write, tested against it) in one call each.
 
 - ``pack_local_position`` / ``pack_attitude_quaternion`` (vehicle): the message of state ``x``
   (``common.state``) at ``time_boot_ms``, written to ``out``; returns its length.
@@ -21,7 +21,7 @@ frame (``mavlink_frames``: the bytes pymavlink would write, tested against it) i
   followed by ``wire_format.command_from_fields`` of its fields; else ``[0, ...]``.
   ``setpoint_of(r)`` gives it as a ``wire_format.Setpoint``.
 
-``spec`` arguments are ``mavlink_frames.Layout.spec`` of the message named.
+``spec`` arguments are ``frames.Layout.spec`` of the message named.
 """
 
 import numpy as np

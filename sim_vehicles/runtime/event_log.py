@@ -2,7 +2,7 @@
 
 Every event has ``t_s`` (the writer's simulated or run seconds), ``kind`` and ``source`` (the
 process that saw it), plus fields of its kind. The run's ``events.jsonl`` merges every process's
-file (``swarm_sitl.events``).
+file (``swarm_sitl.rundir.events``).
 """
 
 import json

@@ -9,7 +9,7 @@ a kernel call per frame) that was most of a vehicle's CPU, paid with cold caches
 
 ``step_and_sample`` runs the same kernels in the same order (``autopilot.advance_kernel``, then
 ``tick_frames``' two frames), so the state and the bytes are those of the general path bit for
-bit. ``mavlink_endpoint`` decides when a tick is the usual one and keeps the books around it
+bit. ``endpoint`` decides when a tick is the usual one and keeps the books around it
 (sequence numbers, stream schedule, ``.tlog``); anything else takes the general path.
 """
 

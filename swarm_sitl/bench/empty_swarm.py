@@ -16,8 +16,8 @@ the other side: the same laws with no transport.
   signed SET_ATTITUDE_TARGET;
 - the leader puts tick k on its out-edges at most ``run.lockstep_window`` ticks ahead of the
   slowest follower's status, sleeping ``LEADER_POLL_S`` when it is that far ahead;
-- the router is a zenoh session in this process, with the run's router runtime (``bus.ROUTER_RUNTIME``)
-  but neither authentication nor access control.
+- the router is a zenoh session in this process, with the run's router runtime
+  (``bus.session.ROUTER_RUNTIME``) but neither authentication nor access control.
 
 Every process runs under ``SCHED_BATCH``, as a lockstep run's do, and imports zenoh and little
 else; nothing is computed, signed, logged or checked. What it measures is what the structure costs

@@ -25,7 +25,7 @@ and written to ``OUT/scale.csv`` and ``OUT/scale.png``:
 - with ``--split N``: the N-follower run again with every process profiled, and each process
   kind's main-thread CPU by activity (physics and laws, MAVLink, zenoh, waking up, logs, the loop;
   ``cost_split``), printed and written to ``OUT/split.csv``;
-- where a controller's start-up goes (medians over controllers, ``sim_vehicles.lifeline.mark``):
+- where a controller's start-up goes (medians over controllers, ``sim_vehicles.runtime.lifeline.mark``):
   ``main`` (interpreter and imports), ``zenoh`` (session opened), ``ready`` (MAVLink link, vehicle
   parameters, kernels loaded, subscriptions declared), and the last vehicle's age at ready.
 """

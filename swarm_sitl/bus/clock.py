@@ -16,7 +16,7 @@ POLL_S = 0.0005  #: longest block between two reads when an input has no file de
 #: real time: how long after the last tick's instant a node that is done keeps its zenoh session [s]
 END_LINGER_S = 0.25
 #: real time: how far ahead of a node's clock another's message may be [s] (their clocks are one
-#: host's, or NTP-synchronised hosts'); one further ahead is refused (``bus``)
+#: host's, or NTP-synchronised hosts'); one further ahead is refused (``node_bus``)
 HORIZON_LEAD_S = 0.5
 
 

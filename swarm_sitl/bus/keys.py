@@ -8,7 +8,7 @@
     swarm/<name>/alive/<node>         liveliness token of node 0 (leader) or follower i, once ready
 
 A controller publishes on each of its out-edges and subscribes to each of its in-edges, by its
-full key: never a wildcard, so the bus carries exactly the graph. Payloads are in ``bus_codec``.
+full key: never a wildcard, so the bus carries exactly the graph. Payloads are in ``codec``.
 """
 
 

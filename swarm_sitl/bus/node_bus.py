@@ -139,7 +139,7 @@ class ZenohNodeBus:
         self.published = 0  #: estimates published (each on every out-edge)
         self.refused: dict[int, int] = {}  #: per sender, payloads that decoded but cannot be (above)
         self._last_step: dict[int, int] = {}  #: per sender, the tick of its last estimate taken
-        #: the latest tick an estimate or status may be of now (``node_main``: the run's last tick,
+        #: the latest tick an estimate or status may be of now (``nodes.entry``: the run's last tick,
         #: in real time also no further ahead of this node's clock than ``HORIZON_LEAD_S``)
         self.horizon: Callable[[], int] = lambda: 2**32
         self._epoch: float | None = None

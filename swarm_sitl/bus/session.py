@@ -99,7 +99,7 @@ def router_runtime() -> Iterator[None]:
 def open_router(listen: list[str], users_file: str, access_control: dict[str, Any]) -> zenoh.Session:
     """The run's router (``zenoh.mode: router``): it authenticates every session against
     ``users_file`` (``user:password`` lines) and applies ``access_control`` to what they send and
-    receive (``zenoh_access``). Its own puts and subscriptions are local, not subject to it."""
+    receive (``access``). Its own puts and subscriptions are local, not subject to it."""
     c = zenoh.Config()
     c.insert_json5("mode", json.dumps("router"))
     c.insert_json5("listen/endpoints", json.dumps(listen))

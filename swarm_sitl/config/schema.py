@@ -153,7 +153,7 @@ class EstimatorSpec(_Strict):
 
 
 class SigningSpec(_Strict):
-    """MAVLink 2 signing of every vehicle link (``sim_vehicles.mavlink_signing``): unsigned or
+    """MAVLink 2 signing of every vehicle link (``sim_vehicles.mavlink.signing``): unsigned or
     wrongly signed messages, and replays, are refused by vehicle and controller alike."""
 
     #: sign the links of the vehicles ``run`` spawns (off: for a tool that cannot sign)
@@ -170,7 +170,7 @@ class RunSpec(_Strict):
 
     start_timeout_s: Positive = 120.0  #: every process ready (connected, parameters read) within this
     #: how the vehicles and nodes are started: ``fork``ed from one process that has imported
-    #: everything and loaded the compiled kernels (``fork_server``; Linux), or each ``spawn``ed as a
+    #: everything and loaded the compiled kernels (``running.fork_server``; Linux), or each ``spawn``ed as a
     #: new interpreter. Either way each is its own process with its own sockets.
     start: Literal["fork", "spawn"] = "fork"
     stall_timeout_s: Positive = 20.0  #: lockstep: a process waiting this long for an input gives up
@@ -217,7 +217,7 @@ class SwarmConfig(_Strict):
     zenoh: ZenohSpec = ZenohSpec()  #: the bus between the processes
     signing: SigningSpec = SigningSpec()  #: MAVLink 2 signing of the vehicle links
     run: RunSpec = RunSpec()  #: limits and pacing of a multi-process run
-    faults: FaultPlan = FaultPlan()  #: what fails, how and when (``fault_plan``)
+    faults: FaultPlan = FaultPlan()  #: what fails, how and when (``faults``)
 
     @model_validator(mode="after")
     def _cross(self) -> "SwarmConfig":

@@ -1,7 +1,7 @@
 """A fault plan acting on a node's in-edges: ``FaultyBus`` wraps a ``ZenohNodeBus``.
 
 Every estimate the wrapped bus decodes comes here first (its ``deliver``). The plan's fate for it
-(``fault_plan.fate``: lost, corrupted, delayed, duplicated) decides whether and when the loop may
+(``plan.fate``: lost, corrupted, delayed, duplicated) decides whether and when the loop may
 use it; the wrapped bus files it then. Nothing in the loop or the laws knows about faults: a lost
 estimate is one the loop does not get, and it rides through on the last one it has
 (``neighbour_inbox``).

@@ -1,7 +1,7 @@
 """A fault plan on a vehicle's MAVLink link, each way apart: a wrapper of the datagrams the
 controller's ``VehicleLink`` sends (uplink: setpoints) and receives (downlink: telemetry).
 
-Each datagram's fate is ``fault_plan.fate`` under the plan's ``mavlink: i`` entries.
+Each datagram's fate is ``plan.fate`` under the plan's ``mavlink: i`` entries.
 
 - Real time: a lost datagram is not sent (uplink) or not read (downlink); a corrupted one goes on
   with one byte flipped, for the receiver's CRC check to drop and count; a delayed or duplicated one

@@ -39,14 +39,14 @@ One entry names one *what*, one *how* and optionally *when*:
   A process fault happens at ``from_s``.
 
 In lockstep a process fault happens at a tick: a node planned to die at tick k kills itself with
-SIGKILL when it gets there, before it publishes tick k (``bus_faults``), so the swarm sees the
+SIGKILL when it gets there, before it publishes tick k (``edges``), so the swarm sees the
 same run every time; the supervisor restarts it, and it takes up its vehicle at the restart tick
 (the vehicle flies its failsafe through the gap, in simulated time). A freeze in lockstep only
 costs wall time (no simulated time passes while a process is stopped).
 
 Probabilities are drawn per message from a hash of (seed, entry, edge, step): the same plan and
 seed give the same fate to every message, whatever the machine does (``fate``). Faults act where
-messages are received (``bus_faults``), so a lockstep receiver always knows a message's fate
+messages are received (``edges``), so a lockstep receiver always knows a message's fate
 without waiting for something that will not come.
 """
 

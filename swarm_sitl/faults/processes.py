@@ -7,7 +7,7 @@ and starts a killed controller or leader again ``restart_after_s`` later; the ne
 the current tick.
 
 Lockstep: a controller or the leader the plan kills at tick k kills itself when it gets there
-(``bus_faults``: the run is then the same every time); the supervisor sees it exit with SIGKILL,
+(``edges``: the run is then the same every time); the supervisor sees it exit with SIGKILL,
 knows it was planned, starts it again at once with ``--resume-tick`` (its restart tick) if the plan
 restarts it, and kills a lost aircraft's vehicle with it. A freeze stops a process for ``freeze_s``
 of wall time once the swarm has reached ``from_s``: no simulated time passes meanwhile.

@@ -3,7 +3,7 @@
 Sampled-data semantics (the controller side; the same in ``sim`` and across processes):
 
 - The controller ticks at ``control_rate_hz``; tick ``k`` is at ``t_k = k * dt`` (plus the
-  follower's ``tick_phase_s`` in a staggered real-time run, ``config.RunSpec.realtime_ticks``).
+  follower's ``tick_phase_s`` in a staggered real-time run, ``config.schema.RunSpec.realtime_ticks``).
 - At tick ``k`` it holds the estimate messages its in-neighbours sent at tick ``k - 1`` (their values
   at ``t_{k-1}``; none at ``k = 0``) and the sample of its own vehicle at ``t_k``. A neighbour with no
   message is left out of the sums (as if the edge were absent for that tick).

@@ -38,7 +38,6 @@ class VehicleLink:
     ):
         self.url = url
         self.system_id = system_id
-        self.faults = faults
         self.transport = Transport(url, system_id, stamp_arrivals, faults, signing_key)
         self.conn = self.transport.conn
         self.downlink = Downlink(system_id, self.conn.mav, self.transport.whole_datagrams)
@@ -83,7 +82,8 @@ class VehicleLink:
         """Lockstep: whether the sample of ``time_boot_ms`` has come, or a fault plan lost it."""
         if self.downlink.sample_ms == time_boot_ms:
             return True
-        return self.faults is not None and self.faults.lost_ms == time_boot_ms
+        faults = self.transport.faults
+        return faults is not None and faults.lost_ms == time_boot_ms
 
     @property
     def rx_bad(self) -> int:

@@ -112,7 +112,7 @@ WALL_CLOCK_ONLY = ("resends",)
 
 def inputs_and_links(cfg: SwarmConfig, run_dir: Path) -> tuple[dict[str, Any], dict[str, Any]]:
     """What each controller reported of its inputs (``NodeReport``), and per edge what its
-    receiver counted under the fault plan (``bus_faults.EdgeStats``; edges without a fault on
+    receiver counted under the fault plan (``faults.edges.EdgeStats``; edges without a fault on
     them deliver what arrives), summed over a restarted controller's incarnations. A controller
     that did not finish reports nothing."""
     inputs: dict[str, Any] = {}
@@ -140,7 +140,7 @@ def inputs_and_links(cfg: SwarmConfig, run_dir: Path) -> tuple[dict[str, Any], d
     return inputs, links
 
 
-#: what a vehicle refused (``sim_vehicles.mavlink_endpoint.EndpointStats``): the summary's part of
+#: what a vehicle refused (``sim_vehicles.vehicle.port.EndpointStats``): the summary's part of
 #: its counts (the others count heartbeats, which follow the wall clock)
 VEHICLE_REFUSALS = ("rx_bad", "rx_refused", "rx_invalid", "rx_unhandled", "handler_errors")
 

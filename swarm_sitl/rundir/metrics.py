@@ -110,7 +110,7 @@ def bound_failures(summary: dict, bound_m: float | None) -> list[str]:
 
 
 def describe_inputs(report: dict) -> str:
-    """A controller's degraded inputs (``controller_node.NodeReport`` as a dict) in words, "" if none."""
+    """A controller's degraded inputs (``nodes.controller.NodeReport`` as a dict) in words, "" if none."""
     parts = []
     if report.get("old_samples"):
         parts.append(

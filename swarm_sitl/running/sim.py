@@ -1,6 +1,6 @@
 """The whole swarm in one process, through the same step functions the processes run.
 
-Per control tick ``k`` (see ``follower`` for the controller's semantics, ``sim_vehicles.autopilot``
+Per control tick ``k`` (see ``laws.follower`` for the controller's semantics, ``sim_vehicles.plant.autopilot``
 for the vehicle's): the leader emits its reference at ``t_k``; each vehicle is sampled through the
 MAVLink wire representation (float32, NED/FRD); each controller steps with its in-neighbours'
 messages of tick ``k - 1``; each command crosses the wire representation and is held by the vehicle

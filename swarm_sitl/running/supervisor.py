@@ -69,7 +69,7 @@ class Supervisor:
     run_dir: Path
     children: list[Child] = field(default_factory=list)
     _logs: list[IO[bytes]] = field(default_factory=list)
-    #: whether a child's exit (with its code) is one a fault plan made (``process_faults``)
+    #: whether a child's exit (with its code) is one a fault plan made (``faults.processes``)
     planned_exit: Callable[[Child, int], bool] = lambda child, code: False
     #: whether a stopped child was stopped by the plan
     planned_stop: Callable[[str], bool] = lambda process: False
