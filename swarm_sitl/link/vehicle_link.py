@@ -13,6 +13,8 @@ kernel's receive stamp on a ``udpout:`` link where it has them (``stamps_arrival
 ``poll()`` read it.
 """
 
+import math
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -44,6 +46,14 @@ class VehicleLink:
         self.setpoints = Setpoints(self.transport, system_id)
         self.params = self.downlink.params  #: the vehicle's parameters, as it reported them
         self.acks = self.downlink.acks  #: the latest COMMAND_ACK's result by command
+        #: ``() -> (time_boot_s, p_W, v_W, q_WB)``: the latest complete sample, in ENU/FLU (the
+        #: downlink's own method: one call a tick, not two)
+        self.sample: Callable[[], tuple[float, np.ndarray, np.ndarray, np.ndarray]] = self.downlink.sample
+        #: ``time_boot_ms`` of the latest complete sample (-1: none yet), and when it arrived [s;
+        #: ``time.monotonic``]: the downlink's, as of the last ``poll`` (plain attributes: the
+        #: controller reads them several times a tick)
+        self.sample_ms = -1
+        self.sample_arrival_mono = math.nan
 
     # -- receive ---------------------------------------------------------------------------------
     def poll(self, readable: bool = False, until_ms: int = -1) -> int:
@@ -52,31 +62,20 @@ class VehicleLink:
         stop once the sample of that instant has come (lockstep: what else waits is read at the
         next tick, whose wait finds the socket readable), saving a look at an empty socket."""
         n = 0
-        read = self.downlink.read
+        downlink = self.downlink
+        read = downlink.read
         for data, arrival in self.transport.datagrams(readable):
             got, sample_ms = read(data, arrival)
             n += got
             if sample_ms >= 0 and sample_ms == until_ms:
                 break
+        self.sample_ms, self.sample_arrival_mono = downlink.sample_ms, downlink.sample_arrival_mono
         return n
 
     @property
     def heartbeat(self) -> Any:
         """The autopilot's latest HEARTBEAT (None until one came)."""
         return self.downlink.heartbeat
-
-    @property
-    def sample_ms(self) -> int:
-        """``time_boot_ms`` of the latest complete sample (-1: none yet)."""
-        return self.downlink.sample_ms
-
-    @property
-    def sample_arrival_mono(self) -> float:
-        return self.downlink.sample_arrival_mono
-
-    def sample(self) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
-        """``(time_boot_s, p_W, v_W, q_WB)`` of the latest complete sample, in ENU/FLU."""
-        return self.downlink.sample()
 
     def sample_settled(self, time_boot_ms: int) -> bool:
         """Lockstep: whether the sample of ``time_boot_ms`` has come, or a fault plan lost it."""

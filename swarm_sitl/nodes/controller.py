@@ -137,11 +137,13 @@ class _Inputs:
         self.read_link()
 
     def read_link(self, readable: bool = False, until_ms: int = -1) -> None:
-        self.link.poll(readable, until_ms)
-        if self.link.sample_ms != self._last_ms:
-            self._last_ms = self.link.sample_ms
-            arrival = self.link.sample_arrival_mono - self.epoch_mono
-            self.offset_s = min(self.offset_s, arrival - self._last_ms / 1000.0)
+        link = self.link
+        link.poll(readable, until_ms)
+        sample_ms = link.sample_ms
+        if sample_ms != self._last_ms:
+            self._last_ms = sample_ms
+            arrival = link.sample_arrival_mono - self.epoch_mono
+            self.offset_s = min(self.offset_s, arrival - sample_ms / 1000.0)
 
     # -- lockstep --------------------------------------------------------------------------------
     def _lacking(self) -> list[int]:
