@@ -12,7 +12,6 @@ from collections.abc import Sequence
 from swarm_sitl.commands import bench, runs, tools
 from swarm_sitl.commands.common import EXIT_USAGE, CliError
 from swarm_sitl.config.load import ConfigError
-from swarm_sitl.laws.command_attitude import SingularCommandError
 from swarm_sitl.laws.graph import GraphError
 from swarm_sitl.nodes.arguments import add_node_parsers
 from swarm_sitl.rundir.load import RunDirError
@@ -51,7 +50,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(argv)
     try:
         return int(args.func(args))
-    except (ConfigError, GraphError, RunDirError, SingularCommandError, CliError) as e:
+    except (ConfigError, GraphError, RunDirError, CliError) as e:
         print(f"swarm-sitl: error: {e}", file=sys.stderr)
         return EXIT_USAGE
     except KeyboardInterrupt:

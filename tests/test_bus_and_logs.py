@@ -19,19 +19,19 @@ from hypothesis import strategies as st
 from sim_vehicles.runtime.row_log import RowLog, read_rows
 from swarm_sitl.bus import keys as zenoh_keys
 from swarm_sitl.bus.codec import (
+    Message,
     PayloadError,
     Status,
-    decode_estimate,
+    decode_message,
     decode_start,
     decode_status,
     decode_waiting,
-    encode_estimate,
+    encode_message,
     encode_start,
     encode_status,
 )
 from swarm_sitl.bus.node_bus import ZenohNodeBus
 from swarm_sitl.bus.session import ROUTER_RUNTIME, RUNTIME_ENV, ZenohSpec, open_session, router_runtime
-from swarm_sitl.laws.follower import EstimateMessage
 from swarm_sitl.running.children import child_env
 from swarm_sitl.running.hub import free_tcp_port
 
@@ -39,15 +39,12 @@ finite = st.floats(allow_nan=False, allow_infinity=False, width=64)
 
 
 @pytest.mark.unit
-@given(st.integers(0, 65535), st.integers(0, 2**32 - 1), st.lists(finite, min_size=13, max_size=13))
-def test_estimate_roundtrip_is_exact(src, step, v):
-    m = EstimateMessage(
-        src, step, v[0], np.array(v[1:4]), np.array(v[4:7]), np.array(v[7:10]), np.array(v[10:13])
-    )
-    back = decode_estimate(encode_estimate(m))
-    assert (back.src, back.step, back.t_s) == (src, step, v[0])
-    for a, b in zip(back[3:], m[3:], strict=True):
-        assert np.array_equal(a, b)  # float64 end to end: lockstep runs equal sim bit for bit
+@given(st.integers(0, 65535), st.integers(0, 2**32 - 1), finite, st.lists(finite, min_size=1, max_size=40))
+def test_message_roundtrip_is_exact(src, step, t_s, v):
+    back = decode_message(encode_message(Message(src, step, t_s, np.array(v))))
+    assert (back.src, back.step, back.t_s) == (src, step, t_s)
+    # float64 end to end, whatever the length: lockstep runs equal sim bit for bit
+    assert back.values.dtype == np.float64 and back.values.tobytes() == np.array(v).tobytes()
 
 
 @pytest.mark.unit
@@ -71,14 +68,19 @@ def _with_crc(body: bytes, flip: int | None = None) -> bytes:
     [
         (b"", "0 bytes"),
         (b"\x01" * 10, "10 bytes"),
-        (b"\x01" + encode_estimate(EstimateMessage(1, 1, 0.0, *[np.zeros(3)] * 4))[1:], "version 1"),
-        (_with_crc(struct.pack("<BHId12d", 2, 1, 1, math.nan, *[0.0] * 12)), "non-finite"),
-        (_with_crc(struct.pack("<BHId12d", 2, 1, 1, 0.0, *[0.0] * 12), flip=40), "checksum"),
+        (b"\x01" + encode_message(Message(1, 1, 0.0, np.zeros(12)))[1:], "version 1"),
+        (_with_crc(struct.pack("<BHIdH12d", 3, 1, 1, math.nan, 12, *[0.0] * 12)), "non-finite"),
+        (_with_crc(struct.pack("<BHIdH12d", 3, 1, 1, 0.0, 12, 1.0, math.inf, *[0.0] * 10)), "non-finite"),
+        (_with_crc(struct.pack("<BHIdH12d", 3, 1, 1, 0.0, 12, *[0.0] * 12), flip=40), "checksum"),
+        (
+            _with_crc(struct.pack("<BHIdH12d", 3, 1, 1, 0.0, 13, *[0.0] * 12)),
+            "117 bytes, its 13 values need 125",
+        ),
     ],
 )
-def test_malformed_estimates_are_refused_with_one_line(payload, match):
+def test_malformed_messages_are_refused_with_one_line(payload, match):
     with pytest.raises(PayloadError, match=match) as e:
-        decode_estimate(payload)
+        decode_message(payload)
     assert "\n" not in str(e.value)
 
 
@@ -106,15 +108,43 @@ def test_bad_payload_on_an_edge_is_dropped_and_counted():
     session = open_session(ZenohSpec(mode="peer", listen=[]))
     try:
         bus = ZenohNodeBus(session, "t", 2, [1], [])
-        good = EstimateMessage(1, 5, 0.05, *[np.ones(3)] * 4)
+        good = Message(1, 5, 0.05, np.ones(12))
         session.put(zenoh_keys.edge("t", 1, 2), b"garbage")
-        session.put(zenoh_keys.edge("t", 1, 2), encode_estimate(good))
+        session.put(zenoh_keys.edge("t", 1, 2), encode_message(good))
         for _ in range(200):
             bus.poll()
             if bus.latest(1) is not None:
                 break
             time.sleep(0.01)
         assert bus.dropped == 1 and bus.estimate(1, 5) is not None and bus.latest(1).step == 5
+        bus.close()
+    finally:
+        session.close()
+
+
+@pytest.mark.unit
+def test_a_message_of_another_length_than_its_sender_sends_is_dropped_and_counted():
+    """Node 2 runs a law whose messages have 9 values: from follower 1 it takes 9, never 12;
+    from the leader (node 0) it takes the reference's 12, never 9."""
+    session = open_session(ZenohSpec(mode="peer", listen=[]))
+    try:
+        bus = ZenohNodeBus(session, "t", 2, [0, 1], [], message_length=9)
+        sent = [
+            (1, Message(1, 1, 0.01, np.ones(12))),  # the paper's length: not what 1 sends here
+            (0, Message(0, 1, 0.01, np.ones(9))),  # the leader's must be the reference
+            (1, Message(1, 2, 0.02, np.ones(9))),
+            (0, Message(0, 2, 0.02, np.ones(12))),
+        ]
+        for src, m in sent:
+            session.put(zenoh_keys.edge("t", src, 2), encode_message(m))
+        for _ in range(200):
+            bus.poll()
+            if bus.latest(0) is not None and bus.latest(1) is not None:
+                break
+            time.sleep(0.01)
+        assert bus.dropped == 2
+        assert bus.estimate(1, 1) is None and bus.estimate(0, 1) is None
+        assert len(bus.estimate(1, 2).values) == 9 and len(bus.estimate(0, 2).values) == 12
         bus.close()
     finally:
         session.close()
@@ -146,7 +176,7 @@ def test_forget_before_drops_exactly_the_older_ticks_even_out_of_order():
     try:
         bus = ZenohNodeBus(session, "t", 2, [1], [])
         for k in [0, 1, 2, 4, 3, 5, 6, 7]:  # one pair out of order
-            bus.file(EstimateMessage(1, k, 0.01 * k, *[np.ones(3)] * 4))
+            bus.file(Message(1, k, 0.01 * k, np.ones(12)))
         kept = lambda: [k for k in range(8) if bus.estimate(1, k) is not None]  # noqa: E731
         assert kept() == list(range(8)) and bus.latest(1).step == 7
         bus.forget_before(3)
@@ -161,7 +191,7 @@ def test_forget_before_drops_exactly_the_older_ticks_even_out_of_order():
 
 
 def _estimate(src: int, step: int, p: float = 1.0) -> bytes:
-    return encode_estimate(EstimateMessage(src, step, 0.01 * step, *[np.full(3, p)] * 4))
+    return encode_message(Message(src, step, 0.01 * step, np.full(12, p)))
 
 
 def _drain(bus, until) -> None:
@@ -200,7 +230,7 @@ def test_estimates_that_cannot_follow_the_last_are_refused_and_counted():
         taken = [k for k in range(101) if bus.estimate(1, k) is not None]
         assert taken == [0, 1, 3, 4, 100]
         assert bus.refused == {1: sum(not ok for _, ok in sent)} and bus.dropped == 0
-        assert all(bus.estimate(1, k).p_hat.tolist() == [1.0] * 3 for k in taken)
+        assert all(bus.estimate(1, k).values.tolist() == [1.0] * 12 for k in taken)
         assert bus.received == {1: 5}
         bus.close()
     finally:
@@ -265,9 +295,7 @@ def test_the_bus_descriptor_wakes_a_select_when_an_estimate_comes_and_is_quiet_a
         fd = bus.fileno()
         assert select.select([fd], [], [], 0.05)[0] == []  # nothing yet
         bus.poll()
-        session.put(
-            zenoh_keys.edge("t", 1, 2), encode_estimate(EstimateMessage(1, 3, 0.03, *[np.ones(3)] * 4))
-        )
+        session.put(zenoh_keys.edge("t", 1, 2), encode_message(Message(1, 3, 0.03, np.ones(12))))
         assert select.select([fd], [], [], 5.0)[0] == [fd]
         bus.poll()
         assert bus.estimate(1, 3) is not None
@@ -275,7 +303,7 @@ def test_the_bus_descriptor_wakes_a_select_when_an_estimate_comes_and_is_quiet_a
         for k in (4, 5, 6):  # a batch between two polls: one wake-up, every estimate taken
             session.put(
                 zenoh_keys.edge("t", 1, 2),
-                encode_estimate(EstimateMessage(1, k, 0.01 * k, *[np.ones(3)] * 4)),
+                encode_message(Message(1, k, 0.01 * k, np.ones(12))),
             )
         deadline = time.monotonic() + 5.0
         while len(bus._queue) < 3 and time.monotonic() < deadline:

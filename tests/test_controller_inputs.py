@@ -1,6 +1,6 @@
 """What a controller does with inputs that are missing or old: what a lockstep controller waits for
 when a neighbour's process is gone (``nodes.controller``), and what its error says when old inputs
-made its estimator diverge (``follower``)."""
+made the paper's estimator diverge (``laws.zou_meng``, through ``nodes.law_host``)."""
 
 import math
 
@@ -8,21 +8,23 @@ import numpy as np
 import pytest
 
 from swarm_sitl.bus.clock import StallError
+from swarm_sitl.bus.codec import Message
 from swarm_sitl.laws.command_attitude import SingularCommandError
-from swarm_sitl.laws.follower import EstimateMessage, VehicleSample
+from swarm_sitl.laws.contract import Received, VehicleSample
 from swarm_sitl.nodes import controller as controller_node
-from swarm_sitl.nodes.assembly import build_controller
+from swarm_sitl.nodes.assembly import build_law
 from swarm_sitl.nodes.controller import _Inputs
+from swarm_sitl.nodes.law_host import LawError
 
 pytestmark = pytest.mark.unit
 
 
 class _Bus:
     def __init__(self) -> None:
-        self.estimates: dict[tuple[int, int], EstimateMessage] = {}
+        self.estimates: dict[tuple[int, int], Message] = {}
         self.gone: set[int] = set()
 
-    def estimate(self, src: int, step: int) -> EstimateMessage | None:
+    def estimate(self, src: int, step: int) -> Message | None:
         return self.estimates.get((src, step))
 
     def settled(self, src: int, step: int) -> bool:
@@ -52,9 +54,8 @@ def _waiting_at_tick_10(bus: _Bus) -> _Inputs:
     return io
 
 
-def _estimate(src: int, step: int) -> EstimateMessage:
-    z = np.zeros(3)
-    return EstimateMessage(src, step, step * 0.01, z, z, z, z)
+def _estimate(src: int, step: int) -> Message:
+    return Message(src, step, step * 0.01, np.zeros(12))
 
 
 def test_a_neighbour_that_finished_after_sending_what_is_needed_does_not_stall_the_tick(monkeypatch):
@@ -94,15 +95,17 @@ def test_a_diverged_controller_says_when_its_inputs_were_old(paper_cfg, age_s):
     """A neighbour estimate that makes the output non-finite stops the controller with one line; if
     the estimate was many periods old (a saturated real-time machine) the line says how old and
     what that suggests, and otherwise it does not."""
-    ctrl = build_controller(paper_cfg, 4)
+    law = build_law(paper_cfg, 4)
     q, x = np.array([1.0, 0.0, 0.0, 0.0]), np.zeros(3)
-    ctrl.step(0, VehicleSample(0.0, x, x, q), {})
+    law.step(0.0, VehicleSample(0.0, x, x, q), {})
     k = 50
     t = k * paper_cfg.control_dt_s
-    bad = EstimateMessage(1, k - 1, t - age_s, np.full(3, np.inf), x, x, x)
-    with pytest.raises(SingularCommandError) as e:
-        ctrl.step(k, VehicleSample(t, x, x, q), {1: bad, 2: bad._replace(src=2)})
+    bad = Received(np.concatenate([np.full(3, np.inf), np.zeros(9)]), t - age_s, age_s)
+    with pytest.raises(LawError) as e:
+        law.step(t, VehicleSample(t, x, x, q), {1: bad, 2: bad})
+    assert isinstance(e.value.__cause__, SingularCommandError)  # the paper's own diagnosis, kept
     text = str(e.value)
+    assert text.startswith("law swarm_sitl.laws.zou_meng:ZouMengLaw, follower 4 at t=0.500 s: ")
     assert "not finite" in text and "\n" not in text
     old = age_s > 5 * paper_cfg.control_dt_s
     assert ("a machine too slow for the swarm" in text) == old

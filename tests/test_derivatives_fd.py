@@ -14,8 +14,8 @@ import numpy as np
 import pytest
 
 from sim_vehicles.common.quaternion import qconj, qmul
+from swarm_sitl.laws.contract import reference_values
 from swarm_sitl.laws.estimator import acceleration_estimate
-from swarm_sitl.laws.follower import EstimateMessage
 from swarm_sitl.laws.follower_law import (
     HOLD_EXTRAPOLATE,
     OUT_OMEGA_C,
@@ -70,8 +70,7 @@ def _rel(a, b):
 @pytest.fixture(scope="module")
 def trajectory():
     d = Helix(5.0, 0.2, 1.0).derivatives(0.0)
-    leader = EstimateMessage(0, 0, 0.0, d[0], d[1], d[2], d[3])
-    msgs = np.array([[1.0, leader.t_s, *leader.p_hat, *leader.v_hat, *leader.a_hat, *leader.a_hat_dot]])
+    msgs = np.array([[1.0, 0.0, *reference_values(d)]])  # the leader's message at t = 0
     veh_p, veh_v, veh_a = np.array([5.0, 3.0, -1.0]), np.array([0.5, -0.3, 0.2]), np.array([0.1, 0.2, -0.3])
     x = np.zeros(18)
     x[6:9] = [0.3, -0.2, 0.1]  # start gamma off zero so a_hat_ddot has every term

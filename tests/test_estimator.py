@@ -1,10 +1,14 @@
 """The distributed estimator alone, on the directed ring, with gains that satisfy Theorem 1."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 
-from swarm_sitl.laws.follower import EstimateMessage, FollowerController, LeaderNode, VehicleSample
+from swarm_sitl.laws.contract import Received, VehicleSample, reference_values
 from swarm_sitl.laws.gain_conditions import check_gains
+from swarm_sitl.laws.zou_meng import ZouMengLaw
+from swarm_sitl.nodes.assembly import law_context
 
 pytestmark = pytest.mark.integration
 
@@ -17,29 +21,28 @@ def test_estimator_converges_to_the_leader_on_the_cyclic_graph(ring_cfg):
     assert check_gains(graph, gains, ring_cfg.trajectory(), ring_cfg.gravity_mps2, 200.0).all_hold
     cfg = ring_cfg.model_copy(update={"gains": ring_cfg.gains.model_copy(update=report.suggestion)})
     dt = cfg.control_dt_s
-    leader = LeaderNode(cfg.trajectory(), dt)
-    ctrls = {
-        i: FollowerController(
-            i, cfg.follower(i).offset_m, graph.in_neighbours(i), cfg.control_gains(), dt, substeps=100
-        )
-        for i in range(1, 5)
-    }
+
+    def law(i: int) -> ZouMengLaw:
+        ctx = law_context(cfg, i)
+        return ZouMengLaw(dataclasses.replace(ctx, params=ctx.params._replace(substeps=100)))
+
+    laws = {i: law(i) for i in range(1, 5)}
+    sources = {i: [s for s, _ in graph.in_neighbours(i)] for i in laws}
     # the estimator does not use the vehicle: a fixed sample stands in for it
     sample = VehicleSample(0.0, np.zeros(3), np.zeros(3), np.array([1.0, 0, 0, 0]))
-    latest: dict = {}
+    latest: dict[int, Received] = {}
     err = []
     n = round(30.0 / dt)
     for k in range(n + 1):
-        new = {0: leader.step(k)}
-        for i, c in ctrls.items():
-            step = c.step(
-                k, sample._replace(t_s=k * dt), {s: latest[s] for s, _ in c.in_edges if s in latest}
-            )
-            new[i] = step.estimate
-        latest = new
-        d = cfg.trajectory().derivatives(k * dt)
+        t = k * dt
+        new = {0: reference_values(cfg.trajectory().derivatives(t))}
+        for i, c in laws.items():
+            inbox = {s: latest[s]._replace(age_s=t - latest[s].t_s) for s in sources[i] if s in latest}
+            new[i] = c.step(t, sample._replace(t_s=t), inbox).message
+        latest = {s: Received(v, t, 0.0) for s, v in new.items()}
+        d = cfg.trajectory().derivatives(t)
         err.append(
-            max(max(np.linalg.norm(new[i].p_hat - d[0]), np.linalg.norm(new[i].v_hat - d[1])) for i in ctrls)
+            max(max(np.linalg.norm(new[i][0:3] - d[0]), np.linalg.norm(new[i][3:6] - d[1])) for i in laws)
         )
     err = np.array(err)
     t = np.arange(n + 1) * dt
@@ -54,12 +57,12 @@ def test_a_tick_after_a_long_gap_keeps_the_internal_step(tmp_path):
     one period (h = 128 ms) turned its estimator into NaN; at the configured internal step
     (1 ms) it stays finite and its estimate moves to where its neighbours say the leader is."""
     from swarm_sitl.config.load import load_config
-    from swarm_sitl.nodes.assembly import build_controller, reported_vehicle_params
+    from swarm_sitl.nodes.assembly import reported_vehicle_params
     from tests.conftest import CONFIGS
 
     cfg = load_config(CONFIGS / "swarm16.yaml")
-    ctrl = build_controller(cfg, 8, *reported_vehicle_params(cfg))
-    assert [s for s, _ in ctrl.in_edges] == [3, 4]
+    ctrl = ZouMengLaw(law_context(cfg, 8, *reported_vehicle_params(cfg)))
+    assert [s for s, _ in ctrl.weights] == [3, 4]
     ctrl.state = np.array(
         [-4.757962741168665, -1.536824883177032, 17.270000000000056, 0.307604847480344, -0.9526119772205924,
          0.999999999999998, 0.40914127714274184, 0.0939371009027566, 0.0, -0.01631647568256747,
@@ -80,13 +83,13 @@ def test_a_tick_after_a_long_gap_keeps_the_internal_step(tmp_path):
             1.0, 0.17783240062023417, 0.09289036738446227, 0.0, -0.017422410751370906, 0.03628958581452627,
             0.0],
     }  # fmt: skip
-    inbox = {s: EstimateMessage(s, round(r[0] / 0.01), r[0], *(np.array(r[j : j + 3]) for j in (1, 4, 7, 10)))
-             for s, r in rows.items()}  # fmt: skip
+    t = 1855 * cfg.control_dt_s
+    inbox = {s: Received(np.array(r[1:13]), r[0], t - r[0]) for s, r in rows.items()}
     q = np.array([0.9999999981104012, -1.645318455160787e-05, 2.219406222313708e-05, -5.491734213121736e-05])
     p = np.array([1.754791021347046, -4.721144199371338, 18.545101165771484])
     v = np.array([0.42843690514564514, -0.8896619081497192, 0.9973580837249756])
     sample = VehicleSample(18.54876024276695, p, v, q)
-    step = ctrl.step(1855, sample, inbox)
-    assert np.isfinite(step.state).all() and np.isfinite(step.output).all()
-    told = np.mean([m.p_hat + m.v_hat * (18.55 - m.t_s) for m in inbox.values()], axis=0)
-    assert np.linalg.norm(step.estimate.p_hat - told) < 0.3
+    out = ctrl.step(t, sample, inbox)
+    assert np.isfinite(out.message).all() and np.isfinite(out.record).all() and np.isfinite(ctrl.state).all()
+    told = np.mean([m.values[0:3] + m.values[3:6] * (18.55 - m.t_s) for m in inbox.values()], axis=0)
+    assert np.linalg.norm(out.message[0:3] - told) < 0.3

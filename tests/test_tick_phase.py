@@ -4,8 +4,9 @@ that a tick phase only shifts the follower's time, in its law and in the recorde
 import numpy as np
 import pytest
 
-from swarm_sitl.laws.follower import EstimateMessage, VehicleSample
-from swarm_sitl.nodes.assembly import build_controller
+from swarm_sitl.bus.codec import Message
+from swarm_sitl.laws.contract import VehicleSample, reference_values
+from swarm_sitl.nodes.assembly import build_law
 from swarm_sitl.rundir.recording import Recording, leader_series
 
 pytestmark = pytest.mark.unit
@@ -31,8 +32,8 @@ def test_a_tick_phase_shifts_the_controllers_time_and_nothing_else(paper_cfg):
     cfg = paper_cfg
     dt, phi = cfg.control_dt_s, 0.0075
     traj = cfg.trajectory()
-    a = build_controller(cfg, 3, tick_phase_s=phi)
-    b = build_controller(cfg, 3)
+    a = build_law(cfg, 3)
+    b = build_law(cfg, 3)
     offset = np.asarray(cfg.follower(3).offset_m)
     q = np.array([1.0, 0.0, 0.0, 0.0])
     for k in range(40):
@@ -41,15 +42,13 @@ def test_a_tick_phase_shifts_the_controllers_time_and_nothing_else(paper_cfg):
         t_sample = k * dt + phi - 0.004  # the latest telemetry, 4 ms old
         ds = traj.derivatives(t_sample)
         p = ds[0] + offset + 0.3 * np.array([1.0, -0.5, 0.2])
-        for ctrl, shift in ((a, 0.0), (b, phi)):
-            inbox = {} if k == 0 else {0: EstimateMessage(0, k - 1, t_msg - shift, d[0], d[1], d[2], d[3])}
-            step = ctrl.step(k, VehicleSample(t_sample - shift, p, ds[1], q), inbox)
-            if ctrl is a:
-                sa = step
-        sb = step
-        assert sa.estimate.t_s == pytest.approx(sb.estimate.t_s + phi, abs=1e-12)
-        np.testing.assert_allclose(sa.output, sb.output, rtol=1e-9, atol=1e-9)
-        np.testing.assert_allclose(sa.state, sb.state, rtol=1e-9, atol=1e-9)
+        steps = []
+        for law, shift in ((a, 0.0), (b, phi)):
+            inbox = {} if k == 0 else {0: Message(0, k - 1, t_msg - shift, reference_values(d))}
+            step = law.step(k * dt + phi - shift, VehicleSample(t_sample - shift, p, ds[1], q), inbox)
+            steps.append((step.message.copy(), step.record.copy(), np.array([step.command.thrust_N])))
+        for x, y in zip(*steps, strict=True):
+            np.testing.assert_allclose(x, y, rtol=1e-9, atol=1e-9)
 
 
 def test_estimator_errors_are_taken_at_each_followers_own_ticks(paper_cfg):

@@ -28,8 +28,8 @@ pytestmark = pytest.mark.system
 
 
 def _estimate(src: int, step: int, value: float) -> bytes:
-    """An estimate as the bus's documented layout has it (bus_codec), written out here."""
-    body = struct.pack("<BHId12d", 2, src, step, step * 0.01, *[value] * 12)
+    """An estimate as the bus's documented layout has it (``docs/bus.md``), written out here."""
+    body = struct.pack("<BHIdH12d", 3, src, step, step * 0.01, 12, *[value] * 12)
     return body + struct.pack("<I", zlib.crc32(body))
 
 
@@ -81,7 +81,7 @@ def test_strangers_and_a_node_out_of_its_rights_leave_the_formation_where_it_was
             nonlocal n
             while not stop.is_set():
                 insider.put(zenoh_keys.edge("paper", 0, 1), _estimate(0, n, 50.0))
-                insider.put(zenoh_keys.start("paper"), struct.pack("<Bd", 2, time.time() + 30))
+                insider.put(zenoh_keys.start("paper"), struct.pack("<Bd", 3, time.time() + 30))
                 insider.put(zenoh_keys.edge("paper", 1, 4), _estimate(1, 2**32 - 1, 50.0))
                 insider.put(zenoh_keys.edge("paper", 1, 4), _estimate(1, 801, 50.0))
                 n += 1

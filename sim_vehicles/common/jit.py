@@ -39,7 +39,7 @@ def kernel(fn: Callable[..., Any]) -> Any:
     """Compile ``fn`` in nopython mode, cached on disk so later processes start fast.
 
     ``error_model="numpy"``: a division by zero gives inf/nan instead of raising inside the kernel;
-    callers check results for finiteness where it matters (``FollowerController.step``).
+    callers check results for finiteness where it matters (``ZouMengLaw.step``).
     """
     return _njit(cache=True, fastmath=False, nogil=True, error_model="numpy")(fn)
 

@@ -66,8 +66,8 @@ def message_sizes() -> tuple[int, int, int]:
     import numpy as np
     from pymavlink.dialects.v20 import common as mav
 
-    from swarm_sitl.bus.codec import encode_estimate
-    from swarm_sitl.laws.follower import EstimateMessage
+    from swarm_sitl.bus.codec import Message, encode_message
+    from swarm_sitl.laws.contract import REFERENCE_LENGTH
 
     sample = _signed_len(
         mav.MAVLink_local_position_ned_message(1, 1.5, 2.5, 3.5, 0.1, 0.2, 0.3),
@@ -76,8 +76,7 @@ def message_sizes() -> tuple[int, int, int]:
     setpoint = _signed_len(
         mav.MAVLink_set_attitude_target_message(1, 1, 1, 0, [0.9, 0.1, 0.2, 0.3], 0.1, 0.2, 0.3, 0.5)
     )
-    x = np.full(3, 0.5)
-    estimate = len(encode_estimate(EstimateMessage(1, 1, 0.01, x, x, x, x)))
+    estimate = len(encode_message(Message(1, 1, 0.01, np.full(REFERENCE_LENGTH, 0.5))))
     return sample, setpoint, estimate
 
 

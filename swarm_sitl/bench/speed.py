@@ -28,7 +28,7 @@ from sim_vehicles.runtime.row_log import read_rows
 from swarm_sitl.config.load import load_config
 from swarm_sitl.config.schema import SwarmConfig
 from swarm_sitl.nodes.assembly import build_autopilot
-from swarm_sitl.rundir.layout import CONTROLLER_COLUMNS, controller_rows_path
+from swarm_sitl.rundir.layout import controller_rows_path
 from swarm_sitl.running.children import child_env, module_argv
 from swarm_sitl.running.run import run_swarm
 from swarm_sitl.running.sim import run_sim
@@ -90,10 +90,10 @@ def sim_in_process_s(cfg: SwarmConfig) -> tuple[float, float]:
 def late_ticks(cfg: SwarmConfig, run_dir: Path) -> tuple[int, int, np.ndarray]:
     """``(late, expected, done_s of every recorded tick)`` over all controllers of a real-time run."""
     n = cfg.n_control_steps + 1
-    c = CONTROLLER_COLUMNS.index("done_s")
     late, done = 0, []
     for f in cfg.followers:
-        _, rows = read_rows(controller_rows_path(run_dir, f.id))
+        cols, rows = read_rows(controller_rows_path(run_dir, f.id))
+        c = cols.index("done_s")
         late += (n - len(rows)) + int(np.sum(rows[:, c] > cfg.control_dt_s))
         done.append(rows[:, c])
     return late, n * cfg.n_followers, np.concatenate(done)

@@ -1,14 +1,18 @@
-"""Byte layouts of what crosses the zenoh bus (little-endian, fixed size, versioned).
+"""Byte layouts of what crosses the zenoh bus (little-endian, fixed layouts, versioned).
 
-- estimate: ``u8 version, u16 src, u32 step, f64 t_s, 12 x f64 p_hat v_hat a_hat a_hat_dot,
-  u32 crc32`` (float64: nothing is rounded, so lockstep runs equal ``sim``; the CRC-32 of the
-  bytes before it, so a corrupted estimate is dropped, not flown)
+- message (the estimate a node sends each out-neighbour at each tick; the leader's is the
+  reference): ``u8 version, u16 src, u32 step, f64 t_s, u16 n, n x f64 values, u32 crc32``. ``n``
+  is what the sender's kind sends (``laws.contract``: 12 from the leader, the law's
+  ``message_length`` from a follower); float64, so nothing is rounded and lockstep runs equal
+  ``sim``; the CRC-32 of the bytes before it, so a corrupted message is dropped, not flown
 - status: ``u8 version, u16 follower, u32 step, f64 t_s, f64 sample_t_s, 3 x f64 p_W``
 - start: ``u8 version, f64 epoch_unix_s`` (real time: tick 0 happens at this instant)
 
-``decode_*`` raise ``PayloadError`` (one line) for anything else; receivers drop and count it.
+``docs/bus.md`` has them byte by byte, with the keys. ``decode_*`` raise ``PayloadError`` (one
+line) for anything else; receivers drop and count it.
 """
 
+import functools
 import math
 import struct
 import zlib
@@ -17,11 +21,9 @@ from typing import Any, NamedTuple, TypeVar
 
 import numpy as np
 
-from swarm_sitl.laws.follower import EstimateMessage
-
-VERSION = 2
-_EST = struct.Struct("<BHId12dI")
-_EST_BODY = _EST.size - 4
+VERSION = 3
+_HEAD = struct.Struct("<BHIdH")  #: a message's version, src, step, t_s and value count
+_CRC = 4
 _STATUS = struct.Struct("<BHIdd3d")
 _START = struct.Struct("<Bd")
 
@@ -67,19 +69,47 @@ def _check(data: bytes, layout: struct.Struct, what: str, first_float: int, n_fl
     return fields
 
 
-def encode_estimate(m: EstimateMessage) -> bytes:
-    # ``tolist``: one call per array instead of a numpy scalar per element
-    values = (*m.p_hat.tolist(), *m.v_hat.tolist(), *m.a_hat.tolist(), *m.a_hat_dot.tolist())
-    body = _EST.pack(VERSION, m.src, m.step, m.t_s, *values, 0)[:_EST_BODY]
-    return body + zlib.crc32(body).to_bytes(4, "little")
+class Message(NamedTuple):
+    """What node ``src`` sends its out-neighbours at tick ``step`` (the leader: its reference)."""
+
+    src: int
+    step: int
+    t_s: float  #: the instant its values hold at [s]
+    values: np.ndarray  #: float64
 
 
-def decode_estimate(data: bytes) -> EstimateMessage:
-    f = _check(data, _EST, "estimate", 3, 13)
-    if zlib.crc32(data[:_EST_BODY]) != f[-1]:
-        raise PayloadError("estimate payload fails its checksum")
-    v = np.array(f[4:16])
-    return EstimateMessage(f[1], f[2], f[3], v[0:3], v[3:6], v[6:9], v[9:12])
+@functools.lru_cache(maxsize=16)  # a swarm uses two lengths; a forged one cannot grow it
+def _message_layout(n: int) -> struct.Struct:
+    return struct.Struct(f"<BHIdH{n}d")
+
+
+def message_size(n: int) -> int:
+    """The bytes of a message of ``n`` values on the bus."""
+    return _HEAD.size + 8 * n + _CRC
+
+
+def encode_message(m: Message) -> bytes:
+    values = m.values.tolist()  # one call per array instead of a numpy scalar per element
+    n = len(values)
+    body = _message_layout(n).pack(VERSION, m.src, m.step, m.t_s, n, *values)
+    return body + zlib.crc32(body).to_bytes(_CRC, "little")
+
+
+def decode_message(data: bytes) -> Message:
+    if len(data) < _HEAD.size + _CRC:
+        raise PayloadError(f"message payload has {len(data)} bytes, fewer than a header")
+    version, src, step, t_s, n = _HEAD.unpack_from(data)
+    if version != VERSION:
+        raise PayloadError(f"message payload version {version}, expected {VERSION}")
+    size = _HEAD.size + 8 * n + _CRC
+    if len(data) != size:
+        raise PayloadError(f"message payload has {len(data)} bytes, its {n} values need {size}")
+    if zlib.crc32(data[:-_CRC]) != int.from_bytes(data[-_CRC:], "little"):
+        raise PayloadError("message payload fails its checksum")
+    values = _message_layout(n).unpack_from(data)[5:]  # a tuple: checked faster than an array
+    if not (math.isfinite(t_s) and all(map(math.isfinite, values))):
+        raise PayloadError("message payload has a non-finite value")
+    return Message(src, step, t_s, np.array(values))
 
 
 def encode_status(s: Status) -> bytes:

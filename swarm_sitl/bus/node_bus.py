@@ -14,9 +14,11 @@ controller's CPU per tick). ``poll()`` decodes and files the queue on the loop's
 holds at most ``QUEUE_CAPACITY`` samples: past it the callback waits (zenoh's reliable transport
 then backs up to the sender, as a full channel did).
 
-Malformed payloads are dropped and counted in ``dropped``; well-formed ones that cannot be what
-their key says (another sender, a tick that does not follow the last one taken from that sender,
-or past ``horizon()``) are dropped and counted per sender in ``refused``. Access control
+Malformed payloads are dropped and counted in ``dropped``, and so is a message whose length is
+not what its sender sends (``REFERENCE_LENGTH`` from the leader, the law's ``message_length`` from
+a follower); well-formed ones that cannot be what their key says (another sender, a tick that
+does not follow the last one taken from that sender, or past ``horizon()``) are dropped and
+counted per sender in ``refused``. Access control
 (``access``) keeps anyone but the sender off a key; these checks keep a faulty sender from
 freezing a neighbour's table (one estimate of tick 2^32-1 would otherwise stay the newest for
 good).
@@ -35,15 +37,16 @@ from sim_vehicles.runtime import udp_arrival
 from swarm_sitl.bus import keys as zenoh_keys
 from swarm_sitl.bus.access import NodeKeys
 from swarm_sitl.bus.codec import (
+    Message,
     PayloadError,
     Status,
-    decode_estimate,
+    decode_message,
     decode_start,
     decode_status,
-    encode_estimate,
+    encode_message,
     encode_status,
 )
-from swarm_sitl.laws.follower import EstimateMessage
+from swarm_sitl.laws.contract import REFERENCE_LENGTH
 
 
 def _matched(pub: zenoh.Publisher) -> bool:
@@ -82,18 +85,18 @@ class NodeBus(Protocol):
         """A file descriptor that turns readable when something has come for ``poll()``."""
         ...
 
-    def publish(self, msg: EstimateMessage) -> None: ...
+    def publish(self, msg: Message) -> None: ...
     def publish_status(self, status: Status) -> None: ...
     def settled(self, src: int, step: int) -> bool:
         """Lockstep: whether ``src``'s estimate of ``step`` has come, or will not (a fault plan
         says so): what a tick waits for."""
         ...
 
-    def estimate(self, src: int, step: int) -> EstimateMessage | None:
+    def estimate(self, src: int, step: int) -> Message | None:
         """``src``'s estimate of ``step``, if it has come and may be used now."""
         ...
 
-    def latest(self, src: int) -> EstimateMessage | None:
+    def latest(self, src: int) -> Message | None:
         """The newest estimate of ``src`` that may be used now."""
         ...
 
@@ -108,7 +111,8 @@ class NodeBus(Protocol):
 
 class ZenohNodeBus:
     """Node ``node`` of swarm ``swarm``: subscribes to its ``in_sources``' edges, publishes on its
-    ``out_dests``' edges, watches the status of ``watch_status`` followers (the leader's pacing)."""
+    ``out_dests``' edges, watches the status of ``watch_status`` followers (the leader's pacing).
+    ``message_length``: how many values a follower's message has (the law's)."""
 
     def __init__(
         self,
@@ -119,6 +123,7 @@ class ZenohNodeBus:
         out_dests: Iterable[int],
         watch_status: Iterable[int] = (),
         watch_alive: Iterable[int] = (),
+        message_length: int = REFERENCE_LENGTH,
     ):
         """``watch_alive``: nodes besides the in-neighbours whose liveliness to follow
         (``alive_puts``: how often each has declared itself ready, a restart counting again)."""
@@ -126,8 +131,9 @@ class ZenohNodeBus:
         self.swarm = swarm
         self.node = node
         self.dropped = 0
-        self._estimates: dict[int, dict[int, EstimateMessage]] = {}
-        self._latest: dict[int, EstimateMessage] = {}
+        self.message_length = message_length
+        self._estimates: dict[int, dict[int, Message]] = {}
+        self._latest: dict[int, Message] = {}
         self._progress: dict[int, int] = {}
         self._lost: set[int] = set()
         self._puts: dict[int, int] = {}
@@ -145,7 +151,7 @@ class ZenohNodeBus:
         self._epoch: float | None = None
         self._token: Any = None
         #: where each decoded estimate goes: ``file`` (a fault wrapper puts its stage here)
-        self.deliver: Callable[[EstimateMessage], None] = self.file
+        self.deliver: Callable[[Message], None] = self.file
         self._pubs = [_publisher(session, zenoh_keys.edge(swarm, node, d)) for d in out_dests]
         self._status_pub = _publisher(session, zenoh_keys.status(swarm, node)) if node > 0 else None
 
@@ -197,10 +203,20 @@ class ZenohNodeBus:
                 self._wake_w.send(b"\0")
 
     @classmethod
-    def of(cls, session: zenoh.Session, swarm: str, keys: NodeKeys) -> "ZenohNodeBus":
-        """The bus of ``keys.node``, on the keys the router's access control grants it."""
+    def of(
+        cls, session: zenoh.Session, swarm: str, keys: NodeKeys, message_length: int = REFERENCE_LENGTH
+    ) -> "ZenohNodeBus":
+        """The bus of ``keys.node``, on the keys the router's access control grants it; a
+        follower's messages have ``message_length`` values."""
         return cls(
-            session, swarm, keys.node, keys.in_sources, keys.out_dests, keys.watch_status, keys.watch_alive
+            session,
+            swarm,
+            keys.node,
+            keys.in_sources,
+            keys.out_dests,
+            keys.watch_status,
+            keys.watch_alive,
+            message_length,
         )
 
     # -- receive ---------------------------------------------------------------------------------
@@ -249,8 +265,11 @@ class ZenohNodeBus:
             return None
 
     def _take_estimate(self, src: int, sample: Any) -> None:
-        m = self._decoded(decode_estimate, sample)
+        m = self._decoded(decode_message, sample)
         if m is None:
+            return
+        if len(m.values) != (REFERENCE_LENGTH if src == 0 else self.message_length):
+            self.dropped += 1  # not what this sender sends: no use to the law
             return
         if m.src != src or not self._in_sequence(src, m.step):
             self.refused[src] = self.refused.get(src, 0) + 1
@@ -277,7 +296,7 @@ class ZenohNodeBus:
         self._last_step[src] = step
         return True
 
-    def file(self, m: EstimateMessage) -> None:
+    def file(self, m: Message) -> None:
         """Make ``m`` available to the loop (``estimate``, ``latest``)."""
         self._estimates.setdefault(m.src, {})[m.step] = m
         cur = self._latest.get(m.src)
@@ -285,8 +304,8 @@ class ZenohNodeBus:
             self._latest[m.src] = m
 
     # -- the loop's side -------------------------------------------------------------------------
-    def publish(self, msg: EstimateMessage) -> None:
-        payload = encode_estimate(msg)
+    def publish(self, msg: Message) -> None:
+        payload = encode_message(msg)
         self.published += 1
         for p in self._pubs:
             p.put(payload)
@@ -298,10 +317,10 @@ class ZenohNodeBus:
     def settled(self, src: int, step: int) -> bool:
         return step in self._estimates.get(src, {})
 
-    def estimate(self, src: int, step: int) -> EstimateMessage | None:
+    def estimate(self, src: int, step: int) -> Message | None:
         return self._estimates.get(src, {}).get(step)
 
-    def latest(self, src: int) -> EstimateMessage | None:
+    def latest(self, src: int) -> Message | None:
         return self._latest.get(src)
 
     def forget_before(self, step: int) -> None:

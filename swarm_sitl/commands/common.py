@@ -51,7 +51,9 @@ def summary_lines(summary: dict) -> list[str]:
         f"  converged below 0.1 m at {fmt(s['time_to_0.1m_s'], 's')}, below 0.01 m at "
         f"{fmt(s['time_to_0.01m_s'], 's')}",
         f"  min u_z {s['min_u_z_mps2']:.3f} m/s^2 (floor g - k_gamma - 2 k_eta = {s['u_z_floor_mps2']:.3f}); "
-        f"max thrust / bound {s['max_thrust_over_bound']:.3f}",
+        f"max thrust / bound {s['max_thrust_over_bound']:.3f}"
+        if "min_u_z_mps2" in s
+        else f"  max thrust / the vehicle's maximum {s['max_thrust_over_bound']:.3f}",
     ]
     return lines
 

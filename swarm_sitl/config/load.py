@@ -1,7 +1,9 @@
 """Reading a config: a YAML file (or a mapping) into a validated ``SwarmConfig``.
 
 ``load_config(path)`` returns a frozen ``SwarmConfig`` or raises ``ConfigError`` whose message is
-one line naming the offending key (``schema`` says what a config is). ``with_faults`` puts a fault
+one line naming the offending key (``schema`` says what a config is). A law given by file
+(``law.entry: "my_law.py:MyLaw"``) is found relative to the config file; the loaded config holds
+its absolute path, so the run directory's copy of it names the same file. ``with_faults`` puts a fault
 plan file in place of a config's own plan, validated against it.
 """
 
@@ -11,6 +13,7 @@ from pathlib import Path
 import yaml
 from pydantic import ValidationError
 
+from swarm_sitl.config.law_entry import LawEntryError, absolute_entry
 from swarm_sitl.config.schema import SwarmConfig
 
 #: libyaml's safe loader where PyYAML was built with it (7x faster: every process of a run reads
@@ -79,7 +82,15 @@ def load_config(path: str | Path) -> SwarmConfig:
     key = (str(p), text)
     cfg = _LAST.get(key)
     if cfg is None:
-        cfg = parse_config(_read_yaml(p, text), str(p))
+        data = _read_yaml(p, text)
+        law = data.get("law") if isinstance(data, dict) else None
+        if isinstance(law, dict) and isinstance(law.get("entry"), str):
+            try:
+                entry = absolute_entry(law["entry"], p.parent)
+            except LawEntryError as e:
+                raise ConfigError(f"{p}: law: {e}") from None
+            data = {**data, "law": {**law, "entry": entry}}  # type: ignore[dict-item]
+        cfg = parse_config(data, str(p))
         _LAST.clear()
         _LAST[key] = cfg
     return cfg

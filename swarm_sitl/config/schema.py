@@ -7,7 +7,7 @@ Two sections are defined where they are used: ``zenoh`` (``bus.session.ZenohSpec
 ``faults`` (``faults.plan.FaultPlan``).
 """
 
-from typing import Annotated, Literal
+from typing import Annotated, Any, Literal
 
 import numpy as np
 import yaml
@@ -16,10 +16,15 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator, model_valida
 from sim_vehicles.plant.params import MAX_RATE_DEFAULT_RPS, AttitudeGains, VehicleParams
 from swarm_sitl.bus.access import NodeKeys, node_keys
 from swarm_sitl.bus.session import ZenohSpec
+from swarm_sitl.config.law_entry import resolve, validate_params
 from swarm_sitl.faults.plan import FaultPlan
 from swarm_sitl.laws.follower_law import HOLD_EXTRAPOLATE, HOLD_ZERO_ORDER, ControlGains
 from swarm_sitl.laws.graph import Graph, GraphError
 from swarm_sitl.laws.trajectories import FigureEight, Helix, Line, Trajectory
+from swarm_sitl.laws.zou_meng import ZouMengParams
+
+#: the default law: the paper's (``laws.zou_meng``)
+PAPER_LAW = "swarm_sitl.laws.zou_meng:ZouMengLaw"
 
 
 class _Strict(BaseModel):
@@ -152,6 +157,36 @@ class EstimatorSpec(_Strict):
     staleness_s: Positive = 0.5
 
 
+class LawSpec(_Strict):
+    """The followers' control law (``laws.contract``; ``docs/laws.md`` shows how to write one)."""
+
+    #: the law's class: ``"package.module:Name"`` (importable) or ``"path/to/file.py:Name"``
+    #: (relative to the config file). The default is the paper's law, whose parameters are
+    #: ``gains``, ``estimator`` and ``rates.estimator_substeps``
+    entry: str = PAPER_LAW
+    #: the law's own parameters, validated by its ``Params`` if it declares one
+    params: dict[str, Any] = {}
+    #: seeds each follower's ``LawContext.rng`` (with its id): the only randomness a law may use
+    seed: int = 0
+
+    @model_validator(mode="after")
+    def _flies(self) -> "LawSpec":
+        cls = resolve(self.entry)
+        if self.is_paper:
+            if self.params:
+                raise ValueError(
+                    "params: the paper's law takes its parameters from gains, estimator and "
+                    "rates.estimator_substeps; leave law.params empty"
+                )
+        else:
+            validate_params(cls, self.params, self.entry)
+        return self
+
+    @property
+    def is_paper(self) -> bool:
+        return self.entry == PAPER_LAW
+
+
 class SigningSpec(_Strict):
     """MAVLink 2 signing of every vehicle link (``sim_vehicles.mavlink.signing``): unsigned or
     wrongly signed messages, and replays, are refused by vehicle and controller alike."""
@@ -212,8 +247,11 @@ class SwarmConfig(_Strict):
     graph: GraphSpec  #: the directed communication graph (node 0 is the leader)
     vehicle: VehicleSpec  #: every follower's airframe and autopilot
     followers: list[FollowerSpec]  #: one per follower: its place in the formation and initial state
-    gains: GainsSpec  #: the law's gains (paper section 4 for its example)
-    estimator: EstimatorSpec = EstimatorSpec()  #: the distributed estimator's sampled-time choices
+    #: the paper's law's gains (section 4 for its example), and l_q, k_q: the vehicle's torque law
+    gains: GainsSpec
+    #: the paper's estimator's sampled-time choices, and how long any law's inbox keeps a message
+    estimator: EstimatorSpec = EstimatorSpec()
+    law: LawSpec = LawSpec()  #: the followers' control law
     zenoh: ZenohSpec = ZenohSpec()  #: the bus between the processes
     signing: SigningSpec = SigningSpec()  #: MAVLink 2 signing of the vehicle links
     run: RunSpec = RunSpec()  #: limits and pacing of a multi-process run
@@ -290,6 +328,31 @@ class SwarmConfig(_Strict):
             g.l_a if self.estimator.bracket == "sliding_surface" else 1.0,
             self.vehicle.mass_kg if mass_kg is None else mass_kg,
             self.gravity_mps2,
+        )
+
+    def law_class(self) -> Any:
+        """The followers' law (``law.entry``), imported once per process."""
+        return resolve(self.law.entry)
+
+    def law_params(self) -> Any:
+        """What the law's ``LawContext.params`` is: for the paper's law its gains and choices
+        from this config's sections, for another its ``law.params`` through its ``Params``."""
+        if not self.law.is_paper:
+            return validate_params(self.law_class(), self.law.params, self.law.entry)
+        g = self.gains
+        return ZouMengParams(
+            g.k_gamma,
+            g.k_p,
+            g.k_v,
+            g.l_a,
+            g.k_a,
+            g.l_p,
+            g.l_v,
+            g.k_eta,
+            self.estimator.sign_boundary_layer,
+            g.l_a if self.estimator.bracket == "sliding_surface" else 1.0,
+            self.rates.estimator_substeps,
+            self.hold,
         )
 
     @property

@@ -37,11 +37,10 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from swarm_sitl.bus.clock import POLL_S, RunClock, StallError, wait_until
-from swarm_sitl.bus.codec import PayloadError, Status, decode_estimate, encode_estimate
+from swarm_sitl.bus.codec import Message, PayloadError, Status, decode_message, encode_message
 from swarm_sitl.bus.node_bus import ZenohNodeBus
 from swarm_sitl.faults.plan import FaultPlan, FaultSpec, down_at, fate, uniform
 from swarm_sitl.faults.plan import edge_channel as channel_of
-from swarm_sitl.laws.follower import EstimateMessage
 
 _CORRUPT_BYTE = 3  #: salt of the draw that picks the byte a corruption flips
 #: longest block between two looks at the out-neighbours' progress before a planned kill (the
@@ -115,12 +114,12 @@ class FaultyBus:
         }
         self.stats = {s: EdgeStats() for s in sources}
         self._arrived: dict[int, int] = {}
-        self._pending: list[tuple[float, int, EstimateMessage]] = []  #: heap of (due, order, message)
+        self._pending: list[tuple[float, int, Message]] = []  #: heap of (due, order, message)
         self._order = 0
         inner.deliver = self._admit
 
     # -- the plan ------------------------------------------------------------------------------------
-    def _admit(self, m: EstimateMessage) -> None:
+    def _admit(self, m: Message) -> None:
         src = m.src
         st = self.stats.get(src)
         if st is None:  # not one of our in-edges (the wrapped bus subscribes to no other)
@@ -138,11 +137,11 @@ class FaultyBus:
             st.lost += 1
             return
         if f.corrupt:
-            data = bytearray(encode_estimate(m))
+            data = bytearray(encode_message(m))
             j = int(uniform(self.plan.seed, channel_of(src, self.node), m.step, _CORRUPT_BYTE) * len(data))
             data[j] ^= 0xFF
             try:
-                m = decode_estimate(bytes(data))
+                m = decode_message(bytes(data))
             except PayloadError:
                 st.corrupt += 1
                 self.inner.dropped += counted
@@ -162,7 +161,7 @@ class FaultyBus:
             st.duplicated += 1
             self._push(due + again, m)
 
-    def _push(self, due: float, m: EstimateMessage) -> None:
+    def _push(self, due: float, m: Message) -> None:
         self._order += 1
         heapq.heappush(self._pending, (due, self._order, m))
 
@@ -195,13 +194,13 @@ class FaultyBus:
         down = self.outages.get(src)
         return down is not None and down_at(down, step)
 
-    def estimate(self, src: int, step: int) -> EstimateMessage | None:
+    def estimate(self, src: int, step: int) -> Message | None:
         return self.inner.estimate(src, step)
 
-    def latest(self, src: int) -> EstimateMessage | None:
+    def latest(self, src: int) -> Message | None:
         return self.inner.latest(src)
 
-    def publish(self, msg: EstimateMessage) -> None:
+    def publish(self, msg: Message) -> None:
         if self.own_outages and down_at(self.own_outages, msg.step):
             # the plan kills this node here: as a crash would, with what it has not flushed, once
             # what it published before has reached its readers

@@ -5,41 +5,67 @@ import numpy as np
 from sim_vehicles.common.state import make_state
 from sim_vehicles.mavlink.wire_format import f32
 from sim_vehicles.plant.autopilot import Autopilot
+from swarm_sitl.bus.codec import Message
 from swarm_sitl.config.schema import SwarmConfig
-from swarm_sitl.laws.follower import FollowerController, LeaderNode
+from swarm_sitl.laws.contract import LawContext, reference_values
+from swarm_sitl.laws.trajectories import Trajectory
+from swarm_sitl.nodes.law_host import HostedLaw, LawError, one_line
 
 
-def build_leader(cfg: SwarmConfig) -> LeaderNode:
-    return LeaderNode(cfg.trajectory(), cfg.control_dt_s)
+class Reference:
+    """Node 0: the leader's message at each tick, its trajectory's exact p, v, a and jerk
+    (``laws.contract.REFERENCE``)."""
+
+    def __init__(self, trajectory: Trajectory, control_dt_s: float):
+        self.trajectory = trajectory
+        self.dt_s = control_dt_s
+
+    def step(self, k: int) -> Message:
+        t = k * self.dt_s
+        return Message(0, k, t, reference_values(self.trajectory.derivatives(t)))
 
 
-def build_controller(
-    cfg: SwarmConfig,
-    i: int,
-    mass_kg: float | None = None,
-    max_thrust_N: float | None = None,
-    tick_phase_s: float = 0.0,
-) -> FollowerController:
-    """Follower ``i``'s controller. ``mass_kg``/``max_thrust_N`` default to the config's vehicle
-    (a controller talking to a real autopilot passes what it read from the vehicle's parameters);
-    ``tick_phase_s``: ``cfg.tick_phase_s`` in a real-time run."""
-    f = cfg.follower(i)
-    return FollowerController(
-        i,
-        f.offset_m,
-        cfg.build_graph().in_neighbours(i),
-        cfg.control_gains(mass_kg),
-        cfg.control_dt_s,
-        cfg.rates.estimator_substeps,
-        cfg.hold,
-        cfg.vehicle.max_thrust_N if max_thrust_N is None else max_thrust_N,
-        tick_phase_s,
+def build_leader(cfg: SwarmConfig) -> Reference:
+    return Reference(cfg.trajectory(), cfg.control_dt_s)
+
+
+def law_context(
+    cfg: SwarmConfig, i: int, mass_kg: float | None = None, max_thrust_N: float | None = None
+) -> LawContext:
+    """What follower ``i``'s law is built from. ``mass_kg``/``max_thrust_N`` default to the
+    config's vehicle (a controller talking to a real autopilot passes what it read from the
+    vehicle's parameters)."""
+    graph = cfg.build_graph()
+    return LawContext(
+        follower_id=i,
+        in_edges=tuple((int(s), float(w)) for s, w in graph.in_neighbours(i)),
+        out_neighbours=tuple(int(d) for d in graph.out_neighbours(i)),
+        control_dt_s=cfg.control_dt_s,
+        mass_kg=cfg.vehicle.mass_kg if mass_kg is None else mass_kg,
+        max_thrust_N=cfg.vehicle.max_thrust_N if max_thrust_N is None else max_thrust_N,
+        gravity_mps2=cfg.gravity_mps2,
+        offset_m=np.asarray(cfg.follower(i).offset_m, dtype=float),
+        rng=np.random.default_rng([cfg.law.seed, i]),
+        params=cfg.law_params(),
     )
+
+
+def build_law(
+    cfg: SwarmConfig, i: int, mass_kg: float | None = None, max_thrust_N: float | None = None
+) -> HostedLaw:
+    """Follower ``i``'s law (``law.entry``), built and hosted (``law_host``); ``LawError`` if
+    building it raises."""
+    ctx = law_context(cfg, i, mass_kg, max_thrust_N)
+    try:
+        law = cfg.law_class()(ctx)
+    except Exception as e:
+        raise LawError(f"law {cfg.law.entry}, follower {i}: building it raised {one_line(e)}") from e
+    return HostedLaw(law, i)
 
 
 def reported_vehicle_params(cfg: SwarmConfig) -> tuple[float, float]:
     """``(mass_kg, max_thrust_N)`` as a controller reads them over the MAVLink parameter protocol
-    (float32): ``sim`` gives its controllers these, as a controller process gets them."""
+    (float32): ``sim`` gives its laws these, as a controller process gets them."""
     mass, max_thrust = f32(cfg.vehicle.mass_kg, cfg.vehicle.max_thrust_N)
     return mass, max_thrust
 

@@ -1,11 +1,11 @@
 """One follower's controller as a process: its vehicle over MAVLink, its neighbours over the bus.
 
-The step function is ``FollowerController.step``, the same one ``sim`` runs; this module only
-feeds it. Per tick ``k`` (semantics in ``follower``):
+The step function is the law's (``law_host.HostedLaw.step``), the same one ``sim`` runs; this
+module only feeds it. Per tick ``k`` (what a tick is to a law: ``laws.contract``):
 
 - lockstep: wait for the vehicle's sample stamped ``t_k`` and for every in-neighbour's estimate of
   tick ``k - 1`` to have come (``NodeBus.settled``: a fault plan may then hide or hold it); step
-  with the newest estimate of each (``neighbour_inbox``); publish the estimate; send
+  with the newest message of each (``neighbour_inbox``); publish the law's message; send
   SET_ATTITUDE_TARGET stamped ``t_k``, which advances the vehicle one period. A setpoint whose
   answer does not come is sent again (the vehicle answers a repeat with its sample and does not
   step twice). The run is deterministic and equals ``sim``.
@@ -42,14 +42,15 @@ from swarm_sitl.bus.clock import (
     wait_until,
     wall_epoch_to_monotonic,
 )
-from swarm_sitl.bus.codec import Status
+from swarm_sitl.bus.codec import Message, Status
 from swarm_sitl.bus.node_bus import NodeBus
 from swarm_sitl.config.schema import SwarmConfig
-from swarm_sitl.laws.command_attitude import SingularCommandError
-from swarm_sitl.laws.follower import EstimateMessage, VehicleSample
+from swarm_sitl.laws.contract import VehicleSample
 from swarm_sitl.link.vehicle_link import VehicleLink
-from swarm_sitl.nodes.assembly import build_controller
+from swarm_sitl.nodes.assembly import build_law
+from swarm_sitl.nodes.law_host import LawError, warm_up
 from swarm_sitl.nodes.neighbour_inbox import NeighbourInbox
+from swarm_sitl.rundir.recording import command_parts
 
 RESEND_AFTER_S = 0.25
 #: real time: how long before its first tick a controller arms and switches its vehicle to offboard [s]
@@ -182,7 +183,7 @@ class _Inputs:
         if now - self._lost_since > LOST_GRACE_S:
             raise StallError(self.missing())
 
-    def newest_lockstep(self, src: int) -> EstimateMessage | None:
+    def newest_lockstep(self, src: int) -> Message | None:
         """The in-neighbour's estimate of tick ``k - 1``, or (a fault plan hid or held it) the
         newest it may use now."""
         m = self.bus.estimate(src, self.k - 1)
@@ -213,17 +214,15 @@ class _Inputs:
 
 
 def _warm_up(cfg: SwarmConfig, i: int, link: VehicleLink) -> None:
-    """Two steps of a scratch controller and a call of each per-tick frame kernel: the compiled
-    kernels load now, not in the first ticks."""
+    """Two ticks of a scratch law and a call of each per-tick frame kernel: the compiled kernels
+    load now, not in the first ticks."""
     tick_frames.warm_up()
     signing.warm_up()
-    scratch = build_controller(cfg, i, link.params["MASS_KG"], link.params["MAX_THRUST_N"])
+    scratch = build_law(cfg, i, link.params["MASS_KG"], link.params["MAX_THRUST_N"])
     x = np.zeros(3)
-    msg = EstimateMessage(0, 0, 0.0, x, x, x, x)
-    inbox = {s: msg._replace(src=s) for s, _ in scratch.in_edges}
-    q = np.array([1.0, 0.0, 0.0, 0.0])
-    for k in range(2):
-        scratch.step(k, VehicleSample(k * cfg.control_dt_s, x, x, q), inbox)
+    sample = VehicleSample(0.0, x, x, np.array([1.0, 0.0, 0.0, 0.0]))
+    sources = [s for s, _ in cfg.build_graph().in_neighbours(i)]
+    warm_up(scratch.law, sample, sources, scratch.message_length)
 
 
 def run_controller(
@@ -250,8 +249,8 @@ def run_controller(
     events = EventLog(None, f"controller_{i}") if events is None else events
     link.connect(r.start_timeout_s)
     phase = cfg.tick_phase_s(i, lockstep)
-    ctrl = build_controller(cfg, i, link.params["MASS_KG"], link.params["MAX_THRUST_N"], phase)
-    sources = [s for s, _ in ctrl.in_edges]
+    law = build_law(cfg, i, link.params["MASS_KG"], link.params["MAX_THRUST_N"])
+    sources = [s for s, _ in cfg.build_graph().in_neighbours(i)]
     io = _Inputs(who, link, bus, sources, dt)
     inbox_of = NeighbourInbox(i, sources, cfg.estimator.staleness_s, events)
     _warm_up(cfg, i, link)
@@ -308,12 +307,13 @@ def run_controller(
                 old_samples += 1
                 max_age = max(max_age, age)
         try:
-            step = ctrl.step(k, VehicleSample(sample_t, p, v, q), inbox)
-        except SingularCommandError as e:
-            if rows is not None and hasattr(e, "inputs"):  # what it was given, to reproduce it offline
-                np.savez(rows.path.with_suffix(".failure.npz"), **e.inputs)
+            step = law.step(t, VehicleSample(sample_t, p, v, q), inbox)
+        except LawError as e:
+            inputs = getattr(e.__cause__, "inputs", None)
+            if rows is not None and inputs is not None:  # what it was given, to reproduce it offline
+                np.savez(rows.path.with_suffix(".failure.npz"), **inputs)
             raise
-        bus.publish(step.estimate)
+        bus.publish(Message(i, k, t, step.message))
         if k < n:
             io.send(step.command, round(t * 1000) if lockstep else round((t - io.offset_s) * 1000))
         done = 0.0
@@ -323,7 +323,14 @@ def run_controller(
                 late += 1
             max_late = max(max_late, done)
         if rows is not None:
-            rows.append((k, t, boot_s, sample_t, lateness, done), p, v, q, step.state, step.output)
+            rows.append(
+                (k, t, boot_s, sample_t, lateness, done),
+                p,
+                v,
+                q,
+                *command_parts(step.command),
+                step.record,
+            )
         if k % r.status_every == 0 or k == n or k == io.first:
             bus.publish_status(Status(i, k, t, sample_t, p))
         if lockstep and k % FORGET_EVERY == 0:

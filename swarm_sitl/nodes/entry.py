@@ -30,15 +30,15 @@ from swarm_sitl.config.load import ConfigError, load_config, with_duration
 from swarm_sitl.config.schema import SwarmConfig
 from swarm_sitl.faults.edges import FaultyBus, acts_on
 from swarm_sitl.faults.mavlink import MavlinkFaults
-from swarm_sitl.laws.command_attitude import SingularCommandError
 from swarm_sitl.laws.graph import GraphError
 from swarm_sitl.link.transport import LinkError
 from swarm_sitl.link.vehicle_link import VehicleLink
 from swarm_sitl.nodes.arguments import add_node_parsers
 from swarm_sitl.nodes.controller import run_controller
+from swarm_sitl.nodes.law_host import LawError
 from swarm_sitl.nodes.leader import run_leader
 from swarm_sitl.rundir.layout import (
-    CONTROLLER_COLUMNS,
+    controller_columns,
     controller_events_path,
     controller_rows_path,
     controller_stats_path,
@@ -72,7 +72,7 @@ def _guarded(name: str, body: Any, lockstep: bool) -> int:
     signal.signal(signal.SIGTERM, _terminate)
     try:
         line = profiled(name, body)
-    except (LinkError, StallError, SingularCommandError, SigningKeyError) as e:
+    except (LinkError, StallError, LawError, SigningKeyError) as e:
         print(f"{name}: error: {e}", file=sys.stderr, flush=True)
         return 1
     except zenoh.ZError as e:
@@ -125,7 +125,7 @@ def cmd_controller(cfg: SwarmConfig, args: argparse.Namespace) -> int:
             if out is not None:
                 path = controller_rows_path(out, i, args.incarnation)
                 path.parent.mkdir(parents=True, exist_ok=True)
-                rows = RowLog(path, CONTROLLER_COLUMNS)
+                rows = RowLog(path, controller_columns(cfg.law_class().record_fields))
             events = EventLog(
                 controller_events_path(out, i, args.incarnation) if out else None, f"controller_{i}"
             )
@@ -139,7 +139,7 @@ def cmd_controller(cfg: SwarmConfig, args: argparse.Namespace) -> int:
             )
             session = _session(cfg, args.connect)
             mark("zenoh")
-            bus = zbus = ZenohNodeBus.of(session, cfg.name, cfg.node_keys(i))
+            bus = zbus = ZenohNodeBus.of(session, cfg.name, cfg.node_keys(i), cfg.law_class().message_length)
             zbus.horizon = _horizon(clock, cfg.n_control_steps)
             if args.lockstep:
                 zbus.counted_steps = range(args.resume_tick, cfg.n_control_steps)

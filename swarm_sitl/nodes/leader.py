@@ -16,9 +16,9 @@ from swarm_sitl.bus.clock import (
     wait_until,
     wall_epoch_to_monotonic,
 )
+from swarm_sitl.bus.codec import Message
 from swarm_sitl.bus.node_bus import NodeBus
 from swarm_sitl.config.schema import SwarmConfig
-from swarm_sitl.laws.follower import EstimateMessage
 from swarm_sitl.nodes.assembly import build_leader
 from swarm_sitl.nodes.controller import NodeReport, wait_for_start
 
@@ -68,7 +68,7 @@ def run_leader(
             sleep_until(epoch_mono + k * dt, [], bus.poll)
             if time.monotonic() - epoch_mono - k * dt > dt:
                 late += 1
-        msg: EstimateMessage = leader.step(k)
+        msg: Message = leader.step(k)
         bus.publish(msg)
     if not lockstep:
         linger_after_last_tick(epoch_mono + n * dt, dt)

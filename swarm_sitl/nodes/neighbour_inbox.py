@@ -13,7 +13,8 @@ in-neighbours' estimates of tick ``k - 1``.
 from collections.abc import Callable
 
 from sim_vehicles.runtime.event_log import EventLog
-from swarm_sitl.laws.follower import EstimateMessage
+from swarm_sitl.bus.codec import Message
+from swarm_sitl.laws.contract import Received
 
 
 class NeighbourInbox:
@@ -22,16 +23,15 @@ class NeighbourInbox:
         self.sources = list(sources)
         self.staleness_s = staleness_s
         self.events = events
-        self._last: dict[int, EstimateMessage] = {}
+        self._last: dict[int, Message] = {}
         self._live: dict[int, bool] = dict.fromkeys(self.sources, False)
         self.stale_ticks = dict.fromkeys(self.sources, 0)  #: ticks each was left out, once heard
         self.max_age_s = dict.fromkeys(self.sources, 0.0)  #: oldest estimate used [s]
 
-    def gather(
-        self, t_s: float, newest: Callable[[int], EstimateMessage | None]
-    ) -> dict[int, EstimateMessage]:
-        """The estimates tick ``t_s`` uses; ``newest(src)``: the newest one the bus has for it."""
-        out: dict[int, EstimateMessage] = {}
+    def gather(self, t_s: float, newest: Callable[[int], Message | None]) -> dict[int, Received]:
+        """The law's inbox at tick ``t_s`` (``laws.contract.Received``: each in-neighbour's newest
+        usable message, with its age); ``newest(src)``: the newest message the bus has from it."""
+        out: dict[int, Received] = {}
         last = self._last
         for s in self.sources:
             m = newest(s)
@@ -44,7 +44,7 @@ class NeighbourInbox:
                 last[s] = m
             age = t_s - m.t_s
             if age <= self.staleness_s:
-                out[s] = m
+                out[s] = Received(m.values, m.t_s, age)
                 if age > self.max_age_s[s]:
                     self.max_age_s[s] = age
                 if not self._live[s]:

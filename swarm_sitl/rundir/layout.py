@@ -12,7 +12,7 @@ Layout (``recording`` has the arrays and their units)::
     RUN_DIR/tlogs/vehicle_<i>.tlog every MAVLink message in and out of vehicle i
     RUN_DIR/procs/                 each process's own rows, events and figures, written as they
                                    happen (merged by ``merge``):
-        controller_<i>[.<n>].rows        ``CONTROLLER_COLUMNS`` (incarnation n of a restarted one)
+        controller_<i>[.<n>].rows        ``controller_columns`` (incarnation n of a restarted one)
         controller_<i>[.<n>].events      and .stats.json
         vehicle_<i>.truth                ``TRUTH_COLUMNS``: the true state at each sample it sent
         vehicle_<i>.events, vehicle_<i>.stats.json, leader[.<n>].stats.json
@@ -22,26 +22,37 @@ Layout (``recording`` has the arrays and their units)::
 """
 
 import json
+from collections.abc import Mapping
 from pathlib import Path
 
 from sim_vehicles.common.state import TRUTH_COLUMNS
-from swarm_sitl.laws.follower_law import CTRL_SIZE, OUT_SIZE
+from swarm_sitl.rundir.recording import COMMAND_FIELDS
 
-__all__ = ["CONTROLLER_COLUMNS", "TRUTH_COLUMNS"]
+__all__ = ["SAMPLE_COLUMNS", "TRUTH_COLUMNS", "controller_columns"]
 
-#: a controller's row per tick (``procs/controller_<i>.rows``): the tick and its instants [s],
-#: the vehicle sample it used [ENU/FLU], the controller's state and output (``follower_law``)
-CONTROLLER_COLUMNS = [
-    "k",
-    "t_s",
-    "sample_boot_s",
-    "sample_t_s",
-    "late_s",
-    "done_s",
-    *[f"sample_{n}" for n in ("px", "py", "pz", "vx", "vy", "vz", "qw", "qx", "qy", "qz")],
-    *[f"ctrl_{j}" for j in range(CTRL_SIZE)],
-    *[f"out_{j}" for j in range(OUT_SIZE)],
-]
+#: the vehicle sample a controller's tick used [ENU/FLU]
+SAMPLE_COLUMNS = [f"sample_{n}" for n in ("px", "py", "pz", "vx", "vy", "vz", "qw", "qx", "qy", "qz")]
+
+
+def controller_columns(record_fields: Mapping[str, int]) -> list[str]:
+    """A controller's row per tick (``procs/controller_<i>.rows``): the tick and its instants [s],
+    the vehicle sample it used, the command (``recording.COMMAND_FIELDS``) and the law's record
+    (its ``record_fields``), a field of width w as ``name.0`` .. ``name.<w-1>``."""
+
+    def named(fields: Mapping[str, int]) -> list[str]:
+        return [f"{name}.{j}" for name, width in fields.items() for j in range(width)]
+
+    return [
+        "k",
+        "t_s",
+        "sample_boot_s",
+        "sample_t_s",
+        "late_s",
+        "done_s",
+        *SAMPLE_COLUMNS,
+        *named(COMMAND_FIELDS),
+        *named(record_fields),
+    ]
 
 
 def procs_dir(run_dir: Path) -> Path:
@@ -98,6 +109,11 @@ def vehicle_stats_path(run_dir: Path, i: int) -> Path:
 
 def vehicle_events_path(run_dir: Path, i: int) -> Path:
     return procs_dir(run_dir) / f"vehicle_{i}.events"
+
+
+def external_path(run_dir: Path) -> Path:
+    """What ``run --external`` tells the controllers it does not run (``docs/bus.md``; 0600)."""
+    return run_dir / "external.json"
 
 
 def start_path(run_dir: Path) -> Path:

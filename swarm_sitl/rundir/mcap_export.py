@@ -145,10 +145,12 @@ def write_mcap(run_dir: str | Path, path: str | Path) -> dict[str, int]:
                     t = float(L["t_s"][k])
                     d = trajectory.derivatives(t)
                     est = {"t_s": t, **{n: d[j].tolist() for j, n in enumerate(ESTIMATE_FIELDS)}}
-                else:
+                elif all(n in rec.followers[src] for n in ESTIMATE_FIELDS):  # the paper's message
                     a = rec.followers[src]
                     t = float(a["t_s"][k])
                     est = _row(t, a, ESTIMATE_FIELDS, k)
+                else:  # another law's message is its own: not recorded as such
+                    break
                 put(f"/edge/{src}/{dst}", "estimate", t, est)
         events = run_dir / "events.jsonl"
         if events.is_file():

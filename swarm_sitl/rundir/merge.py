@@ -1,13 +1,17 @@
 """Merge what the processes of a run recorded into one ``Recording`` (the layout ``sim`` writes).
 
 Inputs in ``RUN_DIR/procs/``: ``controller_<i>.rows`` (one row per tick: the tick, the vehicle
-sample it used, controller state and output) and ``vehicle_<i>.truth`` (the vehicle's true state at
-every LOCAL_POSITION_NED it sent). Row ``k`` of follower ``i`` takes the true state at the sample's
-``time_boot_ms``; without a truth file (a vehicle that is not ours) it takes the sample itself
-(float32 as received, no body rates). Ticks nobody recorded stay NaN.
+sample it used, the command and the law's record, ``layout.controller_columns``) and
+``vehicle_<i>.truth`` (the vehicle's true state at every LOCAL_POSITION_NED it sent). Row ``k`` of
+follower ``i`` takes the true state at the sample's ``time_boot_ms``; without a truth file (a
+vehicle that is not ours) it takes the sample itself (float32 as received, no body rates). A
+follower whose controller recorded nothing (``run --external``: a controller the bench does not
+run) gets its vehicle's true state at each tick from the truth file alone, and no command. Ticks
+nobody recorded stay NaN.
 """
 
 import json
+import math
 from pathlib import Path
 from typing import Any
 
@@ -16,11 +20,11 @@ import numpy as np
 from sim_vehicles.common.state import POS, QUAT, STATE_SIZE, VEL
 from sim_vehicles.runtime.row_log import RowLogError, read_rows
 from swarm_sitl.config.schema import SwarmConfig
-from swarm_sitl.laws.follower_law import CTRL_SIZE, OUT_SIZE
 from swarm_sitl.rundir.events import merge_events
 from swarm_sitl.rundir.layout import (
-    CONTROLLER_COLUMNS,
+    SAMPLE_COLUMNS,
     TRUTH_COLUMNS,
+    controller_columns,
     controller_incarnations,
     leader_stats_path,
     read_start,
@@ -29,58 +33,87 @@ from swarm_sitl.rundir.layout import (
     vehicle_stats_path,
     vehicle_truth_path,
 )
-from swarm_sitl.rundir.recording import FollowerSeries, Recording, leader_series
-
-_C = {name: j for j, name in enumerate(CONTROLLER_COLUMNS)}
-_SAMPLE = slice(_C["sample_px"], _C["sample_qz"] + 1)
-_CTRL = slice(_C["ctrl_0"], _C["ctrl_0"] + CTRL_SIZE)
-_OUT = slice(_C["out_0"], _C["out_0"] + OUT_SIZE)
+from swarm_sitl.rundir.recording import COMMAND_WIDTH, FollowerSeries, Recording, leader_series
 
 
-def _rows(path: Path, width: int) -> np.ndarray:
+def _rows(path: Path, columns: list[str]) -> np.ndarray:
+    """The rows of a row log with exactly ``columns`` (none if it is missing, unreadable, or of
+    other columns)."""
+    width = len(columns)
     if not path.is_file():
         return np.empty((0, width))
     try:
         cols, rows = read_rows(path)
     except RowLogError:
         return np.empty((0, width))
-    return rows if len(cols) == width else np.empty((0, width))
+    return rows if cols == columns else np.empty((0, width))
 
 
 def merge_run(cfg: SwarmConfig, run_dir: Path) -> Recording:
     n = cfg.n_control_steps
     dt = cfg.control_dt_s
+    record_fields = cfg.law_class().record_fields
+    columns = controller_columns(record_fields)
+    at = {name: j for j, name in enumerate(columns)}
+    sample = slice(at[SAMPLE_COLUMNS[0]], at[SAMPLE_COLUMNS[-1]] + 1)
+    command = slice(sample.stop, sample.stop + COMMAND_WIDTH)
+    record = slice(command.stop, len(columns))
     followers = {}
     offsets = {}
     for f in cfg.followers:
         i = f.id
-        series = FollowerSeries(n + 1)
-        width = len(CONTROLLER_COLUMNS)
-        parts = [_rows(p, width) for p in controller_incarnations(run_dir, i, ".rows")]
+        series = FollowerSeries(n + 1, record_fields)
+        parts = [_rows(p, columns) for p in controller_incarnations(run_dir, i, ".rows")]
+        width = len(columns)
         ctrl = np.concatenate(parts) if parts else np.empty((0, width))
-        truth = _rows(vehicle_truth_path(run_dir, i), len(TRUTH_COLUMNS))
+        truth = _rows(vehicle_truth_path(run_dir, i), TRUTH_COLUMNS)
+        if not len(ctrl):
+            _truth_only(series, truth, _boot_offset_s(run_dir, i), dt, n)
         by_ms: dict[int, int] = {}
         for j, ms in enumerate(np.round(truth[:, 0] * 1000).astype(np.int64)):
             by_ms.setdefault(int(ms), j)
         for row in ctrl:
-            k = int(row[_C["k"]])
+            k = int(row[at["k"]])
             if not 0 <= k <= n:
                 continue
-            at = by_ms.get(round(row[_C["sample_boot_s"]] * 1000))
-            if at is not None:
-                state = truth[at, 1:]
+            row_of_truth = by_ms.get(round(row[at["sample_boot_s"]] * 1000))
+            if row_of_truth is not None:
+                state = truth[row_of_truth, 1:]
             else:
                 state = np.full(STATE_SIZE, np.nan)
-                s = row[_SAMPLE]
+                s = row[sample]
                 state[POS], state[VEL], state[QUAT] = s[0:3], s[3:6], s[6:10]
-            series.record_vehicle(k, row[_C["t_s"]], state, row[_C["sample_t_s"]])
-            series.ctrl_state[k] = row[_CTRL]
-            series.ctrl_out[k] = row[_OUT]
+            series.record_vehicle(k, row[at["t_s"]], state, row[at["sample_t_s"]])
+            series.command[k] = row[command]
+            series.record[k] = row[record]
         followers[i] = series.arrays()
         offsets[i] = np.asarray(f.offset_m, dtype=float)
     t_s = np.arange(n + 1) * dt
     trajectory = cfg.trajectory()
     return Recording(leader_series(trajectory, t_s), followers, offsets).with_errors(trajectory)
+
+
+def _boot_offset_s(run_dir: Path, i: int) -> float:
+    """Run time minus vehicle ``i``'s boot time: 0 in lockstep, from its boot instant and the
+    run's epoch in real time (NaN if either is unknown)."""
+    start = read_start(run_dir)
+    if start is None:
+        return math.nan
+    if start.get("lockstep"):
+        return 0.0
+    boot = _stats(vehicle_stats_path(run_dir, i)).get("boot_unix_s")
+    return float(boot) - float(start["epoch_unix_s"]) if isinstance(boot, int | float) else math.nan
+
+
+def _truth_only(series: FollowerSeries, truth: np.ndarray, offset_s: float, dt: float, n: int) -> None:
+    """Each tick's true state from the truth rows alone: the last row at or before the tick."""
+    if not len(truth) or not math.isfinite(offset_s):
+        return
+    t_run = truth[:, 0] + offset_s
+    for k in range(n + 1):
+        j = int(np.searchsorted(t_run, k * dt + 1e-9, side="right")) - 1
+        if j >= 0 and k * dt - t_run[j] <= dt:
+            series.record_vehicle(k, k * dt, truth[j, 1:], float(t_run[j]))
 
 
 def _stats(path: Path) -> dict[str, Any]:

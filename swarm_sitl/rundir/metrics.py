@@ -22,20 +22,24 @@ def time_to_converge(t: np.ndarray, err: np.ndarray, tol: float) -> float | None
 
 def summarize(
     rec: Recording,
-    gains: dict[str, float],
+    gains: dict[str, float] | None,
     mass_kg: dict[int, float],
     g_mps2: float,
     settle_from_s: float = 20.0,
+    max_thrust_N: float = np.inf,
 ) -> dict:
-    """Per-follower and swarm-wide figures (all errors are 2-norms of the error vector)."""
+    """Per-follower and swarm-wide figures (all errors are 2-norms of the error vector).
+    ``gains``: the paper's law's, whose invariants (the floor of ``u_z``, the thrust bound) are
+    then checked; None for another law, whose thrust is set against ``max_thrust_N``."""
     out: dict[str, Any] = {"followers": {}}
-    k_eta, k_gamma = gains["k_eta"], gains["k_gamma"]
+    paper = gains is not None
+    k_eta, k_gamma = (gains["k_eta"], gains["k_gamma"]) if gains is not None else (0.0, 0.0)
     uz_floor = g_mps2 - k_gamma - 2 * k_eta
     worst: dict[str, Any] = {
         "final_pos_err_m": 0.0,
         "peak_pos_err_after_settle_m": None,  # None: no follower recorded past settle_from_s
         "peak_vel_err_after_settle_mps": None,
-        "min_u_z_mps2": np.inf,
+        **({"min_u_z_mps2": np.inf} if paper else {}),
         "max_thrust_over_bound": -np.inf,
         "time_to_0.1m_s": 0.0,
         "time_to_0.01m_s": 0.0,
@@ -50,8 +54,11 @@ def summarize(
         t = a["t_s"]
         pe, ve = _norm(a["pos_err_m"]), _norm(a["vel_err_mps"])
         late = t >= settle_from_s
-        t_bound = mass_kg[i] * (g_mps2 + 2 * np.sqrt(3) * k_eta + np.sqrt(3) * k_gamma)
-        f = {
+        # the paper's bound on its thrust (section 3.3), or the vehicle's most
+        t_bound = max_thrust_N
+        if paper:
+            t_bound = mass_kg[i] * (g_mps2 + 2 * np.sqrt(3) * k_eta + np.sqrt(3) * k_gamma)
+        f: dict[str, Any] = {
             "recorded_ticks": int(ok.sum()),
             "final_pos_err_m": float(pe[-1]),
             "final_vel_err_mps": float(ve[-1]),
@@ -59,24 +66,28 @@ def summarize(
             "peak_vel_err_mps": float(ve.max()),
             "peak_pos_err_after_settle_m": float(pe[late].max()) if late.any() else None,
             "peak_vel_err_after_settle_mps": float(ve[late].max()) if late.any() else None,
-            "final_est_pos_err_m": float(_norm(a["est_pos_err_m"])[-1]),
-            "time_to_0.1m_s": time_to_converge(t, pe, 0.1),
-            "time_to_0.01m_s": time_to_converge(t, pe, 0.01),
-            "min_u_z_mps2": float(np.min(a["u"][:, 2])),
-            "u_z_floor_mps2": uz_floor,
-            "max_thrust_N": float(np.max(a["thrust_N"])),
-            "thrust_bound_N": float(t_bound),
         }
+        if "est_pos_err_m" in a:
+            f["final_est_pos_err_m"] = float(_norm(a["est_pos_err_m"])[-1])
+        f["time_to_0.1m_s"] = time_to_converge(t, pe, 0.1)
+        f["time_to_0.01m_s"] = time_to_converge(t, pe, 0.01)
+        if paper:
+            f["min_u_z_mps2"] = float(np.min(a["u"][:, 2]))
+            f["u_z_floor_mps2"] = uz_floor
+        f["max_thrust_N"] = float(np.max(a["thrust_N"]))
+        f["thrust_bound_N"] = float(t_bound)
         out["followers"][str(i)] = f
         worst["final_pos_err_m"] = max(worst["final_pos_err_m"], f["final_pos_err_m"])
         for key in ("peak_pos_err_after_settle_m", "peak_vel_err_after_settle_mps"):
             if f[key] is not None:
                 worst[key] = f[key] if worst[key] is None else max(worst[key], f[key])
-        worst["min_u_z_mps2"] = min(worst["min_u_z_mps2"], f["min_u_z_mps2"])
+        if paper:
+            worst["min_u_z_mps2"] = min(worst["min_u_z_mps2"], f["min_u_z_mps2"])
         worst["max_thrust_over_bound"] = max(worst["max_thrust_over_bound"], f["max_thrust_N"] / t_bound)
         for key in ("time_to_0.1m_s", "time_to_0.01m_s"):
             worst[key] = None if f[key] is None or worst[key] is None else max(worst[key], f[key])
-    worst["u_z_floor_mps2"] = uz_floor
+    if paper:
+        worst["u_z_floor_mps2"] = uz_floor
     worst["settle_from_s"] = settle_from_s
     out["swarm"] = worst
     return out

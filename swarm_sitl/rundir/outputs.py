@@ -18,7 +18,8 @@ def write_outputs(cfg: SwarmConfig, rec: Recording, run_dir: Path, processes: bo
     """The run directory's config, arrays and summary; ``processes``: a multi-process run, whose
     events (``events.jsonl``), links and per-follower inputs are merged in too."""
     masses = {f.id: cfg.vehicle.mass_kg for f in cfg.followers}
-    summary = summarize(rec, cfg.gain_dict(), masses, cfg.gravity_mps2, cfg.run.settle_s)
+    gains = cfg.gain_dict() if cfg.law.is_paper else None
+    summary = summarize(rec, gains, masses, cfg.gravity_mps2, cfg.run.settle_s, cfg.vehicle.max_thrust_N)
     if processes:
         events = run_events(cfg, run_dir)
         write_events(run_dir / "events.jsonl", events)

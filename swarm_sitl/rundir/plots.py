@@ -117,7 +117,7 @@ def thrust(rec: Recording, path: Path, bound_N: dict[int, float] | None = None) 
             ax.axhline(bound_N[i], color="r", ls=":", lw=1)
     ax.set_xlabel("t [s]")
     ax.set_ylabel("T [N]")
-    ax.set_title("Commanded thrust (dotted: bound m(g + 2 sqrt3 k_eta + sqrt3 k_gamma))")
+    ax.set_title("Commanded thrust (dotted: its bound)" if bound_N else "Commanded thrust")
     ax.legend(fontsize=8)
     ax.grid(alpha=0.3)
     fig.tight_layout()
@@ -207,6 +207,10 @@ def plot_run(
             out_dir / "velocity_error.png",
             intervals,
         ),
-        estimator_errors(rec, out_dir / "estimator_error.png"),
+        *(
+            [estimator_errors(rec, out_dir / "estimator_error.png")]
+            if all("est_pos_err_m" in a for a in rec.followers.values())
+            else []
+        ),
         thrust(rec, out_dir / "thrust.png", thrust_bound_N),
     ]

@@ -8,20 +8,26 @@ Layout::
     RUN_DIR/summary.json       final and peak errors, time to converge, invariant checks
 
 Follower arrays (row k is tick k at ``t_s[k] = k * dt``, plus the follower's tick phase in a
-staggered real-time run; vectors world ENU unless noted):
+staggered real-time run; vectors world ENU unless noted), for any law:
 
     t_s                         [s] the control tick
     sample_t_s                  [s] instant of the vehicle sample used at that tick (= t_s in sim and
                                 lockstep; in real time the latest sample, up to a period older)
     p_W, v_W                    vehicle position [m], velocity [m/s] (true state)
     q_WB, omega_B               vehicle attitude [w,x,y,z; FLU->ENU], body rates [rad/s; FLU]
-    p_hat, v_hat, a_hat, a_hat_dot   estimates of the leader's p, v, a, jerk
-    gamma, gamma_dot, eta, eta_dot   estimator and auxiliary-system states
-    u, u_dot, u_ddot            command force [m/s^2] and its derivatives
     thrust_N                    commanded thrust [N]
     q_c, omega_c, omegadot_c    command attitude, rate [rad/s; body], rate derivative [rad/s^2]
     pos_err_m, vel_err_mps      p - p_r - delta_i, v - v_r (p, v at sample_t_s, so is the reference)
-    est_pos_err_m, est_vel_err_mps, est_acc_err_mps2   p_hat - p_r, v_hat - v_r, a_hat - a_r
+
+then the law's own ``record_fields``, in its order. The paper's law records
+
+    p_hat, v_hat, gamma, gamma_dot, eta, eta_dot   its state: estimates of the leader's p and v,
+                                the estimator's gamma and the auxiliary system's eta
+    u, u_dot, u_ddot            command force [m/s^2] and its derivatives
+    a_hat, a_hat_dot            estimates of the leader's acceleration and jerk
+
+and a law that records ``p_hat``, ``v_hat`` and ``a_hat`` (estimates of the leader's state)
+gets their errors too: est_pos_err_m, est_vel_err_mps, est_acc_err_mps2 (p_hat - p_r, ...).
 
 Load with ``numpy.load(path)``; ``load.load_run(RUN_DIR)`` gives them all. ``swarm-sitl run`` also
 writes ``logs/``, ``tlogs/`` and ``procs/`` (each process's own rows, as they happen: ``layout``).
@@ -30,42 +36,47 @@ writes ``logs/``, ``tlogs/`` and ``procs/`` (each process's own rows, as they ha
 import io
 import json
 import zipfile
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from sim_vehicles.common.command import AttitudeCommand
 from sim_vehicles.common.state import POS, QUAT, RATE, STATE_SIZE, VEL
-from swarm_sitl.laws.estimator import EST_GAMMA, EST_GAMMA_DOT, EST_P, EST_V
-from swarm_sitl.laws.follower import ControllerStep
-from swarm_sitl.laws.follower_law import (
-    CTRL_ETA,
-    CTRL_ETA_DOT,
-    CTRL_SIZE,
-    OUT_A_HAT,
-    OUT_A_HAT_DOT,
-    OUT_OMEGA_C,
-    OUT_OMEGADOT_C,
-    OUT_Q_C,
-    OUT_SIZE,
-    OUT_THRUST,
-    OUT_U,
-    OUT_U_DDOT,
-    OUT_U_DOT,
-)
 from swarm_sitl.laws.trajectories import Trajectory
+
+#: what every tick records of the command, whatever the law: name -> width
+COMMAND_FIELDS = {"thrust_N": 1, "q_c": 4, "omega_c": 3, "omegadot_c": 3}
+COMMAND_WIDTH = sum(COMMAND_FIELDS.values())
+ESTIMATES = ("p_hat", "v_hat", "a_hat")  #: a law's estimates of the leader's state, if it records them
+
+
+def layout(fields: Mapping[str, int]) -> dict[str, slice]:
+    """Where each field of ``fields`` (name -> width) lies in one flat row, in order."""
+    out, at = {}, 0
+    for name, width in fields.items():
+        out[name] = slice(at, at + width)
+        at += width
+    return out
+
+
+def command_parts(cmd: AttitudeCommand) -> tuple[tuple[float], np.ndarray, np.ndarray, np.ndarray]:
+    """``cmd`` in ``COMMAND_FIELDS``' order, as parts of a row (``np.concatenate`` joins them)."""
+    return (cmd.thrust_N,), cmd.q_c, cmd.omega_c_B, cmd.omegadot_c_B
 
 
 class FollowerSeries:
-    """Preallocated rows for one follower; ``arrays()`` splits them into the named series."""
+    """Preallocated rows for one follower; ``arrays()`` splits them into the named series.
+    ``record_fields``: the law's (name -> width)."""
 
-    def __init__(self, n_rows: int):
+    def __init__(self, n_rows: int, record_fields: Mapping[str, int]):
         self.n = n_rows
+        self.record_fields = dict(record_fields)
         self.t_s = np.full(n_rows, np.nan)
         self.vehicle = np.full((n_rows, STATE_SIZE), np.nan)
-        self.ctrl_state = np.full((n_rows, CTRL_SIZE), np.nan)
-        self.ctrl_out = np.full((n_rows, OUT_SIZE), np.nan)
-
+        self.command = np.full((n_rows, COMMAND_WIDTH), np.nan)
+        self.record = np.full((n_rows, sum(self.record_fields.values())), np.nan)
         self.sample_t_s = np.full(n_rows, np.nan)
 
     def record_vehicle(self, k: int, t_s: float, state: np.ndarray, sample_t_s: float | None = None) -> None:
@@ -73,35 +84,26 @@ class FollowerSeries:
         self.sample_t_s[k] = t_s if sample_t_s is None else sample_t_s
         self.vehicle[k] = state
 
-    def record_controller(self, k: int, step: ControllerStep) -> None:
-        self.ctrl_state[k] = step.state
-        self.ctrl_out[k] = step.output
+    def record_controller(self, k: int, command: AttitudeCommand, record: np.ndarray) -> None:
+        """The law's command and flat record (``layout`` of ``record_fields``) at tick ``k``."""
+        np.concatenate(command_parts(command), out=self.command[k])
+        self.record[k] = record
 
     def arrays(self) -> dict[str, np.ndarray]:
-        x, c, o = self.vehicle, self.ctrl_state, self.ctrl_out
-        return {
+        x, c, r = self.vehicle, self.command, self.record
+        out = {
             "t_s": self.t_s,
             "sample_t_s": self.sample_t_s,
             "p_W": x[:, POS],
             "v_W": x[:, VEL],
             "q_WB": x[:, QUAT],
             "omega_B": x[:, RATE],
-            "p_hat": c[:, EST_P],
-            "v_hat": c[:, EST_V],
-            "gamma": c[:, EST_GAMMA],
-            "gamma_dot": c[:, EST_GAMMA_DOT],
-            "eta": c[:, CTRL_ETA],
-            "eta_dot": c[:, CTRL_ETA_DOT],
-            "u": o[:, OUT_U],
-            "u_dot": o[:, OUT_U_DOT],
-            "u_ddot": o[:, OUT_U_DDOT],
-            "thrust_N": o[:, OUT_THRUST],
-            "q_c": o[:, OUT_Q_C],
-            "omega_c": o[:, OUT_OMEGA_C],
-            "omegadot_c": o[:, OUT_OMEGADOT_C],
-            "a_hat": o[:, OUT_A_HAT],
-            "a_hat_dot": o[:, OUT_A_HAT_DOT],
         }
+        for name, at in layout(COMMAND_FIELDS).items():
+            out[name] = c[:, at.start] if name == "thrust_N" else c[:, at]
+        for name, at in layout(self.record_fields).items():
+            out[name] = r[:, at.start] if self.record_fields[name] == 1 else r[:, at]
+        return out
 
 
 @dataclass
@@ -131,10 +133,11 @@ class Recording:
             p_r, v_r, _ = reference(ts, np.array_equal(ts, L["t_s"], equal_nan=True))
             a["pos_err_m"] = a["p_W"] - p_r - self.offsets[i]
             a["vel_err_mps"] = a["v_W"] - v_r
-            p_r, v_r, a_r = reference(t, np.array_equal(t, L["t_s"], equal_nan=True))
-            a["est_pos_err_m"] = a["p_hat"] - p_r
-            a["est_vel_err_mps"] = a["v_hat"] - v_r
-            a["est_acc_err_mps2"] = a["a_hat"] - a_r
+            if all(name in a and a[name].shape == a["p_W"].shape for name in ESTIMATES):
+                p_r, v_r, a_r = reference(t, np.array_equal(t, L["t_s"], equal_nan=True))
+                a["est_pos_err_m"] = a["p_hat"] - p_r
+                a["est_vel_err_mps"] = a["v_hat"] - v_r
+                a["est_acc_err_mps2"] = a["a_hat"] - a_r
         return self
 
 

@@ -1,12 +1,16 @@
 """The whole swarm in one process, through the same step functions the processes run.
 
-Per control tick ``k`` (see ``laws.follower`` for the controller's semantics, ``sim_vehicles.plant.autopilot``
-for the vehicle's): the leader emits its reference at ``t_k``; each vehicle is sampled through the
-MAVLink wire representation (float32, NED/FRD); each controller steps with its in-neighbours'
-messages of tick ``k - 1``; each command crosses the wire representation and is held by the vehicle
-for ``attitude_hz / control_hz`` attitude-loop steps. Controllers know the vehicle's mass and
-maximum thrust as the MAVLink parameter protocol reports them (float32). This is what
-``swarm-sitl run`` does across processes in lockstep; the transport is the only difference.
+Per control tick ``k`` (``laws.contract`` says what a tick is to a law,
+``sim_vehicles.plant.autopilot`` what it is to the vehicle): the leader emits its reference at
+``t_k``; each vehicle is sampled through the MAVLink wire representation (float32, NED/FRD); each
+follower's law steps with its in-neighbours' messages of tick ``k - 1``; each command crosses the
+wire representation and is held by the vehicle for ``attitude_hz / control_hz`` attitude-loop
+steps. Laws know the vehicle's mass and maximum thrust as the MAVLink parameter protocol reports
+them (float32). This is what ``swarm-sitl run`` does across processes in lockstep; the transport
+is the only difference.
+
+A law that fails (``nodes.law_host.LawError``) ends the run there: ``SimFailedError`` carries what was
+recorded up to it.
 """
 
 from collections.abc import Callable
@@ -21,10 +25,20 @@ from sim_vehicles.mavlink.wire_format import (
     sample_fields,
     sample_from_fields,
 )
+from swarm_sitl.bus.codec import Message
 from swarm_sitl.config.schema import SwarmConfig
-from swarm_sitl.laws.follower import EstimateMessage, VehicleSample
-from swarm_sitl.nodes.assembly import build_autopilot, build_controller, build_leader, reported_vehicle_params
+from swarm_sitl.laws.contract import Received, VehicleSample
+from swarm_sitl.nodes.assembly import build_autopilot, build_law, build_leader, reported_vehicle_params
+from swarm_sitl.nodes.law_host import LawError
 from swarm_sitl.rundir.recording import FollowerSeries, Recording, leader_series
+
+
+class SimFailedError(LawError):
+    """A law failed mid-run; ``recording`` is what the run recorded before (NaN after)."""
+
+    def __init__(self, error: LawError, recording: Recording):
+        super().__init__(str(error))
+        self.recording = recording
 
 
 def sample_through_wire(t_s: float, state: np.ndarray) -> VehicleSample:
@@ -42,32 +56,42 @@ def run_sim(
     ids = [f.id for f in cfg.followers]
     graph = cfg.build_graph()
     leader = build_leader(cfg)
-    ctrls = {i: build_controller(cfg, i, *reported_vehicle_params(cfg)) for i in ids}
+    laws = {i: build_law(cfg, i, *reported_vehicle_params(cfg)) for i in ids}
     aps = {i: build_autopilot(cfg, i) for i in ids}
-    series = {i: FollowerSeries(n + 1) for i in ids}
+    series = {i: FollowerSeries(n + 1, laws[i].law.record_fields) for i in ids}
     sources = {i: graph.in_neighbours(i) for i in ids}
     max_thrust = cfg.vehicle.max_thrust_N
     n_att = cfg.rates.attitude_steps_per_control
     dt = cfg.control_dt_s
-    latest: dict[int, EstimateMessage] = {}
+    latest: dict[int, Message] = {}
+
+    def recording() -> Recording:
+        t_s = np.arange(n + 1) * dt
+        offsets = {i: np.asarray(cfg.follower(i).offset_m, dtype=float) for i in ids}
+        return Recording(
+            leader_series(cfg.trajectory(), t_s), {i: s.arrays() for i, s in series.items()}, offsets
+        ).with_errors()
+
+    def heard(i: int) -> list[tuple[int, Message]]:
+        return [(s, latest[s]) for s, _ in sources[i] if s in latest]
+
     for k in range(n + 1):
         t = k * dt
-        inboxes = {i: {s: latest[s] for s, _ in sources[i] if s in latest} for i in ids}
-        new: dict[int, EstimateMessage] = {0: leader.step(k)}
+        inboxes = {i: {s: Received(m.values, m.t_s, t - m.t_s) for s, m in heard(i)} for i in ids}
+        new: dict[int, Message] = {0: leader.step(k)}
         for i in ids:
             ap = aps[i]
             series[i].record_vehicle(k, t, ap.state)
-            step = ctrls[i].step(k, sample_through_wire(t, ap.state), inboxes[i])
-            series[i].record_controller(k, step)
-            new[i] = step.estimate
+            try:
+                step = laws[i].step(t, sample_through_wire(t, ap.state), inboxes[i])
+            except LawError as e:
+                raise SimFailedError(e, recording()) from e
+            series[i].record_controller(k, step.command, step.record)
+            new[i] = Message(i, k, t, step.message)
             if k < n:
                 ap.set_command(command_roundtrip(step.command, max_thrust))
                 ap.advance(n_att)
         latest = new
         if progress is not None:
             progress(k)
-    t_s = np.arange(n + 1) * dt
-    offsets = {i: np.asarray(cfg.follower(i).offset_m, dtype=float) for i in ids}
-    return Recording(
-        leader_series(cfg.trajectory(), t_s), {i: s.arrays() for i, s in series.items()}, offsets
-    ).with_errors()
+    return recording()

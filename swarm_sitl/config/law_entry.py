@@ -1,0 +1,150 @@
+"""A config's ``law:`` entry made a class: imported, held to the contract, its params validated.
+
+``entry`` is ``"package.module:Name"`` (imported as Python imports it: installed, or on
+``PYTHONPATH``) or ``"path/to/file.py:Name"`` (loaded from that file; a relative path is relative to
+the config file, ``load.load_config`` makes it absolute). ``resolve`` imports it once per process
+and checks what can be checked before it runs (``laws.contract``): a class with a callable
+``step``, a ``message_length`` from 1 to ``MAX_MESSAGE_LENGTH``, ``record_fields`` mapping names
+to widths. ``validate_params`` runs the law's own ``Params`` on its ``params:`` if it declares
+one. Each failure is a ``LawEntryError`` of one line that names the entry.
+"""
+
+import hashlib
+import importlib
+import importlib.util
+import sys
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+from pydantic import BaseModel, ValidationError
+
+from swarm_sitl.laws.contract import MAX_MESSAGE_LENGTH
+
+#: names every follower's recording has whatever the law: a law's record may not reuse them
+RESERVED_NAMES = frozenset(
+    {"t_s", "sample_t_s", "p_W", "v_W", "q_WB", "omega_B", "thrust_N", "q_c", "omega_c", "omegadot_c"}
+    | {"pos_err_m", "vel_err_mps", "est_pos_err_m", "est_vel_err_mps", "est_acc_err_mps2", "offset_m"}
+)
+
+
+class LawEntryError(ValueError):
+    """A ``law:`` entry that cannot be flown; the message is one line naming it."""
+
+
+_RESOLVED: dict[str, type] = {}
+
+
+def split_entry(entry: str) -> tuple[str, str]:
+    """``(module or file, class name)`` of ``"where:Name"``."""
+    where, sep, name = entry.rpartition(":")
+    if not sep or not where or not name.isidentifier():
+        raise LawEntryError(f"entry {entry!r} must be 'package.module:ClassName' or 'path/file.py:ClassName'")
+    return where, name
+
+
+def is_file_entry(entry: str) -> bool:
+    return entry.rpartition(":")[0].endswith(".py")
+
+
+def absolute_entry(entry: str, base_dir: Path) -> str:
+    """A file entry's path made absolute against ``base_dir`` (any other entry as it is)."""
+    if not is_file_entry(entry):
+        return entry
+    where, name = split_entry(entry)
+    path = Path(where)
+    return entry if path.is_absolute() else f"{(base_dir / path).resolve()}:{name}"
+
+
+def _module(entry: str, where: str) -> Any:
+    if where.endswith(".py"):
+        path = Path(where)
+        if not path.is_file():
+            raise LawEntryError(f"entry {entry!r}: no such file {path}")
+        # one module name per file, whatever its name, so two laws in files of one name coexist
+        digest = hashlib.sha256(str(path.resolve()).encode()).hexdigest()[:12]
+        mod_name = f"swarm_sitl_law_{path.stem}_{digest}"
+        if mod_name in sys.modules:
+            return sys.modules[mod_name]
+        spec = importlib.util.spec_from_file_location(mod_name, path)
+        if spec is None or spec.loader is None:
+            raise LawEntryError(f"entry {entry!r}: {path} cannot be loaded as Python")
+        module = importlib.util.module_from_spec(spec)
+        sys.modules[mod_name] = module
+        try:
+            spec.loader.exec_module(module)
+        except BaseException as e:
+            del sys.modules[mod_name]
+            raise LawEntryError(f"entry {entry!r}: importing {path} failed: {_line(e)}") from None
+        return module
+    try:
+        return importlib.import_module(where)
+    except ModuleNotFoundError as e:
+        raise LawEntryError(f"entry {entry!r}: no module named {e.name!r}") from None
+    except BaseException as e:
+        raise LawEntryError(f"entry {entry!r}: importing {where} failed: {_line(e)}") from None
+
+
+def _line(e: BaseException) -> str:
+    text = " ".join(str(e).split())
+    return f"{type(e).__name__}: {text}" if text else type(e).__name__
+
+
+def check_contract(cls: Any, entry: str) -> None:
+    """What the contract asks that a class shows before it runs."""
+    if not isinstance(cls, type):
+        raise LawEntryError(f"entry {entry!r} is a {type(cls).__name__}, not a class")
+    if not callable(getattr(cls, "step", None)):
+        raise LawEntryError(f"entry {entry!r}: class {cls.__name__} has no step(t_s, sample, inbox) method")
+    n = getattr(cls, "message_length", None)
+    if type(n) is not int or not 1 <= n <= MAX_MESSAGE_LENGTH:
+        raise LawEntryError(
+            f"entry {entry!r}: message_length must be an int from 1 to {MAX_MESSAGE_LENGTH}, got {n!r}"
+        )
+    fields = getattr(cls, "record_fields", None)
+    if not isinstance(fields, Mapping):
+        raise LawEntryError(
+            f"entry {entry!r}: record_fields must be a mapping of name -> width, got {fields!r}"
+        )
+    for name, width in fields.items():
+        if not (isinstance(name, str) and name.isidentifier()):
+            raise LawEntryError(f"entry {entry!r}: record field {name!r} is not a name")
+        if name in RESERVED_NAMES:
+            raise LawEntryError(f"entry {entry!r}: record field {name!r} is one the bench records itself")
+        if type(width) is not int or width < 1:
+            raise LawEntryError(
+                f"entry {entry!r}: record field {name!r} has width {width!r}, not an int >= 1"
+            )
+
+
+def resolve(entry: str) -> type:
+    """The law class ``entry`` names, imported and checked (once per process)."""
+    cls = _RESOLVED.get(entry)
+    if cls is None:
+        where, name = split_entry(entry)
+        module = _module(entry, where)
+        if not hasattr(module, name):
+            raise LawEntryError(f"entry {entry!r}: {where} has no {name!r}")
+        cls = getattr(module, name)
+        check_contract(cls, entry)
+        _RESOLVED[entry] = cls
+    return cls
+
+
+def validate_params(cls: type, params: Mapping[str, Any], entry: str) -> Any:
+    """``params`` through the law's ``Params`` (a pydantic model, or any class taking them as
+    keywords: a dataclass, a NamedTuple); the mapping itself if the law declares none."""
+    schema = getattr(cls, "Params", None)
+    if schema is None:
+        return dict(params)
+    try:
+        if isinstance(schema, type) and issubclass(schema, BaseModel):
+            return schema.model_validate(dict(params))
+        return schema(**params)
+    except ValidationError as e:
+        err = e.errors()[0]
+        where = ".".join(str(p) for p in err["loc"])
+        msg = err["msg"].removeprefix("Value error, ")
+        raise LawEntryError(f"params{'.' + where if where else ''}: {msg} (law {entry})") from None
+    except (TypeError, ValueError) as e:
+        raise LawEntryError(f"params: {_line(e)} (law {entry})") from None
