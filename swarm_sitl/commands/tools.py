@@ -10,6 +10,7 @@ after the config schema every command needs (0.6 s), matplotlib costs 0.44 s (``
 
 import argparse
 import json
+import os
 import signal
 import sys
 import time
@@ -18,7 +19,9 @@ from typing import Any
 
 from swarm_sitl.bus.session import error_line, open_plain_router, router_runtime
 from swarm_sitl.commands.common import CliError, load
+from swarm_sitl.commands.law_check import render_law_check
 from swarm_sitl.config.generator import FORMATIONS, GRAPHS, TRAJECTORIES, GeneratorError, generate
+from swarm_sitl.config.law_entry import LawEntryError, absolute_entry, is_file_entry, split_entry
 from swarm_sitl.config.load import ConfigError, load_config
 from swarm_sitl.laws.gain_conditions import check_gains
 from swarm_sitl.laws.gain_report import render
@@ -30,6 +33,10 @@ from swarm_sitl.rundir.mcap_export import write_mcap
 def cmd_check(args: argparse.Namespace) -> int:
 
     cfg = load(args.config)
+    if not cfg.law.is_paper:
+        text, ok = render_law_check(cfg, args.config)
+        print(text)
+        return 0 if ok else 1
     report = check_gains(
         cfg.build_graph(), cfg.gain_dict(), cfg.trajectory(), cfg.gravity_mps2, max(cfg.duration_s, 200.0)
     )
@@ -37,13 +44,32 @@ def cmd_check(args: argparse.Namespace) -> int:
     return 0
 
 
+def written_entry(entry: str, config_dir: Path) -> str:
+    """A law entry as a config in ``config_dir`` must hold it: a file entry given relative to the
+    working directory, made relative to the config's directory."""
+    if not is_file_entry(entry):
+        return entry
+    path, name = split_entry(absolute_entry(entry, Path.cwd()))
+    return f"{os.path.relpath(path, config_dir.resolve())}:{name}"
+
+
 def cmd_new(args: argparse.Namespace) -> int:
 
-    try:
-        text = generate(args.followers, args.graph, args.formation, args.trajectory, args.seed, args.duration)
-    except GeneratorError as e:
-        raise CliError(str(e)) from None
     out = Path(args.o)
+    try:
+        law = args.law if args.law is None else written_entry(args.law, out.parent)
+        text = generate(
+            args.followers,
+            args.graph,
+            args.formation,
+            args.trajectory,
+            args.seed,
+            args.duration,
+            law,
+            out.parent,
+        )
+    except (GeneratorError, LawEntryError) as e:
+        raise CliError(str(e)) from None
     if out.exists() and not args.force:
         raise CliError(f"{out} exists (--force to overwrite)")
     try:
@@ -53,7 +79,7 @@ def cmd_new(args: argparse.Namespace) -> int:
         raise CliError(f"cannot write {out}: {e.strerror}") from None
     gains = [line.strip()[2:] for line in text.splitlines() if line.startswith("  # ") and "gains" in line]
     print(f"wrote {out}: {args.followers} followers, {args.graph} graph, {args.formation}, {args.trajectory}")
-    for line in gains[:1]:
+    for line in gains[: 1 if args.law is None else 0]:  # Theorem 1's: the paper's law's
         print(f"  gains: {line}")
     return 0
 
@@ -89,7 +115,9 @@ def cmd_plot(args: argparse.Namespace) -> int:
     summary_path = run_dir / "summary.json"
     if summary_path.is_file():
         summary = json.loads(summary_path.read_text())
-        bounds = {int(i): f["thrust_bound_N"] for i, f in summary["followers"].items()}
+        bounds = {
+            int(i): f["thrust_bound_N"] for i, f in summary["followers"].items() if "thrust_bound_N" in f
+        }
     events = []
     if (run_dir / "events.jsonl").is_file():
         events = read_events(run_dir / "events.jsonl")
@@ -133,6 +161,11 @@ def add_new(sub: Any) -> None:
     )
     n.add_argument("--seed", type=int, default=0, help="random graph and initial positions (default 0)")
     n.add_argument("--duration", type=float, default=60.0, help="duration_s of the config [s] (default 60)")
+    n.add_argument(
+        "--law",
+        metavar="ENTRY",
+        help="the followers' law: 'package.module:Class' or 'path/file.py:Class' (default: the paper's)",
+    )
     n.add_argument("-o", required=True, metavar="FILE", help="the config file to write")
     n.add_argument("--force", action="store_true", help="overwrite FILE if it exists")
     n.set_defaults(func=cmd_new)

@@ -8,14 +8,17 @@ which conditions fail otherwise. The text is parsed with the config schema befor
 so what is written always loads.
 """
 
+import json
 import math
 from collections.abc import Callable
+from pathlib import Path
 
 import numpy as np
 import yaml
 
-from swarm_sitl.config.load import parse_config
-from swarm_sitl.config.schema import LeaderSpec, SwarmConfig
+from swarm_sitl.config.law_entry import absolute_entry
+from swarm_sitl.config.load import ConfigError, parse_config
+from swarm_sitl.config.schema import PAPER_LAW, LeaderSpec, SwarmConfig
 from swarm_sitl.laws.gain_conditions import check_gains
 
 GRAPHS = ("ring", "tree", "layered", "random")
@@ -164,9 +167,18 @@ def _choose_gains(cfg: SwarmConfig) -> tuple[dict[str, float], list[str]]:
 
 
 def generate(
-    followers: int, graph: str, formation: str, trajectory: str, seed: int = 0, duration_s: float = 60.0
+    followers: int,
+    graph: str,
+    formation: str,
+    trajectory: str,
+    seed: int = 0,
+    duration_s: float = 60.0,
+    law: str | None = None,
+    law_base: Path | None = None,
 ) -> str:
-    """The YAML text of a generated swarm (parsed with the schema before it is returned)."""
+    """The YAML text of a generated swarm (parsed with the schema before it is returned). ``law``:
+    the followers' law entry as the file will hold it (a file entry relative to ``law_base``, the
+    directory the config is written to); default the paper's."""
     if not 1 <= followers <= 254:
         raise GeneratorError(f"--followers must be 1..254 (MAVLink system ids), got {followers}")
     if not 0 < duration_s < math.inf:
@@ -233,10 +245,28 @@ def generate(
             "  neighbour_hold: extrapolate",
             "",
         ]
+        if law is not None and law != PAPER_LAW:
+            lines += [
+                "# the followers' law (docs/laws.md); of the gains above only l_q, k_q (the vehicles'",
+                "# attitude loop) are used with it",
+                "law:",
+                f"  entry: {json.dumps(law)}",
+                "  params: {}",
+                "",
+            ]
         return "\n".join(lines)
 
-    draft = parse_config(yaml.safe_load(text(PAPER_GAINS, [])), "generated config")
+    def parsed(text_: str) -> SwarmConfig:
+        data = yaml.safe_load(text_)
+        if "law" in data:  # validated as load_config will: a file entry found from the config's directory
+            data["law"]["entry"] = absolute_entry(data["law"]["entry"], law_base or Path.cwd())
+        try:
+            return parse_config(data, "generated config")
+        except ConfigError as e:
+            raise GeneratorError(str(e).removeprefix("generated config: ")) from None
+
+    draft = parsed(text(PAPER_GAINS, []))
     gains, notes = _choose_gains(draft)
     out = text(gains, notes)
-    parse_config(yaml.safe_load(out), "generated config")
+    parsed(out)
     return out
