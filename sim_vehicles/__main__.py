@@ -8,6 +8,7 @@ or SIGINT closes the .tlog and the truth log and exits 0.
 import argparse
 import dataclasses
 import json
+import math
 import signal
 import sys
 from pathlib import Path
@@ -210,7 +211,8 @@ def main(argv: list[str] | None = None) -> int:
     finally:
         ep.close()
         if a.stats:
-            stats = {**dataclasses.asdict(ep.stats), "process": process_figures()}
+            boot = None if math.isnan(ep.boot_unix_s) else ep.boot_unix_s
+            stats = {**dataclasses.asdict(ep.stats), "boot_unix_s": boot, "process": process_figures()}
             Path(a.stats).write_text(json.dumps(stats, indent=1) + "\n")
     return 0
 

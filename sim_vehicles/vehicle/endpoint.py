@@ -103,6 +103,8 @@ class VehicleEndpoint:
                 )
             self._lockstep_steps = round(n)
         self.stats = EndpointStats()
+        #: real time: the UNIX instant of its ``time_boot_ms`` 0 (set when its loop starts)
+        self.boot_unix_s = math.nan
         self.tlog = Tlog(self.tlog_path)
         rates = self.rates.by_message()
         if self.lockstep_period_s is not None:  # in lockstep the sample follows every period

@@ -36,6 +36,7 @@ class Served(Protocol):
     """What a loop drives: the vehicle (``endpoint.VehicleEndpoint``)."""
 
     autopilot: Autopilot
+    boot_unix_s: float  #: real time: the UNIX instant of time_boot_ms = 0
     port: Port
     gcs: Port | None
     flight: FlightModes
@@ -55,6 +56,7 @@ def run_realtime(v: Served, duration_s: float | None = None, stop: Callable[[], 
     ap = v.autopilot
     dt = ap.dt_s
     k0 = ap.step_index
+    v.boot_unix_s = time.time() - k0 * dt
     port = v.port
     socks = [port.sock] + ([] if v.gcs is None else [v.gcs.sock])
 

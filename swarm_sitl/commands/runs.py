@@ -34,22 +34,27 @@ from swarm_sitl.rundir.outputs import write_outputs
 
 def cmd_sim(args: argparse.Namespace) -> int:
     cfg = with_duration(load(args.config), args.duration)
-    from swarm_sitl.running.sim import run_sim  # the run machinery: 0.12 s (module doc)
+    from swarm_sitl.running.sim import SimFailedError, run_sim  # the run machinery: 0.12 s (module doc)
 
     run_dir = Path(args.out) if args.out else default_run_dir(cfg, "sim")
     n = cfg.n_control_steps
     t0 = time.monotonic()
-    if args.quiet:
-        rec = run_sim(cfg)
-    else:
-        with tqdm(total=n + 1, unit="tick", desc=f"sim {cfg.name}", mininterval=0.25, leave=False) as bar:
-            stride = max(1, (n + 1) // 100)
+    try:
+        if args.quiet:
+            rec = run_sim(cfg)
+        else:
+            with tqdm(total=n + 1, unit="tick", desc=f"sim {cfg.name}", mininterval=0.25, leave=False) as bar:
+                stride = max(1, (n + 1) // 100)
 
-            def progress(k: int) -> None:
-                if k % stride == 0 or k == n:
-                    bar.update(k + 1 - bar.n)
+                def progress(k: int) -> None:
+                    if k % stride == 0 or k == n:
+                        bar.update(k + 1 - bar.n)
 
-            rec = run_sim(cfg, progress=progress)
+                rec = run_sim(cfg, progress=progress)
+    except SimFailedError as e:
+        write_outputs(cfg, e.recording, run_dir)
+        print(f"swarm-sitl: error: {e} (what was recorded is in {run_dir})", file=sys.stderr)
+        return EXIT_FAILED
     wall = time.monotonic() - t0
 
     summary = write_outputs(cfg, rec, run_dir)
@@ -87,11 +92,16 @@ class _RunProgress:
             self.bar.set_postfix_str(f"|p-p_r-d| m {shown}", refresh=False)
 
     def note(self, lines: list[str]) -> None:
-        """Lines printed above the bar (the vehicles' ports, as they come up)."""
+        """Lines printed above the bar (the vehicles' ports, as they come up); with ``--quiet``
+        only what a user must act on (``run --external``)."""
         if self.bar is not None:
             for line in lines:
                 self.bar.write(line)
-            sys.stdout.flush()  # a pipe's reader (a script waiting for the ports) gets them now
+        else:
+            for line in lines:
+                if "(--external)" in line:
+                    print(line)
+        sys.stdout.flush()  # a pipe's reader (a script waiting for the ports) gets them now
 
     def close(self) -> None:
         if self.bar is not None:
@@ -106,13 +116,14 @@ def _run_and_record(
     mavlink: dict[int, str] | None,
     kind: str,
     base_port: int = 0,
+    external: tuple[int, ...] = (),
 ) -> int:
     from swarm_sitl.running.run import record_run  # the run machinery: 0.12 s (module doc)
 
     clock = "lockstep" if lockstep else "real time"
     progress = _RunProgress(cfg, f"{kind} {cfg.name} ({clock})", quiet)
     try:
-        out = record_run(cfg, run_dir, lockstep, mavlink, progress, base_port, progress.note)
+        out = record_run(cfg, run_dir, lockstep, mavlink, progress, base_port, progress.note, external)
     finally:
         progress.close()
     if out.failure is not None:
@@ -163,8 +174,28 @@ def _with_fault_file(cfg: SwarmConfig, path: str | None) -> SwarmConfig:
 def cmd_run(args: argparse.Namespace) -> int:
     cfg = _with_fault_file(with_duration(load(args.config), args.duration), args.faults)
     check_base_port(cfg, args.base_port)
+    external = check_external(cfg, args.external, args.realtime)
     run_dir = Path(args.out) if args.out else default_run_dir(cfg, "run")
-    return _run_and_record(cfg, run_dir, not args.realtime, args.quiet, None, "run", args.base_port)
+    return _run_and_record(cfg, run_dir, not args.realtime, args.quiet, None, "run", args.base_port, external)
+
+
+def check_external(cfg: SwarmConfig, ids: list[int], realtime: bool) -> tuple[int, ...]:
+    """``--external`` ids, checked against the config and the fault plan."""
+    if not ids:
+        return ()
+    if not realtime:
+        raise CliError("--external needs --realtime (a lockstep controller steps its vehicle's clock itself)")
+    known = {f.id for f in cfg.followers}
+    for i in ids:
+        if i not in known:
+            raise CliError(f"--external {i}: no follower {i} in {cfg.name} (followers {sorted(known)})")
+        if any(e.controller == i for e in cfg.faults.plan):
+            raise CliError(
+                f"--external {i}: the fault plan acts on controller {i}, which this run does not start"
+            )
+    if len(set(ids)) != len(ids):
+        raise CliError(f"--external: an id given twice ({ids})")
+    return tuple(sorted(ids))
 
 
 def cmd_controllers(args: argparse.Namespace) -> int:
@@ -225,6 +256,15 @@ def add_run(sub: Any) -> None:
     r.add_argument("config")
     r.add_argument("--realtime", action="store_true", help="wall clock, as in flight (default: lockstep)")
     r.add_argument("--faults", metavar="FILE", help="fault plan (YAML: seed, plan) in place of the config's")
+    r.add_argument(
+        "--external",
+        type=int,
+        action="append",
+        default=[],
+        metavar="ID",
+        help="follower whose controller you run yourself (another language, another tool): the run "
+        "spawns its vehicle, writes RUN_DIR/external.json and waits for it (docs/bus.md); --realtime",
+    )
     add_base_port(r)
     add_run_outputs(r, "run")
     r.set_defaults(func=cmd_run)

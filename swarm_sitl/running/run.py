@@ -18,11 +18,14 @@ from pathlib import Path
 from typing import Any
 
 from sim_vehicles.runtime.lifeline import settle_heap
+from sim_vehicles.runtime.secret_file import write_secret
+from swarm_sitl.bus import access as zenoh_access
+from swarm_sitl.bus import keys as zenoh_keys
 from swarm_sitl.bus.session import publish_start
 from swarm_sitl.config.load import ConfigError
 from swarm_sitl.config.schema import SwarmConfig
 from swarm_sitl.faults.processes import LostAircraftError, ProcessFaults
-from swarm_sitl.rundir.layout import procs_dir, start_path, supervisor_events_path
+from swarm_sitl.rundir.layout import external_path, procs_dir, start_path, supervisor_events_path
 from swarm_sitl.rundir.merge import merge_run
 from swarm_sitl.rundir.metrics import bound_failures
 from swarm_sitl.rundir.outputs import write_outputs
@@ -67,6 +70,42 @@ def node_argv(
     return [*argv, "--lockstep"] if lockstep else argv
 
 
+def external_controllers(
+    cfg: SwarmConfig,
+    run_dir: Path,
+    external: tuple[int, ...],
+    endpoints: dict[int, str],
+    hub: str | None,
+    env_for: Callable[[str], dict[str, str]],
+) -> list[str]:
+    """Write ``RUN_DIR/external.json`` (mode 0600: it holds zenoh passwords) with what each
+    external controller needs (``docs/bus.md``), and say it in lines to print."""
+    connect = [hub] if hub is not None else list(cfg.zenoh.connect)
+    nodes = {}
+    for i in external:
+        env = env_for(f"controller_{i}")
+        nodes[str(i)] = {
+            "mavlink": endpoints[i],
+            "zenoh_user": env.get(zenoh_access.USER_ENV),
+            "zenoh_password": env.get(zenoh_access.PASSWORD_ENV),
+        }
+    info = {
+        "swarm": cfg.name,
+        "control_dt_s": cfg.control_dt_s,
+        "zenoh": {"mode": "client" if cfg.zenoh.mode != "peer" else "peer", "connect": connect},
+        "controllers": nodes,
+    }
+    path = external_path(run_dir)
+    write_secret(path, json.dumps(info, indent=1) + "\n")
+    where = " ".join(connect) or "(scouting)"
+    return [
+        f"controller {i}: yours (--external): its vehicle on {nodes[str(i)]['mavlink']}, the bus at "
+        f"{where}; credentials in {path}; the run starts once it declares "
+        f"{zenoh_keys.alive(cfg.name, i)} (within {cfg.run.start_timeout_s:g} s)"
+        for i in external
+    ]
+
+
 @dataclass
 class RunResult:
     run_wall_s: float  #: from the start signal to the last controller done
@@ -82,9 +121,12 @@ def run_swarm(
     on_progress: Callable[[int, dict[int, float]], None] | None = None,
     base_port: int = 0,
     on_vehicles: Callable[[list[str]], None] | None = None,
+    external: tuple[int, ...] = (),
 ) -> RunResult:
     """Run the swarm; vehicles are spawned (on ``base_port``'s ports, ``start_vehicles``; their
-    ports go to ``on_vehicles``) unless ``mavlink`` gives each follower's endpoint."""
+    ports go to ``on_vehicles``) unless ``mavlink`` gives each follower's endpoint. The followers
+    in ``external`` get no controller from the run: each one's is the user's, told where to meet
+    its vehicle and the bus (``external_controllers``), and the run waits for it as for its own."""
     if lockstep:
         try:
             cfg.faults.check_lockstep()
@@ -117,7 +159,13 @@ def run_swarm(
             endpoints = dict(mavlink)
         signing = ["--signing-key-file", str(key_file)] if key_file is not None else []
         node_args = {"leader": ["leader"]}
+        if external:
+            lines = external_controllers(cfg, run_dir, external, endpoints, hub, sup.env_for)
+            if on_vehicles is not None:
+                on_vehicles(lines)
         for f in cfg.followers:
+            if f.id in external:
+                continue
             url = endpoints[f.id]
             url = "udpout:" + url.removeprefix("udp:") if mavlink is None else url
             node_args[f"controller_{f.id}"] = ["controller", "--id", str(f.id), "--mavlink", url, *signing]
@@ -193,6 +241,7 @@ def record_run(
     on_progress: Callable[[int, dict[int, float]], None] | None = None,
     base_port: int = 0,
     on_vehicles: Callable[[list[str]], None] | None = None,
+    external: tuple[int, ...] = (),
 ) -> Outcome:
     """Run the swarm as processes (``run_swarm``) and write its run directory from
     what the processes recorded, however the run ended (a ``KeyboardInterrupt`` is caught and
@@ -201,7 +250,7 @@ def record_run(
     interrupted = False
     run_wall = startup = float("nan")
     try:
-        result = run_swarm(cfg, run_dir, lockstep, mavlink, on_progress, base_port, on_vehicles)
+        result = run_swarm(cfg, run_dir, lockstep, mavlink, on_progress, base_port, on_vehicles, external)
         run_wall, startup = result.run_wall_s, result.startup_wall_s
     except RunFailedError as e:
         failure = str(e)
