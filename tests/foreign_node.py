@@ -31,7 +31,17 @@ COMMAND_ACK = (77, 143, struct.Struct("<HB"))
 SET_ATTITUDE_TARGET = (82, 49, struct.Struct("<I4f4fBBB"))
 LOCAL_POSITION_NED = (32, 185, struct.Struct("<I6f"))
 ATTITUDE_QUATERNION = (31, 246, struct.Struct("<I7f"))
-EXTRA = {m[0]: m[1] for m in (HEARTBEAT, COMMAND_LONG, COMMAND_ACK, SET_ATTITUDE_TARGET, LOCAL_POSITION_NED, ATTITUDE_QUATERNION)}
+EXTRA = {
+    m[0]: m[1]
+    for m in (
+        HEARTBEAT,
+        COMMAND_LONG,
+        COMMAND_ACK,
+        SET_ATTITUDE_TARGET,
+        LOCAL_POSITION_NED,
+        ATTITUDE_QUATERNION,
+    )
+}
 ARM, SET_MODE, SET_INTERVAL = 400, 176, 511
 PX4_BASE_FLAGS, PX4_OFFBOARD = 29, 6  # base_mode flags, PX4 main mode OFFBOARD (px4_custom_mode.h)
 
@@ -76,7 +86,12 @@ class Mav:
                 size = 12 + n + (13 if incompat & 1 else 0)
                 frame, data = data[:size], data[size:]
                 msgid = frame[7] | frame[8] << 8 | frame[9] << 16
-                if msgid not in EXTRA or x25(bytes([EXTRA[msgid]]), x25(frame[1 : 10 + n])) != struct.unpack_from("<H", frame, 10 + n)[0]:
+                if (
+                    msgid not in EXTRA
+                    or len(frame) < 12 + n
+                    or x25(bytes([EXTRA[msgid]]), x25(frame[1 : 10 + n]))
+                    != struct.unpack_from("<H", frame, 10 + n)[0]
+                ):
                     continue
                 body = frame[10 : 10 + n].ljust(64, b"\0")  # receivers restore trimmed zeros
                 if msgid == HEARTBEAT[0]:
@@ -170,7 +185,8 @@ def main() -> int:
     ap.add_argument("--out-edges", type=int, nargs="*", default=[])
     ap.add_argument("--in-edges", type=int, nargs="*", default=[0])
     a = ap.parse_args()
-    info = json.load(open(a.external_json))
+    with open(a.external_json) as f:
+        info = json.load(f)
     me = info["controllers"][str(a.id)]
     swarm, dt = info["swarm"], info["control_dt_s"]
 
@@ -194,10 +210,15 @@ def main() -> int:
     conf.insert_json5("connect/endpoints", json.dumps(info["zenoh"]["connect"]))
     conf.insert_json5("scouting/multicast/enabled", "false")
     if me.get("zenoh_user"):
-        conf.insert_json5("transport/auth/usrpwd", json.dumps({"user": me["zenoh_user"], "password": me["zenoh_password"]}))
+        conf.insert_json5(
+            "transport/auth/usrpwd", json.dumps({"user": me["zenoh_user"], "password": me["zenoh_password"]})
+        )
     session = zenoh.open(conf)
     inbox: dict[int, tuple] = {}
-    subs = [session.declare_subscriber(f"swarm/{swarm}/edge/{s}/{a.id}", zenoh.handlers.RingChannel(8)) for s in a.in_edges]
+    subs = [
+        session.declare_subscriber(f"swarm/{swarm}/edge/{s}/{a.id}", zenoh.handlers.RingChannel(8))
+        for s in a.in_edges
+    ]
     start = session.declare_subscriber(f"swarm/{swarm}/start", zenoh.handlers.RingChannel(1))
     pubs = {d: session.declare_publisher(f"swarm/{swarm}/edge/{a.id}/{d}") for d in a.out_edges}
     status = session.declare_publisher(f"swarm/{swarm}/status/{a.id}")
@@ -207,7 +228,7 @@ def main() -> int:
     while epoch is None:  # hold the vehicle level until the run starts
         s = start.try_recv()
         if s is not None:
-            version, epoch = struct.unpack("<Bd", s.payload.to_bytes())
+            _version, epoch = struct.unpack("<Bd", s.payload.to_bytes())
         mav.setpoint(*hover)
         mav.heartbeat()
         mav.read()
@@ -237,7 +258,7 @@ def main() -> int:
         p_r = [v[i] + h * v[3 + i] + h * h / 2 * v[6 + i] + h**3 / 6 * v[9 + i] for i in range(3)]
         v_r = [v[3 + i] + h * v[6 + i] + h * h / 2 * v[9 + i] for i in range(3)]
         a_r = [v[6 + i] + h * v[9 + i] for i in range(3)]
-        for d, pub in pubs.items():
+        for pub in pubs.values():
             pub.put(encode(a.id, k, t, [*p_r, *v_r, *a_r, *v[9:12]]))
         ned = lambda e: (e[1], e[0], -e[2])  # noqa: E731  ENU -> NED
         p, vel = mav.position[1:4], mav.position[4:7]

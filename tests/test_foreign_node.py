@@ -34,9 +34,10 @@ def test_a_foreign_node_takes_a_controllers_place_and_the_formation_holds(tmp_pa
     path.write_text(yaml.safe_dump(cfg))
     out = tmp_path / "run"
     duration = 20.0
+    run_args = ["--duration", str(duration), "--out", str(out), "--quiet"]
+    node_args = ["--id", "3", "--offset", "-2", "-2", "0", "--duration", str(duration), "--out-edges", "4"]
     run = subprocess.Popen(
-        [sys.executable, "-m", "swarm_sitl", "run", str(path), "--realtime", "--external", "3"]
-        + ["--duration", str(duration), "--out", str(out), "--quiet"],
+        [sys.executable, "-m", "swarm_sitl", "run", str(path), "--realtime", "--external", "3", *run_args],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
@@ -50,8 +51,7 @@ def test_a_foreign_node_takes_a_controllers_place_and_the_formation_holds(tmp_pa
         assert _complete(info), run.communicate()
         assert info.stat().st_mode & 0o077 == 0  # it holds a zenoh password
         node = subprocess.Popen(
-            [sys.executable, str(HERE / "foreign_node.py"), str(info), "--id", "3", "--offset", "-2", "-2", "0"]
-            + ["--duration", str(duration), "--out-edges", "4"],
+            [sys.executable, str(HERE / "foreign_node.py"), str(info), *node_args],
             stdout=subprocess.PIPE,
             stderr=subprocess.STDOUT,
             text=True,

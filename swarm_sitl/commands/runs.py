@@ -8,6 +8,7 @@ after the config schema every command needs (0.6 s), matplotlib costs 0.44 s (``
 """
 
 import argparse
+import json
 import sys
 import time
 from pathlib import Path
@@ -215,20 +216,35 @@ def cmd_controllers(args: argparse.Namespace) -> int:
 def cmd_vehicles(args: argparse.Namespace) -> int:
     from swarm_sitl.running.run import compile_kernels  # the run machinery: 0.12 s (module doc)
     from swarm_sitl.running.supervisor import RunFailedError, Supervisor
+    from swarm_sitl.running.vehicle_relay import start_relays
     from swarm_sitl.running.vehicles import port_lines, signing_key_file, start_vehicles
 
     cfg = load(args.config)
     check_base_port(cfg, args.base_port)
+    relayed = _vehicle_faults(cfg, args.faults, args.lockstep) if args.faults else frozenset()
+    if args.faults:
+        cfg = _with_fault_file(cfg, args.faults)
     run_dir = Path(args.out) if args.out else default_run_dir(cfg, "vehicles")
     compile_kernels(cfg)
     sup = Supervisor(run_dir)
+    relays = None
     try:
         key_file = signing_key_file(cfg, run_dir, own_vehicles=False)
-        endpoints, ground = start_vehicles(sup, cfg, args.lockstep, args.base_port, key_file, args.host)
+        endpoints, ground = start_vehicles(
+            sup, cfg, args.lockstep, args.base_port, key_file, args.host, relayed
+        )
+        if relayed:
+            relays = start_relays(cfg, endpoints, args.base_port, args.host, relayed)
+            endpoints = {
+                **endpoints,
+                **{r.vehicle: f"udp:{r.address[0]}:{r.address[1]}" for r in relays.relays},
+            }
         clock = f"lockstep, {cfg.control_dt_s:g} s per setpoint" if args.lockstep else "real time"
         print(f"{cfg.n_followers} vehicles of {cfg.name} ({clock}); .tlogs in {run_dir / 'tlogs'}")
         print(f"  MAVLink 2 signing with {key_file}" if key_file else "  MAVLink 2 signing off")
         print("\n".join(port_lines(endpoints, ground)))
+        if relayed:
+            print(f"  {args.faults} acts on the link(s) of vehicle(s) {sorted(relayed)} from now")
         print("Ctrl-C stops them", flush=True)
         while True:
             sup.check()
@@ -240,6 +256,28 @@ def cmd_vehicles(args: argparse.Namespace) -> int:
         return 0
     finally:
         sup.close()
+        if relays is not None:
+            links = relays.close()
+            (run_dir / "links.json").write_text(json.dumps(links, indent=1) + "\n")
+            for name, st in links.items():
+                print(
+                    f"  {name}: {st['received']} datagrams, {st['lost']} lost, {st['corrupt']} corrupted, "
+                    f"{st['delayed']} delayed, {st['duplicated']} duplicated (links.json)"
+                )
+
+
+def _vehicle_faults(cfg: SwarmConfig, path: str, lockstep: bool) -> frozenset[int]:
+    """The vehicles whose links ``vehicles --faults`` relays; a plan with anything else is refused."""
+    plan = _with_fault_file(cfg, path).faults
+    if lockstep:
+        raise CliError(
+            "vehicles --faults runs in real time only (in lockstep a lost setpoint needs a clock-only "
+            "one in its place, which the controller sends: use run --faults)"
+        )
+    for j, f in enumerate(plan.plan):
+        if f.mavlink is None:
+            raise CliError(f"{path}: entry {j}: vehicles --faults acts on MAVLink links only (mavlink: i)")
+    return frozenset(f.mavlink for f in plan.plan if f.mavlink is not None)
 
 
 def add_sim(sub: Any) -> None:
@@ -283,6 +321,12 @@ def add_vehicles(sub: Any) -> None:
         "machine's address on their network)",
     )
     v.add_argument("--out", help="directory for .tlogs and logs (default runs/<name>-vehicles-<time>)")
+    v.add_argument(
+        "--faults",
+        metavar="FILE",
+        help="a fault plan of mavlink: entries, applied at the vehicles' own ports (real time; "
+        "counts in OUT/links.json at exit)",
+    )
     v.set_defaults(func=cmd_vehicles)
 
 

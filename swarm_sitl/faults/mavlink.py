@@ -140,6 +140,10 @@ class MavlinkFaults:
         return data
 
     # -- real time: what was held ----------------------------------------------------------------
+    def next_due_s(self) -> float | None:
+        """When the first held datagram is due [run s], or None if none is held."""
+        return self._held[0][0] if self._held else None
+
     def _hold(self, delay_s: float, way: str, data: bytes) -> None:
         heapq.heappush(self._held, (self.clock.now_s() + delay_s, next(self._order), way, data))
 
