@@ -7,12 +7,10 @@ age before it leaves the inbox), the traffic the law's message makes, and that t
 for every follower and steps once on still inputs with an output that meets the contract.
 """
 
-import numpy as np
-
 from swarm_sitl.bus.codec import message_size
 from swarm_sitl.config.schema import SwarmConfig
-from swarm_sitl.laws.contract import REFERENCE_LENGTH, Received, VehicleSample, reference_values
-from swarm_sitl.nodes.assembly import build_law, reported_vehicle_params
+from swarm_sitl.laws.contract import REFERENCE_LENGTH
+from swarm_sitl.nodes.assembly import first_tick, reported_vehicle_params
 from swarm_sitl.nodes.law_host import LawError
 
 
@@ -33,27 +31,14 @@ def hops_from_leader(cfg: SwarmConfig) -> dict[int, int]:
     return {i: hops[i] for i in sorted(hops) if i > 0}
 
 
-def first_tick(cfg: SwarmConfig) -> list[str]:
-    """Build each follower's law and step it at t = 0 on its initial state, the leader's
-    reference (from its in-edge from node 0, if any) and zeros from its other in-neighbours:
-    one line per follower, ``ok`` or the law's one-line error."""
+def first_ticks(cfg: SwarmConfig) -> list[str]:
+    """Each follower's law built and stepped once (``assembly.first_tick``): one line per
+    follower, ``ok`` or the law's one-line error."""
     mass, max_thrust = reported_vehicle_params(cfg)
-    ref = reference_values(cfg.trajectory().derivatives(0.0))
     lines = []
     for f in cfg.followers:
         try:
-            law = build_law(cfg, f.id, mass, max_thrust)
-            inbox = {
-                s: Received(ref if s == 0 else np.zeros(law.message_length), 0.0, 0.0)
-                for s, _ in cfg.build_graph().in_neighbours(f.id)
-            }
-            sample = VehicleSample(
-                0.0,
-                np.asarray(f.initial_position_m, dtype=float),
-                np.asarray(f.initial_velocity_mps, dtype=float),
-                np.asarray(f.initial_quaternion_wxyz, dtype=float),
-            )
-            step = law.step(0.0, sample, inbox)
+            step = first_tick(cfg, f.id, mass, max_thrust)
             lines.append(f"  follower {f.id}: builds, first tick ok (thrust {step.command.thrust_N:.3g} N)")
         except LawError as e:
             lines.append(f"  follower {f.id}: FAILS: {e}")
@@ -72,7 +57,7 @@ def render_law_check(cfg: SwarmConfig, name: str) -> tuple[str, bool]:
         from_leader * message_size(REFERENCE_LENGTH) + (n_edges - from_leader) * per_msg
     ) * cfg.rates.control_hz
     stale_periods = cfg.estimator.staleness_s / cfg.control_dt_s
-    ticks = first_tick(cfg)
+    ticks = first_ticks(cfg)
     ok = not any("FAILS" in line for line in ticks)
     lines = [
         f"config {name}: law {cfg.law.entry}",

@@ -7,9 +7,9 @@ from sim_vehicles.mavlink.wire_format import f32
 from sim_vehicles.plant.autopilot import Autopilot
 from swarm_sitl.bus.codec import Message
 from swarm_sitl.config.schema import SwarmConfig
-from swarm_sitl.laws.contract import LawContext, reference_values
+from swarm_sitl.laws.contract import LawContext, Received, VehicleSample, reference_values
 from swarm_sitl.laws.trajectories import Trajectory
-from swarm_sitl.nodes.law_host import HostedLaw, LawError, one_line
+from swarm_sitl.nodes.law_host import HostedLaw, HostedStep, LawError, one_line
 
 
 class Reference:
@@ -60,7 +60,29 @@ def build_law(
         law = cfg.law_class()(ctx)
     except Exception as e:
         raise LawError(f"law {cfg.law.entry}, follower {i}: building it raised {one_line(e)}") from e
-    return HostedLaw(law, i)
+    return HostedLaw(law, i, cfg.law.entry)
+
+
+def first_tick(
+    cfg: SwarmConfig, i: int, mass_kg: float | None = None, max_thrust_N: float | None = None
+) -> HostedStep:
+    """Build follower ``i``'s law and step it at t = 0 on its initial state, the leader's reference
+    (if it hears node 0) and zeros from its other in-neighbours: what a run's first tick gives it
+    (``LawError`` if it cannot)."""
+    law = build_law(cfg, i, mass_kg, max_thrust_N)
+    f = cfg.follower(i)
+    ref = reference_values(cfg.trajectory().derivatives(0.0))
+    inbox = {
+        s: Received(ref if s == 0 else np.zeros(law.message_length), 0.0, 0.0)
+        for s, _ in cfg.build_graph().in_neighbours(i)
+    }
+    sample = VehicleSample(
+        0.0,
+        np.asarray(f.initial_position_m, dtype=float),
+        np.asarray(f.initial_velocity_mps, dtype=float),
+        np.asarray(f.initial_quaternion_wxyz, dtype=float),
+    )
+    return law.step(0.0, sample, inbox)
 
 
 def reported_vehicle_params(cfg: SwarmConfig) -> tuple[float, float]:

@@ -48,10 +48,10 @@ class HostedStep(NamedTuple):
 class HostedLaw:
     """Follower ``follower_id``'s ``law``, stepped through the contract."""
 
-    def __init__(self, law: Any, follower_id: int):
+    def __init__(self, law: Any, follower_id: int, name: str | None = None):
         self.law = law
         self.id = follower_id
-        self.name = law_name(law)
+        self.name = law_name(law) if name is None else name  #: as the config's ``law.entry`` says
         self.message_length = int(law.message_length)
         self.layout = layout(law.record_fields)
         self.record_width = sum(s.stop - s.start for s in self.layout.values())
@@ -151,10 +151,13 @@ class HostedLaw:
                 missing = sorted(set(self.layout) - set(record))
                 raise self._fail(t, f"its record has fields {extra} it does not declare, lacks {missing}")
             for name, at in self.layout.items():
+                value = record[name]
+                width = at.stop - at.start
                 try:
-                    flat[at] = record[name]
+                    if np.size(value) != width:  # no broadcasting of one value over a field
+                        raise ValueError
+                    flat[at] = value
                 except (TypeError, ValueError):
-                    width = at.stop - at.start
                     raise self._fail(t, f"its record field {name!r} is not {width} number(s)") from None
             return flat
         shape = getattr(record, "shape", type(record).__name__)

@@ -25,6 +25,8 @@ from swarm_sitl.bus.session import publish_start
 from swarm_sitl.config.load import ConfigError
 from swarm_sitl.config.schema import SwarmConfig
 from swarm_sitl.faults.processes import LostAircraftError, ProcessFaults
+from swarm_sitl.nodes.assembly import first_tick, reported_vehicle_params
+from swarm_sitl.nodes.law_host import LawError
 from swarm_sitl.rundir.layout import external_path, procs_dir, start_path, supervisor_events_path
 from swarm_sitl.rundir.merge import merge_run
 from swarm_sitl.rundir.metrics import bound_failures
@@ -138,10 +140,17 @@ def run_swarm(
     procs_dir(run_dir).mkdir(parents=True, exist_ok=True)
     t_spawn = time.monotonic()
     sup = Supervisor(run_dir)
-    if uses_fork_server(cfg):
-        sup.fork_server = start_fork_server(cfg_path, run_dir)  # it compiles or loads the kernels
-    else:
-        compile_kernels(cfg)
+    try:
+        if not cfg.law.is_paper:  # a user's law that cannot take its first tick fails here, named
+            for f in cfg.followers:
+                first_tick(cfg, f.id, *reported_vehicle_params(cfg))
+        if uses_fork_server(cfg):
+            sup.fork_server = start_fork_server(cfg_path, run_dir)  # it compiles or loads the kernels
+        else:
+            compile_kernels(cfg)
+    except LawError as e:
+        sup.close()
+        raise RunFailedError(str(e)) from None
     hub, session = open_hub(cfg, run_dir, sup)
     monitor = RunMonitor(session, cfg)
     faults = None

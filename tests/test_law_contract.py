@@ -1,0 +1,242 @@
+"""The law contract from outside: what a config may name, what the bench refuses (each a one-line
+error naming the law, and the follower once it runs), and what a run keeps when a law fails."""
+
+import math
+import subprocess
+import sys
+from pathlib import Path
+from typing import ClassVar
+
+import numpy as np
+import pytest
+import yaml
+
+from swarm_sitl.config.load import ConfigError, load_config
+from swarm_sitl.laws.contract import AttitudeCommand, LawOutput, Received, VehicleSample
+from swarm_sitl.nodes.assembly import build_law
+from swarm_sitl.nodes.law_host import HostedLaw, LawError
+from swarm_sitl.running.sim import SimFailedError, run_sim
+from tests.conftest import CONFIGS
+
+LEVEL = np.array([1.0, 0.0, 0.0, 0.0])
+CLI = [sys.executable, "-m", "swarm_sitl"]
+
+LAWS = """
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
+from swarm_sitl.laws.contract import AttitudeCommand, LawOutput
+
+class Hover:
+    message_length = 3
+    record_fields = {"n_heard": 1}
+    def __init__(self, ctx):
+        self.weight = ctx.mass_kg * ctx.gravity_mps2
+        self.id = ctx.follower_id
+    def out(self, message):
+        return LawOutput(AttitudeCommand(np.array([1.0, 0, 0, 0]), self.weight), message, {"n_heard": 0})
+    def step(self, t, sample, inbox):
+        return self.out(np.zeros(3))
+
+class RaisesLater(Hover):
+    def step(self, t, sample, inbox):
+        if self.id == 2 and t > 0.5:
+            raise ZeroDivisionError("my bug")
+        return self.out(np.zeros(3))
+
+class NoStep:
+    message_length = 3
+    record_fields = {}
+
+class BadLength(Hover):
+    message_length = 0
+
+class Shadows(Hover):
+    record_fields = {"p_W": 3}
+
+class Gains(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    k: float = Field(1.0, gt=0)
+
+class WithParams(Hover):
+    Params = Gains
+
+class BuildFails(Hover):
+    def __init__(self, ctx):
+        raise KeyError("gain_that_is_not_there")
+
+not_a_class = 3
+"""
+
+
+@pytest.fixture(scope="module")
+def laws_file(tmp_path_factory) -> Path:
+    path = tmp_path_factory.mktemp("laws") / "user_laws.py"
+    path.write_text(LAWS)
+    return path
+
+
+def _config(tmp_path: Path, entry: str, params: dict | None = None, **more) -> Path:
+    cfg = yaml.safe_load((CONFIGS / "paper.yaml").read_text())
+    cfg["law"] = {"entry": entry, **({"params": params} if params is not None else {})}
+    cfg.update(more)
+    path = tmp_path / "cfg.yaml"
+    path.write_text(yaml.safe_dump(cfg))
+    return path
+
+
+@pytest.mark.unit
+@pytest.mark.parametrize(
+    ("entry", "params", "says"),
+    [
+        ("no_such_package_xyz.laws:Law", None, "no module named 'no_such_package_xyz'"),
+        ("missing_file.py:Law", None, "no such file"),
+        ("{laws}:Nope", None, "has no 'Nope'"),
+        ("{laws}:not_a_class", None, "is a int, not a class"),
+        ("{laws}:NoStep", None, "has no step(t_s, sample, inbox) method"),
+        ("{laws}:BadLength", None, "message_length must be an int from 1 to 4096, got 0"),
+        ("{laws}:Shadows", None, "record field 'p_W' is one the bench records itself"),
+        ("{laws}:WithParams", {"k": -1.0}, "params.k: Input should be greater than 0"),
+        ("{laws}:WithParams", {"kk": 1.0}, "params.kk: Extra inputs are not permitted"),
+        ("swarm_sitl.laws.zou_meng:ZouMengLaw", {"k_p": 1.0}, "leave law.params empty"),
+        ("just_a_name", None, "must be 'package.module:ClassName' or 'path/file.py:ClassName'"),
+    ],
+)
+def test_a_law_entry_that_cannot_fly_is_one_line_naming_it(tmp_path, laws_file, entry, params, says):
+    entry = entry.format(laws=laws_file)
+    with pytest.raises(ConfigError) as e:
+        load_config(_config(tmp_path, entry, params))
+    text = str(e.value)
+    assert says in text and "\n" not in text, text
+    assert text.startswith(f"{tmp_path / 'cfg.yaml'}: law")
+
+
+@pytest.mark.unit
+def test_a_file_entry_is_found_from_the_config_file_and_its_params_validated(tmp_path, laws_file):
+    (tmp_path / "sub").mkdir()
+    (tmp_path / "sub" / "mine.py").write_text(LAWS)
+    cfg = load_config(_config(tmp_path, "sub/mine.py:WithParams", {"k": 2.5}))
+    assert (
+        cfg.law.entry == f"{tmp_path / 'sub' / 'mine.py'}:WithParams"
+    )  # absolute, as the run's copy names it
+    assert cfg.law_params().k == 2.5
+    assert load_config(_config(tmp_path, f"{laws_file}:Hover")).law_params() == {}  # no Params: as written
+
+
+def _hosted(laws_file: Path, tmp_path: Path, name: str) -> HostedLaw:
+    return build_law(load_config(_config(tmp_path, f"{laws_file}:{name}")), 2)
+
+
+class _Scripted:
+    """A law whose every tick returns what the test gives it."""
+
+    message_length = 3
+    record_fields: ClassVar[dict[str, int]] = {"x": 2}
+
+    def __init__(self, out):
+        self.out = out
+
+    def step(self, t, sample, inbox):
+        if isinstance(self.out, BaseException):
+            raise self.out
+        return self.out
+
+
+def _out(q=LEVEL, thrust=5.0, message=None, record=None) -> LawOutput:
+    message = np.zeros(3) if message is None else message
+    return LawOutput(AttitudeCommand(q, thrust), message, {"x": [1.0, 2.0]} if record is None else record)
+
+
+@pytest.mark.unit
+@pytest.mark.parametrize(
+    ("out", "says"),
+    [
+        (_out(message=np.zeros(4)), "message has shape (4,), it declares message_length 3"),
+        (_out(thrust=math.nan), "command is not finite"),
+        (_out(message=np.array([0.0, math.inf, 0.0])), "message is not finite"),
+        (_out(q=2 * LEVEL), "not a unit quaternion (norm 2)"),
+        (_out(q=[1, 0, 0, 0]), "must be arrays of 4, 3, 3"),
+        (_out(record={"y": [1.0, 2.0]}), "fields ['y'] it does not declare"),
+        (_out(record={"x": [1.0]}), "record field 'x' is not 2 number(s)"),
+        (None, "step returned NoneType, not a LawOutput"),
+        ((LEVEL, 5.0, np.zeros(3)), "its command is ndarray, not an AttitudeCommand"),
+        (ZeroDivisionError("division by zero"), "ZeroDivisionError: division by zero"),
+    ],
+)
+def test_a_tick_that_breaks_the_contract_is_one_line_naming_the_law_the_follower_and_the_time(out, says):
+    host = HostedLaw(_Scripted(out), 7, "my_laws.py:Scripted")
+    sample = VehicleSample(0.25, np.zeros(3), np.zeros(3), LEVEL)
+    with pytest.raises(LawError) as e:
+        host.step(0.25, sample, {0: Received(np.zeros(12), 0.24, 0.01)})
+    text = str(e.value)
+    assert text.startswith("law my_laws.py:Scripted, follower 7 at t=0.250 s: ") and says in text, text
+    assert "\n" not in text
+
+
+@pytest.mark.unit
+def test_a_law_that_fails_to_build_names_itself_and_the_follower(tmp_path, laws_file):
+    with pytest.raises(LawError, match=r"law .*:BuildFails, follower 2: building it raised KeyError"):
+        _hosted(laws_file, tmp_path, "BuildFails")
+
+
+@pytest.mark.integration
+def test_the_template_law_hovers_where_it_starts(paper_cfg):
+    """thrust = weight, level: every vehicle's equilibrium; 3 s of the paper's scenario leave each
+    within a millimetre of its start (the attitude loop only holds level)."""
+    law = paper_cfg.law.model_copy(update={"entry": "swarm_sitl.laws.template:HoverLaw"})
+    cfg = paper_cfg.model_copy(update={"law": law})
+    rec = run_sim(cfg.model_copy(update={"duration_s": 3.0}))
+    for i, s in rec.followers.items():
+        start = np.asarray(cfg.follower(i).initial_position_m)
+        assert np.abs(s["p_W"] - start).max() < 1e-3
+        assert s["heard"][0] == 0 and s["heard"][1:].min() == len(cfg.build_graph().in_neighbours(i))
+        np.testing.assert_allclose(s["thrust_N"], cfg.vehicle.mass_kg * cfg.gravity_mps2, rtol=1e-6)
+
+
+@pytest.mark.integration
+def test_sim_of_a_failing_law_keeps_what_it_recorded_and_exits_1_in_one_line(tmp_path, laws_file):
+    cfg = load_config(_config(tmp_path, f"{laws_file}:RaisesLater", duration_s=2.0))
+    with pytest.raises(SimFailedError) as e:
+        run_sim(cfg)
+    rec = e.value.recording
+    t = rec.followers[2]["t_s"]
+    f2 = rec.followers[2]
+    assert np.isfinite(f2["p_W"][t <= 0.5]).all() and np.isnan(f2["thrust_N"][t > 0.51]).all()
+    out = tmp_path / "sim"
+    r = subprocess.run(
+        [*CLI, "sim", str(tmp_path / "cfg.yaml"), "--out", str(out), "--quiet"],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert r.returncode == 1 and len(r.stderr.strip().splitlines()) == 1, r.stderr
+    assert "follower 2 at t=0.510 s: ZeroDivisionError: my bug" in r.stderr and "Traceback" not in r.stderr
+    f2 = np.load(out / "follower_2.npz")
+    assert np.isfinite(f2["thrust_N"][f2["t_s"] <= 0.5]).all()
+
+
+@pytest.mark.system
+def test_run_of_a_failing_law_names_the_process_its_code_the_law_and_keeps_the_records(tmp_path, laws_file):
+    out = tmp_path / "run"
+    r = subprocess.run(
+        [
+            *CLI,
+            "run",
+            str(_config(tmp_path, f"{laws_file}:RaisesLater")),
+            "--duration",
+            "3",
+            "--out",
+            str(out),
+            "--quiet",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=240,
+    )
+    assert r.returncode == 1, r.stderr
+    line = r.stderr.strip()
+    assert "\n" not in line and "Traceback" not in line
+    assert line.startswith("swarm-sitl: error: controller_2 exited with code 1: controller 2: error: law ")
+    assert ":RaisesLater, follower 2 at t=0.510 s: ZeroDivisionError: my bug" in line
+    f2 = np.load(out / "follower_2.npz")
+    t = f2["t_s"]
+    assert np.isfinite(f2["p_W"][t <= 0.5]).all() and np.isnan(f2["p_W"][t > 0.6]).all()
