@@ -25,7 +25,9 @@ advanced between ticks under constant ``a_i`` (exact for a double integrator), a
 that hears nobody (a cut edge past ``estimator.staleness_s``) coasts on its last ``a_i``.
 
 **Position loop** (PD with feedforward): ``a_c = a_i + k_p (p_i + delta_i - p) + k_v (v_i - v)``,
-its norm limited to ``max_accel_mps2``, and the command force ``F = m (a_c + g e3)``.
+its norm limited to ``max_accel_mps2``, and the command force ``F = m (a_c + g e3)``; ``p`` is the
+vehicle's sample carried to the tick by its velocity (in real time a sample is up to a telemetry
+period old; in ``sim`` and lockstep it is the tick's own).
 
 **Thrust and attitude** (T. Lee, M. Leok, N. H. McClamroch, "Geometric tracking control of a
 quadrotor UAV on SE(3)", IEEE CDC 2010, eq. (12)-(15)): ``b3c = F / |F|``, ``b1c`` the heading
@@ -166,13 +168,10 @@ class ConsensusPD:
         self.t_s = t_s
         heard = [(self.weights[j], *carried(m.values, m.age_s, j == 0)) for j, m in sorted(inbox.items())]
         a = consensus_acceleration(self.p_hat, self.v_hat, heard, prm.alpha, prm.gamma)
+        p = sample.p_W + (t_s - sample.t_s) * sample.v_W  # real time: the sample carried to the tick
         if a is not None:
             self.a_hat = a
-        a_c = (
-            self.a_hat
-            + prm.k_p * (self.p_hat + self.offset - sample.p_W)
-            + prm.k_v * (self.v_hat - sample.v_W)
-        )
+        a_c = self.a_hat + prm.k_p * (self.p_hat + self.offset - p) + prm.k_v * (self.v_hat - sample.v_W)
         norm = float(np.linalg.norm(a_c))
         if norm > prm.max_accel_mps2:
             a_c = a_c * (prm.max_accel_mps2 / norm)
