@@ -240,3 +240,33 @@ def test_run_of_a_failing_law_names_the_process_its_code_the_law_and_keeps_the_r
     f2 = np.load(out / "follower_2.npz")
     t = f2["t_s"]
     assert np.isfinite(f2["p_W"][t <= 0.5]).all() and np.isnan(f2["p_W"][t > 0.6]).all()
+
+
+@pytest.mark.system
+def test_a_silent_neighbours_message_reaches_the_law_with_its_growing_age_then_leaves_the_inbox(
+    tmp_path, swarm
+):
+    """Across processes, lockstep, the template law (it records how many it heard and the oldest
+    message's age): the edge 0 -> 1 cut from 1 s, follower 1 still gets the leader's last message,
+    one period older each tick, until it is past estimator.staleness_s (0.305 s); then nothing until the edge
+    returns at 2 s, and the message of 1.99 s at 2.00 s is again one period old."""
+    cfg = yaml.safe_load((CONFIGS / "paper.yaml").read_text())
+    cfg["law"] = {"entry": "swarm_sitl.laws.template:HoverLaw"}
+    cfg["estimator"]["staleness_s"] = 0.305  # off the grid of ages: 0.30 in, 0.31 out
+    path = tmp_path / "hover.yaml"
+    path.write_text(yaml.safe_dump(cfg))
+    r = swarm(path, duration_s=3.0, faults=[{"edge": [0, 1], "drop": True, "from_s": 1.0, "until_s": 2.0}])
+    assert r.ok, r.failure
+    f1 = r.followers[1].arrays
+    k = np.round(f1["t_s"] / 0.01).astype(int)
+    heard, age = f1["heard"], f1["oldest_age_s"]
+    last = 100  # the leader's last message before the cut is of tick 99 (0.99 s)
+    carried = (k >= last) & (k <= 99 + 30)  # at most 0.3 s old
+    np.testing.assert_allclose(age[carried], (k[carried] - 99) * 0.01, atol=1e-9)
+    assert (heard[carried] == 1).all()
+    gone = (k > 99 + 30) & (k <= 200)
+    assert (heard[gone] == 0).all() and (age[gone] == 0).all()
+    back = k > 200
+    assert (heard[back] == 1).all() and np.allclose(age[back], 0.01)
+    lost = r.events_of("neighbour_lost")
+    assert [(e["follower"], e["neighbour"], round(e["t_s"], 2)) for e in lost] == [(1, 0, 1.30)]
