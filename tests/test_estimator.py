@@ -93,3 +93,14 @@ def test_a_tick_after_a_long_gap_keeps_the_internal_step(tmp_path):
     assert np.isfinite(out.message).all() and np.isfinite(out.record).all() and np.isfinite(ctrl.state).all()
     told = np.mean([m.values[0:3] + m.values[3:6] * (18.55 - m.t_s) for m in inbox.values()], axis=0)
     assert np.linalg.norm(out.message[0:3] - told) < 0.3
+
+
+def test_the_paper_laws_params_are_the_kernels_gains_in_their_order():
+    from swarm_sitl.laws.follower_law import ControlGains
+    from swarm_sitl.laws.zou_meng import ZouMengParams
+
+    n = len(ControlGains._fields) - 2
+    assert ZouMengParams._fields[:n] == ControlGains._fields[:n]
+    p = ZouMengParams(*map(float, range(1, n + 1)))
+    g = p.control_gains(0.85, 9.81)
+    assert tuple(g) == (*map(float, range(1, n + 1)), 0.85, 9.81)

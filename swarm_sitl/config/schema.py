@@ -314,21 +314,9 @@ class SwarmConfig(_Strict):
         return AttitudeGains(self.gains.l_q, self.gains.k_q)
 
     def control_gains(self, mass_kg: float | None = None) -> ControlGains:
-        g = self.gains
-        return ControlGains(
-            g.k_gamma,
-            g.k_p,
-            g.k_v,
-            g.l_a,
-            g.k_a,
-            g.l_p,
-            g.l_v,
-            g.k_eta,
-            self.estimator.sign_boundary_layer,
-            g.l_a if self.estimator.bracket == "sliding_surface" else 1.0,
-            self.vehicle.mass_kg if mass_kg is None else mass_kg,
-            self.gravity_mps2,
-        )
+        """The paper's law's kernel parameters (``paper_law_params`` and the vehicle's)."""
+        mass = self.vehicle.mass_kg if mass_kg is None else mass_kg
+        return self.paper_law_params().control_gains(mass, self.gravity_mps2)
 
     def law_class(self) -> Any:
         """The followers' law (``law.entry``), imported once per process."""
@@ -339,6 +327,10 @@ class SwarmConfig(_Strict):
         from this config's sections, for another its ``law.params`` through its ``Params``."""
         if not self.law.is_paper:
             return validate_params(self.law_class(), self.law.params, self.law.entry)
+        return self.paper_law_params()
+
+    def paper_law_params(self) -> ZouMengParams:
+        """The paper's law's parameters from ``gains``, ``estimator`` and ``rates``."""
         g = self.gains
         return ZouMengParams(
             g.k_gamma,

@@ -86,6 +86,11 @@ class ZouMengParams(NamedTuple):
     substeps: int = 10  #: RK4 steps of the controller state per control period
     hold: int = HOLD_EXTRAPOLATE  #: ``follower_law.HOLD_*``: how messages are carried to a tick
 
+    def control_gains(self, mass_kg: float, gravity_mps2: float) -> ControlGains:
+        """The kernels' parameters: these gains (``ControlGains``' fields but the last two, in
+        its order: ``tests/test_estimator.py`` holds them to it), with the vehicle's mass and g."""
+        return ControlGains._make((*self[: len(ControlGains._fields) - 2], mass_kg, gravity_mps2))
+
 
 class ZouMengLaw:
     """Estimator and position loop of one follower. No I/O: inputs in, command and estimate out."""
@@ -99,20 +104,7 @@ class ZouMengLaw:
         self.id = ctx.follower_id
         self.offset = np.asarray(ctx.offset_m, dtype=float)
         self.weights = tuple((int(s), float(w)) for s, w in ctx.in_edges)
-        self.gains = ControlGains(
-            p.k_gamma,
-            p.k_p,
-            p.k_v,
-            p.l_a,
-            p.k_a,
-            p.l_p,
-            p.l_v,
-            p.k_eta,
-            p.sign_boundary_layer,
-            p.bracket_a_weight,
-            ctx.mass_kg,
-            ctx.gravity_mps2,
-        )
+        self.gains = p.control_gains(ctx.mass_kg, ctx.gravity_mps2)
         self._gains_v = gains_vector(self.gains)
         self.dt_s = ctx.control_dt_s
         self.substeps = int(p.substeps)
