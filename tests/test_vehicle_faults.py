@@ -75,7 +75,7 @@ def test_a_pymavlink_controller_sees_the_planned_loss_on_its_link(tmp_path):
             acked = ack is not None and ack.command == mav.MAV_CMD_SET_MESSAGE_INTERVAL
         # downlink: the vehicle's frames, counted by their sequence numbers (a gap is a loss)
         seqs = []
-        t_end = time.monotonic() + 6.0
+        t_end = time.monotonic() + 4.0
         while time.monotonic() < t_end:
             m = conn.recv_match(blocking=True, timeout=0.1)
             if m is not None and m.get_srcSystem() == 1:
