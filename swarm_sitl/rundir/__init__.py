@@ -6,7 +6,8 @@
 - ``merge``: the processes' raw records into a ``Recording``, and the summary's per-edge counts;
 - ``load``: a run directory read back;
 - ``metrics``: the summary's figures; ``plots``: the figures as PNG; ``mcap_export``: MCAP;
-- ``outputs``: the run directory written from what was recorded.
+- ``outputs``: the run directory written from what was recorded; ``whole_files``: each file
+  written whole or not at all.
 
 Compute, record, plot: nothing here runs a swarm.
 

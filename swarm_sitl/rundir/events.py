@@ -22,6 +22,7 @@ from pathlib import Path
 from typing import Any
 
 from swarm_sitl.config.schema import SwarmConfig
+from swarm_sitl.rundir.whole_files import write_text_whole
 
 
 def plan_events(cfg: SwarmConfig) -> list[dict[str, Any]]:
@@ -72,4 +73,4 @@ def merge_events(
 
 
 def write_events(path: Path, events: list[dict[str, Any]]) -> None:
-    path.write_text("".join(json.dumps(e, sort_keys=True) + "\n" for e in events))
+    write_text_whole(path, "".join(json.dumps(e, sort_keys=True) + "\n" for e in events))

@@ -45,6 +45,7 @@ import numpy as np
 from sim_vehicles.common.command import AttitudeCommand
 from sim_vehicles.common.state import POS, QUAT, RATE, STATE_SIZE, VEL
 from swarm_sitl.laws.trajectories import Trajectory
+from swarm_sitl.rundir.whole_files import whole, write_text_whole
 
 #: what every tick records of the command, whatever the law: name -> width
 COMMAND_FIELDS = {"thrust_N": 1, "q_c": 4, "omega_c": 3, "omegadot_c": 3}
@@ -149,7 +150,7 @@ def leader_series(trajectory: Trajectory, t_s: np.ndarray) -> dict[str, np.ndarr
 def save_npz(path: Path, arrays: dict[str, np.ndarray]) -> None:
     """``numpy.savez`` with fixed member dates, so the same arrays give the same bytes (numpy
     stamps each member with the time of writing); ``numpy.load`` reads it as any .npz."""
-    with zipfile.ZipFile(path, "w", zipfile.ZIP_STORED, allowZip64=True) as z:
+    with whole(path) as tmp, zipfile.ZipFile(tmp, "w", zipfile.ZIP_STORED, allowZip64=True) as z:
         for name, a in arrays.items():
             buf = io.BytesIO()
             np.lib.format.write_array(buf, np.asanyarray(a), allow_pickle=False)
@@ -158,8 +159,8 @@ def save_npz(path: Path, arrays: dict[str, np.ndarray]) -> None:
 
 def write_run(run_dir: Path, config_yaml: str, rec: Recording, summary: dict) -> None:
     run_dir.mkdir(parents=True, exist_ok=True)
-    (run_dir / "config.yaml").write_text(config_yaml)
+    write_text_whole(run_dir / "config.yaml", config_yaml)
     save_npz(run_dir / "leader.npz", rec.leader)
     for i, arrays in rec.followers.items():
         save_npz(run_dir / f"follower_{i}.npz", {"offset_m": rec.offsets[i], **arrays})
-    (run_dir / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+    write_text_whole(run_dir / "summary.json", json.dumps(summary, indent=2) + "\n")
