@@ -2,7 +2,8 @@
 
 The subcommands are ``commands``' (and, for ``controller`` and ``leader``, the node processes'
 own arguments, ``nodes.arguments``). Every user mistake ends with one line on stderr
-(``swarm-sitl: error: ...``) and exit 2; a failed run exits 1, a run past its bound 3, Ctrl-C 130.
+(``swarm-sitl: error: ...``) and exit 2; a failed run exits 1, a run past its bound 3, Ctrl-C 130,
+SIGTERM 143 and SIGHUP 129 (each ends a run as Ctrl-C does: the run directory written).
 """
 
 import argparse
@@ -10,7 +11,7 @@ import sys
 from collections.abc import Sequence
 
 from swarm_sitl.commands import bench, runs, tools
-from swarm_sitl.commands.common import EXIT_USAGE, CliError
+from swarm_sitl.commands.common import EXIT_USAGE, CliError, end_on_signals, interrupted_exit
 from swarm_sitl.config.load import ConfigError
 from swarm_sitl.laws.graph import GraphError
 from swarm_sitl.nodes.arguments import add_node_parsers
@@ -48,11 +49,13 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    end_on_signals()
     try:
         return int(args.func(args))
     except (ConfigError, GraphError, RunDirError, CliError) as e:
         print(f"swarm-sitl: error: {e}", file=sys.stderr)
         return EXIT_USAGE
-    except KeyboardInterrupt:
-        print("swarm-sitl: interrupted", file=sys.stderr)
-        return 130
+    except KeyboardInterrupt as e:
+        code, name = interrupted_exit(e)
+        print(f"swarm-sitl: interrupted ({name})", file=sys.stderr)
+        return code

@@ -184,20 +184,27 @@ def _wait_running(out: Path, timeout=120.0) -> None:
     raise AssertionError("the run did not get going")
 
 
-def test_ctrl_c_leaves_no_process_and_no_bound_port(tmp_path):
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM, signal.SIGHUP], ids=lambda s: s.name)
+def test_ctrl_c_or_sigterm_or_sighup_leaves_no_process_no_bound_port_and_the_run_written(tmp_path, sig):
+    """SIGTERM (timeout, systemd, CI runners, container stops) and SIGHUP end a run as Ctrl-C does:
+    everything torn down, the run directory written whole from what was recorded, one line, exit
+    128 + the signal."""
     out = tmp_path / "int"
     proc = _start_run(out, "--realtime", "--duration", 60)
     _wait_running(out)
     ports = _vehicle_ports(out)
     assert len(ports) == 4 and not any(_udp_free(p) for p in ports)
-    proc.send_signal(signal.SIGINT)
+    proc.send_signal(sig)
     _, err = proc.communicate(timeout=60)
-    assert proc.returncode == 130, err
-    assert "interrupted" in err
+    assert proc.returncode == 128 + sig, err
+    assert err.strip().splitlines()[-1].startswith(f"swarm-sitl: interrupted ({sig.name}); partial run in")
+    assert "Traceback" not in err
     assert not _processes_mentioning(str(tmp_path))
     assert all(_udp_free(p) for p in ports)
     a = np.load(out / "follower_1.npz")  # what was recorded is kept
     assert np.isfinite(a["p_W"]).any()
+    assert json.loads((out / "summary.json").read_text())["swarm"]
+    assert not list(out.glob(".*.partial"))  # every file written whole
 
 
 def test_a_killed_controller_ends_the_run_naming_it(tmp_path):

@@ -8,6 +8,7 @@ after the config schema every command needs (0.6 s), matplotlib costs 0.44 s (``
 """
 
 import argparse
+import signal
 import sys
 from datetime import datetime
 from pathlib import Path
@@ -30,6 +31,55 @@ def load(path: str) -> SwarmConfig:
 
 def default_run_dir(cfg: SwarmConfig, kind: str) -> Path:
     return Path("runs") / f"{cfg.name}-{kind}-{datetime.now().strftime('%Y%m%d-%H%M%S')}"
+
+
+def run_dir_of(out: str | None, cfg: SwarmConfig, kind: str) -> Path:
+    """``--out`` (default ``default_run_dir``), refused in one line before anything starts if it
+    is not a directory that can be created or written."""
+    path = Path(out) if out else default_run_dir(cfg, kind)
+    if path.exists() and not path.is_dir():
+        raise CliError(f"--out {path}: exists and is not a directory")
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise CliError(f"--out {path}: cannot create it ({e.strerror})") from None
+    probe = path / ".swarm-sitl-write-test"
+    try:
+        probe.write_bytes(b"")
+        probe.unlink()
+    except OSError as e:
+        raise CliError(f"--out {path}: cannot write in it ({e.strerror})") from None
+    return path
+
+
+#: the signals that end a command as Ctrl-C does (what timeout, systemd, CI runners and container
+#: stops send, and a closed terminal)
+ENDING_SIGNALS = (signal.SIGTERM, signal.SIGHUP)
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM or SIGHUP, raised where the main thread is, handled as Ctrl-C is."""
+
+    def __init__(self, signum: int):
+        super().__init__(signal.Signals(signum).name)
+        self.signum = signum
+
+
+def end_on_signals() -> None:
+    """SIGTERM and SIGHUP raise ``Terminated`` in the main thread (default: die on the spot,
+    writing nothing)."""
+
+    def raise_terminated(signum: int, frame: object) -> None:
+        raise Terminated(signum)
+
+    for s in ENDING_SIGNALS:
+        signal.signal(s, raise_terminated)
+
+
+def interrupted_exit(e: BaseException | None) -> tuple[int, str]:
+    """Exit code (128 + the signal) and its name for an interruption (``Terminated`` or Ctrl-C)."""
+    signum = e.signum if isinstance(e, Terminated) else signal.SIGINT
+    return 128 + signum, signal.Signals(signum).name
 
 
 def summary_lines(summary: dict) -> list[str]:

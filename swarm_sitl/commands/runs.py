@@ -22,9 +22,10 @@ from swarm_sitl.commands.common import (
     add_base_port,
     add_run_outputs,
     check_base_port,
-    default_run_dir,
     held_to_bound,
+    interrupted_exit,
     load,
+    run_dir_of,
     summary_lines,
 )
 from swarm_sitl.config.load import with_duration, with_faults
@@ -37,7 +38,7 @@ def cmd_sim(args: argparse.Namespace) -> int:
     cfg = with_duration(load(args.config), args.duration)
     from swarm_sitl.running.sim import SimFailedError, run_sim  # the run machinery: 0.12 s (module doc)
 
-    run_dir = Path(args.out) if args.out else default_run_dir(cfg, "sim")
+    run_dir = run_dir_of(args.out, cfg, "sim")
     n = cfg.n_control_steps
     t0 = time.monotonic()
     try:
@@ -134,8 +135,9 @@ def _run_and_record(
         )
         return EXIT_FAILED
     if out.interrupted:
-        print(f"swarm-sitl: interrupted; partial run in {run_dir}", file=sys.stderr)
-        return 130
+        code, name = interrupted_exit(out.interruption)
+        print(f"swarm-sitl: interrupted ({name}); partial run in {run_dir}", file=sys.stderr)
+        return code
     print(
         f"{kind} {cfg.name} ({clock}): {cfg.duration_s:g} s simulated in {out.run_wall_s:.2f} s wall "
         f"({cfg.duration_s / out.run_wall_s:.1f}x real time; start-up {out.startup_wall_s:.1f} s) "
@@ -176,7 +178,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     cfg = _with_fault_file(with_duration(load(args.config), args.duration), args.faults)
     check_base_port(cfg, args.base_port)
     external = check_external(cfg, args.external, args.realtime)
-    run_dir = Path(args.out) if args.out else default_run_dir(cfg, "run")
+    run_dir = run_dir_of(args.out, cfg, "run")
     return _run_and_record(cfg, run_dir, not args.realtime, args.quiet, None, "run", args.base_port, external)
 
 
@@ -206,7 +208,7 @@ def cmd_controllers(args: argparse.Namespace) -> int:
             f"--mavlink needs one connection string per follower ({cfg.n_followers}, in id order), "
             f"got {len(args.mavlink)}"
         )
-    run_dir = Path(args.out) if args.out else default_run_dir(cfg, "controllers")
+    run_dir = run_dir_of(args.out, cfg, "controllers")
     mavlink = {
         f.id: url for f, url in zip(sorted(cfg.followers, key=lambda f: f.id), args.mavlink, strict=True)
     }
@@ -224,7 +226,7 @@ def cmd_vehicles(args: argparse.Namespace) -> int:
     relayed = _vehicle_faults(cfg, args.faults, args.lockstep) if args.faults else frozenset()
     if args.faults:
         cfg = _with_fault_file(cfg, args.faults)
-    run_dir = Path(args.out) if args.out else default_run_dir(cfg, "vehicles")
+    run_dir = run_dir_of(args.out, cfg, "vehicles")
     compile_kernels(cfg)
     sup = Supervisor(run_dir)
     relays = None

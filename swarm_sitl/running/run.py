@@ -240,6 +240,7 @@ class Outcome:
     run_wall_s: float  #: from the start signal to the last controller done (nan if it did not end)
     startup_wall_s: float  #: from spawning to every process ready (nan if it did not start)
     bound_failures: list[str]  #: followers past ``run.max_formation_error_m``, one line each
+    interruption: KeyboardInterrupt | None = None  #: what interrupted it (Ctrl-C, or a signal)
 
 
 def record_run(
@@ -256,15 +257,15 @@ def record_run(
     what the processes recorded, however the run ended (a ``KeyboardInterrupt`` is caught and
     reported as ``interrupted``)."""
     failure: str | None = None
-    interrupted = False
+    interrupted: KeyboardInterrupt | None = None
     run_wall = startup = float("nan")
     try:
         result = run_swarm(cfg, run_dir, lockstep, mavlink, on_progress, base_port, on_vehicles, external)
         run_wall, startup = result.run_wall_s, result.startup_wall_s
     except RunFailedError as e:
         failure = str(e)
-    except KeyboardInterrupt:
-        interrupted = True
+    except KeyboardInterrupt as e:  # Ctrl-C, or SIGTERM/SIGHUP as the CLI raises them
+        interrupted = e
     summary = write_outputs(cfg, merge_run(cfg, run_dir), run_dir, processes=True)
     bound = bound_failures(summary, cfg.run.max_formation_error_m) if failure is None else []
-    return Outcome(summary, failure, interrupted, run_wall, startup, bound)
+    return Outcome(summary, failure, interrupted is not None, run_wall, startup, bound, interrupted)
