@@ -42,6 +42,7 @@ def build_parser() -> argparse.ArgumentParser:
     tools.add_router(sub)
     tools.add_plot(sub)
     tools.add_export(sub)
+    tools.add_merge(sub)
     bench.add_bench(sub)
     return p
 

@@ -1,6 +1,7 @@
 """Writing a run directory: each file whole or not at all, and a bad ``--out`` refused before
 anything starts."""
 
+import errno
 import subprocess
 import sys
 
@@ -9,7 +10,7 @@ import pytest
 
 from swarm_sitl.rundir import recording
 from swarm_sitl.rundir.recording import save_npz
-from swarm_sitl.rundir.whole_files import write_text_whole
+from swarm_sitl.rundir.whole_files import WriteError, write_text_whole
 from tests.conftest import CONFIGS
 
 CLI = [sys.executable, "-m", "swarm_sitl"]
@@ -74,3 +75,56 @@ def test_a_bad_out_is_one_line_before_anything_starts(tmp_path, command, says):
     assert r.returncode == 2, r.stderr
     assert r.stderr.strip() == f"swarm-sitl: error: --out {out}: {says}"
     assert f.read_text() == "mine\n"  # untouched
+
+
+@pytest.mark.unit
+def test_a_failed_write_names_the_file_and_its_cause_in_one_line(tmp_path, monkeypatch):
+    def full_disk(*args, **kwargs):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(recording.zipfile.ZipFile, "writestr", full_disk)
+    with pytest.raises(WriteError) as e:
+        save_npz(tmp_path / "leader.npz", {"a": np.zeros(2)})
+    assert str(e.value) == f"cannot write {tmp_path / 'leader.npz'} (No space left on device)"
+    assert e.value.errno == errno.ENOSPC and list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.system
+def test_a_run_whose_disk_fills_keeps_its_raw_records_and_merge_rebuilds_it(tmp_path, monkeypatch, capsys):
+    """The disk fills while the run directory is written: one line names the file and the cause,
+    the processes' raw records stay, and `swarm-sitl merge RUN_DIR` writes the run directory from
+    them, equal to what it would have been."""
+    from swarm_sitl.commands.runs import _run_and_record
+    from swarm_sitl.config.load import load_config
+
+    cfg = load_config(CONFIGS / "paper.yaml").model_copy(update={"duration_s": 2.0})
+    good = tmp_path / "good"
+    assert _run_and_record(cfg, good, True, True, None, "run") == 0
+
+    real = recording.zipfile.ZipFile.writestr
+
+    def full_disk_on_followers(self, info, data, *a, **k):
+        if "follower_" in str(self.filename):
+            raise OSError(errno.ENOSPC, "No space left on device")
+        return real(self, info, data, *a, **k)
+
+    monkeypatch.setattr(recording.zipfile.ZipFile, "writestr", full_disk_on_followers)
+    full = tmp_path / "full"
+    capsys.readouterr()
+    code = _run_and_record(cfg, full, True, True, None, "run")
+    monkeypatch.undo()
+    assert code == 1
+    err = capsys.readouterr().err.strip()
+    assert err == (
+        f"swarm-sitl: error: cannot write {full / 'follower_1.npz'} (No space left on device); every "
+        f"process's raw records are kept in {full / 'procs'}: `swarm-sitl merge {full}` writes the run "
+        "directory from them"
+    )
+    assert not list(full.glob("follower_*.npz")) and (full / "procs" / "controller_1.rows").is_file()
+    r = subprocess.run([*CLI, "merge", str(full)], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    for i in range(1, 5):
+        a, b = np.load(good / f"follower_{i}.npz"), np.load(full / f"follower_{i}.npz")
+        assert set(a.files) == set(b.files)
+        for k in a.files:  # a lockstep run is the same twice: the rebuilt directory equals a good one
+            assert np.array_equal(a[k], b[k], equal_nan=True), (i, k)

@@ -32,6 +32,14 @@ from swarm_sitl.config.load import with_duration, with_faults
 from swarm_sitl.config.schema import SwarmConfig
 from swarm_sitl.rundir.metrics import bound_failures, describe_inputs
 from swarm_sitl.rundir.outputs import write_outputs
+from swarm_sitl.rundir.whole_files import WriteError
+
+
+def _write_sim(cfg: SwarmConfig, rec: Any, run_dir: Path) -> dict:
+    try:
+        return write_outputs(cfg, rec, run_dir)
+    except WriteError as e:  # sim's recording is in memory only: nothing to rebuild it from
+        raise CliError(f"{e}; sim keeps its recording in memory only, so run it again once it fits") from None
 
 
 def cmd_sim(args: argparse.Namespace) -> int:
@@ -54,12 +62,12 @@ def cmd_sim(args: argparse.Namespace) -> int:
 
                 rec = run_sim(cfg, progress=progress)
     except SimFailedError as e:
-        write_outputs(cfg, e.recording, run_dir)
+        _write_sim(cfg, e.recording, run_dir)
         print(f"swarm-sitl: error: {e} (what was recorded is in {run_dir})", file=sys.stderr)
         return EXIT_FAILED
     wall = time.monotonic() - t0
 
-    summary = write_outputs(cfg, rec, run_dir)
+    summary = _write_sim(cfg, rec, run_dir)
     print(
         f"sim {cfg.name}: {cfg.duration_s:g} s simulated in {wall:.2f} s wall "
         f"({cfg.duration_s / wall:.1f}x real time) -> {run_dir}"
@@ -128,6 +136,9 @@ def _run_and_record(
         out = record_run(cfg, run_dir, lockstep, mavlink, progress, base_port, progress.note, external)
     finally:
         progress.close()
+    if out.lost_outputs is not None:
+        print(f"swarm-sitl: error: {out.lost_outputs}", file=sys.stderr)
+        return EXIT_FAILED
     if out.failure is not None:
         print(
             f"swarm-sitl: error: {out.failure} (partial run in {run_dir}, logs in {run_dir / 'logs'})",

@@ -1,6 +1,6 @@
 """The commands around a run: ``check`` (Theorem 1's conditions for a config), ``new`` (a generated
 swarm's config), ``router`` (a zenoh router for several hosts), ``plot`` and ``export`` (a run
-directory as figures, as MCAP).
+directory as figures, as MCAP), ``merge`` (a run directory rebuilt from its raw records).
 
 Imports are at the top but for three parts, each imported by the commands that run it: measured
 after the config schema every command needs (0.6 s), matplotlib costs 0.44 s (``plot``, and
@@ -18,7 +18,7 @@ from pathlib import Path
 from typing import Any
 
 from swarm_sitl.bus.session import error_line, open_plain_router, router_runtime
-from swarm_sitl.commands.common import CliError, load
+from swarm_sitl.commands.common import CliError, load, summary_lines
 from swarm_sitl.commands.law_check import render_law_check
 from swarm_sitl.config.generator import FORMATIONS, GRAPHS, TRAJECTORIES, GeneratorError, generate
 from swarm_sitl.config.law_entry import LawEntryError, absolute_entry, is_file_entry, split_entry
@@ -26,8 +26,12 @@ from swarm_sitl.config.load import ConfigError, load_config
 from swarm_sitl.laws.gain_conditions import check_gains
 from swarm_sitl.laws.gain_report import render
 from swarm_sitl.rundir.events import read_events
+from swarm_sitl.rundir.layout import procs_dir
 from swarm_sitl.rundir.load import RunDirError, load_run
 from swarm_sitl.rundir.mcap_export import write_mcap
+from swarm_sitl.rundir.merge import merge_run
+from swarm_sitl.rundir.outputs import write_outputs
+from swarm_sitl.rundir.whole_files import WriteError
 
 
 def cmd_check(args: argparse.Namespace) -> int:
@@ -132,6 +136,22 @@ def cmd_plot(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_merge(args: argparse.Namespace) -> int:
+    """The run directory written again from its processes' raw records (``procs/``): after a
+    run whose outputs could not be written, or to redo them."""
+    run_dir = Path(args.run_dir)
+    if not (run_dir / "config.yaml").is_file() or not procs_dir(run_dir).is_dir():
+        raise RunDirError(f"{run_dir}: not a multi-process run directory (no config.yaml and procs/)")
+    cfg = load_config(run_dir / "config.yaml")
+    try:
+        summary = write_outputs(cfg, merge_run(cfg, run_dir), run_dir, processes=True)
+    except WriteError as e:
+        raise CliError(str(e)) from None
+    print(f"{run_dir}: written from {procs_dir(run_dir)}")
+    print("\n".join(summary_lines(summary)))
+    return 0
+
+
 def cmd_export(args: argparse.Namespace) -> int:
 
     run_dir = Path(args.run_dir)
@@ -196,6 +216,13 @@ def add_plot(sub: Any) -> None:
     pl.add_argument("run_dir")
     pl.add_argument("--out", help="output folder (default RUN_DIR/plots)")
     pl.set_defaults(func=cmd_plot)
+
+
+def add_merge(sub: Any) -> None:
+    """``swarm-sitl merge``: a run directory rebuilt from its raw records."""
+    m = sub.add_parser("merge", help="write a run directory again from its processes' raw records")
+    m.add_argument("run_dir")
+    m.set_defaults(func=cmd_merge)
 
 
 def add_export(sub: Any) -> None:

@@ -1,12 +1,20 @@
 """Files of a run directory written whole or not at all: to a temporary name beside them, then
 renamed over the final name (``os.replace``, atomic on one file system). A write cut short (a
-second signal, a full disk) leaves the file as it was before, or absent: never half of it.
+second signal, a full disk) leaves the file as it was before, or absent: never half of it; an
+``OSError`` becomes a ``WriteError`` that names the file and the cause in one line.
 """
 
 import contextlib
 import os
 from collections.abc import Iterator
 from pathlib import Path
+
+
+class WriteError(OSError):
+    """A file of the run directory could not be written; the message names it and the cause."""
+
+    def __str__(self) -> str:
+        return str(self.strerror)
 
 
 @contextlib.contextmanager
@@ -17,9 +25,11 @@ def whole(path: Path) -> Iterator[Path]:
     try:
         yield tmp
         os.replace(tmp, path)
-    except BaseException:
+    except BaseException as e:
         with contextlib.suppress(OSError):
             tmp.unlink()
+        if isinstance(e, OSError) and not isinstance(e, WriteError):
+            raise WriteError(e.errno, f"cannot write {path} ({e.strerror or e})") from e
         raise
 
 

@@ -31,6 +31,7 @@ from swarm_sitl.rundir.layout import external_path, procs_dir, start_path, super
 from swarm_sitl.rundir.merge import merge_run
 from swarm_sitl.rundir.metrics import bound_failures
 from swarm_sitl.rundir.outputs import write_outputs
+from swarm_sitl.rundir.whole_files import WriteError
 from swarm_sitl.running.children import PARENT_ENV, child_env, module_argv
 from swarm_sitl.running.fork_server import ForkServer
 from swarm_sitl.running.hub import RunMonitor, open_hub
@@ -241,6 +242,9 @@ class Outcome:
     startup_wall_s: float  #: from spawning to every process ready (nan if it did not start)
     bound_failures: list[str]  #: followers past ``run.max_formation_error_m``, one line each
     interruption: KeyboardInterrupt | None = None  #: what interrupted it (Ctrl-C, or a signal)
+    #: the run directory could not be written (a full disk): the line that says so and how to
+    #: rebuild it from the raw records (None: it was written)
+    lost_outputs: str | None = None
 
 
 def record_run(
@@ -266,6 +270,13 @@ def record_run(
         failure = str(e)
     except KeyboardInterrupt as e:  # Ctrl-C, or SIGTERM/SIGHUP as the CLI raises them
         interrupted = e
-    summary = write_outputs(cfg, merge_run(cfg, run_dir), run_dir, processes=True)
+    try:
+        summary = write_outputs(cfg, merge_run(cfg, run_dir), run_dir, processes=True)
+    except WriteError as e:
+        lost = (
+            f"{e}; every process's raw records are kept in {procs_dir(run_dir)}: "
+            f"`swarm-sitl merge {run_dir}` writes the run directory from them"
+        )
+        return Outcome({}, failure, interrupted is not None, run_wall, startup, [], interrupted, lost)
     bound = bound_failures(summary, cfg.run.max_formation_error_m) if failure is None else []
     return Outcome(summary, failure, interrupted is not None, run_wall, startup, bound, interrupted)
