@@ -4,16 +4,19 @@ anything starts."""
 import errno
 import subprocess
 import sys
+from collections import namedtuple
 
 import numpy as np
 import pytest
 
 from swarm_sitl.rundir import recording
+from swarm_sitl.rundir.layout import expected_run_bytes
 from swarm_sitl.rundir.recording import save_npz
 from swarm_sitl.rundir.whole_files import WriteError, write_text_whole
 from tests.conftest import CONFIGS
 
 CLI = [sys.executable, "-m", "swarm_sitl"]
+Usage = namedtuple("Usage", "total used free")
 
 
 @pytest.mark.unit
@@ -78,6 +81,27 @@ def test_a_bad_out_is_one_line_before_anything_starts(tmp_path, command, says):
 
 
 @pytest.mark.unit
+def test_a_run_that_will_not_fit_is_warned_of_in_one_line(tmp_path, monkeypatch, capsys, paper_cfg):
+    from swarm_sitl.commands import runs
+
+    need = expected_run_bytes(
+        paper_cfg.n_control_steps + 1, paper_cfg.n_followers, paper_cfg.law_class().record_fields
+    )
+    for free, warned in ((need - 1, True), (need, False)):
+        monkeypatch.setattr(runs.shutil, "disk_usage", lambda _p, free=free: Usage(0, 0, free))
+        runs.warn_if_short_of_disk(paper_cfg, tmp_path)
+        assert bool(capsys.readouterr().err) == warned
+    monkeypatch.setattr(runs.shutil, "disk_usage", lambda _p: Usage(0, 0, 10**6))
+    not_yet = tmp_path / "not" / "yet"  # a run directory not made yet: its disk is its parent's
+    runs.warn_if_short_of_disk(paper_cfg, not_yet)
+    line = capsys.readouterr().err
+    mb = f"{need / 1e6:.0f}"
+    assert (
+        line == f"swarm-sitl: warning: this run writes about {mb} MB to {not_yet}, whose disk has 1 MB free\n"
+    )
+
+
+@pytest.mark.unit
 def test_a_failed_write_names_the_file_and_its_cause_in_one_line(tmp_path, monkeypatch):
     def full_disk(*args, **kwargs):
         raise OSError(errno.ENOSPC, "No space left on device")
@@ -100,6 +124,9 @@ def test_a_run_whose_disk_fills_keeps_its_raw_records_and_merge_rebuilds_it(tmp_
     cfg = load_config(CONFIGS / "paper.yaml").model_copy(update={"duration_s": 2.0})
     good = tmp_path / "good"
     assert _run_and_record(cfg, good, True, True, None, "run") == 0
+    written = sum(p.stat().st_size for p in good.rglob("*") if p.is_file())
+    expected = expected_run_bytes(cfg.n_control_steps + 1, cfg.n_followers, cfg.law_class().record_fields)
+    assert 0.8 < written / expected < 1.25  # the low-disk warning's estimate
 
     real = recording.zipfile.ZipFile.writestr
 

@@ -9,6 +9,7 @@ after the config schema every command needs (0.6 s), matplotlib costs 0.44 s (``
 
 import argparse
 import json
+import shutil
 import sys
 import time
 from pathlib import Path
@@ -30,6 +31,7 @@ from swarm_sitl.commands.common import (
 )
 from swarm_sitl.config.load import with_duration, with_faults
 from swarm_sitl.config.schema import SwarmConfig
+from swarm_sitl.rundir.layout import expected_run_bytes
 from swarm_sitl.rundir.metrics import bound_failures, describe_inputs
 from swarm_sitl.rundir.outputs import write_outputs
 from swarm_sitl.rundir.whole_files import WriteError
@@ -118,6 +120,21 @@ class _RunProgress:
             self.bar.close()
 
 
+def warn_if_short_of_disk(cfg: SwarmConfig, run_dir: Path) -> None:
+    """One line on stderr when the run's expected size does not fit on ``run_dir``'s disk."""
+    need = expected_run_bytes(cfg.n_control_steps + 1, cfg.n_followers, cfg.law_class().record_fields)
+    on = run_dir.resolve()
+    while not on.exists():  # the disk it will be on
+        on = on.parent
+    free = shutil.disk_usage(on).free
+    if free < need:
+        print(
+            f"swarm-sitl: warning: this run writes about {need / 1e6:.0f} MB to {run_dir}, "
+            f"whose disk has {free / 1e6:.0f} MB free",
+            file=sys.stderr,
+        )
+
+
 def _run_and_record(
     cfg: SwarmConfig,
     run_dir: Path,
@@ -130,6 +147,7 @@ def _run_and_record(
 ) -> int:
     from swarm_sitl.running.run import record_run  # the run machinery: 0.12 s (module doc)
 
+    warn_if_short_of_disk(cfg, run_dir)
     clock = "lockstep" if lockstep else "real time"
     progress = _RunProgress(cfg, f"{kind} {cfg.name} ({clock})", quiet)
     try:
