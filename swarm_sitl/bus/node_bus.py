@@ -34,6 +34,7 @@ from typing import Any, Protocol, TypeVar
 import zenoh
 
 from sim_vehicles.runtime import udp_arrival
+from sim_vehicles.runtime.counter_file import CounterFile
 from swarm_sitl.bus import keys as zenoh_keys
 from swarm_sitl.bus.access import NodeKeys
 from swarm_sitl.bus.codec import (
@@ -143,6 +144,8 @@ class ZenohNodeBus:
         #: and the counts must be the same every run
         self.counted_steps: range | None = None
         self.published = 0  #: estimates published (each on every out-edge)
+        #: where ``published`` is kept as it grows, so a killed process's count survives it
+        self.published_file: CounterFile | None = None
         self.refused: dict[int, int] = {}  #: per sender, payloads that decoded but cannot be (above)
         self._last_step: dict[int, int] = {}  #: per sender, the tick of its last estimate taken
         #: the latest tick an estimate or status may be of now (``nodes.entry``: the run's last tick,
@@ -307,6 +310,8 @@ class ZenohNodeBus:
     def publish(self, msg: Message) -> None:
         payload = encode_message(msg)
         self.published += 1
+        if self.published_file is not None:  # counted before it goes: sent >= received, always
+            self.published_file.add()
         for p in self._pubs:
             p.put(payload)
 

@@ -19,6 +19,7 @@ from typing import Any
 import zenoh
 
 from sim_vehicles.mavlink.signing import SigningKeyError, read_key
+from sim_vehicles.runtime.counter_file import CounterFile
 from sim_vehicles.runtime.event_log import EventLog
 from sim_vehicles.runtime.lifeline import batch_scheduling, hold_on, mark, process_figures, profiled
 from sim_vehicles.runtime.row_log import RowLog
@@ -43,6 +44,7 @@ from swarm_sitl.rundir.layout import (
     controller_rows_path,
     controller_stats_path,
     leader_stats_path,
+    published_path,
 )
 from swarm_sitl.rundir.metrics import describe_inputs
 
@@ -141,6 +143,8 @@ def cmd_controller(cfg: SwarmConfig, args: argparse.Namespace) -> int:
             mark("zenoh")
             bus = zbus = ZenohNodeBus.of(session, cfg.name, cfg.node_keys(i), cfg.law_class().message_length)
             zbus.horizon = _horizon(clock, cfg.n_control_steps)
+            if out is not None:
+                zbus.published_file = CounterFile(published_path(out, i, args.incarnation))
             if args.lockstep:
                 zbus.counted_steps = range(args.resume_tick, cfg.n_control_steps)
             faulty = None
@@ -191,6 +195,8 @@ def cmd_leader(cfg: SwarmConfig, args: argparse.Namespace) -> int:
             clock = RunClock(args.lockstep, cfg.control_dt_s)
             zbus = ZenohNodeBus.of(session, cfg.name, cfg.node_keys(0))
             zbus.horizon = _horizon(clock, cfg.n_control_steps)
+            if args.out:
+                zbus.published_file = CounterFile(published_path(Path(args.out), 0, args.incarnation))
             node_bus: NodeBus = zbus
             if acts_on(cfg.faults, 0, edges):
                 node_bus = FaultyBus(

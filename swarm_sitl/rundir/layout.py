@@ -95,6 +95,13 @@ def controller_stats_path(run_dir: Path, i: int, incarnation: int = 0) -> Path:
     return procs_dir(run_dir) / f"{_incarnated(f'controller_{i}', incarnation)}.stats.json"
 
 
+def published_path(run_dir: Path, node: int, incarnation: int = 0) -> Path:
+    """How many messages node ``node`` (0: the leader) published in one incarnation: a counter
+    file (``sim_vehicles.runtime.counter_file``), kept even when the incarnation is killed."""
+    name = "leader" if node == 0 else f"controller_{node}"
+    return procs_dir(run_dir) / f"{_incarnated(name, incarnation)}.published"
+
+
 def leader_stats_path(run_dir: Path, incarnation: int = 0) -> Path:
     return procs_dir(run_dir) / f"{_incarnated('leader', incarnation)}.stats.json"
 

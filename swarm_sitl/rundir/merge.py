@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 
 from sim_vehicles.common.state import POS, QUAT, STATE_SIZE, VEL
+from sim_vehicles.runtime.counter_file import read_counter
 from sim_vehicles.runtime.row_log import RowLogError, read_rows
 from swarm_sitl.config.schema import SwarmConfig
 from swarm_sitl.rundir.events import merge_events
@@ -26,7 +27,9 @@ from swarm_sitl.rundir.layout import (
     TRUTH_COLUMNS,
     controller_columns,
     controller_incarnations,
+    controller_stats_path,
     leader_stats_path,
+    published_path,
     read_start,
     supervisor_events_path,
     vehicle_events_path,
@@ -150,16 +153,10 @@ def inputs_and_links(cfg: SwarmConfig, run_dir: Path) -> tuple[dict[str, Any], d
     that did not finish reports nothing."""
     inputs: dict[str, Any] = {}
     links: dict[str, Any] = {}
-    published: dict[int, int] = {}
-    for n in range(100):  # the leader and its restarts
-        s = _stats(leader_stats_path(run_dir, n))
-        if not s:
-            break
-        published[0] = published.get(0, 0) + s.get("published", 0)
+    published = {node: _published(run_dir, node) for node in range(cfg.n_followers + 1)}
     for f in cfg.followers:
         for path in controller_incarnations(run_dir, f.id, ".stats.json"):
             s = _stats(path)
-            published[f.id] = published.get(f.id, 0) + s.get("published", 0)
             if "report" in s:
                 report = {k: v for k, v in s["report"].items() if k not in WALL_CLOCK_ONLY}
                 _add(inputs.setdefault(str(f.id), {}), report)
@@ -167,10 +164,26 @@ def inputs_and_links(cfg: SwarmConfig, run_dir: Path) -> tuple[dict[str, Any], d
                 _add(links.setdefault(f"{src}->{f.id}", {}), st)
             for way, st in s.get("mavlink", {}).items():
                 _add(links.setdefault(f"mavlink {f.id} {way}", {}), st)
-    for src, dst in cfg.graph_edges():  # what each sender published, killed incarnations aside
-        if f"{src}->{dst}" in links and src in published:
+    for src, dst in cfg.graph_edges():  # what each sender published, in all its incarnations
+        if f"{src}->{dst}" in links and published[src] is not None:
             links[f"{src}->{dst}"]["sent"] = published[src]
     return inputs, links
+
+
+def _published(run_dir: Path, node: int) -> int | None:
+    """Messages node ``node`` published, summed over its incarnations (killed ones too: the
+    counter files outlive them); from the stats of the incarnations that finished where there are
+    no counters (an older run directory); None if neither says."""
+    counts = []
+    for n in range(1000):
+        c = read_counter(published_path(run_dir, node, n))
+        stats = _stats(
+            leader_stats_path(run_dir, n) if node == 0 else controller_stats_path(run_dir, node, n)
+        )
+        if c is None and not stats:
+            break
+        counts.append(c if c is not None else stats.get("published", 0))
+    return sum(counts) if counts else None
 
 
 #: what a vehicle refused (``sim_vehicles.vehicle.port.EndpointStats``): the summary's part of
