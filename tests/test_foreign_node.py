@@ -33,7 +33,7 @@ def test_a_foreign_node_takes_a_controllers_place_and_the_formation_holds(tmp_pa
     path = tmp_path / "paper_3to4.yaml"
     path.write_text(yaml.safe_dump(cfg))
     out = tmp_path / "run"
-    duration = 14.0
+    duration = 12.0
     run_args = ["--duration", str(duration), "--out", str(out), "--quiet"]
     node_args = ["--id", "3", "--offset", "-2", "-2", "0", "--duration", str(duration), "--out-edges", "4"]
     run = subprocess.Popen(

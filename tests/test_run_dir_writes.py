@@ -2,6 +2,8 @@
 anything starts."""
 
 import errno
+import os
+import signal
 import subprocess
 import sys
 from collections import namedtuple
@@ -155,3 +157,25 @@ def test_a_run_whose_disk_fills_keeps_its_raw_records_and_merge_rebuilds_it(tmp_
         assert set(a.files) == set(b.files)
         for k in a.files:  # a lockstep run is the same twice: the rebuilt directory equals a good one
             assert np.array_equal(a[k], b[k], equal_nan=True), (i, k)
+
+
+@pytest.mark.unit
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGHUP], ids=lambda s: s.name)
+def test_sigterm_and_sighup_interrupt_as_ctrl_c_does_with_their_own_exit_code(sig):
+    """The CLI's handlers make either signal a KeyboardInterrupt where the main thread is (what
+    run's teardown and writing already handle), whose exit code is 128 + the signal."""
+    from swarm_sitl.commands.common import Terminated, end_on_signals, interrupted_exit
+
+    before = {s: signal.getsignal(s) for s in (signal.SIGTERM, signal.SIGHUP)}
+    try:
+        end_on_signals()
+        with pytest.raises(KeyboardInterrupt) as e:
+            os.kill(os.getpid(), sig)
+            for _ in range(1000):  # the handler runs between bytecodes of the main thread
+                pass
+        assert isinstance(e.value, Terminated)
+        assert interrupted_exit(e.value) == (128 + sig, sig.name)
+        assert interrupted_exit(KeyboardInterrupt()) == (130, "SIGINT")
+    finally:
+        for s, h in before.items():
+            signal.signal(s, h)

@@ -154,8 +154,8 @@ def cfg():
 
 @pytest.mark.system
 def test_lockstep_processes_equal_sim_bit_for_bit(tmp_path, cfg, swarm):
-    sim = run_sim(cfg.model_copy(update={"duration_s": 8.0}))
-    r = swarm(CONFIG, duration_s=8.0)
+    sim = run_sim(cfg.model_copy(update={"duration_s": 4.0}))
+    r = swarm(CONFIG, duration_s=4.0)
     assert r.ok, r.failure
     for i, series in sim.followers.items():
         got = r.followers[i].arrays
