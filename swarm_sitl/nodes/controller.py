@@ -213,15 +213,14 @@ class _Inputs:
         self.sent_at = time.monotonic()
 
 
-def _warm_up(cfg: SwarmConfig, i: int, link: VehicleLink) -> None:
-    """Two ticks of a scratch law and a call of each per-tick frame kernel: the compiled kernels
-    load now, not in the first ticks."""
+def _warm_up(cfg: SwarmConfig, i: int, link: VehicleLink, sources: list[int]) -> None:
+    """Two ticks of a scratch law (``sources``: its in-neighbours) and a call of each per-tick
+    frame kernel: the compiled kernels load now, not in the first ticks."""
     tick_frames.warm_up()
     signing.warm_up()
     scratch = build_law(cfg, i, link.params["MASS_KG"], link.params["MAX_THRUST_N"])
     x = np.zeros(3)
     sample = VehicleSample(0.0, x, x, np.array([1.0, 0.0, 0.0, 0.0]))
-    sources = [s for s, _ in cfg.build_graph().in_neighbours(i)]
     warm_up(scratch.law, sample, sources, scratch.message_length)
 
 
@@ -253,7 +252,7 @@ def run_controller(
     sources = [s for s, _ in cfg.build_graph().in_neighbours(i)]
     io = _Inputs(who, link, bus, sources, dt)
     inbox_of = NeighbourInbox(i, sources, cfg.estimator.staleness_s, events)
-    _warm_up(cfg, i, link)
+    _warm_up(cfg, i, link, sources)
     settle_heap()
     link.request_rates(dt, r.other_telemetry_hz, r.start_timeout_s)
     if lockstep and resume_tick:
