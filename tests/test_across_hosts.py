@@ -3,13 +3,16 @@
 Namespace ``veh`` (10.77.0.1) runs the vehicles (``swarm-sitl vehicles --host 10.77.0.1``) and the
 zenoh router (``swarm-sitl router``); namespace ``ctl`` (10.77.0.2) runs the leader and the
 controllers (``swarm-sitl controllers``, ``zenoh.mode: client``), so every MAVLink datagram and
-every zenoh message crosses the link. nftables on the receiving side (``veh``) drops 1.5 % of the
-UDP datagrams coming from ``ctl`` (setpoints and commands). The swarm must still converge.
+every zenoh message crosses the link. The vehicles' own relays (``vehicles --faults``) lose a
+tenth of the datagrams each way on every vehicle's link, on the wire, in real time. The swarm must
+still converge, and the relays' counts must match the plan.
 
-Needs root, iproute2 (``ip netns``) and nftables (``nft``); without them the test is skipped
-saying which (in CI: ``apt-get install iproute2 nftables``, run as root).
+Needs root and iproute2 (``ip netns``), as on a fresh Debian machine or CI runner; where network
+namespaces are not allowed the test is skipped saying why.
 """
 
+import json
+import math
 import os
 import re
 import shutil
@@ -36,9 +39,8 @@ def _why_not() -> str | None:
         return "network namespaces are Linux only"
     if os.geteuid() != 0:
         return "creating network namespaces needs root"
-    for tool, pkg in (("ip", "iproute2"), ("nft", "nftables")):
-        if shutil.which(tool) is None:
-            return f"`{tool}` is not installed (apt-get install {pkg})"
+    if shutil.which("ip") is None:
+        return "`ip` is not installed (apt-get install iproute2)"
     probe = subprocess.run(["ip", "netns", "add", "swsitl_probe"], capture_output=True, text=True)
     if probe.returncode != 0:
         return f"this machine does not allow network namespaces: {probe.stderr.strip()}"
@@ -67,13 +69,6 @@ def two_hosts():
             _sh("ip", "-n", ns, "addr", "add", f"{ip}/24", "dev", dev)
             _sh("ip", "-n", ns, "link", "set", dev, "up")
             _sh("ip", "-n", ns, "link", "set", "lo", "up")
-        # the receiving side drops 1.5 % of the datagrams the controllers send to the vehicles (each
-        # lost setpoint costs its controller a 0.25 s wait before it sends it again, in lockstep)
-        rules = (
-            "table inet swsitl {\n  chain input {\n    type filter hook input priority 0;\n"
-            f"    ip saddr {CTL_IP} meta l4proto udp numgen random mod 1000 < 15 counter drop\n  }}\n}}\n"
-        )
-        subprocess.run(["ip", "netns", "exec", NS_VEH, "nft", "-f", "-"], input=rules, check=True, text=True)
         yield
     finally:
         for ns in (NS_VEH, NS_CTL):
@@ -105,17 +100,24 @@ def _wait_for(proc: subprocess.Popen, pattern: str, timeout_s: float) -> list[st
     raise AssertionError(f"no line matching {pattern!r}: {''.join(lines)}")
 
 
+LOSS = 0.1  # each way, on every vehicle's link
+DURATION_S = 16.0
+
+
 def test_a_swarm_over_two_hosts_converges_through_a_lossy_link(two_hosts, tmp_path):
     cfg = yaml.safe_load((ROOT / "configs" / "paper.yaml").read_text())
-    cfg["duration_s"] = 12.0
+    cfg["duration_s"] = DURATION_S
     cfg["zenoh"] = {"mode": "client", "connect": [f"tcp/{VEH_IP}:7447"]}
     cfg["signing"] = {"enabled": False}  # the key would have to be copied between the hosts
     path = tmp_path / "two_hosts.yaml"
     path.write_text(yaml.safe_dump(cfg))
+    plan = tmp_path / "lossy_link.yaml"
+    entries = [{"mavlink": i, "direction": d, "loss": LOSS} for i in range(1, 5) for d in ("up", "down")]
+    plan.write_text(yaml.safe_dump({"seed": 5, "plan": entries}))
     router = _in(NS_VEH, "router", "--listen", f"tcp/{VEH_IP}:7447", stdout=subprocess.PIPE)
     vehicles = _in(
         NS_VEH,
-        "vehicles", str(path), "--lockstep", "--host", VEH_IP, "--out", str(tmp_path / "veh"),
+        "vehicles", str(path), "--faults", str(plan), "--host", VEH_IP, "--out", str(tmp_path / "veh"),
         stdout=subprocess.PIPE,
     )  # fmt: skip
     try:
@@ -124,22 +126,16 @@ def test_a_swarm_over_two_hosts_converges_through_a_lossy_link(two_hosts, tmp_pa
         urls = re.findall(r"controller (udpout:[0-9.]+:[0-9]+)", "".join(lines))
         assert len(urls) == 4 and all(VEH_IP in u for u in urls)
         out = tmp_path / "ctl"
-        ctl = _in(
-            NS_CTL, "controllers", str(path), "--lockstep", "--quiet", "--out", str(out), "--mavlink", *urls
-        )
-        assert ctl.wait(timeout=300) == 0
+        ctl = _in(NS_CTL, "controllers", str(path), "--quiet", "--out", str(out), "--mavlink", *urls)
+        assert ctl.wait(timeout=120) == 0
         for i in range(1, 5):
             a = np.load(out / f"follower_{i}.npz")
             err = np.linalg.norm(a["pos_err_m"], axis=1)
-            assert err[0] > 1.0 and err[a["t_s"] >= 10.0].max() < 0.01, i  # from metres to under 1 cm
-        counters = subprocess.run(
-            ["ip", "netns", "exec", NS_VEH, "nft", "list", "table", "inet", "swsitl"],
-            capture_output=True,
-            text=True,
-        ).stdout
-        dropped = int(re.search(r"counter packets (\d+)", counters).group(1))
-        print(f"nftables dropped {dropped} datagrams from the controllers")
-        assert dropped >= 10  # the link really lost setpoints
+            err = err[np.isfinite(err)]  # real time: the rows before the vehicle's first sample are NaN
+            t_s = a["t_s"][np.isfinite(np.linalg.norm(a["pos_err_m"], axis=1))]
+            # from metres to the real-time bound the single-host run holds (test_swarm_processes),
+            # judged over the last 4 s, not one sample
+            assert err[0] > 1.0 and err[t_s >= DURATION_S - 4.0].max() < 0.05, (i, err[-20:])
     finally:
         for p in (vehicles, router):
             p.send_signal(signal.SIGINT)
@@ -147,3 +143,10 @@ def test_a_swarm_over_two_hosts_converges_through_a_lossy_link(two_hosts, tmp_pa
                 p.wait(timeout=20)
             except subprocess.TimeoutExpired:
                 p.kill()
+    links = json.loads((tmp_path / "veh" / "links.json").read_text())
+    for name, st in links.items():
+        # every datagram met its fate on the wire: the lost fraction is the plan's, within five
+        # standard deviations of a binomial count
+        n = st["received"]
+        assert n > 500, (name, st)  # 16 s of 50 Hz setpoints up, and more telemetry down
+        assert abs(st["lost"] / n - LOSS) < 5 * math.sqrt(LOSS * (1 - LOSS) / n), (name, st)
