@@ -64,8 +64,10 @@ LOST_GRACE_S = 1.0
 #: longest block while waiting on the vehicle's socket and the bus, each of which wakes the wait
 #: when something comes: how often resends and stall checks get their turn [s]
 IDLE_S = 0.05
-#: lockstep: every this many ticks the bus drops the estimates older than the last tick's (a tick
-#: asks only for those of the tick before it; dropping them every tick cost a call per tick)
+#: every this many ticks the bus drops the estimates older than the last tick's (a lockstep tick
+#: asks only for those of the tick before it, a real-time one for the newest, which the bus keeps
+#: apart; dropping them every tick cost a call per tick). Without it a real-time controller's
+#: memory grew by every estimate it had heard (2 MB a minute on paper.yaml, ``bench --soak``)
 FORGET_EVERY = 8
 
 
@@ -332,7 +334,7 @@ def run_controller(
             )
         if k % r.status_every == 0 or k == n or k == io.first:
             bus.publish_status(Status(i, k, t, sample_t, p))
-        if lockstep and k % FORGET_EVERY == 0:
+        if k % FORGET_EVERY == 0:
             bus.forget_before(k - 1)
         k += 1
     if not lockstep:
