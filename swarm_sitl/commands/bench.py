@@ -9,6 +9,7 @@ after the config schema every command needs (0.6 s), matplotlib costs 0.44 s (``
 import argparse
 import math
 import sys
+import time
 from pathlib import Path
 from typing import Any
 
@@ -30,7 +31,19 @@ def cmd_bench(args: argparse.Namespace) -> int:
         raise CliError("--empty goes with --scale (it runs each N's swarm with no work in it)")
     if args.against and not (Path(args.against) / "swarm_sitl" / "__init__.py").is_file():
         raise CliError(f"--against {args.against}: not a swarm-sitl source tree (no swarm_sitl/__init__.py)")
+    if args.soak is not None and not 0 < args.soak < math.inf:
+        raise CliError(f"--soak takes minutes > 0, got {args.soak}")
     try:
+        if args.soak is not None:
+            from swarm_sitl.bench.soak import run_soak
+
+            configs = [c for c in args.soak_configs.split(",") if c]
+            for c in configs:
+                if not Path(c).is_file():
+                    raise CliError(f"--soak-configs: {c}: no such file")
+            stamp = time.strftime("%Y%m%d-%H%M%S")
+            soak_out = Path(args.out) if args.out else Path("runs") / f"bench-soak-{stamp}"
+            return run_soak(args.soak, configs, soak_out)
         if args.scale:
             from swarm_sitl.bench.scale import run_scale
 
@@ -105,6 +118,21 @@ def add_bench(sub: Any) -> None:
         "--scale-start", choices=("fork", "spawn"), default="fork", help="--scale: run.start of the runs"
     )
     b.add_argument(
-        "--out", help="--scale: directory for scale.csv and scale.png (default runs/bench-scale-<time>)"
+        "--soak",
+        type=float,
+        metavar="MINUTES",
+        help="instead: fly each --soak-configs swarm this long in real time and report per process "
+        "resident memory, open files, late ticks and the run directory's growth (a leak hunt)",
+    )
+    b.add_argument(
+        "--soak-configs",
+        default=f"{Path('configs') / 'paper.yaml'},{Path('configs') / 'swarm16.yaml'}",
+        metavar="CFG,CFG,...",
+        help="--soak: the configs to fly, one after the other (default: paper.yaml,swarm16.yaml)",
+    )
+    b.add_argument(
+        "--out",
+        help="--scale, --soak: directory for the figures (default runs/bench-scale-<time>, "
+        "runs/bench-soak-<time>)",
     )
     b.set_defaults(func=cmd_bench)
