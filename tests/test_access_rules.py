@@ -1,0 +1,85 @@
+"""The router's access rules, node by node, against the graph they come from: every node of a
+generated 8-follower swarm, with and without kills in its plan (which add the watcher rules).
+
+Each node's grants are derived here from the config's edge list alone, not from ``NodeKeys``, and
+must be exactly the rules: a grant that widens (another follower's status, a wildcard, another
+node's liveliness) would let a node forge what the leader's pacing and the supervisor trust."""
+
+import pytest
+import yaml
+
+from swarm_sitl.bus import keys as zk
+from swarm_sitl.bus.access import access_control, user
+from swarm_sitl.config.generator import GRAPHS, generate
+from swarm_sitl.config.load import parse_config
+
+pytestmark = pytest.mark.unit
+N = 8
+
+
+def _swarm(graph: str, kills: bool):
+    raw = yaml.safe_load(generate(N, graph, "grid", "helix", seed=4, duration_s=20.0))
+    if kills:
+        raw["faults"] = {
+            "seed": 1,
+            "plan": [{"controller": 3, "kill": True, "from_s": 5.0, "restart_after_s": 1.0}],
+        }
+    return parse_config(raw)
+
+
+def _expected(cfg, node: int, watch: bool) -> dict[str, set[str]]:
+    """What node ``node`` may do, from the edge list: publish its out-edges (and a follower its own
+    status), subscribe to its in-edges and start; the leader follows its out-neighbours' status;
+    with kills in the plan every node follows its out-neighbours' status and liveliness."""
+    s = cfg.name
+    edges = [(e.src, e.dst) for e in cfg.build_graph().edges]
+    ins = sorted({a for a, b in edges if b == node})
+    outs = sorted({b for a, b in edges if a == node})
+    watched = outs if (watch or node == 0) else []
+    alive_of = set(ins) | (set(outs) if watch else set())
+    puts = {zk.edge(s, node, d) for d in outs} | ({zk.status(s, node)} if node > 0 else set())
+    subs = {zk.edge(s, a, node) for a in ins} | {zk.status(s, f) for f in watched} | {zk.start(s)}
+    alive = {zk.alive(s, a) for a in alive_of}
+    out = {
+        "put": puts,
+        "declare_subscriber": subs,
+        "liveliness_token": {zk.alive(s, node)},
+        "declare_liveliness_subscriber": alive,
+        "liveliness_query": alive,
+    }
+    return {k: v for k, v in out.items() if v}
+
+
+@pytest.mark.parametrize("kills", [False, True])
+@pytest.mark.parametrize("graph", GRAPHS)
+def test_every_nodes_grants_are_exactly_what_its_edges_and_the_plan_need(graph, kills):
+    cfg = _swarm(graph, kills)
+    nodes = [cfg.node_keys(n) for n in range(N + 1)]
+    ac = access_control(cfg.name, nodes)
+    assert ac["enabled"] and ac["default_permission"] == "deny"
+    rules = {r["id"]: r for r in ac["rules"]}
+    # egress (what the router forwards) is the swarm's keys; ingress is never a wildcard
+    assert rules["egress"]["flows"] == ["egress"] and rules["egress"]["key_exprs"] == [f"swarm/{cfg.name}/**"]
+    for r in ac["rules"]:
+        if r["id"] != "egress":
+            assert r["flows"] == ["ingress"] and r["permission"] == "allow"
+            assert not any("*" in k for k in r["key_exprs"]), r
+    assert len(ac["subjects"]) == N + 1 and len(ac["policies"]) == N + 1
+    for node in range(N + 1):
+        (policy,) = [p for p in ac["policies"] if p["subjects"] == [user(node)]]
+        granted: dict[str, set[str]] = {}
+        for rid in policy["rules"]:
+            if rid == "egress":
+                continue
+            (kind,) = rules[rid]["messages"]
+            granted.setdefault(kind, set()).update(rules[rid]["key_exprs"])
+        assert granted == _expected(cfg, node, kills), (graph, kills, node)
+
+
+def test_a_followers_status_is_granted_to_it_alone():
+    cfg = _swarm("layered", kills=True)
+    ac = access_control(cfg.name, [cfg.node_keys(n) for n in range(N + 1)])
+    for f in range(1, N + 1):
+        key = zk.status(cfg.name, f)
+        putters = [r["id"] for r in ac["rules"] if "put" in r["messages"] and key in r["key_exprs"]]
+        assert putters == [f"{user(f)}_put"], (f, putters)
