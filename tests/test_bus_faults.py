@@ -269,6 +269,27 @@ def test_a_lockstep_mavlink_loss_sends_a_clock_only_setpoint_and_settles_a_lost_
     assert len(sent) + len(clock_only) == n + 1 + up.lost
 
 
+def test_the_two_directions_of_a_mavlink_link_draw_independently():
+    """``loss: 0.5`` both ways: the setpoint and the sample of one tick are both lost a quarter of
+    the time (a shared draw would lose them together half the time)."""
+    from swarm_sitl.faults.mavlink import MavlinkFaults
+
+    plan = FaultPlan(seed=4, plan=[{"mavlink": 3, "loss": 0.5}])
+    lf = MavlinkFaults(plan, 3, RunClock(True, DT), 600.0)
+    n = 4000
+    up_lost: list[int] = []
+    for k in range(1, n + 1):
+        before = lf.stats["up"].lost
+        lf.send(b"setpoint", k * 10, lambda _d: None, lambda _ms: None)
+        if lf.stats["up"].lost > before:
+            up_lost.append(k)
+    down_lost = {k for k in range(1, n + 1) if lf.receive(_lpos_datagram(k * 10)) is None}
+    for way in (len(up_lost), len(down_lost)):
+        assert abs(way - n / 2) < 5 * math.sqrt(n / 4), way
+    together = len(set(up_lost) & down_lost)
+    assert abs(together - n / 4) < 5 * math.sqrt(n * 3 / 16), together
+
+
 def test_a_corrupted_sample_repeated_in_lockstep_reaches_the_receiver_once():
     from swarm_sitl.faults.mavlink import MavlinkFaults
 

@@ -113,6 +113,29 @@ def test_a_fate_depends_only_on_seed_entry_edge_and_step():
     assert [f.lost for f in a] != [f.lost for f in c]  # and each edge its own
 
 
+def test_two_entries_on_one_edge_draw_independently():
+    """Two losses of 1/2 on one edge lose 3/4 of the messages if their draws are independent (a
+    shared draw would lose 1/2); the second entry's draws are also uncorrelated with the first's."""
+    rules = _rules({"edge": [1, 4], "loss": 0.5}, {"edge": [1, 4], "corrupt": 0.5})
+    n = 20000
+    fates = [fate(3, rules, edge_channel(1, 4), k, 0.0, 1.0, 0.01) for k in range(n)]
+    lost = sum(f.lost for f in fates)
+    corrupt = sum(f.corrupt for f in fates)  # the second entry acts on the messages not lost
+    assert abs(lost - n / 2) < 5 * math.sqrt(n / 4), lost
+    assert abs(corrupt - n / 4) < 5 * math.sqrt(n * 3 / 16), (corrupt, n / 4)  # 1/2 of 1/2
+    both = _rules({"edge": [1, 4], "loss": 0.5}, {"edge": [1, 4], "loss": 0.5})
+    lost2 = sum(fate(3, both, edge_channel(1, 4), k, 0.0, 1.0, 0.01).lost for k in range(n))
+    assert abs(lost2 - 0.75 * n) < 5 * math.sqrt(n * 0.75 * 0.25), lost2
+
+
+def test_a_window_ends_at_until_s_and_starts_at_from_s():
+    """Exactly the messages sent in [from_s, until_s) meet the entry (lockstep: sent-for time)."""
+    rules = _rules({"edge": [1, 4], "drop": True, "from_s": 0.2, "until_s": 0.5})
+    dt = 0.01
+    lost = [k for k in range(100) if fate(1, rules, edge_channel(1, 4), k, k * dt, 1.0, dt).lost]
+    assert lost == list(range(20, 50)), lost
+
+
 @pytest.mark.parametrize("p", [0.02, 0.2, 0.5, 0.9])
 def test_loss_happens_at_its_probability(p):
     rules = _rules({"edge": [1, 4], "loss": p})
