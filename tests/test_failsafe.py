@@ -7,9 +7,12 @@ import numpy as np
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
+from pymavlink.dialects.v20 import common as mav
 
+from sim_vehicles.common.command import AttitudeCommand
 from sim_vehicles.common.quaternion import qconj, qmul, rotation_matrix
 from sim_vehicles.common.state import POS, VEL, make_state
+from sim_vehicles.mavlink import px4_profile as px4
 from sim_vehicles.plant.autopilot import Autopilot
 from sim_vehicles.plant.failsafe import (
     ACTION_HOLD,
@@ -21,6 +24,7 @@ from sim_vehicles.plant.failsafe import (
     hold_at,
 )
 from sim_vehicles.plant.params import AttitudeGains, VehicleParams
+from sim_vehicles.vehicle.modes import MODE_FAILSAFE, MODE_OFFBOARD, FlightModes
 
 PARAMS = VehicleParams(0.85, (0.04856, 0.04856, 0.08801), 25.0)
 GAINS = AttitudeGains(16.0, 16.0)
@@ -69,3 +73,73 @@ def test_land_descends_at_the_landing_speed_over_the_point_of_loss():
     assert ap.state[VEL][2] == pytest.approx(-LAND_SPEED_MPS, abs=0.01)
     assert np.linalg.norm(ap.state[POS][:2] - at[:2]) < 0.01
     assert ap.state[POS][2] == pytest.approx(at[2] - LAND_SPEED_MPS * 6.0, abs=0.3)
+
+
+class _Events:
+    """An ``EventLog`` that keeps what it is given."""
+
+    def __init__(self) -> None:
+        self.seen: list[tuple[float, str, dict]] = []
+
+    def add(self, t_s: float, kind: str, **fields) -> None:
+        self.seen.append((t_s, kind, fields))
+
+
+def _modes(action: int, timeout_s: float):
+    """The vehicle's modes (``FlightModes``) over an autopilot hovering at 10 m, armed and in
+    offboard, its last setpoint (level, hover thrust) taken at t = 0."""
+    ap = Autopilot(PARAMS, GAINS, make_state([1.0, 2.0, 10.0], [0.0, 0.0, 0.0]), 0.001)
+    said: list[str] = []
+    events = _Events()
+    f = FlightModes(ap, 1, timeout_s, action, events, lambda _sev, text: said.append(text))  # type: ignore[arg-type]
+    assert f.arm(True, forced=False)
+    f.offboard_signal_s = 0.0  # a setpoint stream runs
+    assert f.set_mode(px4.OFFBOARD) == mav.MAV_RESULT_ACCEPTED and f.take_setpoint()
+    ap.set_command(AttitudeCommand(np.array([1.0, 0.0, 0.0, 0.0]), PARAMS.mass_kg * 9.81))
+    return ap, f, said, events
+
+
+def _step(ap: Autopilot, f, n_steps: int) -> None:
+    """What the vehicle does with ``n_steps`` attitude steps (``VehicleEndpoint.step``)."""
+    left = n_steps
+    while left > 0:
+        chunk = f.own_steps(left)
+        ap.advance(chunk)
+        left -= chunk
+        f.check_failsafe()
+
+
+@pytest.mark.unit
+@pytest.mark.parametrize("timeout_s", [0.05, 0.5, 1.3])
+def test_the_failsafe_begins_the_first_step_after_sp_timeout_without_a_setpoint(timeout_s):
+    ap, f, said, events = _modes(ACTION_HOLD, timeout_s)
+    while f.mode == MODE_OFFBOARD:
+        _step(ap, f, 1)
+    assert f.mode == MODE_FAILSAFE
+    assert timeout_s < ap.time_s <= timeout_s + ap.dt_s + 1e-12, (ap.time_s, timeout_s)
+    ((t_s, kind, fields),) = events.seen
+    assert (t_s, kind, fields["action"]) == (ap.time_s, "failsafe_enter", "hold")
+    assert said == ["Failsafe: offboard setpoints lost, hold"]
+    assert f.heartbeat()[1:] == (px4.HOLD, mav.MAV_STATE_CRITICAL)
+    # a setpoint brings it back to offboard, and the loss is counted again from it
+    assert f.take_setpoint() and f.mode == MODE_OFFBOARD and events.seen[-1][1] == "failsafe_exit"
+    t_back = ap.time_s
+    while f.mode == MODE_OFFBOARD:
+        _step(ap, f, 1)
+    assert timeout_s < ap.time_s - t_back <= timeout_s + ap.dt_s + 1e-12
+
+
+@pytest.mark.unit
+def test_a_vehicle_set_to_land_lands_and_one_set_to_hold_holds():
+    for action, mode in ((ACTION_LAND, px4.LAND), (ACTION_HOLD, px4.HOLD)):
+        ap, f, _said, events = _modes(action, 0.5)
+        _step(ap, f, 600)  # 0.1 s into the failsafe
+        at = np.array(events.seen[0][2]["p_W"])
+        assert f.mode == MODE_FAILSAFE and f.px4_mode() == mode
+        _step(ap, f, 5000)
+        if action == ACTION_LAND:  # down at the landing speed, over the point of loss
+            assert ap.state[VEL][2] == pytest.approx(-LAND_SPEED_MPS, abs=0.01)
+            assert ap.state[POS][2] < at[2] - 0.6 * LAND_SPEED_MPS * 5.0
+        else:
+            assert np.linalg.norm(ap.state[POS] - at) < 0.01
+        assert np.linalg.norm(ap.state[POS][:2] - at[:2]) < 0.01
