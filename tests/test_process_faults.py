@@ -1,0 +1,166 @@
+"""The supervisor's side of a fault plan (``faults.processes.ProcessFaults``), in process: which
+processes it kills, when it starts them again and with which tick, what it records, and when a
+lost aircraft ends the run. The victims are real processes (``sleep``, each its own process group,
+as the supervisor's children are), so each kill is a real SIGKILL that the test sees."""
+
+import json
+import signal
+import subprocess
+from dataclasses import dataclass, field
+
+import pytest
+
+from swarm_sitl.faults.plan import FaultPlan, tick_of
+from swarm_sitl.faults.processes import LostAircraftError, ProcessFaults
+
+pytestmark = pytest.mark.integration
+DT = 0.02
+
+
+@dataclass
+class _Child:
+    process: str
+    proc: subprocess.Popen
+    retired: bool = False
+
+    @property
+    def pid(self) -> int:
+        return self.proc.pid
+
+
+@dataclass
+class _Supervisor:
+    """The ``Processes`` a plan acts on: live ``sleep`` processes by name, and what was spawned."""
+
+    children: dict[str, _Child] = field(default_factory=dict)
+    spawned: list[tuple[str, list[str], str]] = field(default_factory=list)
+
+    def start(self, *names: str) -> None:
+        for n in names:
+            proc = subprocess.Popen(["sleep", "60"], start_new_session=True)
+            self.children[n] = _Child(n, proc)
+
+    def child(self, process: str) -> _Child | None:
+        c = self.children.get(process)
+        return None if c is None or c.retired else c
+
+    def spawn(self, name: str, argv: list[str], must_finish: bool, process: str | None = None) -> None:
+        self.spawned.append((name, argv, process or name))
+
+    def dead(self, name: str) -> bool:
+        return self.children[name].proc.poll() == -signal.SIGKILL
+
+    def close(self) -> None:
+        for c in self.children.values():
+            c.proc.kill()
+            c.proc.wait()
+
+
+@pytest.fixture
+def sup():
+    s = _Supervisor()
+    s.start("leader", *(f"{k}_{i}" for k in ("controller", "vehicle") for i in (1, 2, 3)))
+    yield s
+    s.close()
+
+
+def _faults(sup, tmp_path, plan: list[dict], lockstep: bool = False, stop_on_loss: bool = False):
+    pf = ProcessFaults(FaultPlan(seed=1, plan=plan), DT, stop_on_loss, sup, lockstep, tmp_path / "sup.events")
+    pf.set_restart(lambda name, n, resume: ["restart", name, str(n), str(resume)])
+    return pf
+
+
+def _events(pf, tmp_path) -> list[tuple[str, str, float]]:
+    pf.close()
+    lines = (tmp_path / "sup.events").read_text().splitlines()
+    return [(e["kind"], e["process"], e["t_s"]) for e in map(json.loads, lines)]
+
+
+@pytest.mark.parametrize("process", ["controller_2", "leader"])
+def test_real_time_a_killed_process_is_started_again_restart_after_s_later(sup, tmp_path, process):
+    entry = {"controller": 2} if process == "controller_2" else {"leader": True}
+    pf = _faults(sup, tmp_path, [{**entry, "kill": True, "from_s": 1.0, "restart_after_s": 0.5}])
+    pf.act(0.99, 0)
+    assert not sup.dead(process) and not pf.down
+    pf.act(1.01, 0)
+    sup.children[process].proc.wait(timeout=5)
+    assert sup.dead(process) and sup.children[process].retired
+    assert pf.down == ({2} if process == "controller_2" else set())
+    pf.act(1.50, 0)  # 0.49 s after the kill: not yet
+    assert sup.spawned == []
+    pf.act(1.52, 0)
+    assert sup.spawned == [(f"{process}.1", ["restart", process, "1", "0"], process)]  # joins now
+    assert not pf.down
+    pf.act(9.0, 0)  # once
+    assert len(sup.spawned) == 1
+    assert _events(pf, tmp_path) == [("process_killed", process, 1.01), ("process_restarted", process, 1.52)]
+    others = [n for n in sup.children if n != process]
+    assert not any(sup.dead(n) for n in others)
+
+
+def test_a_killed_process_without_restart_stays_down(sup, tmp_path):
+    pf = _faults(sup, tmp_path, [{"leader": True, "kill": True, "from_s": 2.0}])
+    for t in (2.0, 5.0, 60.0):
+        pf.act(t, 0)
+    sup.children["leader"].proc.wait(timeout=5)
+    assert sup.dead("leader") and sup.spawned == [] and not pf.lost
+    assert _events(pf, tmp_path) == [("process_killed", "leader", 2.0)]
+
+
+def test_a_lost_vehicle_takes_its_controller_unless_told_not_to(sup, tmp_path):
+    pf = _faults(
+        sup,
+        tmp_path,
+        [
+            {"vehicle": 1, "kill": True, "from_s": 1.0},
+            {"vehicle": 3, "kill": True, "from_s": 1.0, "with_controller": False},
+        ],
+    )
+    pf.act(1.0, 0)
+    for n in ("vehicle_1", "controller_1", "vehicle_3"):
+        sup.children[n].proc.wait(timeout=5)
+    assert sup.dead("vehicle_1") and sup.dead("controller_1") and sup.dead("vehicle_3")
+    assert sup.children["controller_3"].proc.poll() is None  # its controller flies on, vehicle-less
+    assert pf.lost == {1, 3} and pf.down == {1} and sup.spawned == []
+    kinds = _events(pf, tmp_path)
+    assert ("vehicle_lost", "vehicle_1", 1.0) in kinds and ("vehicle_lost", "vehicle_3", 1.0) in kinds
+    assert ("process_killed", "controller_1", 1.0) in kinds
+    assert not any(p == "controller_3" for _k, p, _t in kinds)
+
+
+def test_stop_on_loss_ends_the_run_in_one_line_naming_the_vehicle(sup, tmp_path):
+    pf = _faults(sup, tmp_path, [{"vehicle": 2, "kill": True, "from_s": 3.0}], stop_on_loss=True)
+    pf.act(2.9, 0)
+    with pytest.raises(LostAircraftError, match=r"^vehicle_2 lost at 3 s \(run.stop_on_loss\)$"):
+        pf.act(3.0, 0)
+    sup.children["vehicle_2"].proc.wait(timeout=5)
+    assert sup.dead("vehicle_2")
+    # without it, the same loss is recorded and the run goes on
+    sup.start("vehicle_2")
+    (tmp_path / "on").mkdir()
+    on = _faults(sup, tmp_path / "on", [{"vehicle": 2, "kill": True, "from_s": 3.0}])
+    on.act(3.0, 0)
+    assert on.lost == {2}
+
+
+def test_lockstep_a_node_that_killed_itself_is_planned_and_resumes_at_its_restart_tick(sup, tmp_path):
+    pf = _faults(
+        sup,
+        tmp_path,
+        [{"controller": 2, "kill": True, "from_s": 1.0, "restart_after_s": 0.5}],
+        lockstep=True,
+    )
+    pf.act(0.0, 10_000)  # in lockstep the supervisor never kills: the node does, at its tick
+    assert sup.children["controller_2"].proc.poll() is None
+    c2 = sup.children["controller_2"]
+    c2.proc.send_signal(signal.SIGKILL)
+    c2.proc.wait(timeout=5)
+    assert not pf.planned_exit(sup.children["controller_3"], 1)  # an exit the plan did not make
+    assert pf.planned_exit(c2, -signal.SIGKILL)
+    resume = tick_of(1.0, DT) + round(0.5 / DT)
+    assert sup.spawned == [("controller_2.1", ["restart", "controller_2", "1", str(resume)], "controller_2")]
+    assert not pf.planned_exit(c2.__class__("controller_2", c2.proc), -signal.SIGKILL)  # once
+    assert _events(pf, tmp_path) == [
+        ("process_killed", "controller_2", tick_of(1.0, DT) * DT),
+        ("process_restarted", "controller_2", 1.5),
+    ]
