@@ -52,7 +52,11 @@ def run_leader(
     step = [0]
 
     def ahead_ok() -> bool:
-        return all(bus.progress(j) >= step[0] - r.lockstep_window for j in out_neighbours)
+        # a leader restarted by the plan has heard no status yet: its followers are blocked on
+        # its resume tick (they publish none until it comes), so it may run the window past it
+        # until they speak; a status from before its start is gone (a put keeps no history)
+        floor = resume_tick - 1 if resume_tick else -1
+        return all(max(bus.progress(j), floor) >= step[0] - r.lockstep_window for j in out_neighbours)
 
     def behind() -> str:
         at = [bus.progress(j) for j in out_neighbours]
