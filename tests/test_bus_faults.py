@@ -9,7 +9,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from sim_vehicles.runtime.event_log import EventLog
-from swarm_sitl.bus.clock import RunClock
+from swarm_sitl.bus.clock import RunClock, StallError
 from swarm_sitl.bus.codec import Message, PayloadError, decode_message, encode_message
 from swarm_sitl.bus.node_bus import ZenohNodeBus
 from swarm_sitl.faults.edges import FaultyBus
@@ -322,3 +322,51 @@ def test_a_real_time_mavlink_delay_holds_datagrams_until_due():
     assert lf.release(sent.append) == []
     now[0] = 10.05
     assert lf.release(sent.append) == [b"telemetry"]
+
+
+class _Publisher(MemoryBus):
+    """A node's inner bus as a publisher sees it: what it sent, the progress its out-neighbours
+    reported (none here: their statuses were sent before this session existed) and their
+    liveliness tokens."""
+
+    def __init__(self, alive: dict[int, int]):
+        super().__init__()
+        self.sent: list[int] = []
+        self.alive = alive
+
+    def publish(self, m: Message) -> None:
+        self.sent.append(m.step)
+
+    def progress(self, follower: int) -> int:
+        return -1
+
+    def alive_puts(self, node: int) -> int:
+        return self.alive.get(node, 0)
+
+
+def test_a_restarted_node_waits_for_the_liveliness_of_a_neighbour_that_came_back_before_it():
+    """Lockstep: controller 1 comes back at tick 400, the leader (its in-neighbour) at tick 650.
+    The leader's new session cannot hear the status 1 sent at tick 400; 1 is blocked waiting for
+    the leader's tick 650, so its liveliness token is what the leader waits for, not that status
+    (waiting for it was a deadlock)."""
+    plan = FaultPlan(
+        plan=[
+            {"controller": 1, "kill": True, "from_s": 3.0, "restart_after_s": 1.0},
+            {"leader": True, "kill": True, "from_s": 6.0, "restart_after_s": 0.5},
+        ]
+    )
+    resume = 650
+    for alive in ({1: 1, 2: 1}, {2: 1}):
+        inner = _Publisher(alive)
+        bus = FaultyBus(inner, plan, 0, EDGES, RunClock(True, DT), 60.0, 0.2, resume)  # type: ignore[arg-type]
+        if 1 in alive:
+            bus.publish(Message(0, resume, resume * DT, np.zeros(12)))
+            assert inner.sent == [resume]
+        else:  # no token: it waits, and names who did not come back
+            with pytest.raises(StallError, match="node 0 at tick 650: node 1 did not come back"):
+                bus.publish(Message(0, resume, resume * DT, np.zeros(12)))
+    # the leader's first incarnation still waits for 1's first tick after its restart (it was up
+    # when 1 came back, so it hears that status)
+    first = FaultyBus(_Publisher({1: 1, 2: 1}), plan, 0, EDGES, RunClock(True, DT), 60.0, 0.2)  # type: ignore[arg-type]
+    with pytest.raises(StallError, match="node 1 did not come back"):
+        first.publish(Message(0, 400, 4.0, np.zeros(12)))

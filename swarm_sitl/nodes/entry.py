@@ -149,7 +149,16 @@ def cmd_controller(cfg: SwarmConfig, args: argparse.Namespace) -> int:
                 zbus.counted_steps = range(args.resume_tick, cfg.n_control_steps)
             faulty = None
             if acts_on(cfg.faults, i, edges):
-                faulty = FaultyBus(zbus, cfg.faults, i, edges, clock, cfg.duration_s, cfg.run.stall_timeout_s)
+                faulty = FaultyBus(
+                    zbus,
+                    cfg.faults,
+                    i,
+                    edges,
+                    clock,
+                    cfg.duration_s,
+                    cfg.run.stall_timeout_s,
+                    args.resume_tick,
+                )
             node_bus: NodeBus = zbus if faulty is None else faulty
             bus = node_bus
             rep = run_controller(cfg, i, link, node_bus, args.lockstep, rows, clock, events, args.resume_tick)
@@ -200,7 +209,14 @@ def cmd_leader(cfg: SwarmConfig, args: argparse.Namespace) -> int:
             node_bus: NodeBus = zbus
             if acts_on(cfg.faults, 0, edges):
                 node_bus = FaultyBus(
-                    zbus, cfg.faults, 0, edges, clock, cfg.duration_s, cfg.run.stall_timeout_s
+                    zbus,
+                    cfg.faults,
+                    0,
+                    edges,
+                    clock,
+                    cfg.duration_s,
+                    cfg.run.stall_timeout_s,
+                    args.resume_tick,
                 )
             bus = node_bus
             rep = run_leader(cfg, node_bus, args.lockstep, outs, clock, args.resume_tick)
