@@ -1,6 +1,7 @@
 """Counts that add up across a process's incarnations: what a killed node published survives it
 (``sim_vehicles.runtime.counter_file``), so every edge's ``sent`` covers what was received."""
 
+import json
 import os
 import signal
 import subprocess
@@ -9,7 +10,7 @@ import sys
 import numpy as np
 import pytest
 
-from sim_vehicles.runtime.counter_file import CounterFile, read_counter
+from sim_vehicles.runtime.counter_file import CounterFile, read_counter, read_named_counts
 from sim_vehicles.runtime.row_log import read_rows
 from tests.conftest import CONFIGS
 
@@ -54,3 +55,60 @@ def test_sent_adds_up_across_a_killed_and_restarted_sender(swarm):
     assert link["sent"] == 100 + (n + 1 - resumed)  # tick 100 killed it before it published
     assert link["sent"] >= link["received"] > 0
     assert np.isfinite(r.followers[1].formation_error_m[-1])
+
+
+@pytest.mark.unit
+def test_named_counts_outlive_a_process_killed_with_sigkill(tmp_path):
+    path = tmp_path / "c.counts"
+    code = (
+        "import os, signal\n"
+        "from pathlib import Path\n"
+        "from sim_vehicles.runtime.counter_file import NamedCounts\n"
+        f"c = NamedCounts(Path({str(path)!r}), ['in 1 received', 'in 1 lost', 'x'])\n"
+        "v = c.view(['in 1 received', 'in 1 lost'])\n"
+        "for _ in range(321): v[0] += 1\n"
+        "v[1] += 7\n"
+        "c.values[2] = -5\n"
+        "os.kill(os.getpid(), signal.SIGKILL)\n"
+    )
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, timeout=60)
+    assert r.returncode == -signal.SIGKILL, r.stderr
+    assert read_named_counts(path) == {"in 1 received": 321, "in 1 lost": 7, "x": -5}
+    path.write_bytes(path.read_bytes()[:-3])  # cut: not a counts file any more
+    assert read_named_counts(path) is None and read_named_counts(tmp_path / "none") is None
+
+
+@pytest.mark.system
+def test_a_killed_receivers_counts_add_up_with_its_restarted_incarnation(swarm):
+    """Controller 4 (in-edges 1 -> 4 and 2 -> 4, and its MAVLink link, both under the plan) is
+    killed at 1 s and restarted 0.5 s later, in lockstep. Its first incarnation counted the steps it
+    waited for before the kill (0..99), the second those from its resume tick: the summary has
+    both, exactly, and sent >= received on every edge."""
+    dur = 3.0
+    r = swarm(
+        CONFIGS / "paper.yaml",
+        duration_s=dur,
+        faults=[
+            {"controller": 4, "kill": True, "from_s": 1.0, "restart_after_s": 0.5},
+            {"edge": [1, 4], "loss": 0.3},
+            {"mavlink": 4, "loss": 0.2},
+        ],
+        seed=2,
+    )
+    assert r.ok, r.failure
+    n = round(dur / 0.01)
+    _, rows = read_rows(r.run_dir / "procs" / "controller_4.1.rows")
+    resumed = int(rows[0, 0])
+    assert resumed == 150
+    for src in (1, 2):
+        link = r.links[f"{src}->4"]
+        assert link["received"] == 100 + (n - resumed), (src, link)  # steps 0..99, then 150..n-1
+        assert link["received"] == link["delivered"] + link["lost"]
+        assert link["sent"] >= link["received"]
+    killed = read_named_counts(r.run_dir / "procs" / "controller_4.counts")
+    assert killed is not None and killed["in 1 received"] == 100
+    assert killed["mavlink up received"] > 0 and killed["mavlink down received"] > 0
+    for way in ("up", "down"):
+        total = r.links[f"mavlink 4 {way}"]["received"]
+        again = json.loads((r.run_dir / "procs" / "controller_4.1.stats.json").read_text())["mavlink"][way]
+        assert total == again["received"] + killed[f"mavlink {way} received"], way

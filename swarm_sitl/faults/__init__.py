@@ -4,6 +4,8 @@
   pure function of the plan's seed and the message (``fate``): the same plan, the same run;
 - ``edges``: the plan on a node's in-edges, a wrapper of its bus (``FaultyBus``);
 - ``mavlink``: the plan on a vehicle's MAVLink link, a wrapper of the controller's datagrams;
+- ``counts``: what those wrappers count per edge and per link, in memory or in a file that
+  outlives a killed process;
 - ``processes``: killing, freezing and restarting processes, through a small protocol of the
   supervisor's.
 

@@ -33,12 +33,13 @@ import math
 import os
 import signal
 import time
-from dataclasses import dataclass, field
 from typing import Any
 
+from sim_vehicles.runtime.counter_file import NamedCounts
 from swarm_sitl.bus.clock import POLL_S, RunClock, StallError, wait_until
 from swarm_sitl.bus.codec import Message, PayloadError, Status, decode_message, encode_message
 from swarm_sitl.bus.node_bus import ZenohNodeBus
+from swarm_sitl.faults.counts import EdgeStats, counts_names
 from swarm_sitl.faults.plan import FaultPlan, FaultSpec, down_at, fate, uniform
 from swarm_sitl.faults.plan import edge_channel as channel_of
 
@@ -46,32 +47,6 @@ _CORRUPT_BYTE = 3  #: salt of the draw that picks the byte a corruption flips
 #: longest block between two looks at the out-neighbours' progress before a planned kill (the
 #: bus's descriptor wakes it when a status comes) [s]
 DELIVERY_POLL_S = 0.05
-
-
-@dataclass
-class EdgeStats:
-    """What one in-edge carried, counted at its receiver."""
-
-    received: int = 0  #: estimates that arrived over zenoh
-    delivered: int = 0  #: handed to the loop (a duplicate counts twice)
-    lost: int = 0  #: hidden by the plan (drop, loss)
-    corrupt: int = 0  #: corrupted by the plan, and dropped by the checksum
-    delayed: int = 0  #: delivered later than on time (delay, stall, reorder)
-    duplicated: int = 0  #: delivered a second time
-    delays_s: list[float] = field(default_factory=list)  #: how much later each delayed one came [s]
-
-    def as_dict(self) -> dict[str, Any]:
-        d = sorted(self.delays_s)
-        out: dict[str, Any] = {
-            k: getattr(self, k) for k in ("received", "delivered", "lost", "corrupt", "delayed", "duplicated")
-        }
-        if d:
-            out["delay_s"] = {
-                "median": d[len(d) // 2],
-                "p99": d[min(len(d) - 1, math.ceil(0.99 * len(d)) - 1)],
-                "max": d[-1],
-            }
-        return out
 
 
 class FaultyBus:
@@ -297,6 +272,14 @@ class FaultyBus:
 
     def edge_stats(self) -> dict[int, dict[str, Any]]:
         return {s: st.as_dict() for s, st in self.stats.items()}
+
+    def counts_names(self) -> list[str]:
+        return [n for s in self.stats for n in counts_names(f"in {s}")]
+
+    def keep_counts(self, counts: NamedCounts) -> None:
+        """Count every in-edge in ``counts`` (names from ``counts_names``)."""
+        for s, st in self.stats.items():
+            st.bind(counts.view(counts_names(f"in {s}")))
 
 
 def acts_on(plan: FaultPlan, node: int, graph_edges: list[tuple[int, int]]) -> bool:

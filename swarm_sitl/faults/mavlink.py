@@ -22,8 +22,9 @@ import itertools
 from collections.abc import Callable
 from typing import Any
 
+from sim_vehicles.runtime.counter_file import NamedCounts
 from swarm_sitl.bus.clock import RunClock
-from swarm_sitl.faults.edges import EdgeStats
+from swarm_sitl.faults.counts import EdgeStats, counts_names
 from swarm_sitl.faults.plan import FaultPlan, fate, mavlink_channel, uniform
 
 _LOCAL_POSITION_NED = 32
@@ -165,3 +166,11 @@ class MavlinkFaults:
 
     def link_stats(self) -> dict[str, dict[str, Any]]:
         return {way: st.as_dict() for way, st in self.stats.items()}
+
+    def counts_names(self) -> list[str]:
+        return [n for way in self.stats for n in counts_names(f"mavlink {way}")]
+
+    def keep_counts(self, counts: NamedCounts) -> None:
+        """Count both ways in ``counts`` (names from ``counts_names``)."""
+        for way, st in self.stats.items():
+            st.bind(counts.view(counts_names(f"mavlink {way}")))

@@ -19,7 +19,7 @@ from typing import Any
 import zenoh
 
 from sim_vehicles.mavlink.signing import SigningKeyError, read_key
-from sim_vehicles.runtime.counter_file import CounterFile
+from sim_vehicles.runtime.counter_file import CounterFile, NamedCounts
 from sim_vehicles.runtime.event_log import EventLog
 from sim_vehicles.runtime.lifeline import batch_scheduling, hold_on, mark, process_figures, profiled
 from sim_vehicles.runtime.row_log import RowLog
@@ -43,6 +43,7 @@ from swarm_sitl.rundir.layout import (
     controller_events_path,
     controller_rows_path,
     controller_stats_path,
+    counts_path,
     leader_stats_path,
     published_path,
 )
@@ -145,8 +146,11 @@ def cmd_controller(cfg: SwarmConfig, args: argparse.Namespace) -> int:
             zbus.horizon = _horizon(clock, cfg.n_control_steps)
             if out is not None:
                 zbus.published_file = CounterFile(published_path(out, i, args.incarnation))
-            if args.lockstep:
-                zbus.counted_steps = range(args.resume_tick, cfg.n_control_steps)
+            if args.lockstep:  # up to this incarnation's planned kill: what it waited for there
+                kills = [
+                    k for k, _ in cfg.faults.outages(cfg.control_dt_s).get(i, []) if k > args.resume_tick
+                ]
+                zbus.counted_steps = range(args.resume_tick, min([*kills, cfg.n_control_steps]))
             faulty = None
             if acts_on(cfg.faults, i, edges):
                 faulty = FaultyBus(
@@ -159,6 +163,12 @@ def cmd_controller(cfg: SwarmConfig, args: argparse.Namespace) -> int:
                     cfg.run.stall_timeout_s,
                     args.resume_tick,
                 )
+            counted = [x for x in (faulty, link_faults) if x is not None]
+            if out is not None and counted:  # what it counts under the plan outlives a kill
+                names = [n for x in counted for n in x.counts_names()]
+                counts = NamedCounts(counts_path(out, i, args.incarnation), names)
+                for x in counted:
+                    x.keep_counts(counts)
             node_bus: NodeBus = zbus if faulty is None else faulty
             bus = node_bus
             rep = run_controller(cfg, i, link, node_bus, args.lockstep, rows, clock, events, args.resume_tick)

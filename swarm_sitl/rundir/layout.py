@@ -68,18 +68,21 @@ def controller_rows_path(run_dir: Path, i: int, incarnation: int = 0) -> Path:
     return procs_dir(run_dir) / f"{_incarnated(f'controller_{i}', incarnation)}.rows"
 
 
-def controller_incarnations(run_dir: Path, i: int, suffix: str) -> list[Path]:
+def controller_incarnations(run_dir: Path, i: int, suffix: str, killed: str = "") -> list[Path]:
     """Follower ``i``'s controller files of kind ``suffix`` (``.rows``, ``.events``,
     ``.stats.json``) that exist, one per incarnation (each has its rows from the start), in order.
-    A killed incarnation wrote no ``.stats.json``: its counts died with it."""
+    A killed incarnation wrote no ``.stats.json``; with ``killed`` (``.counts``), its file of that
+    kind stands in for it if it has one."""
     found = []
     for n in range(1000):
         stem = procs_dir(run_dir) / _incarnated(f"controller_{i}", n)
         if not stem.with_name(stem.name + ".rows").is_file():
             break
-        p = stem.with_name(stem.name + suffix)
-        if p.is_file():
-            found.append(p)
+        for kind in (suffix, killed) if killed else (suffix,):
+            p = stem.with_name(stem.name + kind)
+            if p.is_file():
+                found.append(p)
+                break
     return found
 
 
@@ -93,6 +96,12 @@ def controller_events_path(run_dir: Path, i: int, incarnation: int = 0) -> Path:
 
 def controller_stats_path(run_dir: Path, i: int, incarnation: int = 0) -> Path:
     return procs_dir(run_dir) / f"{_incarnated(f'controller_{i}', incarnation)}.stats.json"
+
+
+def counts_path(run_dir: Path, i: int, incarnation: int = 0) -> Path:
+    """What follower ``i``'s controller counted on its in-edges and its MAVLink link under a fault
+    plan, in one incarnation (``NamedCounts``), kept even when the incarnation is killed."""
+    return procs_dir(run_dir) / f"{_incarnated(f'controller_{i}', incarnation)}.counts"
 
 
 def published_path(run_dir: Path, node: int, incarnation: int = 0) -> Path:

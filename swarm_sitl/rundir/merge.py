@@ -18,9 +18,10 @@ from typing import Any
 import numpy as np
 
 from sim_vehicles.common.state import POS, QUAT, STATE_SIZE, VEL
-from sim_vehicles.runtime.counter_file import read_counter
+from sim_vehicles.runtime.counter_file import read_counter, read_named_counts
 from sim_vehicles.runtime.row_log import RowLogError, read_rows
 from swarm_sitl.config.schema import SwarmConfig
+from swarm_sitl.faults.counts import EdgeStats, stats_from_counts
 from swarm_sitl.rundir.events import merge_events
 from swarm_sitl.rundir.layout import (
     SAMPLE_COLUMNS,
@@ -127,6 +128,21 @@ def _stats(path: Path) -> dict[str, Any]:
     return s if isinstance(s, dict) else {}
 
 
+def _killed_stats(path: Path) -> dict[str, Any]:
+    """What a killed incarnation counted under the plan (its ``.counts``), as its ``.stats.json``
+    would have said it; its report, refusals and delay distributions died with it."""
+    counts = read_named_counts(path) or {}
+    out: dict[str, Any] = {"in_edges": {}, "mavlink": {}}
+    for name in counts:
+        head, who, field = name.split(" ", 2)
+        if field != EdgeStats.FIELDS[0]:
+            continue
+        st = stats_from_counts(counts, f"{head} {who}")
+        if st is not None:  # in the order a .stats.json has them (sorted)
+            out["in_edges" if head == "in" else "mavlink"][who] = dict(sorted(st.items()))
+    return out
+
+
 def _add(into: dict[str, Any], more: dict[str, Any]) -> None:
     """Counts added, ``max_*`` figures maxed, anything else (a delay distribution) the latest."""
     for key, v in more.items():
@@ -155,8 +171,8 @@ def inputs_and_links(cfg: SwarmConfig, run_dir: Path) -> tuple[dict[str, Any], d
     links: dict[str, Any] = {}
     published = {node: _published(run_dir, node) for node in range(cfg.n_followers + 1)}
     for f in cfg.followers:
-        for path in controller_incarnations(run_dir, f.id, ".stats.json"):
-            s = _stats(path)
+        for path in controller_incarnations(run_dir, f.id, ".stats.json", killed=".counts"):
+            s = _stats(path) if path.suffix == ".json" else _killed_stats(path)
             if "report" in s:
                 report = {k: v for k, v in s["report"].items() if k not in WALL_CLOCK_ONLY}
                 _add(inputs.setdefault(str(f.id), {}), report)

@@ -1,0 +1,69 @@
+"""What a fault stage counts per in-edge or per way of a MAVLink link (``EdgeStats``), and the
+names of those counts in a file that outlives a killed process (``NamedCounts``), read back by the
+run's summary. No zenoh here: the summary's readers import it.
+"""
+
+import math
+from typing import Any
+
+import numpy as np
+
+
+class _Count:
+    """One of ``EdgeStats``'s counts, an element of its array: ``st.lost += 1`` stores there."""
+
+    def __init__(self, k: int):
+        self.k = k
+
+    def __get__(self, st: "EdgeStats", owner: object = None) -> int:
+        return int(st.counts[self.k])
+
+    def __set__(self, st: "EdgeStats", v: int) -> None:
+        st.counts[self.k] = v
+
+
+class EdgeStats:
+    """What one in-edge (or one way of a MAVLink link) carried, counted at its receiver. The
+    counts live in an int64 array, which ``bind`` moves into a file that outlives the process
+    (``NamedCounts``): a killed incarnation's counts still add up in the run's summary."""
+
+    FIELDS = ("received", "delivered", "lost", "corrupt", "delayed", "duplicated")
+    received = _Count(0)  #: arrived (over zenoh, or as datagrams)
+    delivered = _Count(1)  #: handed on (a duplicate counts twice)
+    lost = _Count(2)  #: hidden by the plan (drop, loss)
+    corrupt = _Count(3)  #: corrupted by the plan (and dropped by a checksum)
+    delayed = _Count(4)  #: delivered later than on time (delay, stall, reorder)
+    duplicated = _Count(5)  #: delivered a second time
+
+    def __init__(self) -> None:
+        self.counts = np.zeros(len(self.FIELDS), dtype=np.int64)
+        self.delays_s: list[float] = []  #: how much later each delayed one came [s]
+
+    def bind(self, view: np.ndarray) -> None:
+        """Count in ``view`` from now on (what was counted so far is carried over)."""
+        view[:] = self.counts
+        self.counts = view
+
+    def as_dict(self) -> dict[str, Any]:
+        d = sorted(self.delays_s)
+        out: dict[str, Any] = {k: int(v) for k, v in zip(self.FIELDS, self.counts, strict=True)}
+        if d:
+            out["delay_s"] = {
+                "median": d[len(d) // 2],
+                "p99": d[min(len(d) - 1, math.ceil(0.99 * len(d)) - 1)],
+                "max": d[-1],
+            }
+        return out
+
+
+def counts_names(prefix: str) -> list[str]:
+    """The names of one ``EdgeStats``'s counts in a ``NamedCounts`` file: ``PREFIX received``, ..."""
+    return [f"{prefix} {f}" for f in EdgeStats.FIELDS]
+
+
+def stats_from_counts(counts: dict[str, int], prefix: str) -> dict[str, int] | None:
+    """``EdgeStats.as_dict`` of a killed process, from its counts file (its delays died with it)."""
+    names = counts_names(prefix)
+    if not all(n in counts for n in names):
+        return None
+    return {f: counts[n] for f, n in zip(EdgeStats.FIELDS, names, strict=True)}
