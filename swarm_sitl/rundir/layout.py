@@ -119,6 +119,11 @@ def supervisor_events_path(run_dir: Path) -> Path:
     return procs_dir(run_dir) / "supervisor.events"
 
 
+def router_events_path(run_dir: Path) -> Path:
+    """The zenoh router's loss and return, as the supervisor saw them (``zenoh.mode: client``)."""
+    return procs_dir(run_dir) / "router.events"
+
+
 def vehicle_stats_path(run_dir: Path, i: int) -> Path:
     return procs_dir(run_dir) / f"vehicle_{i}.stats.json"
 

@@ -32,6 +32,7 @@ from swarm_sitl.rundir.layout import (
     leader_stats_path,
     published_path,
     read_start,
+    router_events_path,
     supervisor_events_path,
     vehicle_events_path,
     vehicle_stats_path,
@@ -223,7 +224,7 @@ def run_events(cfg: SwarmConfig, run_dir: Path) -> list[dict[str, Any]]:
     """The plan's fault intervals and every process's events, in time order."""
     files = [p for f in cfg.followers for p in controller_incarnations(run_dir, f.id, ".events")]
     files += [vehicle_events_path(run_dir, f.id) for f in cfg.followers]
-    files.append(supervisor_events_path(run_dir))
+    files += [supervisor_events_path(run_dir), router_events_path(run_dir)]
     start = read_start(run_dir)
     realtime = start is not None and not start.get("lockstep", True)
     return merge_events(cfg, files, start["epoch_unix_s"] if start is not None and realtime else None)

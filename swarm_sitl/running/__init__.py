@@ -1,7 +1,8 @@
 """Running a swarm: in one process (``sim``), or as processes that are started, supervised and
 torn down all or nothing (``run``: the whole run; ``supervisor``: the children; ``vehicles``: the
 simulated vehicles; ``hub``: the supervisor's zenoh session and view of the bus; ``fork_server``:
-children forked from one warmed-up process; ``children``: a child's command line and environment).
+children forked from one warmed-up process; ``children``: a child's command line and environment;
+``router_watch``: a client-mode run's zenoh router, lost and back).
 
 May import: sim_vehicles, laws, bus, faults, config, rundir, link, nodes.
 """

@@ -17,6 +17,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from sim_vehicles.runtime.event_log import EventLog
 from sim_vehicles.runtime.lifeline import settle_heap
 from sim_vehicles.runtime.secret_file import write_secret
 from swarm_sitl.bus import access as zenoh_access
@@ -27,7 +28,13 @@ from swarm_sitl.config.schema import SwarmConfig
 from swarm_sitl.faults.processes import LostAircraftError, ProcessFaults
 from swarm_sitl.nodes.assembly import first_tick, reported_vehicle_params
 from swarm_sitl.nodes.law_host import LawError
-from swarm_sitl.rundir.layout import external_path, procs_dir, start_path, supervisor_events_path
+from swarm_sitl.rundir.layout import (
+    external_path,
+    procs_dir,
+    router_events_path,
+    start_path,
+    supervisor_events_path,
+)
 from swarm_sitl.rundir.merge import merge_run
 from swarm_sitl.rundir.metrics import bound_failures
 from swarm_sitl.rundir.outputs import write_outputs
@@ -35,6 +42,7 @@ from swarm_sitl.rundir.whole_files import WriteError
 from swarm_sitl.running.children import PARENT_ENV, child_env, module_argv
 from swarm_sitl.running.fork_server import ForkServer
 from swarm_sitl.running.hub import RunMonitor, open_hub
+from swarm_sitl.running.router_watch import RouterWatch
 from swarm_sitl.running.sim import run_sim
 from swarm_sitl.running.supervisor import SUPERVISE_EVERY_S, RunFailedError, Supervisor
 from swarm_sitl.running.vehicles import port_lines, signing_key_file, start_vehicles
@@ -154,6 +162,11 @@ def run_swarm(
         raise RunFailedError(str(e)) from None
     hub, session = open_hub(cfg, run_dir, sup)
     monitor = RunMonitor(session, cfg)
+    router = None
+    if cfg.zenoh.mode == "client":
+        router = RouterWatch(
+            session, cfg.zenoh.connect, EventLog(router_events_path(run_dir), "supervisor"), lockstep
+        )
     faults = None
     if cfg.faults.plan:
         events = supervisor_events_path(run_dir)
@@ -211,6 +224,8 @@ def run_swarm(
                 except LostAircraftError as e:
                     raise RunFailedError(str(e)) from None
             sup.check()
+            if router is not None:
+                router.check(time.time() - epoch)
             now = time.monotonic()
             if now >= next_start_put:  # again and again: a late subscriber still gets it
                 publish_start(session, cfg.name, epoch)
@@ -226,6 +241,8 @@ def run_swarm(
     finally:
         if faults is not None:
             faults.close()
+        if router is not None:
+            router.close()
         monitor.close()
         sup.close()
         session.close()
