@@ -26,12 +26,12 @@ def test_formation_holds_with_half_of_an_edge_lost(swarm):
 def test_a_cut_edge_costs_formation_and_the_swarm_recovers(swarm):
     """The leader's edge to follower 1 is cut for 10 s: followers 1 and 4 (which hears 1) drift,
     and come back within 15 s of the edge's return; followers 2 and 3 never notice."""
-    r = swarm(PAPER, duration_s=45, faults=[{"edge": [0, 1], "drop": True, "from_s": 20, "until_s": 30}])
+    r = swarm(PAPER, duration_s=50, faults=[{"edge": [0, 1], "drop": True, "from_s": 20, "until_s": 30}])
     assert r.ok, r.failure
     f = r.followers
     assert f[1].max_formation_error_m(20, 30) > 0.1
     assert f[4].max_formation_error_m(20, 30) > 0.05
-    assert max(f[i].max_formation_error_m(after_s=30 + 15) for i in (1, 4)) < 0.05
+    assert max(f[i].max_formation_error_m(after_s=30 + 15) for i in (1, 4)) < 0.05  # over 45..50 s
     assert max(f[i].max_formation_error_m(after_s=20) for i in (2, 3)) < 0.01
     lost = r.events_of("neighbour_lost")
     assert [(e["follower"], e["neighbour"]) for e in lost] == [(1, 0)]

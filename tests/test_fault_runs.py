@@ -52,6 +52,11 @@ SAME_BYTES = ["config.yaml", "summary.json", "events.jsonl", "leader.npz"] + [
 ]
 
 
+def _near(count: int, n: int, p: float) -> bool:
+    """``count`` of ``n`` independent draws of probability ``p``, within five standard deviations."""
+    return abs(count - n * p) <= 5 * math.sqrt(n * p * (1 - p))
+
+
 def _run(path, out, *extra, timeout=240):
     t0 = time.monotonic()
     r = subprocess.run(
@@ -85,17 +90,13 @@ def test_a_lockstep_run_under_every_link_fault_is_the_same_twice_and_never_stall
     s = json.loads((outs[0] / "summary.json").read_text())
     links = s["links"]
 
-    def near(count: int, n: int, p: float) -> bool:
-        """``count`` of ``n`` independent draws of probability ``p``, within five standard deviations."""
-        return abs(count - n * p) <= 5 * math.sqrt(n * p * (1 - p))
-
-    assert near(links["1->4"]["lost"], links["1->4"]["received"], 0.3)
+    assert _near(links["1->4"]["lost"], links["1->4"]["received"], 0.3)
     # every estimate into 4 is delayed; the counts are of the 800 steps 4 waits for (0 to 799)
     assert links["2->4"]["duplicated"] > 0 and links["2->4"]["delayed"] == links["2->4"]["received"] == 800
     assert all(links[f"0->{i}"]["corrupt"] > 0 for i in (1, 2, 3))
     assert links["0->1"]["lost"] == 100  # the cut: 4 s to 5 s, every message
     up, down = links["mavlink 2 up"], links["mavlink 2 down"]
-    assert near(up["lost"], up["received"], 0.2) and near(down["corrupt"], down["received"], 0.1)
+    assert _near(up["lost"], up["received"], 0.2) and _near(down["corrupt"], down["received"], 0.1)
     d = links["1->4"]["delay_s"]
     assert 0.02 <= d["median"] <= d["p99"] <= d["max"] <= 0.05
     kinds = {e["kind"] for e in (json.loads(x) for x in (outs[0] / "events.jsonl").read_text().splitlines())}
@@ -127,7 +128,10 @@ def test_a_run_past_its_bound_exits_non_zero_naming_the_follower_and_its_stale_i
     assert "neighbour estimates past staleness" in named[0]
     assert all("follower 2" not in ln and "follower 3" not in ln for ln in named)
     s = json.loads((tmp_path / "rt" / "summary.json").read_text())
-    assert s["inputs"]["1"]["stale_estimates"] > 500
+    # every tick from the cut plus the staleness to the end sees the leader's estimate stale (less
+    # the late ticks a loaded machine skips: under 1 % in bench, allowed 10 % here)
+    expected = (12 - 5 - 0.5) * 100
+    assert s["inputs"]["1"]["stale_estimates"] >= 0.9 * expected, (s["inputs"]["1"], expected)
 
 
 def test_real_time_rides_through_half_an_edge_and_a_fifth_of_a_mavlink_link_lost(tmp_path):
@@ -140,11 +144,14 @@ def test_real_time_rides_through_half_an_edge_and_a_fifth_of_a_mavlink_link_lost
     assert r.returncode == 0, r.stderr + r.stdout
     s = json.loads((out / "summary.json").read_text())
     link = s["links"]["1->4"]
-    assert 0.4 < link["lost"] / link["received"] < 0.6
+    assert _near(link["lost"], link["received"], 0.5), link
     for way in ("up", "down"):  # each direction of vehicle 3's link
         m = s["links"][f"mavlink 3 {way}"]
-        assert 0.15 < m["lost"] / m["received"] < 0.25, (way, m)
-    assert s["inputs"]["3"]["old_samples"] > 100
+        assert _near(m["lost"], m["received"], 0.2), (way, m)
+    # a tick whose sample was lost on the way down uses the one before (older than a period): at
+    # least the binomial lower bound of 20 % of the ticks (a late sample adds to it)
+    ticks = 25 * 100
+    assert s["inputs"]["3"]["old_samples"] >= ticks * 0.2 - 5 * math.sqrt(ticks * 0.2 * 0.8)
     for i in range(1, 5):
         a = np.load(out / f"follower_{i}.npz")
         e = np.linalg.norm(a["pos_err_m"], axis=1)
@@ -171,7 +178,16 @@ def test_a_frozen_controller_puts_its_vehicle_in_failsafe_and_rejoins(tmp_path):
     assert 0.4 < fs[0][1] - frozen[0] < 0.7 and thawed[0] - 0.1 < fs[1][1] < thawed[0] + 0.5
     a = np.load(out / "follower_3.npz")
     e = np.linalg.norm(a["pos_err_m"], axis=1)
-    assert np.nanmax(e[(a["t_s"] > 10) & (a["t_s"] < 11)]) > 0.2  # it did drift while held
+    # it did drift while held: its vehicle hovers where the failsafe began while the reference
+    # goes on, so by 10 s the error is at least half of how far the reference went since then
+    ref = np.load(out / "leader.npz")
+    went = np.linalg.norm(
+        [
+            np.interp(10.0, ref["t_s"], ref["p_r"][:, k]) - np.interp(fs[0][1], ref["t_s"], ref["p_r"][:, k])
+            for k in range(3)
+        ]
+    )
+    assert went > 1.0 and np.nanmax(e[(a["t_s"] > 10) & (a["t_s"] < 11)]) > 0.5 * went
     assert np.nanmax(e[a["t_s"] >= 16]) < 0.05  # and is back
 
 
