@@ -60,6 +60,22 @@ def test_every_nodes_grants_are_exactly_what_its_edges_and_the_plan_need(graph, 
     rules = {r["id"]: r for r in ac["rules"]}
     # egress (what the router forwards) is the swarm's keys; ingress is never a wildcard
     assert rules["egress"]["flows"] == ["egress"] and rules["egress"]["key_exprs"] == [f"swarm/{cfg.name}/**"]
+    assert rules["egress"]["permission"] == "allow"
+    # what the router forwards to a node: every kind it may have subscribed to, and the replies
+    assert set(rules["egress"]["messages"]) == {
+        "put",
+        "declare_subscriber",
+        "liveliness_token",
+        "declare_liveliness_subscriber",
+        "liveliness_query",
+        "reply",
+    }
+    assert set(ac) == {"enabled", "default_permission", "rules", "subjects", "policies"}
+    assert [s["id"] for s in ac["subjects"]] == [user(n) for n in range(N + 1)]
+    assert all(s["usernames"] == [s["id"]] for s in ac["subjects"])
+    assert all(p["rules"][0] == "egress" for p in ac["policies"])
+    ids = [r["id"] for r in ac["rules"]]
+    assert len(ids) == len(set(ids))  # one rule per node and kind, named after both
     for r in ac["rules"]:
         if r["id"] != "egress":
             assert r["flows"] == ["ingress"] and r["permission"] == "allow"

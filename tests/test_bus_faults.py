@@ -12,6 +12,7 @@ from sim_vehicles.runtime.event_log import EventLog
 from swarm_sitl.bus.clock import RunClock, StallError
 from swarm_sitl.bus.codec import Message, PayloadError, decode_message, encode_message
 from swarm_sitl.bus.node_bus import ZenohNodeBus
+from swarm_sitl.faults.counts import EdgeStats
 from swarm_sitl.faults.edges import FaultyBus
 from swarm_sitl.faults.plan import FaultPlan
 from swarm_sitl.nodes.neighbour_inbox import NeighbourInbox
@@ -370,3 +371,121 @@ def test_a_restarted_node_waits_for_the_liveliness_of_a_neighbour_that_came_back
     first = FaultyBus(_Publisher({1: 1, 2: 1}), plan, 0, EDGES, RunClock(True, DT), 60.0, 0.2)  # type: ignore[arg-type]
     with pytest.raises(StallError, match="node 1 did not come back"):
         first.publish(Message(0, 400, 4.0, np.zeros(12)))
+
+
+class _Clock(RunClock):
+    """A real-time clock the test moves by hand."""
+
+    def __init__(self) -> None:
+        super().__init__(False, DT)
+        self.t = 0.0
+
+    def now_s(self) -> float:
+        return self.t
+
+
+@pytest.mark.parametrize("lockstep", [True, False], ids=["lockstep", "real time"])
+def test_every_mavlink_datagram_meets_the_fate_the_plan_draws_for_it_and_is_counted_once(lockstep):
+    """The link's wrapper against a model: each datagram's fate is drawn here from ``fate`` (the
+    plan's seed, entry, channel, key, time), and what the wrapper writes, returns, holds and counts
+    must be what that fate says. Lockstep keys a datagram by its stamp, real time by its order."""
+    from swarm_sitl.faults.mavlink import MavlinkFaults, _flipped
+    from swarm_sitl.faults.plan import fate, mavlink_channel
+
+    entries = [{"mavlink": 1, "loss": 0.2}, {"mavlink": 1, "corrupt": 0.2}]
+    if not lockstep:
+        entries += [{"mavlink": 1, "direction": "up", "delay_s": 0.03}, {"mavlink": 1, "duplicate": 0.2}]
+    plan = FaultPlan(seed=9, plan=entries)
+    clock: RunClock = RunClock(True, DT) if lockstep else _Clock()
+    lf = MavlinkFaults(plan, 1, clock, 60.0)
+    n = 400
+    want = {"up": dict.fromkeys(EdgeStats.FIELDS, 0), "down": dict.fromkeys(EdgeStats.FIELDS, 0)}
+    order = 0
+    for k in range(1, n + 1):
+        ms = k * 10
+        if not lockstep:
+            clock.t = k * DT  # type: ignore[attr-defined]
+        for way in ("up", "down"):
+            rules = plan.on_mavlink(1, way == "up")
+            key = ms if lockstep else order
+            f = fate(
+                plan.seed,
+                rules,
+                mavlink_channel(1, way == "up"),
+                key,
+                ms / 1000 if lockstep else k * DT,
+                60.0,
+                DT,
+            )
+            if not lockstep:
+                order += 1
+            w = want[way]
+            w["received"] += 1
+            frame = _lpos_datagram(ms)
+            if way == "up":
+                written, clock_only = [], []
+                lf.send(frame, ms, written.append, clock_only.append)
+                if f.lost:
+                    w["lost"] += 1
+                    assert written == [] and clock_only == ([ms + 10] if lockstep else []), k
+                elif f.corrupt:
+                    w["corrupt"] += 1
+                    assert written == [_flipped(frame, plan.seed, mavlink_channel(1, True), key)], k
+                    assert clock_only == ([ms + 10] if lockstep else []), k
+                    assert sum(a != b for a, b in zip(written[0], frame, strict=True)) == 1
+                elif f.delay_s > 0:
+                    w["delayed"] += 1
+                    assert written == [] and lf.next_due_s() is not None
+                else:
+                    w["delivered"] += 1
+                    assert written == [frame], k
+            else:
+                got = lf.receive(frame)
+                if f.lost:
+                    w["lost"] += 1
+                    assert got is None and (not lockstep or lf.lost_ms == ms), k
+                elif f.corrupt:
+                    w["corrupt"] += 1
+                    assert got == _flipped(frame, plan.seed, mavlink_channel(1, False), key), k
+                else:
+                    w["delivered"] += 1
+                    assert got == frame, k
+            if f.duplicate and not (f.lost or f.corrupt):
+                w["duplicated"] += 1
+                w["delivered"] += 1  # once more, a period later
+                order += 0 if lockstep else 1  # (a held datagram takes a number of the order)
+            if f.delay_s > 0 and not (f.lost or f.corrupt):
+                w["delivered"] += 1  # when due
+                order += 0 if lockstep else 1
+        if not lockstep:  # what is due goes out or is read, in time order
+            released_up: list[bytes] = []
+            lf.release(released_up.append)
+    if not lockstep:
+        clock.t = 1e6  # type: ignore[attr-defined]
+        lf.release(lambda _d: None)
+        assert lf.next_due_s() is None
+    for way in ("up", "down"):
+        got = lf.stats[way].as_dict()
+        got.pop("delay_s", None)
+        assert got == want[way], (way, got, want[way])
+        assert want[way]["lost"] > 0 and want[way]["corrupt"] > 0
+        if not lockstep:
+            assert want[way]["duplicated"] > 0
+    if not lockstep:
+        assert lf.stats["up"].delays_s == [0.03] * lf.stats["up"].delayed and lf.stats["up"].delayed > 0
+
+
+def test_the_delay_summary_is_the_median_p99_and_max_of_the_delays():
+    st = EdgeStats()
+    assert "delay_s" not in st.as_dict() and set(st.as_dict()) == set(EdgeStats.FIELDS)
+    st.delays_s = [float(x) for x in range(200, 0, -1)]  # 1..200, in any order
+    st.delayed = 200
+    d = st.as_dict()
+    assert d["delay_s"] == {"median": 101.0, "p99": 198.0, "max": 200.0}  # the 101st, the 198th, the last
+    assert d["delayed"] == 200 and all(isinstance(d[k], int) for k in EdgeStats.FIELDS)
+    st.delays_s = [0.5]
+    assert st.as_dict()["delay_s"] == {"median": 0.5, "p99": 0.5, "max": 0.5}
+    view = np.zeros(len(EdgeStats.FIELDS), dtype=np.int64)
+    st.bind(view)  # the counts so far move with it
+    st.lost += 3
+    assert view.tolist() == [0, 0, 3, 0, 200, 0]

@@ -6,6 +6,7 @@ as the supervisor's children are), so each kill is a real SIGKILL that the test 
 import json
 import signal
 import subprocess
+import time
 from dataclasses import dataclass, field
 
 import pytest
@@ -164,3 +165,50 @@ def test_lockstep_a_node_that_killed_itself_is_planned_and_resumes_at_its_restar
         ("process_killed", "controller_2", tick_of(1.0, DT) * DT),
         ("process_restarted", "controller_2", 1.5),
     ]
+
+
+def _state(proc: subprocess.Popen) -> str:
+    """The process's state letter from /proc (T: stopped)."""
+    return open(f"/proc/{proc.pid}/stat").read().rsplit(")", 1)[1].split()[0]
+
+
+def _wait_state(proc: subprocess.Popen, want: str) -> bool:
+    end = time.monotonic() + 5
+    while time.monotonic() < end:
+        if _state(proc) == want:
+            return True
+        time.sleep(0.01)
+    return False
+
+
+@pytest.mark.parametrize("lockstep", [False, True], ids=["real time", "lockstep"])
+def test_a_frozen_process_is_stopped_for_freeze_s_of_wall_time_then_continued(sup, tmp_path, lockstep):
+    pf = _faults(sup, tmp_path, [{"controller": 2, "freeze_s": 0.3, "from_s": 1.0}], lockstep=lockstep)
+    c2 = sup.children["controller_2"].proc
+    # real time: at run second 1.0; lockstep: once every live follower has done tick 1.0 / dt
+    early, due = (0.99, 1.0) if not lockstep else (0.0, 0.0)
+    steps = (0, 0) if not lockstep else (tick_of(1.0, DT) - 1, tick_of(1.0, DT))
+    pf.act(early, steps[0])
+    assert _state(c2) != "T" and not pf.frozen("controller_2")
+    pf.act(due, steps[1])
+    t0 = time.monotonic()
+    assert _wait_state(c2, "T") and pf.frozen("controller_2")
+    pf.act(due, steps[1])
+    assert pf.frozen("controller_2")  # not before freeze_s
+    while time.monotonic() - t0 < 0.3:
+        time.sleep(0.01)
+    pf.act(due + 0.5, steps[1])
+    assert _wait_state(c2, "S") and not pf.frozen("controller_2")
+    kinds = _events(pf, tmp_path)
+    assert [k for k, _p, _t in kinds] == ["process_frozen", "process_thawed"]
+    assert kinds[0][1] == "controller_2" and kinds[0][2] == (1.0 if lockstep else due)
+    assert sup.spawned == [] and not sup.dead("controller_2")
+
+
+def test_closing_never_leaves_a_process_stopped(sup, tmp_path):
+    pf = _faults(sup, tmp_path, [{"leader": True, "freeze_s": 60.0, "from_s": 0.0}])
+    pf.act(0.0, 0)
+    leader = sup.children["leader"].proc
+    assert _wait_state(leader, "T")
+    pf.close()
+    assert _wait_state(leader, "S") and not pf.frozen("leader")

@@ -150,7 +150,7 @@ def _print(fig: dict) -> None:
     print("  {:<16} {:>10} {:>10} {:>8} {:>12} {:>10}".format(*head))
     for p, f in fig["processes"].items():
         print(
-            f"  {p:<16} {f['rss_kb_after_1_min'] / 1024:>8.1f} MB {f['rss_kb_end'] / 1024:>7.1f} MB "
+            f"  {p:<16} {f['rss_kb_after_1_min'] / 1024:>7.1f} MiB {f['rss_kb_end'] / 1024:>6.1f} MiB "
             f"{100 * f['rss_growth']:>7.2f}% {f['open_files_after_1_min']:>12} {f['open_files_end']:>10}"
         )
     worst = max(fig["processes"].items(), key=lambda kv: kv[1]["rss_growth"])
@@ -176,7 +176,7 @@ def _plot(results: list[tuple[dict, Watcher]], path: Path) -> None:
         for p in f["processes"]:
             ax.plot(t_min, [s.rss_kb.get(p, float("nan")) / 1024 for s in w.samples], lw=0.8, label=p)
         ax.axvline(SETTLED_AFTER_S / 60, color="grey", ls=":", lw=0.8)
-        ax.set(xlabel="run time [min]", ylabel="resident memory [MB]", title=f"{f['config']} (real time)")
+        ax.set(xlabel="run time [min]", ylabel="resident memory [MiB]", title=f"{f['config']} (real time)")
         if len(f["processes"]) <= 12:
             ax.legend(fontsize=7, ncol=2)
     fig.tight_layout()
