@@ -140,7 +140,8 @@ def test_real_time_rides_through_half_an_edge_and_a_fifth_of_a_mavlink_link_lost
     path = tmp_path / "loss.yaml"
     path.write_text(yaml.safe_dump(cfg))
     out = tmp_path / "rt"
-    r, _ = _run(path, out, "--realtime", "--duration", 25)
+    dur = 16
+    r, _ = _run(path, out, "--realtime", "--duration", dur)
     assert r.returncode == 0, r.stderr + r.stdout
     s = json.loads((out / "summary.json").read_text())
     link = s["links"]["1->4"]
@@ -150,12 +151,12 @@ def test_real_time_rides_through_half_an_edge_and_a_fifth_of_a_mavlink_link_lost
         assert _near(m["lost"], m["received"], 0.2), (way, m)
     # a tick whose sample was lost on the way down uses the one before (older than a period): at
     # least the binomial lower bound of 20 % of the ticks (a late sample adds to it)
-    ticks = 25 * 100
+    ticks = dur * 100
     assert s["inputs"]["3"]["old_samples"] >= ticks * 0.2 - 5 * math.sqrt(ticks * 0.2 * 0.8)
     for i in range(1, 5):
         a = np.load(out / f"follower_{i}.npz")
         e = np.linalg.norm(a["pos_err_m"], axis=1)
-        assert np.nanmax(e[a["t_s"] >= 20]) < 0.1, i
+        assert np.nanmax(e[a["t_s"] >= dur - 4]) < 0.1, i  # converged (under 1 cm at 8 s without faults)
 
 
 def test_a_frozen_controller_puts_its_vehicle_in_failsafe_and_rejoins(tmp_path):
