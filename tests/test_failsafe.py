@@ -24,7 +24,7 @@ from sim_vehicles.plant.failsafe import (
     hold_at,
 )
 from sim_vehicles.plant.params import AttitudeGains, VehicleParams
-from sim_vehicles.vehicle.modes import MODE_FAILSAFE, MODE_OFFBOARD, FlightModes
+from sim_vehicles.vehicle.modes import MODE_FAILSAFE, MODE_HOLD, MODE_OFFBOARD, FlightModes
 
 PARAMS = VehicleParams(0.85, (0.04856, 0.04856, 0.08801), 25.0)
 GAINS = AttitudeGains(16.0, 16.0)
@@ -143,3 +143,33 @@ def test_a_vehicle_set_to_land_lands_and_one_set_to_hold_holds():
         else:
             assert np.linalg.norm(ap.state[POS] - at) < 0.01
         assert np.linalg.norm(ap.state[POS][:2] - at[:2]) < 0.01
+
+
+@pytest.mark.unit
+def test_offboard_needs_a_setpoint_stream_and_a_disarm_in_flight_needs_force():
+    """PX4's rules as the vehicle keeps them: OFFBOARD only while setpoints come (within
+    SP_TIMEOUT_S), an unknown mode denied, Hold holds where it is, a disarm in flight refused
+    unless forced; the heartbeat says armed and active, or standby."""
+    ap = Autopilot(PARAMS, GAINS, make_state([1.0, 2.0, 10.0], [0.0, 0.0, 0.0]), 0.001)
+    events = _Events()
+    f = FlightModes(ap, 7, 0.5, ACTION_HOLD, events, lambda _s, _t: None)  # type: ignore[arg-type]
+    assert f.system_id == 7 and f.mode == MODE_HOLD and not f.armed
+    base, custom, status = f.heartbeat()
+    assert not base & mav.MAV_MODE_FLAG_SAFETY_ARMED and (custom, status) == (px4.HOLD, mav.MAV_STATE_STANDBY)
+    assert not f.take_setpoint()  # in Hold a setpoint is not flown
+    assert f.set_mode(px4.OFFBOARD) == mav.MAV_RESULT_TEMPORARILY_REJECTED  # no stream yet
+    assert f.set_mode(12345) == mav.MAV_RESULT_DENIED and f.mode == MODE_HOLD
+    assert f.arm(True, forced=False) and f.armed
+    base, custom, status = f.heartbeat()
+    assert base & mav.MAV_MODE_FLAG_SAFETY_ARMED and status == mav.MAV_STATE_ACTIVE
+    _step(ap, f, 300)
+    f.offboard_signal_s = ap.time_s - 0.5  # the last setpoint exactly SP_TIMEOUT_S ago: a stream
+    assert f.set_mode(px4.OFFBOARD) == mav.MAV_RESULT_ACCEPTED and f.mode == MODE_OFFBOARD
+    assert f.last_setpoint_s == ap.time_s and events.seen == []
+    assert not f.arm(False, forced=False) and f.armed  # refused in flight
+    assert f.set_mode(px4.HOLD) == mav.MAV_RESULT_ACCEPTED and f.mode == MODE_HOLD
+    held = ap.state[POS].copy()
+    ap.set_command(AttitudeCommand(np.array([1.0, 0.0, 0.0, 0.0]), 0.0))  # what Hold flies is its own
+    _step(ap, f, 3000)
+    assert np.linalg.norm(ap.state[POS] - held) < 0.01
+    assert f.arm(False, forced=True) and not f.armed

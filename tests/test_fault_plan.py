@@ -38,6 +38,23 @@ def _paper(faults: object) -> dict:
         ([{"edge": [1, 4], "loss": 0.1, "jitter_s": 0.1}], r"jitter_s goes with delay_s"),
         ([{"edge": [1, 4], "loss": 1.5}], r"faults\.plan\.0\.loss: .*less than or equal to 1"),
         ([{"edge": [1, 4], "loss": 0.5, "from_s": -1}], r"faults\.plan\.0\.from_s: .*greater than or equal"),
+        (
+            [{"controller": 5, "kill": True, "from_s": 1}],
+            r"faults\.plan\.0\.controller: follower 5 is not 1\.\.4",
+        ),
+        ([{"mavlink": 5, "loss": 0.1}], r"faults\.plan\.0\.mavlink: follower 5 is not 1\.\.4"),
+        (
+            [{"controller": 2, "kill": True, "from_s": 55, "restart_after_s": 5}],
+            r"faults\.plan\.0: controller_2 is back at 60 s, not within the run \(0\.\.60 s\)",
+        ),
+        ([{"controller": 2, "freeze_s": 10, "from_s": 51}], r"controller_2 is back at 61 s, not within"),
+        (
+            [
+                {"controller": 2, "kill": True, "from_s": 5, "restart_after_s": 5},
+                {"controller": 2, "kill": True, "from_s": 9},
+            ],
+            r"faults\.plan\.1: controller_2 is killed again before it is back",
+        ),
     ],
 )
 def test_a_bad_plan_is_one_line_naming_the_entry(plan, message):
@@ -171,6 +188,30 @@ def test_entries_act_in_plan_order_and_a_loss_ends_it():
     rules = _rules({"edge": [1, 4], "reorder": 1.0}, {"edge": [1, 4], "duplicate": 1.0})
     f = fate(0, rules, 5, 0, 0.0, 1.0, 0.01)
     assert (f.lost, f.delay_s, f.duplicate, f.faults) == (False, 0.01, True, (0, 1))
+
+
+def test_the_mixer_is_splitmix64():
+    """The published first outputs of splitmix64 seeded with 0 (Vigna's reference): its state
+    advances by the golden gamma and each output is the finaliser of it, which is ``_mix``."""
+    from swarm_sitl.faults.plan import _mix
+
+    gamma = 0x9E3779B97F4A7C15
+    assert [_mix(k * gamma % 2**64) for k in range(3)] == [
+        0xE220A8397B1DCDAF,
+        0x6E789E6AA1B965F4,
+        0x06C45D188009454F,
+    ]
+
+
+def test_a_plan_within_the_run_is_taken():
+    ok = [
+        {"controller": 1, "kill": True, "from_s": 50, "restart_after_s": 9.99},
+        {"controller": 1, "kill": True, "from_s": 59.995},
+        {"controller": 2, "freeze_s": 9, "from_s": 50},
+        {"mavlink": 4, "loss": 0.1},
+        {"into": 1, "loss": 0.1},
+    ]
+    assert len(parse_config(_paper({"plan": ok}), "paper.yaml").faults.plan) == 5
 
 
 def test_uniform_draws_are_in_the_unit_interval_and_flat():

@@ -212,3 +212,22 @@ def test_closing_never_leaves_a_process_stopped(sup, tmp_path):
     assert _wait_state(leader, "T")
     pf.close()
     assert _wait_state(leader, "S") and not pf.frozen("leader")
+
+
+def test_lockstep_a_lost_aircraft_takes_its_vehicle_when_its_controller_kills_itself(sup, tmp_path):
+    pf = _faults(sup, tmp_path, [{"vehicle": 1, "kill": True, "from_s": 2.0}], lockstep=True)
+    c1 = sup.children["controller_1"]
+    c1.proc.send_signal(signal.SIGKILL)  # the controller reached its planned tick
+    c1.proc.wait(timeout=5)
+    assert not pf.planned_exit(sup.children["controller_2"], -signal.SIGKILL)  # not in the plan
+    assert pf.planned_exit(c1, -signal.SIGKILL) and c1.retired
+    sup.children["vehicle_1"].proc.wait(timeout=5)
+    assert sup.dead("vehicle_1") and sup.children["vehicle_1"].retired
+    assert pf.lost == {1} and pf.down == {1} and sup.spawned == []
+    assert not any(sup.dead(n) for n in sup.children if n not in ("controller_1", "vehicle_1"))
+    t = tick_of(2.0, DT) * DT
+    assert _events(pf, tmp_path) == [
+        ("process_killed", "controller_1", t),
+        ("process_killed", "vehicle_1", t),
+        ("vehicle_lost", "vehicle_1", t),
+    ]
