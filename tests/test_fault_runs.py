@@ -162,34 +162,27 @@ def test_real_time_rides_through_half_an_edge_and_a_fifth_of_a_mavlink_link_lost
 def test_a_frozen_controller_puts_its_vehicle_in_failsafe_and_rejoins(tmp_path):
     """Real time: controller 3 stopped (SIGSTOP) for 2 s by the plan."""
     cfg = yaml.safe_load((CONFIGS / "paper.yaml").read_text())
-    cfg["faults"] = {"plan": [{"controller": 3, "freeze_s": 2, "from_s": 8}]}
+    cfg["faults"] = {"plan": [{"controller": 3, "freeze_s": 2, "from_s": 6}]}
     path = tmp_path / "freeze.yaml"
     path.write_text(yaml.safe_dump(cfg))
     out = tmp_path / "rt"
-    r, _ = _run(path, out, "--realtime", "--duration", 18)
+    r, _ = _run(path, out, "--realtime", "--duration", 15)
     assert r.returncode == 0, r.stderr + r.stdout
     ev = [json.loads(x) for x in (out / "events.jsonl").read_text().splitlines()]
     frozen = [e["t_s"] for e in ev if e["kind"] == "process_frozen"]
     thawed = [e["t_s"] for e in ev if e["kind"] == "process_thawed"]
     # during the run (once its controller has finished, a vehicle left running fails safe too)
-    fs = [(e["kind"], e["t_s"]) for e in ev if e.get("vehicle") == 3 and e["t_s"] < 17.5]
+    fs = [(e["kind"], e["t_s"]) for e in ev if e.get("vehicle") == 3 and e["t_s"] < 14.5]
     assert len(frozen) == len(thawed) == 1 and 1.9 < thawed[0] - frozen[0] < 2.3
     # its vehicle noticed the silence after its setpoint timeout, and took the stream back
     assert [k for k, _ in fs] == ["failsafe_enter", "failsafe_exit"], fs
     assert 0.4 < fs[0][1] - frozen[0] < 0.7 and thawed[0] - 0.1 < fs[1][1] < thawed[0] + 0.5
     a = np.load(out / "follower_3.npz")
     e = np.linalg.norm(a["pos_err_m"], axis=1)
-    # it did drift while held: its vehicle hovers where the failsafe began while the reference
-    # goes on, so by 10 s the error is at least half of how far the reference went since then
-    ref = np.load(out / "leader.npz")
-    went = np.linalg.norm(
-        [
-            np.interp(10.0, ref["t_s"], ref["p_r"][:, k]) - np.interp(fs[0][1], ref["t_s"], ref["p_r"][:, k])
-            for k in range(3)
-        ]
-    )
-    assert went > 1.0 and np.nanmax(e[(a["t_s"] > 10) & (a["t_s"] < 11)]) > 0.5 * went
-    assert np.nanmax(e[a["t_s"] >= 16]) < 0.05  # and is back
+    # it did drift while held (its vehicle hovers where the failsafe began while the reference goes
+    # on at 1.4 m/s or more): at its release the error is ten times the bound it comes back under
+    assert np.nanmax(e[(a["t_s"] > 8) & (a["t_s"] < 9)]) > 10 * 0.05
+    assert np.nanmax(e[a["t_s"] >= 13]) < 0.05  # and is back, 5 s after its release
 
 
 def test_an_unplanned_stop_fails_the_run_naming_the_stopped_process(tmp_path):
