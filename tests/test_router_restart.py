@@ -18,7 +18,9 @@ from tests.test_swarm_processes import _udp_free, _vehicle_ports
 
 pytestmark = pytest.mark.system
 CLI = [sys.executable, "-m", "swarm_sitl"]
-BOUND_M = 0.01  #: the paper swarm's error is under 1 mm once converged (README): ten times that
+#: the bound the real-time paper run holds (test_swarm_processes): a converged follower is under
+#: 1 mm, and a real-time tick on a loaded machine spikes to 1 cm now and then (seen here)
+BOUND_M = 0.05
 BACK_WITHIN_S = 10.0
 
 

@@ -95,6 +95,18 @@ def _write_stats(path: Path, stats: dict[str, Any]) -> None:
     tmp.replace(path)
 
 
+def _faulty_bus(
+    cfg: SwarmConfig, zbus: ZenohNodeBus, node: int, clock: RunClock, resume_tick: int
+) -> FaultyBus | None:
+    """Node ``node``'s bus under the fault plan, if the plan acts on it."""
+    edges = cfg.graph_edges()
+    if not acts_on(cfg.faults, node, edges):
+        return None
+    return FaultyBus(
+        zbus, cfg.faults, node, edges, clock, cfg.duration_s, cfg.run.stall_timeout_s, resume_tick
+    )
+
+
 def in_edge_stats(zbus: Any, faulty: Any) -> dict[int, dict[str, int]]:
     """Per in-neighbour: what came (``received``), what the fault plan let through
     (``delivered``), and what the bus refused (``refused``, only if any)."""
@@ -118,7 +130,6 @@ def cmd_controller(cfg: SwarmConfig, args: argparse.Namespace) -> int:
             file=sys.stderr,
         )
         return EXIT_USAGE
-    edges = cfg.graph_edges()
 
     def body() -> str:
         rows = events = link = session = None
@@ -151,18 +162,7 @@ def cmd_controller(cfg: SwarmConfig, args: argparse.Namespace) -> int:
                     k for k, _ in cfg.faults.outages(cfg.control_dt_s).get(i, []) if k > args.resume_tick
                 ]
                 zbus.counted_steps = range(args.resume_tick, min([*kills, cfg.n_control_steps]))
-            faulty = None
-            if acts_on(cfg.faults, i, edges):
-                faulty = FaultyBus(
-                    zbus,
-                    cfg.faults,
-                    i,
-                    edges,
-                    clock,
-                    cfg.duration_s,
-                    cfg.run.stall_timeout_s,
-                    args.resume_tick,
-                )
+            faulty = _faulty_bus(cfg, zbus, i, clock, args.resume_tick)
             counted = [x for x in (faulty, link_faults) if x is not None]
             if out is not None and counted:  # what it counts under the plan outlives a kill
                 names = [n for x in counted for n in x.counts_names()]
@@ -203,7 +203,6 @@ def cmd_leader(cfg: SwarmConfig, args: argparse.Namespace) -> int:
     """The leader's process."""
     mark("main")
     outs = cfg.node_keys(0).out_dests
-    edges = cfg.graph_edges()
 
     def body() -> str:
         session = None
@@ -216,18 +215,7 @@ def cmd_leader(cfg: SwarmConfig, args: argparse.Namespace) -> int:
             zbus.horizon = _horizon(clock, cfg.n_control_steps)
             if args.out:
                 zbus.published_file = CounterFile(published_path(Path(args.out), 0, args.incarnation))
-            node_bus: NodeBus = zbus
-            if acts_on(cfg.faults, 0, edges):
-                node_bus = FaultyBus(
-                    zbus,
-                    cfg.faults,
-                    0,
-                    edges,
-                    clock,
-                    cfg.duration_s,
-                    cfg.run.stall_timeout_s,
-                    args.resume_tick,
-                )
+            node_bus: NodeBus = _faulty_bus(cfg, zbus, 0, clock, args.resume_tick) or zbus
             bus = node_bus
             rep = run_leader(cfg, node_bus, args.lockstep, outs, clock, args.resume_tick)
             if args.out:
