@@ -112,3 +112,22 @@ def test_a_killed_receivers_counts_add_up_with_its_restarted_incarnation(swarm):
         total = r.links[f"mavlink 4 {way}"]["received"]
         again = json.loads((r.run_dir / "procs" / "controller_4.1.stats.json").read_text())["mavlink"][way]
         assert total == again["received"] + killed[f"mavlink {way} received"], way
+
+
+@pytest.mark.unit
+def test_a_counts_file_with_names_this_version_does_not_write_is_read_for_what_it_has(tmp_path):
+    """merge never fails on a killed incarnation's counts: names it does not know are left out."""
+    from sim_vehicles.runtime.counter_file import NamedCounts
+    from swarm_sitl.faults.counts import EdgeStats
+    from swarm_sitl.rundir.merge import _killed_stats
+
+    names = ["odd", *(f"in 2 {f}" for f in EdgeStats.FIELDS), "x y received", "in 3 received"]
+    c = NamedCounts(tmp_path / "c.counts", names)
+    c.values[1] = 5  # in 2 received
+    c.values[3] = 2  # in 2 lost
+    got = _killed_stats(tmp_path / "c.counts")
+    assert got == {
+        "in_edges": {"2": {**dict.fromkeys(sorted(EdgeStats.FIELDS), 0), "received": 5, "lost": 2}},
+        "mavlink": {},
+    }
+    assert _killed_stats(tmp_path / "none.counts") == {"in_edges": {}, "mavlink": {}}

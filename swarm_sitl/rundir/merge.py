@@ -135,9 +135,10 @@ def _killed_stats(path: Path) -> dict[str, Any]:
     counts = read_named_counts(path) or {}
     out: dict[str, Any] = {"in_edges": {}, "mavlink": {}}
     for name in counts:
-        head, who, field = name.split(" ", 2)
-        if field != EdgeStats.FIELDS[0]:
-            continue
+        parts = name.split(" ", 2)  # "in 3 received", "mavlink up lost"
+        if len(parts) != 3 or parts[0] not in ("in", "mavlink") or parts[2] != EdgeStats.FIELDS[0]:
+            continue  # not a count this version writes: left out
+        head, who, _ = parts
         st = stats_from_counts(counts, f"{head} {who}")
         if st is not None:  # in the order a .stats.json has them (sorted)
             out["in_edges" if head == "in" else "mavlink"][who] = dict(sorted(st.items()))
