@@ -5,8 +5,8 @@ Every node is a client of the router, and zenoh reconnects a client by itself wh
 comes back on the same endpoint (in a few seconds: its retry period), declaring its subscriptions
 and liveliness token again. In real time the swarm rides through: each controller carries its
 neighbours' last estimates, then leaves them out when they are stale, as with any silent edge,
-and takes them again when they come. What the estimates sent while the router was away cannot be
-sent again, so a lockstep run, whose ticks wait for every one of them, cannot resume: it ends at
+and takes them again when they come. The estimates sent while the router was away are not sent
+again, so a lockstep run, whose ticks wait for every one of them, cannot resume: it ends at
 once with one line naming the router (rather than after the stall timeout, naming a node).
 
 The supervisor looks every ``WATCH_EVERY_S`` (a call of some 30 us); the router's loss and return
@@ -32,7 +32,6 @@ class RouterWatch:
         self.events = events
         self.lockstep = lockstep
         self.present = True
-        self.losses = 0
         self._next = 0.0
 
     def routers(self) -> int:
@@ -49,7 +48,6 @@ class RouterWatch:
             return
         self.present = present
         if not present:
-            self.losses += 1
             self.events.add(round(run_s, 3), "router_lost", router=self.endpoints)
             if self.lockstep:
                 raise RunFailedError(
