@@ -1,3 +1,4 @@
+import os
 from pathlib import Path
 
 import pytest
@@ -22,6 +23,23 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
             bad.append(f"{item.nodeid}: {layers or 'none'}")
     if bad:
         raise pytest.UsageError(f"mark each test with one of {', '.join(LAYERS)}:\n" + "\n".join(bad))
+
+
+@pytest.fixture(scope="session", autouse=True)
+def compiled_kernels(request: pytest.FixtureRequest) -> None:
+    """Before the first test that starts processes: every kernel a vehicle and a node run compiled
+    into numba's disk cache, once, here. On a fresh machine (CI) the first swarm's processes
+    would otherwise each compile them at once (two namespaces' worth in the two-host test, over
+    a minute on two cores), inside the test's time limits."""
+    if os.environ.get("NUMBA_DISABLE_JIT") == "1":
+        return
+    if not any(item.get_closest_marker("system") for item in request.session.items):
+        return
+    import sim_vehicles.mavlink.signing as signing
+    from swarm_sitl.running.fork_server import _warm_up
+
+    _warm_up(str(CONFIGS / "paper.yaml"))
+    signing.warm_up()
 
 
 @pytest.fixture(scope="session")

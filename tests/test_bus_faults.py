@@ -392,19 +392,30 @@ def test_every_mavlink_datagram_meets_the_fate_the_plan_draws_for_it_and_is_coun
     from swarm_sitl.faults.mavlink import MavlinkFaults, _flipped
     from swarm_sitl.faults.plan import fate, mavlink_channel
 
-    entries = [{"mavlink": 1, "loss": 0.2}, {"mavlink": 1, "corrupt": 0.2}]
+    entries = [
+        {"mavlink": 1, "loss": 0.2},
+        {"mavlink": 1, "corrupt": 0.2},
+        {"mavlink": 1, "loss": 0.5, "from_s": 2.0, "until_s": 3.0},  # read at the stamp, or at arrival
+    ]
     if not lockstep:
-        entries += [{"mavlink": 1, "direction": "up", "delay_s": 0.03}, {"mavlink": 1, "duplicate": 0.2}]
+        entries += [
+            {"mavlink": 1, "direction": "up", "delay_s": 0.03},
+            {"mavlink": 1, "direction": "down", "delay_s": 0.05},
+            {"mavlink": 1, "duplicate": 0.2},
+            {"mavlink": 1, "reorder": 0.1},
+        ]
     plan = FaultPlan(seed=9, plan=entries)
     clock: RunClock = RunClock(True, DT) if lockstep else _Clock()
     lf = MavlinkFaults(plan, 1, clock, 60.0)
     n = 400
     want = {"up": dict.fromkeys(EdgeStats.FIELDS, 0), "down": dict.fromkeys(EdgeStats.FIELDS, 0)}
+    held: list[tuple[float, str, bytes]] = []  # real time: what the model holds, (due, way, data)
     order = 0
-    for k in range(1, n + 1):
+    for k in range(n + 1):
         ms = k * 10
+        now = 1.0 + k * DT  # real time: the run's clock is a second ahead of the stamps
         if not lockstep:
-            clock.t = k * DT  # type: ignore[attr-defined]
+            clock.t = now  # type: ignore[attr-defined]
         for way in ("up", "down"):
             rules = plan.on_mavlink(1, way == "up")
             key = ms if lockstep else order
@@ -413,7 +424,7 @@ def test_every_mavlink_datagram_meets_the_fate_the_plan_draws_for_it_and_is_coun
                 rules,
                 mavlink_channel(1, way == "up"),
                 key,
-                ms / 1000 if lockstep else k * DT,
+                ms / 1000 if lockstep else now,
                 60.0,
                 DT,
             )
@@ -432,7 +443,6 @@ def test_every_mavlink_datagram_meets_the_fate_the_plan_draws_for_it_and_is_coun
                     w["corrupt"] += 1
                     assert written == [_flipped(frame, plan.seed, mavlink_channel(1, True), key)], k
                     assert clock_only == ([ms + 10] if lockstep else []), k
-                    assert sum(a != b for a, b in zip(written[0], frame, strict=True)) == 1
                 elif f.delay_s > 0:
                     w["delayed"] += 1
                     assert written == [] and lf.next_due_s() is not None
@@ -447,6 +457,9 @@ def test_every_mavlink_datagram_meets_the_fate_the_plan_draws_for_it_and_is_coun
                 elif f.corrupt:
                     w["corrupt"] += 1
                     assert got == _flipped(frame, plan.seed, mavlink_channel(1, False), key), k
+                elif f.delay_s > 0:
+                    w["delayed"] += 1
+                    assert got is None, k
                 else:
                     w["delivered"] += 1
                     assert got == frame, k
@@ -454,12 +467,19 @@ def test_every_mavlink_datagram_meets_the_fate_the_plan_draws_for_it_and_is_coun
                 w["duplicated"] += 1
                 w["delivered"] += 1  # once more, a period later
                 order += 0 if lockstep else 1  # (a held datagram takes a number of the order)
+                held.append((now + (f.delay_s + DT), way, frame))
             if f.delay_s > 0 and not (f.lost or f.corrupt):
                 w["delivered"] += 1  # when due
                 order += 0 if lockstep else 1
-        if not lockstep:  # what is due goes out or is read, in time order
+                held.append((now + f.delay_s, way, frame))
+        if not lockstep:  # what is due goes out (uplink) or is read (downlink), and only that
+            assert lf.next_due_s() == (pytest.approx(min(h[0] for h in held)) if held else None)
             released_up: list[bytes] = []
-            lf.release(released_up.append)
+            released_down = lf.release(released_up.append)
+            due = [h for h in held if h[0] <= now]
+            held = [h for h in held if h[0] > now]
+            assert sorted(released_up) == sorted(d for _, w_, d in due if w_ == "up"), k
+            assert sorted(released_down) == sorted(d for _, w_, d in due if w_ == "down"), k
     if not lockstep:
         clock.t = 1e6  # type: ignore[attr-defined]
         lf.release(lambda _d: None)
@@ -470,9 +490,32 @@ def test_every_mavlink_datagram_meets_the_fate_the_plan_draws_for_it_and_is_coun
         assert got == want[way], (way, got, want[way])
         assert want[way]["lost"] > 0 and want[way]["corrupt"] > 0
         if not lockstep:
-            assert want[way]["duplicated"] > 0
-    if not lockstep:
-        assert lf.stats["up"].delays_s == [0.03] * lf.stats["up"].delayed and lf.stats["up"].delayed > 0
+            assert want[way]["duplicated"] > 0 and want[way]["delayed"] > 0
+            delays = lf.stats[way].delays_s
+            assert len(delays) == lf.stats[way].delayed and set(delays) >= {0.03 if way == "up" else 0.05}
+
+
+def test_a_corruption_flips_one_byte_which_the_seed_and_the_datagram_pick():
+    from swarm_sitl.faults.mavlink import _flipped
+
+    data = b"\xff" * 40  # a byte set to 0xff would change nothing here
+    where = []
+    for key in range(400):
+        b = _flipped(data, 9, 7, key)
+        changed = [i for i in range(len(data)) if b[i] != data[i]]
+        assert len(changed) == 1 and b[changed[0]] == 0x00
+        where.append(changed[0])
+    assert len(set(where)) == len(data)  # every byte can be the one
+    assert where != [next(i for i in range(40) if _flipped(data, 10, 7, k)[i] != 0xFF) for k in range(400)]
+
+
+def test_a_sample_is_a_datagram_that_starts_with_a_whole_local_position_ned():
+    from swarm_sitl.faults.mavlink import sample_ms
+
+    lpos = _lpos_datagram(123_456)
+    assert sample_ms(lpos) == 123_456 and sample_ms(lpos[:14]) == 123_456 and sample_ms(lpos[:13]) is None
+    assert sample_ms(lpos + b"\xff" * 4) == 123_456  # what follows is not the stamp
+    assert sample_ms(b"\xfe" + lpos[1:]) is None  # MAVLink 1's magic
 
 
 def test_the_delay_summary_is_the_median_p99_and_max_of_the_delays():
@@ -485,7 +528,144 @@ def test_the_delay_summary_is_the_median_p99_and_max_of_the_delays():
     assert d["delayed"] == 200 and all(isinstance(d[k], int) for k in EdgeStats.FIELDS)
     st.delays_s = [0.5]
     assert st.as_dict()["delay_s"] == {"median": 0.5, "p99": 0.5, "max": 0.5}
+    st.delays_s = [0.3, 0.1, 0.2, 0.5, 0.4]  # under 100 delays, the 99th percentile is the largest
+    assert st.as_dict()["delay_s"] == {"median": 0.3, "p99": 0.5, "max": 0.5}
     view = np.zeros(len(EdgeStats.FIELDS), dtype=np.int64)
     st.bind(view)  # the counts so far move with it
     st.lost += 3
     assert view.tolist() == [0, 0, 3, 0, 200, 0]
+
+
+def test_an_in_neighbour_is_settled_for_the_steps_that_arrived_and_those_the_plan_has_it_down():
+    bus, inner, _clock = _bus({"controller": 1, "kill": True, "from_s": 1.0, "restart_after_s": 0.5})
+    assert not bus.settled(1, 0) and not bus.settled(2, 0)  # nothing arrived yet
+    inner.arrive(1, 5)
+    inner.arrive(1, 3)  # an older step after a newer one: what arrived is still up to 5
+    bus.poll()
+    assert bus.settled(1, 5) and not bus.settled(1, 6) and not bus.settled(2, 0)
+    assert [k for k in range(90, 160) if bus.settled(1, k)] == list(range(100, 150))  # down 100..149
+
+
+class _Gated(_Publisher):
+    """A publisher whose out-neighbours' progress the test sets (and moves after some polls)."""
+
+    def __init__(self, alive: dict[int, int], progress: dict[int, int], later: dict[int, int] | None = None):
+        super().__init__(alive)
+        self.at = dict(progress)
+        self.later, self.polls = later or {}, 0
+
+    def progress(self, follower: int) -> int:
+        return self.at.get(follower, -1)
+
+    def poll(self) -> None:
+        self.polls += 1
+        if self.polls == 20:
+            self.at.update(self.later)
+
+
+def _leader_bus(plan: FaultPlan, inner: _Publisher, resume: int = 0, timeout_s: float = 0.2) -> FaultyBus:
+    return FaultyBus(inner, plan, 0, EDGES, RunClock(True, DT), 60.0, timeout_s, resume)  # type: ignore[arg-type]
+
+
+def _publish(bus: FaultyBus, step: int) -> None:
+    bus.publish(Message(0, step, step * DT, np.zeros(12)))
+
+
+def test_a_publisher_waits_for_each_restarted_reader_at_its_tick_and_not_before():
+    plan = FaultPlan(
+        plan=[
+            {"controller": 1, "kill": True, "from_s": 3.0, "restart_after_s": 1.0},  # back at 400
+            {"controller": 2, "kill": True, "from_s": 4.5, "restart_after_s": 0.5},  # back at 500
+        ]
+    )
+    inner = _Gated({1: 1, 2: 1}, {1: 400})
+    bus = _leader_bus(plan, inner)
+    _publish(bus, 399)  # no reader is due back yet: no wait (2 reports no progress at all)
+    _publish(bus, 400)  # 1 has done its tick 400 again: exactly what is waited for
+    with pytest.raises(StallError, match=r"node 0 at tick 500: node 2 did not come back .*waited 0\.\d s"):
+        _publish(bus, 500)  # the second gate is still there after the first
+    slow = _leader_bus(plan, _Gated({1: 1, 2: 1}, {}, later={1: 400}), timeout_s=2.0)
+    _publish(slow, 400)  # back after some polls, well within the stall timeout
+    assert slow.inner.sent == [400]
+
+
+def test_a_restarted_node_waits_for_its_readers_liveliness_and_one_back_with_it_counts_as_before_it():
+    """Restarted at 650, the leader waits for each out-neighbour's liveliness token; an
+    out-neighbour restarted at the same tick may have sent its first status before this session
+    could hear it, so it is judged by its token too (waiting for that status could hang)."""
+    own = FaultPlan(plan=[{"leader": True, "kill": True, "from_s": 6.0, "restart_after_s": 0.5}])
+    with pytest.raises(StallError, match="node 0 at tick 650: node 1 did not come back"):
+        _publish(_leader_bus(own, _Gated({}, {}), resume=650), 650)
+    both = FaultPlan(
+        plan=[
+            {"leader": True, "kill": True, "from_s": 6.0, "restart_after_s": 0.5},
+            {"controller": 1, "kill": True, "from_s": 6.2, "restart_after_s": 0.3},  # also back at 650
+        ]
+    )
+    bus = _leader_bus(both, _Gated({1: 1, 2: 1}, {}), resume=650)
+    _publish(bus, 650)
+    assert bus.inner.sent == [650]
+
+
+def test_a_node_the_plan_kills_kills_itself_at_its_tick_in_lockstep_only(monkeypatch):
+    killed: list[tuple[int, int]] = []
+    monkeypatch.setattr("swarm_sitl.faults.edges.os.kill", lambda pid, sig: killed.append((pid, sig)))
+    plan = FaultPlan(plan=[{"leader": True, "kill": True, "from_s": 1.0}])
+
+    class Inner(_Gated):
+        def lost(self) -> set[int]:
+            return set()
+
+        def fileno(self) -> int:
+            return -1
+
+    inner = Inner({1: 1, 2: 1}, {1: 100, 2: 100})
+    bus = _leader_bus(plan, inner)
+    _publish(bus, 99)
+    assert killed == []
+    _publish(bus, 100)  # its readers have done tick 100: the kill loses nothing before it
+    import os
+    import signal
+
+    assert killed == [(os.getpid(), signal.SIGKILL)]
+    real = FaultyBus(Inner({}, {}), plan, 0, EDGES, _Clock(), 60.0)  # type: ignore[arg-type]
+    _publish(real, 100)  # in real time the supervisor kills, at the plan's wall-clock time
+    assert killed == [(os.getpid(), signal.SIGKILL)] and real.outages == {} and real.own_outages == []
+
+
+def test_lost_leaves_out_the_neighbours_the_plan_brings_back():
+    plan = FaultPlan(
+        plan=[
+            {"controller": 1, "kill": True, "from_s": 1.0, "restart_after_s": 0.5},
+            {"controller": 2, "kill": True, "from_s": 1.0},
+        ]
+    )
+
+    class Inner(_Gated):
+        def lost(self) -> set[int]:
+            return {1, 2}
+
+    assert _leader_bus(plan, Inner({}, {})).lost() == {2}
+
+
+def test_in_real_time_the_window_is_read_at_arrival_and_a_duplicate_follows_one_period_later():
+    clock = _Clock()
+    inner = MemoryBus()
+    plan = FaultPlan(plan=[{"edge": [1, 4], "duplicate": 1.0, "from_s": 5.0, "until_s": 15.0}])
+    bus = FaultyBus(inner, plan, 4, EDGES, clock, 60.0)  # type: ignore[arg-type]
+    clock.t = 10.0
+    inner.arrive(1, 50)  # sent for t = 0.5 s, arrives at 10 s: inside the window
+    bus.poll()
+    assert bus.stats[1].duplicated == 1 and bus.stats[1].delayed == 0 and bus.stats[1].delays_s == []
+    assert sorted(due for due, _, _ in bus._pending) == [10.0, pytest.approx(10.0 + DT)]  # and its copy
+
+
+def test_a_corruption_of_a_byte_that_is_0xff_still_changes_it():
+    """Estimates whose bytes are mostly 0xff: the flipped byte is always changed (a byte set to
+    0xff instead would leave most of these intact)."""
+    bus, inner, _clock = _bus({"edge": [1, 4], "corrupt": 1.0})
+    ones = np.frombuffer(b"\xff\xff\xff\xff\xff\xff\xef\x3f" * 12, np.float64)  # 0.9999999999999999
+    for k in range(40):
+        inner.wire.append(Message(1, k, k * DT, ones.copy()))
+    bus.poll()
+    assert bus.stats[1].corrupt == 40 and not any(src == 1 for src, _ in inner.table)

@@ -2,6 +2,7 @@
 and the hold and the landing it flies, closed loop on the plant and the attitude loop."""
 
 import math
+import time
 
 import numpy as np
 import pytest
@@ -173,3 +174,103 @@ def test_offboard_needs_a_setpoint_stream_and_a_disarm_in_flight_needs_force():
     _step(ap, f, 3000)
     assert np.linalg.norm(ap.state[POS] - held) < 0.01
     assert f.arm(False, forced=True) and not f.armed
+
+
+def _level(yaw_rad: float = 0.0) -> np.ndarray:
+    return np.array([math.cos(yaw_rad / 2), 0.0, 0.0, math.sin(yaw_rad / 2)])
+
+
+@pytest.mark.unit
+@pytest.mark.parametrize("yaw", [0.5, 2.5, -2.0])
+def test_the_hold_keeps_the_heading_the_vehicle_had(yaw):
+    tilted = qmul(_level(yaw), np.array([math.cos(0.1), math.sin(0.1), 0.0, 0.0]))  # rolled a little
+    state = make_state([1.0, 2.0, 3.0], [0.0, 0.0, 0.0])
+    state[6:10] = tilted
+    hold = hold_at(state, 4.0)
+    assert hold.yaw_rad == pytest.approx(yaw, abs=1e-9) and hold.p_W.tolist() == [1.0, 2.0, 3.0]
+
+
+@pytest.mark.unit
+def test_the_failsafe_command_in_closed_form():
+    """At the hold point and at rest: hover thrust, level, heading kept. Land, 0.5 s after a loss at
+    t = 5 s: the target 0.35 m lower, descending at the landing speed. Far off: the tilt limit, the
+    horizontal direction kept; far above: never less than a fifth of g up."""
+    g, m = PARAMS.g_mps2, PARAMS.mass_kg
+    state = make_state([1.0, 2.0, 10.0], [0.0, 0.0, 0.0])
+    hold = hold_at(state, 5.0)
+    c = failsafe_command(state, hold, 5.5, ACTION_HOLD, PARAMS)
+    assert c.thrust_N == pytest.approx(m * g) and np.allclose(c.q_c, _level())
+    land = failsafe_command(state, hold, 5.5, ACTION_LAND, PARAMS)
+    az = -4.0 * (10.0 - (10.0 - LAND_SPEED_MPS * 0.5)) - 4.0 * (0.0 + LAND_SPEED_MPS) + g
+    assert land.thrust_N == pytest.approx(m * az) and np.allclose(land.q_c, _level())
+    off = make_state([1.0 - 10.0, 2.0 - 5.0, 10.0], [0.0, 0.0, 0.0])  # 10 m west, 5 m south
+    c = failsafe_command(off, hold, 5.5, ACTION_HOLD, PARAMS)
+    z_body = rotation_matrix(c.q_c)[:, 2]
+    assert math.degrees(math.acos(z_body[2])) == pytest.approx(30.0)  # the tilt limit
+    assert math.atan2(z_body[1], z_body[0]) == pytest.approx(math.atan2(5.0, 10.0))  # towards the hold
+    assert c.thrust_N == pytest.approx(min(m * g / math.cos(math.radians(30.0)), PARAMS.max_thrust_N))
+    high = make_state([1.0, 2.0, 110.0], [0.0, 0.0, 0.0])
+    c = failsafe_command(high, hold, 5.5, ACTION_HOLD, PARAMS)
+    assert c.thrust_N == pytest.approx(0.2 * m * g) and np.allclose(c.q_c, _level())
+
+
+@pytest.mark.unit
+def test_hold_mode_holds_whatever_the_failsafe_action_and_arming_holds_where_it_is():
+    ap, f, _said, _events = _modes(ACTION_LAND, 0.5)
+    assert f.set_mode(px4.HOLD) == mav.MAV_RESULT_ACCEPTED
+    held = ap.state[POS].copy()
+    _step(ap, f, 2000)
+    assert np.linalg.norm(ap.state[POS] - held) < 0.01  # Hold is not the landing
+    # armed (again) in Hold: the hold point is where it is then, not where it was before
+    assert f.arm(False, forced=True)
+    ap.state[POS] = [5.0, 5.0, 5.0]
+    ap.state[VEL] = 0.0
+    assert f.arm(True, forced=False)
+    _step(ap, f, 2000)
+    assert np.linalg.norm(ap.state[POS] - [5.0, 5.0, 5.0]) < 0.01
+    p = ap.state[POS].copy()
+    assert f.arm(True, forced=False)  # armed already: the hold point stays
+    assert f.set_mode(px4.HOLD) == mav.MAV_RESULT_ACCEPTED  # Hold again: it stays too
+    ap.state[POS] = p + np.array([1.0, 0.0, 0.0])
+    _step(ap, f, 3000)
+    assert np.linalg.norm(ap.state[POS] - [5.0, 5.0, 5.0]) < 0.05
+
+
+@pytest.mark.unit
+def test_entering_and_leaving_the_failsafe_is_said_and_recorded_naming_the_vehicle():
+    severities: list[tuple[int, str]] = []
+    ap, f, _said, events = _modes(ACTION_LAND, 0.05)
+    f.say = lambda sev, text: severities.append((sev, text))
+    before = time.time()
+    while f.mode == MODE_OFFBOARD:
+        _step(ap, f, 1)
+    assert f.take_setpoint()
+    f.check_failsafe()
+    _step(ap, f, 100)
+    assert f.mode == MODE_FAILSAFE
+    assert f.set_mode(px4.HOLD) == mav.MAV_RESULT_ACCEPTED  # leaving it by a mode change
+    kinds = [(kind, fields.get("vehicle"), fields.get("action")) for _t, kind, fields in events.seen]
+    assert kinds == [
+        ("failsafe_enter", 1, "land"),
+        ("failsafe_exit", 1, None),
+        ("failsafe_enter", 1, "land"),
+        ("failsafe_exit", 1, None),
+    ]
+    assert all(before <= fields["unix_s"] <= time.time() for _t, _k, fields in events.seen)
+    assert severities[:2] == [
+        (mav.MAV_SEVERITY_WARNING, "Failsafe: offboard setpoints lost, land"),
+        (mav.MAV_SEVERITY_NOTICE, "Failsafe cleared: offboard setpoints back"),
+    ]
+
+
+@pytest.mark.unit
+def test_the_own_position_loop_runs_once_every_failsafe_period():
+    ap, f, _said, _events = _modes(ACTION_HOLD, 0.05)
+    while f.mode == MODE_OFFBOARD:
+        _step(ap, f, 1)
+    calls = []
+    real = ap.set_command
+    ap.set_command = lambda c: (calls.append(ap.step_index), real(c))  # type: ignore[method-assign]
+    _step(ap, f, 1000)  # 1 s
+    assert len(calls) == round(1.0 / FAILSAFE_PERIOD_S)
+    assert np.diff(calls).tolist() == [round(FAILSAFE_PERIOD_S / ap.dt_s)] * (len(calls) - 1)

@@ -225,3 +225,80 @@ def test_uniform_draws_are_in_the_unit_interval_and_flat():
 
 def test_an_empty_plan_is_the_default(paper_cfg):
     assert paper_cfg.faults == FaultPlan()
+
+
+def _plan(*entries: dict) -> FaultPlan:
+    return parse_config(_paper({"plan": list(entries)}), "paper.yaml").faults
+
+
+def test_outages_are_the_ticks_each_killed_node_is_down_and_when_it_is_back():
+    plan = _plan(
+        {"edge": [1, 4], "loss": 0.5},  # not a process fault: no outage
+        {"controller": 2, "kill": True, "from_s": 1.0, "restart_after_s": 0.5},
+        {"vehicle": 3, "kill": True, "from_s": 2.0, "with_controller": False},  # its controller lives on
+        {"vehicle": 4, "kill": True, "from_s": 3.004},  # and takes its controller, for good
+        {"leader": True, "kill": True, "from_s": 4.0, "restart_after_s": 1.0},
+        {"controller": 2, "kill": True, "from_s": 10.0},
+    )
+    assert plan.outages(0.01) == {2: [(100, 150), (1000, None)], 4: [(301, None)], 0: [(400, 500)]}
+    assert plan.outages(0.02) == {2: [(50, 75), (500, None)], 4: [(151, None)], 0: [(200, 250)]}
+    from swarm_sitl.faults.plan import down_at
+
+    down = [k for k in range(0, 1100) if down_at(plan.outages(0.01)[2], k)]
+    assert down == [*range(100, 150), *range(1000, 1100)]  # from the kill's tick to the one before back
+
+
+def test_the_first_tick_at_or_after_a_time():
+    from swarm_sitl.faults.plan import tick_of
+
+    assert [tick_of(t, 0.01) for t in (0.0, 0.01, 0.015, 0.03, 1.0, 2.999)] == [0, 1, 2, 3, 100, 300]
+    assert tick_of(0.1 + 0.2, 0.1) == 3  # 0.30000000000000004 s is tick 3, not 4
+
+
+def test_entries_are_checked_in_time_order_and_a_kill_at_the_instant_of_return_is_refused():
+    later_first = [
+        {"controller": 2, "kill": True, "from_s": 5.0},
+        {"controller": 2, "kill": True, "from_s": 1.0, "restart_after_s": 1.0},  # back at 2 s
+    ]
+    assert len(_plan(*later_first).plan) == 2
+    at_return = [later_first[1], {"controller": 2, "kill": True, "from_s": 2.0}]
+    with pytest.raises(ConfigError, match=r"faults\.plan\.1: controller_2 is killed again before it is back"):
+        _plan(*at_return)
+    assert _plan({"edge": [1, 4], "drop": True, "until_s": 60.0}).plan[0].until_s == 60.0  # to the end
+
+
+def test_a_link_entry_stops_no_process_and_a_process_entry_names_no_edge():
+    plan = _plan({"edge": [1, 4], "drop": True}, {"controller": 2, "kill": True, "from_s": 1})
+    graph = [(0, 1), (1, 4), (2, 4)]
+    assert plan.plan[0].victims() == [] and plan.plan[1].edges(graph) == []
+    assert plan.plan[0].edges(graph) == [(1, 4)] and plan.plan[1].victims() == ["controller_2"]
+
+
+def test_delays_of_several_entries_add_up():
+    dt = 0.01
+    two = _rules({"edge": [1, 4], "delay_s": 0.1}, {"edge": [1, 4], "delay_s": 0.2})
+    assert fate(0, two, 5, 0, 0.0, 1.0, dt).delay_s == pytest.approx(0.3)
+    stall = _rules({"edge": [1, 4], "delay_s": 0.1}, {"edge": [1, 4], "stall": True, "until_s": 0.5})
+    assert fate(0, stall, 5, 0, 0.2, 1.0, dt).delay_s == pytest.approx(0.1 + 0.3)
+    reorder = _rules({"edge": [1, 4], "delay_s": 0.1}, {"edge": [1, 4], "reorder": 1.0})
+    assert fate(0, reorder, 5, 0, 0.0, 1.0, dt).delay_s == pytest.approx(0.1 + dt)
+    # an entry outside its window is passed over, not the end of the rules
+    later = _rules({"edge": [1, 4], "delay_s": 0.1, "from_s": 0.5}, {"edge": [1, 4], "drop": True})
+    assert fate(0, later, 5, 0, 0.0, 1.0, dt).lost
+
+
+def test_jitter_draws_are_their_own_per_seed_entry_and_channel():
+    """The jitter of a message is not a function of its loss draw, and differs with the seed, the
+    entry and the channel as the loss draws do."""
+    rules = _rules({"edge": [1, 4], "delay_s": 0.0, "jitter_s": 1.0})
+    rules2 = _rules({"edge": [1, 4], "loss": 1e-12}, {"edge": [1, 4], "delay_s": 0.0, "jitter_s": 1.0})
+    n = 2000
+
+    def jitters(seed, rules, ch):
+        return np.array([fate(seed, rules, ch, k, 0.0, 1.0, 0.01).delay_s for k in range(n)])
+
+    base = jitters(1, rules, 5)
+    for other in (jitters(2, rules, 5), jitters(1, rules2, 5), jitters(1, rules, 6)):
+        assert abs(np.corrcoef(base, other)[0, 1]) < 5 / math.sqrt(n)
+    draws = np.array([uniform(1, 0, 5, k, 1) for k in range(n)])  # the entry's loss draws
+    assert abs(np.corrcoef(base, draws)[0, 1]) < 5 / math.sqrt(n)

@@ -35,6 +35,7 @@ class _Supervisor:
 
     children: dict[str, _Child] = field(default_factory=dict)
     spawned: list[tuple[str, list[str], str]] = field(default_factory=list)
+    must_finish: list[bool] = field(default_factory=list)
 
     def start(self, *names: str) -> None:
         for n in names:
@@ -47,6 +48,7 @@ class _Supervisor:
 
     def spawn(self, name: str, argv: list[str], must_finish: bool, process: str | None = None) -> None:
         self.spawned.append((name, argv, process or name))
+        self.must_finish.append(must_finish)
 
     def dead(self, name: str) -> bool:
         return self.children[name].proc.poll() == -signal.SIGKILL
@@ -231,3 +233,91 @@ def test_lockstep_a_lost_aircraft_takes_its_vehicle_when_its_controller_kills_it
         ("process_killed", "vehicle_1", t),
         ("vehicle_lost", "vehicle_1", t),
     ]
+
+
+def _all_events(pf, tmp_path) -> list[dict]:
+    pf.close()
+    return [json.loads(line) for line in (tmp_path / "sup.events").read_text().splitlines()]
+
+
+def test_each_restart_of_a_process_is_its_next_incarnation_which_must_finish(sup, tmp_path):
+    plan = [
+        {"controller": 2, "kill": True, "from_s": 1.0, "restart_after_s": 0.5},
+        {"controller": 2, "kill": True, "from_s": 3.0, "restart_after_s": 0.5},
+    ]
+    pf = _faults(sup, tmp_path, plan)
+    for t in (1.0, 1.6):
+        pf.act(t, 0)
+    sup.start("controller_2")  # what the restart started, as the supervisor would have it
+    for t in (3.0, 3.6):
+        pf.act(t, 0)
+    assert [name for name, _argv, _p in sup.spawned] == ["controller_2.1", "controller_2.2"]
+    assert sup.must_finish == [True, True]  # a restarted node is a node like the others
+
+
+def test_an_action_not_due_or_not_the_supervisors_does_not_hold_back_the_next(sup, tmp_path):
+    pf = _faults(
+        sup,
+        tmp_path,
+        [{"controller": 2, "freeze_s": 5.0, "from_s": 5.0}, {"controller": 1, "kill": True, "from_s": 1.0}],
+    )
+    pf.act(1.5, 0)  # the freeze is listed first and not due: the kill still happens
+    sup.children["controller_1"].proc.wait(timeout=5)
+    assert sup.dead("controller_1") and not pf.frozen("controller_2")
+    (tmp_path / "l").mkdir()
+    lock = _faults(
+        sup,
+        tmp_path / "l",
+        [{"controller": 3, "kill": True, "from_s": 1.0}, {"controller": 2, "freeze_s": 0.01, "from_s": 2.0}],
+        lockstep=True,
+    )
+    lock.act(0.0, tick_of(2.0, DT))  # the kill is the node's own; the freeze after it is due
+    assert lock.frozen("controller_2") and sup.children["controller_3"].proc.poll() is None
+    time.sleep(0.05)
+    lock.act(0.0, tick_of(2.0, DT))
+    lock.close()
+
+
+def test_every_event_names_its_process_and_source_at_the_run_second_in_milliseconds(sup, tmp_path):
+    pf = _faults(
+        sup,
+        tmp_path,
+        [{"controller": 2, "freeze_s": 0.01, "from_s": 2.0}, {"vehicle": 3, "kill": True, "from_s": 2.0}],
+    )
+    pf.act(2.3456, 0)  # real time: when it happened, not when it was planned
+    time.sleep(0.05)
+    pf.act(2.4, 0)
+    events = _all_events(pf, tmp_path)
+    assert {e["source"] for e in events} == {"supervisor"}
+    byk = {e["kind"]: e for e in events}
+    assert byk["process_frozen"] == {
+        "t_s": 2.346,
+        "kind": "process_frozen",
+        "source": "supervisor",
+        "process": "controller_2",
+        "freeze_s": 0.01,
+    }
+    assert (byk["process_thawed"]["process"], byk["process_thawed"]["t_s"]) == ("controller_2", 2.4)
+    assert (byk["vehicle_lost"]["process"], byk["vehicle_lost"]["vehicle"]) == ("vehicle_3", 3)
+
+
+def test_an_exit_the_plan_made_is_planned_and_an_unplanned_sigkill_in_real_time_is_not(sup, tmp_path):
+    pf = _faults(sup, tmp_path, [{"controller": 2, "kill": True, "from_s": 5.0}])
+    c2 = sup.children["controller_2"]
+    assert not pf.planned_exit(c2, -signal.SIGKILL)  # killed by someone else before the plan's time
+    c2.retired = True
+    assert pf.planned_exit(c2, -signal.SIGKILL) and pf.planned_exit(c2, 1)
+
+
+def test_acting_on_a_process_that_already_died_is_no_error(sup, tmp_path):
+    for name in ("controller_1", "controller_2"):
+        sup.children[name].proc.kill()
+        sup.children[name].proc.wait()
+    pf = _faults(
+        sup,
+        tmp_path,
+        [{"controller": 1, "kill": True, "from_s": 1.0}, {"controller": 2, "freeze_s": 0.01, "from_s": 1.0}],
+    )
+    pf.act(1.0, 0)  # its process group is gone: nothing to signal
+    assert pf.down == {1}
+    pf.close()

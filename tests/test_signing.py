@@ -131,6 +131,140 @@ def test_a_key_of_the_wrong_length_is_refused_in_one_line():
         Verifier(KEY + b"x")
 
 
+def _raw(payload_len: int, sysid: int = 3, compid: int = 191, seq: int = 0) -> bytes:
+    """A plain MAVLink 2 frame of any payload length (the kernels read the header's lengths and
+    flags, never the message's CRC, so any id and payload do)."""
+    body = bytes([signing.MAGIC_V2, payload_len, 0, 0, seq, sysid, compid, 0, 0, 0]) + bytes(
+        range(payload_len)
+    )
+    return body + b"\x5a\xa5"
+
+
+def _stamped(frames: bytes, stamp: int) -> bytes:
+    """``frames`` signed from the timestamp given on (one in the future: the signer's clock is behind)."""
+    s = Signer(KEY)
+    s._stamp = stamp - 1
+    return s.seal(frames)
+
+
+def _seal_one(data: bytes, out_len: int, stamp: int = 1000) -> tuple[int, int]:
+    return signing.seal_into(
+        np.frombuffer(data, np.uint8), np.frombuffer(KEY, np.uint8), 0, stamp, np.zeros(out_len, np.uint8)
+    )
+
+
+def _open(data: bytes, rows: int = 8) -> tuple[int, int, int, bool, np.ndarray]:
+    streams = np.zeros((rows, 4), np.int64)
+    out = np.zeros(max(len(data), 1), np.uint8)
+    status, n, count, one = signing.open_into(
+        np.frombuffer(data, np.uint8), np.frombuffer(KEY, np.uint8), out, streams
+    )
+    return status, n, count, one, streams
+
+
+@pytest.mark.unit
+def test_the_signing_clock_is_mavlinks_ten_microseconds_since_2015():
+    expected = (time.time() - 1420070400) * 100_000  # as pymavlink's MAVLinkSigning counts
+    assert abs(signing.now_stamp() - expected) < 100_000  # within a second
+
+
+@pytest.mark.unit
+def test_seal_signs_whole_plain_frames_only_and_never_writes_past_its_buffer():
+    short = _raw(0)  # the shortest frame there is: a header and a CRC
+    assert Verifier(KEY).open(Signer(KEY).seal(short)) == short
+    whole = _raw(20)
+    for cut in range(len(whole)):  # cut short, alone or after a whole frame: nothing is signed
+        assert _seal_one(whole[:cut], 4096) == (0, 0), cut
+        assert _seal_one(whole + whole[:cut], 4096) == ((len(whole) + 13, 1) if cut == 0 else (0, 0))
+    v1 = bytes([signing.MAGIC_V1]) + whole[1:]  # MAVLink 1's magic: not ours to sign
+    assert _seal_one(v1, 4096) == (0, 0) and Signer(KEY).seal(v1) == v1
+    signed = Signer(KEY).seal(whole)  # signed already (its sequence byte is even)
+    assert _seal_one(signed, 4096) == (0, 0) and Signer(KEY).seal(signed) == signed
+    # the buffer: an exact fit is signed, one byte less refuses (for one frame and for a pass)
+    for frames in (whole, whole + _raw(3)):
+        fit = len(frames) + 13 * (2 if len(frames) > len(whole) else 1)
+        assert _seal_one(frames, fit)[0] == fit and _seal_one(frames, fit - 1) == (0, 0)
+
+
+@pytest.mark.unit
+def test_a_pass_gets_one_timestamp_per_frame_and_the_next_pass_the_next_one(monkeypatch):
+    monkeypatch.setattr(signing, "now_stamp", lambda: 5_000)  # a clock that stands still
+    s = Signer(KEY)
+    three = _raw(4) + _raw(5, compid=1) + _raw(6, sysid=9)
+    sealed = s.seal(three)
+    status, n, count, _one, streams = _open(sealed)
+    assert (status, n, count) == (signing.OK, len(three), 3)
+    assert streams[:3].tolist() == [[3, 191, 0, 5_000], [3, 1, 0, 5_001], [9, 191, 0, 5_002]]
+    for expected in (5_003, 5_004):  # never a stamp twice, and none skipped
+        assert _open(s.seal(_raw(4)))[4][0, 3] == expected
+
+
+@pytest.mark.unit
+def test_open_names_one_rising_stream_and_tells_streams_apart_by_system_component_and_link():
+    s = Signer(KEY)
+    assert _open(s.seal(_raw(2)))[3] is True  # one frame: one stream
+    assert _open(s.seal(_raw(2) + _raw(3) + _raw(4)))[3] is True
+    for other in (_raw(3, sysid=4), _raw(3, compid=190)):
+        assert _open(s.seal(_raw(2) + other))[3] is False
+    linked = Signer(KEY, link_id=1).seal(_raw(3))
+    assert _open(s.seal(_raw(2)) + linked)[3] is False
+    t = signing.now_stamp() + 100_000  # one stream whose stamps do not rise
+    assert _open(_stamped(_raw(2), t + 1) + _stamped(_raw(2), t))[3] is False
+
+
+@pytest.mark.unit
+def test_open_refuses_every_truncation_and_counts_what_it_refuses():
+    s = Signer(KEY)
+    good = s.seal(_raw(20))
+    for cut in range(1, len(good)):  # cut short, alone or after a whole frame: bad, nothing out
+        for data in (good[:cut], good + good[:cut]):
+            status, n, count, _one, _streams = _open(data)
+            assert (status, n) == (signing.BAD, 0), cut
+            assert count == (1 if len(data) > len(good) else 0)
+    status, n, count, _one, _streams = _open(b"")
+    assert (status, n, count) == (signing.BAD, 0, 0)  # no frame at all
+    assert _open(_raw(0))[:3] == (signing.UNSIGNED, 0, 0)  # a whole 12-byte plain frame
+    assert _open(_raw(20)[:11])[:2] == (signing.BAD, 0)  # not a frame
+    assert _open(good + _raw(0))[:3] == (signing.UNSIGNED, 0, 1)
+    # more frames than rows to name their streams: refused, not written past
+    assert _open(good + s.seal(_raw(20)), rows=1)[:2] == (signing.BAD, 0)
+    v = Verifier(KEY)
+    for _ in range(2):
+        assert v.open(_raw(0)) is None and v.open(good[:-1]) is None and v.open(good) in (None, _raw(20))
+        assert v.open(bytes(signing._MAX_DATAGRAM + 1)) is None
+    assert (v.unsigned, v.bad, v.replayed) == (2, 4, 1)
+
+
+@pytest.mark.unit
+def test_the_largest_datagrams_are_signed_and_opened():
+    big = _raw(255) * 245  # 65415 bytes
+    exact = big + _raw(signing._MAX_DATAGRAM - len(big) - 12)
+    assert len(exact) == signing._MAX_DATAGRAM
+    s, v = Signer(KEY), Verifier(KEY)
+    sealed = s.seal(exact)  # signed, though over what a UDP datagram holds once signed
+    assert len(sealed) == len(exact) + 246 * 13 and _open(sealed, rows=246)[:3] == (
+        signing.OK,
+        len(exact),
+        246,
+    )
+    assert s.seal(exact + _raw(0)) == exact + _raw(0)  # over the most a datagram holds: as it is
+    # the most frames a signed datagram holds, and a signed datagram of exactly the most bytes
+    most = s.seal(_raw(0) * (signing._MAX_DATAGRAM // 25))
+    assert v.open(most) == _raw(0) * (signing._MAX_DATAGRAM // 25)
+    plain = _raw(255) * 233 + _raw(123) * 2  # signed: 233 x 280 + 2 x 148 bytes
+    sealed = s.seal(plain)
+    assert len(sealed) == signing._MAX_DATAGRAM and v.open(sealed) == plain
+
+
+@pytest.mark.unit
+def test_a_datagram_of_several_streams_cannot_replay_a_stamp_one_of_them_had():
+    v = Verifier(KEY)
+    t = signing.now_stamp() + 100_000
+    assert v.open(_stamped(_raw(2), t)) == _raw(2)
+    again = _stamped(_raw(3, sysid=4), t + 10) + _stamped(_raw(2), t)  # two streams
+    assert v.open(again) is None and v.replayed == 1
+
+
 def _forged_stamp(plain: bytes, stamp: int) -> bytes:
     """``plain`` signed with ``KEY`` at the timestamp given (what a recording replayed would carry)."""
     link = mav.MAVLink(None, srcSystem=plain[5], srcComponent=plain[6])

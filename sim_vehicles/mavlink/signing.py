@@ -195,7 +195,6 @@ class Signer:
     """Signs the frames of one sender, on link ``link_id``."""
 
     def __init__(self, key: bytes, link_id: int = 0):
-        self.key = key
         self.link_id = link_id
         self._stamp = 0
         self._key = _key_array(key)

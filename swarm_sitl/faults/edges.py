@@ -80,13 +80,13 @@ class FaultyBus:
         #: (from step, out-neighbour, what it must have done): its first tick after its restart
         #: (a status at or past that tick: its subscriptions are in place), or, after our own
         #: restart, its liveliness token seen (the new session knows where it is)
-        #: An out-neighbour that came back before this incarnation started sent its status at its
-        #: first tick, which this session cannot have heard (a put keeps no history): it is
-        #: waiting on us, so its liveliness token is enough.
+        #: An out-neighbour that came back before this incarnation started, or at the same tick,
+        #: may have sent its status at its first tick before this session could hear it (a put
+        #: keeps no history): it is waiting on us, so its liveliness token is enough.
         self._gates: list[tuple[int, int, bool]] = []
         for d in dests:
             self._gates += [
-                (back, d, back >= resume_tick) for _, back in self.outages.get(d, []) if back is not None
+                (back, d, back > resume_tick) for _, back in self.outages.get(d, []) if back is not None
             ]
         for _, back in self.own_outages:
             if back is not None:

@@ -58,7 +58,6 @@ class LostAircraftError(RuntimeError):
 
 @dataclass
 class _Action:
-    entry: int
     spec: FaultSpec
     at_s: float  #: when it happens [s]: simulated (lockstep) or run seconds (real time)
     kind: str  #: "kill", "freeze", "thaw", "restart"
@@ -89,11 +88,11 @@ class ProcessFaults:
         self._frozen: dict[str, float] = {}  #: process -> when it is thawed [monotonic s]
         self._actions: list[_Action] = []
         self._restart_argv: Callable[[str, int, int], list[str]] | None = None
-        for j, f in plan.process_faults():
+        for _, f in plan.process_faults():
             if f.kill:
-                self._actions.append(_Action(j, f, f.from_s, "kill"))
+                self._actions.append(_Action(f, f.from_s, "kill"))
             else:
-                self._actions.append(_Action(j, f, f.from_s, "freeze"))
+                self._actions.append(_Action(f, f.from_s, "freeze"))
         self._dt = period_s
 
     def set_restart(self, argv: Callable[[str, int, int], list[str]]) -> None:
@@ -158,7 +157,7 @@ class ProcessFaults:
             if self.lockstep:
                 self._restart(name, spec, spec.from_s + spec.restart_after_s)
             else:
-                self._actions.append(_Action(-1, spec, t_s + spec.restart_after_s, "restart"))
+                self._actions.append(_Action(spec, t_s + spec.restart_after_s, "restart"))
 
     def _restart(self, name: str, spec: FaultSpec, t_s: float) -> None:
         assert self._restart_argv is not None and spec.restart_after_s is not None
