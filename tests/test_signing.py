@@ -159,7 +159,7 @@ def _open(data: bytes, rows: int = 8) -> tuple[int, int, int, bool, np.ndarray]:
     status, n, count, one = signing.open_into(
         np.frombuffer(data, np.uint8), np.frombuffer(KEY, np.uint8), out, streams
     )
-    return status, n, count, one, streams
+    return status, n, count, bool(one), streams
 
 
 @pytest.mark.unit
