@@ -2,6 +2,8 @@
 silent neighbours (``NeighbourInbox``): what the loop may use, and when, under each fault."""
 
 import math
+import os
+import time
 
 import numpy as np
 import pytest
@@ -395,7 +397,7 @@ def test_every_mavlink_datagram_meets_the_fate_the_plan_draws_for_it_and_is_coun
     entries = [
         {"mavlink": 1, "loss": 0.2},
         {"mavlink": 1, "corrupt": 0.2},
-        {"mavlink": 1, "loss": 0.5, "from_s": 2.0, "until_s": 3.0},  # read at the stamp, or at arrival
+        {"mavlink": 1, "drop": True, "from_s": 2.0, "until_s": 3.0},  # read at the stamp, or at arrival
     ]
     if not lockstep:
         entries += [
@@ -404,7 +406,7 @@ def test_every_mavlink_datagram_meets_the_fate_the_plan_draws_for_it_and_is_coun
             {"mavlink": 1, "duplicate": 0.2},
             {"mavlink": 1, "reorder": 0.1},
         ]
-    plan = FaultPlan(seed=9, plan=entries)
+    plan = FaultPlan(seed=5, plan=entries)  # (a seed whose other entries spare the window's edges)
     clock: RunClock = RunClock(True, DT) if lockstep else _Clock()
     lf = MavlinkFaults(plan, 1, clock, 60.0)
     n = 400
@@ -514,7 +516,7 @@ def test_a_sample_is_a_datagram_that_starts_with_a_whole_local_position_ned():
 
     lpos = _lpos_datagram(123_456)
     assert sample_ms(lpos) == 123_456 and sample_ms(lpos[:14]) == 123_456 and sample_ms(lpos[:13]) is None
-    assert sample_ms(lpos + b"\xff" * 4) == 123_456  # what follows is not the stamp
+    assert sample_ms(lpos[:14] + b"\xff" * 4) == 123_456  # what follows is not the stamp
     assert sample_ms(b"\xfe" + lpos[1:]) is None  # MAVLink 1's magic
 
 
@@ -544,6 +546,9 @@ def test_an_in_neighbour_is_settled_for_the_steps_that_arrived_and_those_the_pla
     bus.poll()
     assert bus.settled(1, 5) and not bus.settled(1, 6) and not bus.settled(2, 0)
     assert [k for k in range(90, 160) if bus.settled(1, k)] == list(range(100, 150))  # down 100..149
+    inner.arrive(2, 0)
+    bus.poll()
+    assert bus.settled(2, 0) and not bus.settled(2, 1)  # step 0 is not step 1
 
 
 class _Gated(_Publisher):
@@ -624,7 +629,6 @@ def test_a_node_the_plan_kills_kills_itself_at_its_tick_in_lockstep_only(monkeyp
     _publish(bus, 99)
     assert killed == []
     _publish(bus, 100)  # its readers have done tick 100: the kill loses nothing before it
-    import os
     import signal
 
     assert killed == [(os.getpid(), signal.SIGKILL)]
@@ -669,3 +673,40 @@ def test_a_corruption_of_a_byte_that_is_0xff_still_changes_it():
         inner.wire.append(Message(1, k, k * DT, ones.copy()))
     bus.poll()
     assert bus.stats[1].corrupt == 40 and not any(src == 1 for src, _ in inner.table)
+
+
+def test_a_planned_kill_waits_for_its_readers_to_take_the_last_estimate_but_not_for_the_gone(monkeypatch):
+    """Before killing itself at tick 100 the leader waits until each out-neighbour has done tick
+    100, is down by the plan then, or is gone; a stuck reader holds it for the stall timeout,
+    then it dies anyway."""
+    killed: list[float] = []
+    monkeypatch.setattr("swarm_sitl.faults.edges.os.kill", lambda pid, sig: killed.append(time.monotonic()))
+    read_end, write_end = os.pipe()
+
+    class Inner(_Gated):
+        def __init__(self, progress: dict[int, int], gone: set[int]):
+            super().__init__({1: 1, 2: 1}, progress)
+            self.gone = gone
+
+        def lost(self) -> set[int]:
+            return self.gone
+
+        def fileno(self) -> int:
+            return read_end
+
+    leader_killed = {"leader": True, "kill": True, "from_s": 1.0}
+    cases = [
+        (FaultPlan(plan=[leader_killed]), {1: 100}, {2}),  # 2 is gone
+        (FaultPlan(plan=[leader_killed, {"controller": 2, "kill": True, "from_s": 0.5}]), {1: 100}, set()),
+    ]
+    for plan, progress, gone in cases:
+        bus = _leader_bus(plan, Inner(progress, gone), timeout_s=5.0)
+        t0 = time.monotonic()
+        _publish(bus, 100)
+        assert killed and killed[-1] - t0 < 1.0  # at once
+    stuck = _leader_bus(FaultPlan(plan=[leader_killed]), Inner({1: 100, 2: 99}, set()), timeout_s=0.3)
+    t0 = time.monotonic()
+    _publish(stuck, 100)  # 2 never does tick 100: the kill comes after the stall timeout
+    assert 0.3 <= killed[-1] - t0 < 2.0 and len(killed) == 3
+    os.close(read_end)
+    os.close(write_end)

@@ -217,6 +217,7 @@ def test_the_failsafe_command_in_closed_form():
 @pytest.mark.unit
 def test_hold_mode_holds_whatever_the_failsafe_action_and_arming_holds_where_it_is():
     ap, f, _said, _events = _modes(ACTION_LAND, 0.5)
+    ap.state[POS] = [3.0, 3.0, 8.0]  # flown elsewhere in offboard: Hold holds there
     assert f.set_mode(px4.HOLD) == mav.MAV_RESULT_ACCEPTED
     held = ap.state[POS].copy()
     _step(ap, f, 2000)
@@ -228,10 +229,9 @@ def test_hold_mode_holds_whatever_the_failsafe_action_and_arming_holds_where_it_
     assert f.arm(True, forced=False)
     _step(ap, f, 2000)
     assert np.linalg.norm(ap.state[POS] - [5.0, 5.0, 5.0]) < 0.01
-    p = ap.state[POS].copy()
+    ap.state[POS] = ap.state[POS] + np.array([1.0, 0.0, 0.0])  # pushed 1 m east
     assert f.arm(True, forced=False)  # armed already: the hold point stays
     assert f.set_mode(px4.HOLD) == mav.MAV_RESULT_ACCEPTED  # Hold again: it stays too
-    ap.state[POS] = p + np.array([1.0, 0.0, 0.0])
     _step(ap, f, 3000)
     assert np.linalg.norm(ap.state[POS] - [5.0, 5.0, 5.0]) < 0.05
 

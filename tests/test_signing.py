@@ -180,6 +180,9 @@ def test_seal_signs_whole_plain_frames_only_and_never_writes_past_its_buffer():
     assert _seal_one(v1, 4096) == (0, 0) and Signer(KEY).seal(v1) == v1
     signed = Signer(KEY).seal(whole)  # signed already (its sequence byte is even)
     assert _seal_one(signed, 4096) == (0, 0) and Signer(KEY).seal(signed) == signed
+    flagged = bytearray(whole)
+    flagged[2] |= signing.SIGNED  # the signed flag without a signature: not plain either
+    assert _seal_one(bytes(flagged), 4096) == (0, 0)
     # the buffer: an exact fit is signed, one byte less refuses (for one frame and for a pass)
     for frames in (whole, whole + _raw(3)):
         fit = len(frames) + 13 * (2 if len(frames) > len(whole) else 1)
@@ -226,13 +229,16 @@ def test_open_refuses_every_truncation_and_counts_what_it_refuses():
     assert _open(_raw(0))[:3] == (signing.UNSIGNED, 0, 0)  # a whole 12-byte plain frame
     assert _open(_raw(20)[:11])[:2] == (signing.BAD, 0)  # not a frame
     assert _open(good + _raw(0))[:3] == (signing.UNSIGNED, 0, 1)
+    assert _open(bytes([signing.MAGIC_V1]) + _raw(20)[1:])[:3] == (signing.UNSIGNED, 0, 0)  # MAVLink 1
+    assert _open(Signer(key_from_passphrase("wrong")).seal(_raw(20)))[:3] == (signing.BAD, 0, 0)
     # more frames than rows to name their streams: refused, not written past
     assert _open(good + s.seal(_raw(20)), rows=1)[:2] == (signing.BAD, 0)
     v = Verifier(KEY)
     for _ in range(2):
         assert v.open(_raw(0)) is None and v.open(good[:-1]) is None and v.open(good) in (None, _raw(20))
         assert v.open(bytes(signing._MAX_DATAGRAM + 1)) is None
-    assert (v.unsigned, v.bad, v.replayed) == (2, 4, 1)
+    assert v.open(good) is None  # a replay again
+    assert (v.unsigned, v.bad, v.replayed) == (2, 4, 2)
 
 
 @pytest.mark.unit
