@@ -4,19 +4,24 @@ Its folders, each allowed to import only those before it (``tests/test_layout.py
 (the paper's laws, pure), ``bus`` (zenoh), ``faults`` (the fault plan and its wrappers),
 ``config`` (the schema), ``link`` (a controller's MAVLink link), ``rundir`` (the run directory),
 ``nodes`` (the controller and leader processes), ``running`` (``sim``, the supervisor, a run),
-``bench`` (speed figures), ``commands`` (the CLI's subcommands). Above them all: ``cli``
-(``swarm-sitl``), ``api`` (``Swarm``: runs from Python, with a fault plan, as objects) and
-``pytest_plugin`` (the ``swarm`` fixture).
+``bench`` (speed figures), ``campaigns`` (robustness sweeps), ``commands`` (the CLI's
+subcommands). Above them all: ``cli`` (``swarm-sitl``), ``api`` (``Swarm``: runs from Python,
+with a fault plan, as objects) and ``pytest_plugin`` (the ``swarm`` fixture); ``sweep`` is
+``campaigns.sweep.sweep``.
 """
 
 from typing import Any
 
 __version__ = "0.1.0"
-__all__ = ["Swarm", "SwarmResult"]
+__all__ = ["Swarm", "SwarmResult", "sweep"]
 
 
 def __getattr__(name: str) -> Any:
     # imported on first use: ``python -m swarm_sitl`` and the node processes do not load the API
+    if name == "sweep":
+        from swarm_sitl.campaigns.sweep import sweep
+
+        return sweep
     if name in __all__:
         from swarm_sitl import api
 

@@ -27,7 +27,7 @@ from typing import Any
 
 import numpy as np
 
-from swarm_sitl.config.load import ConfigError, load_config, parse_config
+from swarm_sitl.config.load import load_config, parse_config, plan_data
 from swarm_sitl.config.schema import SwarmConfig
 
 
@@ -84,25 +84,6 @@ class SwarmResult:
         return [e for e in self.events if e["kind"] == kind]
 
 
-def _plan(faults: Any, seed: int | None) -> dict[str, Any] | None:
-    """``faults`` as the ``faults:`` mapping: a list of entries, a mapping, or a YAML file."""
-    if faults is None:
-        return None if seed is None else {"seed": seed}
-    if isinstance(faults, str | Path):
-        import yaml
-
-        try:
-            data = yaml.safe_load(Path(faults).read_text())
-        except (OSError, UnicodeDecodeError, yaml.YAMLError) as e:
-            raise ConfigError(f"{faults}: cannot read the fault plan ({e})") from None
-        faults = data.get("faults", data) if isinstance(data, dict) else data
-    if isinstance(faults, list):
-        faults = {"plan": faults}
-    if not isinstance(faults, dict):
-        raise ConfigError("faults: expected a list of entries, a mapping (seed, plan) or a file")
-    return {**faults, **({} if seed is None else {"seed": seed})}
-
-
 class Swarm:
     """A swarm to run: a config (path or ``SwarmConfig``), a fault plan, a clock.
 
@@ -123,7 +104,7 @@ class Swarm:
     ):
         cfg = config if isinstance(config, SwarmConfig) else load_config(config)
         data = cfg.model_dump(mode="json")
-        plan = _plan(faults, seed)
+        plan = plan_data(faults, seed)
         if plan is not None:
             data["faults"] = {**data["faults"], **plan}
         if run:  # run.* settings, e.g. max_formation_error_m=0.05

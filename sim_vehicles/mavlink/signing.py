@@ -119,7 +119,7 @@ def seal_into(data, key, link_id, stamp, out):
     while at < n:
         if n - at < _HEADER_LEN + 2 or data[at] != MAGIC_V2 or data[at + 2] & SIGNED:
             return 0, 0
-        end = at + _HEADER_LEN + np.int64(data[at + 1]) + 2  # (int64: uint8 arithmetic wraps without numba)
+        end = at + _HEADER_LEN + int(data[at + 1]) + 2  # (an int: uint8 arithmetic wraps without numba)
         if end > n or o + end - at + SIGNATURE_LEN > len(out):
             return 0, 0
         start = o
@@ -156,7 +156,7 @@ def open_into(data, key, out, streams):
             return UNSIGNED, 0, frames, one
         if n - at < _HEADER_LEN + 2 or data[at] != MAGIC_V2:
             return BAD, 0, frames, one
-        end = at + _HEADER_LEN + np.int64(data[at + 1]) + 2  # (int64: uint8 arithmetic wraps without numba)
+        end = at + _HEADER_LEN + int(data[at + 1]) + 2  # (an int: uint8 arithmetic wraps without numba)
         if not data[at + 2] & SIGNED:
             return UNSIGNED, 0, frames, one
         signed_end = end + SIGNATURE_LEN

@@ -9,6 +9,7 @@ plan file in place of a config's own plan, validated against it.
 
 import math
 from pathlib import Path
+from typing import Any
 
 import yaml
 from pydantic import ValidationError
@@ -120,3 +121,20 @@ def with_faults(cfg: SwarmConfig, path: str | Path) -> SwarmConfig:
         return SwarmConfig.model_validate(merged)
     except ValidationError as err:
         raise ConfigError(f"{p}: {_describe(err)}") from None
+
+
+def plan_data(faults: Any, seed: int | None = None) -> dict[str, Any] | None:
+    """``faults`` as the ``faults:`` mapping: a list of entries, a mapping, or a YAML file."""
+    if faults is None:
+        return None if seed is None else {"seed": seed}
+    if isinstance(faults, str | Path):
+        try:
+            data = yaml.safe_load(Path(faults).read_text())
+        except (OSError, UnicodeDecodeError, yaml.YAMLError) as e:
+            raise ConfigError(f"{faults}: cannot read the fault plan ({e})") from None
+        faults = data.get("faults", data) if isinstance(data, dict) else data
+    if isinstance(faults, list):
+        faults = {"plan": faults}
+    if not isinstance(faults, dict):
+        raise ConfigError("faults: expected a list of entries, a mapping (seed, plan) or a file")
+    return {**faults, **({} if seed is None else {"seed": seed})}

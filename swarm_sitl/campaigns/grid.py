@@ -1,0 +1,151 @@
+"""What a campaign varies: ``KEY=VALUES`` specs, and one point's config.
+
+A key is either a dotted path into the config (``duration_s``, ``gains.k_p``, ``run.settle_s``,
+``followers.0.mass_kg``: list items by index) or a link shorthand that puts one fault-plan entry
+on every edge of the graph or every vehicle's MAVLink link:
+
+- ``link.loss``, ``link.corrupt``, ``link.duplicate``, ``link.reorder`` (probabilities),
+  ``link.delay_s``, ``link.jitter_s`` (seconds; jitter goes with a delay): an entry ``into: i``
+  for every follower i, so every edge of the graph meets it;
+- ``mavlink.loss``, ``mavlink.corrupt``: an entry ``mavlink: i`` for every follower, both ways.
+
+A value of 0 puts no entry (the plan's values are positive). VALUES is ``START:STOP:STEP``
+(inclusive of STOP when the steps land on it) or a comma list ``0,0.1,0.5``.
+"""
+
+import math
+from typing import Any
+
+LINK_HOW = ("loss", "corrupt", "duplicate", "reorder", "delay_s", "jitter_s")
+MAVLINK_HOW = ("loss", "corrupt")
+MAX_POINTS = 100_000
+
+
+class SweepSpecError(ValueError):
+    """A campaign spec that cannot be used; the message is one line naming the key."""
+
+
+def parse_values(key: str, text: str) -> list[float]:
+    """``START:STOP:STEP`` or ``a,b,c`` as a list of floats (sorted, each once)."""
+    text = text.strip()
+    try:
+        if ":" in text:
+            parts = [float(p) for p in text.split(":")]
+            if len(parts) != 3:
+                raise SweepSpecError(f"sweep {key}: a range is START:STOP:STEP, got {text!r}")
+            start, stop, step = parts
+            if not step > 0 or not math.isfinite(step):
+                raise SweepSpecError(f"sweep {key}: the step of {text!r} must be positive")
+            if stop < start:
+                raise SweepSpecError(f"sweep {key}: the range {text!r} is empty (STOP < START)")
+            n = math.floor((stop - start) / step + 1e-9) + 1
+            if n > MAX_POINTS:
+                raise SweepSpecError(f"sweep {key}: {text!r} has {n} values, more than {MAX_POINTS}")
+            values = [round(start + k * step, 12) for k in range(n)]
+        else:
+            values = [float(p) for p in text.split(",") if p.strip()]
+    except ValueError as e:
+        if isinstance(e, SweepSpecError):
+            raise
+        raise SweepSpecError(f"sweep {key}: {text!r} is not START:STOP:STEP or a list of numbers") from None
+    if not values:
+        raise SweepSpecError(f"sweep {key}: no values in {text!r}")
+    if not all(math.isfinite(v) for v in values):
+        raise SweepSpecError(f"sweep {key}: {text!r} has a value that is not finite")
+    return sorted(set(values))
+
+
+def parse_vary(spec: str) -> tuple[str, list[float]]:
+    """``KEY=VALUES`` as ``(key, values)``."""
+    key, sep, values = spec.partition("=")
+    key = key.strip()
+    if not sep or not key:
+        raise SweepSpecError(f"sweep: {spec!r} is not KEY=VALUES (e.g. link.loss=0:0.9:0.1)")
+    return key, parse_values(key, values)
+
+
+def _set_path(data: dict[str, Any], key: str, value: float) -> None:
+    """Set the dotted path ``key`` of the config's data, which must exist already."""
+    parts = key.split(".")
+    node: Any = data
+    for depth, part in enumerate(parts):
+        last = depth == len(parts) - 1
+        where = ".".join(parts[: depth + 1])
+        if isinstance(node, list):
+            if not part.isdigit() or int(part) >= len(node):
+                raise SweepSpecError(f"sweep {key}: {where}: no item {part} (the list has {len(node)})")
+            idx: Any = int(part)
+        elif isinstance(node, dict):
+            if part not in node:
+                known = ", ".join(sorted(str(k) for k in node)) or "none"
+                raise SweepSpecError(f"sweep {key}: no setting {where!r} in the config (there: {known})")
+            idx = part
+        else:
+            raise SweepSpecError(f"sweep {key}: {'.'.join(parts[:depth])} is a value, not a section")
+        if last:
+            if isinstance(node[idx], dict | list):
+                raise SweepSpecError(f"sweep {key}: {where} is a section, not a value")
+            node[idx] = value
+        else:
+            node = node[idx]
+
+
+def check_key(key: str) -> None:
+    """A shorthand key's own check (a config path is checked against the config)."""
+    head, _, how = key.partition(".")
+    if head == "link" and how not in LINK_HOW:
+        raise SweepSpecError(f"sweep {key}: link.* is one of {', '.join('link.' + h for h in LINK_HOW)}")
+    if head == "mavlink" and how not in MAVLINK_HOW:
+        known = ", ".join("mavlink." + h for h in MAVLINK_HOW)
+        raise SweepSpecError(f"sweep {key}: mavlink.* is one of {known}")
+    if head == "faults":
+        raise SweepSpecError(
+            f"sweep {key}: vary the plan with link.* or mavlink.* (the seed is --seeds), "
+            "or give a base plan with --faults"
+        )
+
+
+def point_data(base: dict[str, Any], point: dict[str, float], seed: int) -> dict[str, Any]:
+    """The config data of one run: ``base`` (a config's ``model_dump``) with ``point``'s values
+    and the plan's seed; link shorthands add their entries after the base plan's."""
+    import copy
+
+    data = copy.deepcopy(base)
+    followers = [f["id"] for f in data["followers"]]
+    link: dict[str, float] = {}
+    mav: dict[str, float] = {}
+    for key, value in point.items():
+        check_key(key)
+        head, _, how = key.partition(".")
+        if head == "link":
+            link[how] = value
+        elif head == "mavlink":
+            mav[how] = value
+        else:
+            _set_path(data, key, value)
+    entries: list[dict[str, Any]] = []
+    for how in ("loss", "corrupt", "duplicate", "reorder"):
+        if link.get(how):
+            entries += [{"into": i, how: link[how]} for i in followers]
+    if link.get("jitter_s") and not link.get("delay_s"):
+        link["delay_s"] = 1e-9  # a jitter alone: a delay of nothing plus the jitter
+    if link.get("delay_s"):
+        extra = {"jitter_s": link["jitter_s"]} if link.get("jitter_s") else {}
+        entries += [{"into": i, "delay_s": link["delay_s"], **extra} for i in followers]
+    for how in MAVLINK_HOW:
+        if mav.get(how):
+            entries += [{"mavlink": i, how: mav[how]} for i in followers]
+    faults = data.setdefault("faults", {})
+    faults["plan"] = [*faults.get("plan", []), *entries]
+    faults["seed"] = seed
+    return data
+
+
+def grid(vary: list[tuple[str, list[float]]]) -> list[dict[str, float]]:
+    """Every combination of the swept values, the first key varying slowest."""
+    points: list[dict[str, float]] = [{}]
+    for key, values in vary:
+        points = [{**p, key: v} for p in points for v in values]
+    if len(points) > MAX_POINTS:
+        raise SweepSpecError(f"sweep: {len(points)} points, more than {MAX_POINTS}")
+    return points

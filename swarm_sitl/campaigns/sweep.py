@@ -1,0 +1,303 @@
+"""A campaign: every point of a grid of config or fault-plan values, times several seeds, each a
+lockstep run whose metrics are one row of ``OUT/table.csv``; the error charts; the breaking point,
+refined by bisection when asked. Resumable: the rows already in the table are not run again.
+
+``swarm_sitl.sweep(...)`` is this from Python (a notebook, a test); ``swarm-sitl sweep`` the CLI.
+"""
+
+import hashlib
+import json
+import re
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from swarm_sitl.campaigns import charts
+from swarm_sitl.campaigns.breaking import breaking_point
+from swarm_sitl.campaigns.grid import SweepSpecError, check_key, grid, parse_values, parse_vary, point_data
+from swarm_sitl.campaigns.runner import Task, connect, default_jobs, run_dask, run_local
+from swarm_sitl.campaigns.table import TABLE, TableWriter, read_rows, row_key, write_sorted
+from swarm_sitl.config.load import ConfigError, load_config, parse_config, plan_data
+from swarm_sitl.config.schema import SwarmConfig
+
+CAMPAIGN = "campaign.json"
+POINTS = "points"
+
+
+@dataclass
+class Campaign:
+    """A campaign's results: its table's rows (dicts: the swept keys, ``seed``, ``refined``, the
+    metrics of ``point.METRICS``, ``config``) and where they are."""
+
+    out: Path
+    keys: list[str]
+    bound_m: float
+    rows: list[dict[str, Any]] = field(default_factory=list)
+    figures: list[Path] = field(default_factory=list)
+    interrupted: KeyboardInterrupt | None = None  #: what ended the campaign early (Ctrl-C, a signal)
+
+    @property
+    def table(self) -> Path:
+        return self.out / TABLE
+
+    def breaking_point(self, key: str | None = None) -> tuple[float | None, float | None]:
+        """``(held, broke)`` for ``key`` (default: the only swept key): see ``breaking.breaking_point``."""
+        return breaking_point(self.rows, key or self.keys[0])
+
+
+def _vary(vary: Any) -> list[tuple[str, list[float]]]:
+    if isinstance(vary, dict):
+        items = []
+        for k, v in vary.items():
+            values = parse_values(k, v) if isinstance(v, str) else sorted({float(x) for x in v})
+            if not values:
+                raise SweepSpecError(f"sweep {k}: no values")
+            items.append((str(k), values))
+    else:
+        items = [parse_vary(s) for s in vary]
+    if not items:
+        raise SweepSpecError("sweep: nothing to vary (give KEY=VALUES, e.g. link.loss=0:0.9:0.1)")
+    keys = [k for k, _ in items]
+    if len(set(keys)) != len(keys):
+        raise SweepSpecError(f"sweep: a key is given twice ({', '.join(keys)})")
+    for k in keys:
+        check_key(k)
+    return items
+
+
+def _seeds(seeds: int | Sequence[int]) -> list[int]:
+    out = list(range(seeds)) if isinstance(seeds, int) else [int(s) for s in seeds]
+    if not out or any(s < 0 for s in out):
+        raise SweepSpecError(f"sweep: seeds must be a positive count or non-negative integers, got {seeds!r}")
+    return sorted(set(out))
+
+
+def _name(point: dict[str, float], seed: int) -> str:
+    parts = [f"{k}-{v:g}" for k, v in point.items()] + [f"seed-{seed}"]
+    return re.sub(r"[^A-Za-z0-9._-]", "_", "_".join(parts))
+
+
+def _base(
+    config: str | Path | SwarmConfig, faults: Any, duration_s: float | None, bound_m: float | None
+) -> dict:
+    cfg = config if isinstance(config, SwarmConfig) else load_config(config)
+    data = cfg.model_dump(mode="json")
+    plan = plan_data(faults)
+    if plan is not None:
+        data["faults"] = {**data["faults"], **plan}
+    if duration_s is not None:
+        data["duration_s"] = float(duration_s)
+    if bound_m is not None:
+        data["run"]["max_formation_error_m"] = float(bound_m)
+    parse_config(data, "sweep")  # the base itself, before any point
+    end_s, settle_s = data["duration_s"], data["run"]["settle_s"]
+    if end_s <= settle_s:
+        raise SweepSpecError(
+            f"sweep: the runs end at {end_s:g} s, before run.settle_s ({settle_s:g} s) from which "
+            "the bound is judged; lengthen them (--duration) or settle sooner"
+        )
+    if not data["run"].get("max_formation_error_m"):
+        raise SweepSpecError(
+            "sweep: a campaign needs a pass/fail bound: run.max_formation_error_m in the config, or --bound"
+        )
+    return data
+
+
+def _check_points(base: dict, points: list[dict[str, float]], seed: int) -> None:
+    """Every point's config is valid (each value in its range), before anything runs."""
+    seen: set[tuple[str, float]] = set()
+    for p in points:
+        fresh = [(k, v) for k, v in p.items() if (k, v) not in seen]
+        if not fresh:
+            continue
+        try:
+            parse_config(point_data(base, p, seed), "sweep")
+        except ConfigError as e:
+            values = ", ".join(f"{k}={v:g}" for k, v in p.items())
+            raise SweepSpecError(f"sweep {values}: {e}") from None
+        seen.update(fresh)
+
+
+def _open_campaign(out: Path, spec: dict[str, Any]) -> None:
+    """``out`` holds this campaign (or nothing yet); another campaign's directory is refused."""
+    if out.exists() and not out.is_dir():
+        raise SweepSpecError(f"--out {out}: exists and is not a directory")
+    path = out / CAMPAIGN
+    if path.is_file():
+        try:
+            old = json.loads(path.read_text())
+        except (OSError, ValueError) as e:
+            raise SweepSpecError(f"{path}: cannot read it ({e})") from None
+        if old.get("base_sha256") != spec["base_sha256"] or old.get("keys") != spec["keys"]:
+            raise SweepSpecError(
+                f"--out {out} holds another campaign (its config, bound, plan or swept keys differ); "
+                "give another --out"
+            )
+        spec = {**spec, "values": _merge_values(old.get("values", {}), spec["values"])}
+        spec["seeds"] = sorted(set(old.get("seeds", [])) | set(spec["seeds"]))
+    try:
+        (out / POINTS).mkdir(parents=True, exist_ok=True)
+        tmp = path.with_name(CAMPAIGN + ".tmp")
+        tmp.write_text(json.dumps(spec, indent=1) + "\n")
+        tmp.replace(path)
+    except OSError as e:
+        raise SweepSpecError(f"--out {out}: cannot write there ({e.strerror or e})") from None
+
+
+def _merge_values(old: dict[str, list[float]], new: dict[str, list[float]]) -> dict[str, list[float]]:
+    return {k: sorted(set(old.get(k, [])) | set(v)) for k, v in new.items()}
+
+
+def sweep(
+    config: str | Path | SwarmConfig,
+    vary: dict[str, Any] | Iterable[str],
+    *,
+    out: str | Path,
+    seeds: int | Sequence[int] = 3,
+    faults: Any = None,
+    duration_s: float | None = None,
+    bound_m: float | None = None,
+    jobs: int | None = None,
+    scheduler: str | None = None,
+    refine: int = 0,
+    progress: bool = False,
+    keep_runs: bool = False,
+) -> Campaign:
+    """Run a campaign and return its table (``Campaign.rows``).
+
+    ``vary``: ``{"link.loss": "0:0.9:0.1", "gains.k_p": [1, 2]}`` or ``["link.loss=0:0.9:0.1"]``
+    (keys: ``grid``'s docstring). ``seeds``: a count (0..n-1) or the seeds. ``faults``: a base
+    plan under the swept entries. ``bound_m``: the pass/fail bound (default: the config's
+    ``run.max_formation_error_m``). ``jobs``: runs at once here (default: one per core);
+    ``scheduler``: a Dask scheduler's address instead. ``refine``: bisection steps between the
+    last value that holds and the first that breaks (one swept key)."""
+    items = _vary(vary)
+    keys = [k for k, _ in items]
+    seed_list = _seeds(seeds)
+    if refine and len(keys) != 1:
+        raise SweepSpecError("sweep: --refine bisects one swept key; this campaign has " + str(len(keys)))
+    if jobs is not None and jobs < 1:
+        raise SweepSpecError(f"sweep: --jobs must be at least 1, got {jobs}")
+    base = _base(config, faults, duration_s, bound_m)
+    bound = float(base["run"]["max_formation_error_m"])
+    points = grid(items)
+    _check_points(base, points, seed_list[0])
+    out = Path(out)
+    base_text = yaml.safe_dump(base, sort_keys=True)
+    spec = {
+        "config": str(config) if not isinstance(config, SwarmConfig) else config.name,
+        "keys": keys,
+        "values": {k: v for k, v in items},
+        "seeds": seed_list,
+        "bound_m": bound,
+        "duration_s": base["duration_s"],
+        "base_sha256": hashlib.sha256(base_text.encode()).hexdigest(),
+    }
+    _open_campaign(out, spec)
+    (out / "base.yaml").write_text(base_text)
+    client = connect(scheduler) if scheduler else None
+    campaign = Campaign(out, keys, bound, read_rows(out / TABLE, keys))
+    writer = TableWriter(out / TABLE, keys)
+    try:
+        _run(campaign, base, points, seed_list, 0, writer, client, jobs, progress, keep_runs)
+        for step in range(refine):
+            held, broke = campaign.breaking_point()
+            if held is None or broke is None:
+                break
+            mid = round((held + broke) / 2, 12)
+            if mid in (held, broke):
+                break
+            _check_points(base, [{keys[0]: mid}], seed_list[0])
+            mids = [{keys[0]: mid}]
+            _run(campaign, base, mids, seed_list, step + 1, writer, client, jobs, progress, keep_runs)
+    except KeyboardInterrupt as e:
+        campaign.interrupted = e
+    finally:
+        writer.close()
+        if client is not None:
+            client.close()
+    write_sorted(out / TABLE, keys, campaign.rows)
+    campaign.rows = read_rows(out / TABLE, keys)
+    if not campaign.interrupted and campaign.rows:
+        campaign.figures = draw(campaign)
+    return campaign
+
+
+def _run(
+    campaign: Campaign,
+    base: dict,
+    points: list[dict[str, float]],
+    seeds: list[int],
+    refined: int,
+    writer: TableWriter,
+    client: Any,
+    jobs: int | None,
+    progress: bool,
+    keep_runs: bool,
+) -> None:
+    from tqdm import tqdm
+
+    keys = campaign.keys
+    done = {row_key(keys, r) for r in campaign.rows}
+    tasks: list[Task] = []
+    by_key: dict[tuple[Any, ...], dict[str, Any]] = {}
+    for p in points:
+        for s in seeds:
+            row = {**p, "seed": s}
+            key = row_key(keys, row)
+            if key in done:
+                continue
+            name = _name(p, s)
+            text = yaml.safe_dump(point_data(base, p, s), sort_keys=False)
+            (campaign.out / POINTS / f"{name}.yaml").write_text(text)
+            keep = str(campaign.out / "runs" / name) if keep_runs else None
+            tasks.append(Task(key, name, text, keep))
+            by_key[key] = {**row, "refined": int(refined > 0), "config": f"{POINTS}/{name}.yaml"}
+    if not tasks:
+        return
+    runs = run_dask(tasks, client) if client is not None else run_local(tasks, jobs or default_jobs())
+    with tqdm(total=len(tasks), unit="run", disable=not progress, desc=f"sweep {', '.join(keys)}") as bar:
+        for task, metrics in runs:
+            row = {**by_key[task.key], **metrics}
+            writer.add(row)
+            campaign.rows.append(row)
+            bar.update(1)
+
+
+def draw(campaign: Campaign) -> list[Path]:
+    """The campaign's figures in its directory."""
+    rows, keys, out = campaign.rows, campaign.keys, campaign.out
+    title = out.name
+    figs = []
+    if len(keys) == 2:
+        figs.append(charts.heat_map(rows, keys, campaign.bound_m, out / "heat_map.png", title))
+    for k in keys:
+        if len(keys) == 1 or len({float(r[k]) for r in rows}) > 1:
+            figs.append(charts.error_chart(rows, k, campaign.bound_m, out / f"error_vs_{k}.png", title))
+    return figs
+
+
+def summary_lines(c: Campaign) -> list[str]:
+    """What the CLI prints at the end: runs, passes, the breaking point."""
+    n = len(c.rows)
+    passed = sum(int(r["passed"]) for r in c.rows)
+    lines = [f"{n} runs in {c.table} ({passed} held the bound of {c.bound_m:g} m)"]
+    if len(c.keys) == 1:
+        held, broke = c.breaking_point()
+        k = c.keys[0]
+        if held is None:
+            lines.append(f"breaking point: {k} breaks at its first value, {broke:g}")
+        elif broke is None:
+            lines.append(f"breaking point: none; every seed holds the bound up to {k} = {held:g}")
+        else:
+            lines.append(
+                f"breaking point: every seed holds the bound up to {k} = {held:g}; a seed breaks at {broke:g}"
+            )
+    lines += [f"figure: {p}" for p in c.figures]
+    return lines
+
+
+__all__ = ["Campaign", "SweepSpecError", "draw", "summary_lines", "sweep"]

@@ -1,0 +1,214 @@
+"""Robustness campaigns (``swarm-sitl sweep``, ``swarm_sitl.sweep``): the grid and its specs, the
+breaking point, the table; and campaigns of real lockstep runs: here and on a local Dask cluster
+(the same rows), resumed, interrupted, and each row run again from its config."""
+
+import csv
+import math
+import signal
+import subprocess
+import sys
+import time
+
+import pytest
+import yaml
+
+from swarm_sitl.campaigns.breaking import breaking_point
+from swarm_sitl.campaigns.grid import SweepSpecError, grid, parse_values, parse_vary, point_data
+from swarm_sitl.campaigns.table import TableWriter, read_rows, row_key
+from tests.conftest import CONFIGS
+
+CLI = [sys.executable, "-m", "swarm_sitl"]
+
+
+@pytest.mark.unit
+def test_values_are_a_range_with_its_end_or_a_list_and_a_bad_one_is_one_line():
+    assert parse_values("k", "0:0.95:0.05") == [round(0.05 * i, 12) for i in range(20)]
+    assert parse_values("k", "0:1:0.3") == [0.0, 0.3, 0.6, 0.9]  # steps that miss the end stop short
+    assert parse_values("k", "0.5,0,0.5,0.1") == [0.0, 0.1, 0.5]
+    assert parse_vary("link.loss=0:0.2:0.1") == ("link.loss", [0.0, 0.1, 0.2])
+    for spec, message in [
+        ("link.loss=0.5:0.1:0.1", r"sweep link\.loss: the range '0.5:0.1:0.1' is empty"),
+        ("link.loss=0:1:0", r"the step of '0:1:0' must be positive"),
+        ("link.loss=", r"sweep link\.loss: no values in ''"),
+        ("link.loss=a,b", r"'a,b' is not START:STOP:STEP or a list of numbers"),
+        ("link.loss=0:1", r"a range is START:STOP:STEP, got '0:1'"),
+        ("link.loss=nan", r"has a value that is not finite"),
+        ("0.5", r"'0.5' is not KEY=VALUES"),
+    ]:
+        with pytest.raises(SweepSpecError, match=message):
+            parse_vary(spec)
+
+
+@pytest.mark.unit
+def test_a_point_puts_one_entry_per_follower_and_sets_config_paths(paper_cfg):
+    base = paper_cfg.model_dump(mode="json")
+    data = point_data(
+        base, {"link.loss": 0.3, "link.delay_s": 0.1, "link.jitter_s": 0.02, "gains.k_p": 9.0}, 7
+    )
+    ids = [f["id"] for f in base["followers"]]
+    assert data["faults"]["seed"] == 7 and data["gains"]["k_p"] == 9.0
+    assert data["faults"]["plan"] == [{"into": i, "loss": 0.3} for i in ids] + [
+        {"into": i, "delay_s": 0.1, "jitter_s": 0.02} for i in ids
+    ]
+    assert point_data(base, {"link.loss": 0.0}, 1)["faults"]["plan"] == []  # zero: no entry
+    mav = point_data(base, {"mavlink.loss": 0.2, "followers.1.offset_m.0": 2.0}, 1)
+    assert (
+        mav["faults"]["plan"] == [{"mavlink": i, "loss": 0.2} for i in ids]
+        and mav["followers"][1]["offset_m"][0] == 2.0
+    )
+    assert base["faults"]["plan"] == []  # the base is not changed
+    for point, message in [
+        ({"gains.kp": 1.0}, r"sweep gains\.kp: no setting 'gains\.kp' in the config \(there: .*k_p"),
+        ({"gains": 1.0}, r"sweep gains: gains is a section, not a value"),
+        ({"followers.9.mass_kg": 1.0}, r"followers\.9: no item 9 \(the list has 4\)"),
+        ({"link.lost": 0.1}, r"link\.\* is one of link\.loss, "),
+        ({"faults.seed": 1.0}, r"the seed is --seeds"),
+    ]:
+        with pytest.raises(SweepSpecError, match=message):
+            point_data(base, point, 0)
+    assert len(grid([("a", [1.0, 2.0]), ("b", [3.0, 4.0, 5.0])])) == 6
+
+
+@pytest.mark.unit
+def test_the_breaking_point_is_the_last_value_before_any_seed_fails():
+    def rows(*cells):  # (value, passed) per run
+        return [{"x": v, "passed": p} for v, p in cells]
+
+    assert breaking_point(rows((0, 1), (0, 1), (0.5, 1), (0.5, 0), (0.9, 1)), "x") == (0, 0.5)
+    assert breaking_point(rows((0, 1), (0.5, 1)), "x") == (0.5, None)
+    assert breaking_point(rows((0, 0), (0.5, 1)), "x") == (None, 0)
+    # a value that holds after one that broke does not move the point (the first break counts)
+    assert breaking_point(rows((0.1, 1), (0.2, 0), (0.3, 1)), "x") == (0.1, 0.2)
+
+
+@pytest.mark.unit
+def test_the_table_keeps_each_row_as_it_comes_and_reads_back_what_it_wrote(tmp_path):
+    path = tmp_path / "table.csv"
+    w = TableWriter(path, ["link.loss"])
+    row = {
+        "link.loss": 0.1,
+        "seed": 2,
+        "refined": 0,
+        "passed": 1,
+        "max_error_m": 0.01,
+        "recovered_s": math.nan,
+    }
+    w.add({**row, "failure": "", "config": "points/a.yaml"})
+    back = read_rows(path, ["link.loss"])  # before close: on disk already
+    assert len(back) == 1 and back[0]["max_error_m"] == 0.01 and math.isnan(back[0]["recovered_s"])
+    assert row_key(["link.loss"], back[0]) == (0.1, 2)
+    w.close()
+    TableWriter(path, ["link.loss"]).close()  # opened again: no second header
+    assert len(list(csv.reader(path.open()))) == 2
+
+
+def _config(tmp_path, duration_s=4.0):
+    cfg = yaml.safe_load((CONFIGS / "paper.yaml").read_text())
+    cfg["duration_s"] = duration_s
+    cfg["run"] = {**cfg.get("run", {}), "settle_s": 2.0, "max_formation_error_m": 1.0}
+    path = tmp_path / "small.yaml"
+    path.write_text(yaml.safe_dump(cfg))
+    return path
+
+
+def _sweep(*args, timeout=300):
+    return subprocess.run(
+        [*CLI, "sweep", *map(str, args), "--quiet"], capture_output=True, text=True, timeout=timeout
+    )
+
+
+@pytest.mark.system
+def test_a_campaign_writes_one_row_per_run_resumes_and_each_row_runs_again_from_its_config(tmp_path):
+    out = tmp_path / "c"
+    cfg = _config(tmp_path)
+    r = _sweep(cfg, "--vary", "link.loss=0,0.6", "--seeds", "2", "--out", out, "--jobs", "2")
+    assert r.returncode == 0, r.stderr
+    rows = read_rows(out / "table.csv", ["link.loss"])
+    assert [(x["link.loss"], x["seed"]) for x in rows] == [(0.0, 0), (0.0, 1), (0.6, 0), (0.6, 1)]
+    for x in rows:
+        assert x["failure"] == "" and x["passed"] == int(x["max_error_m"] <= 1.0)
+        lost = 1.0 - x["delivered_mean"]  # every edge loses 0.6 of its messages, within 5 sigma
+        assert abs(lost - x["link.loss"]) < 5 * math.sqrt(0.25 / 400) + 0.01
+    clean = [x for x in rows if x["link.loss"] == 0.0]
+    assert clean[0]["max_error_m"] == clean[1]["max_error_m"]  # no loss: the seed changes nothing
+    assert "breaking point" in r.stdout and (out / "error_vs_link.loss.png").stat().st_size > 10_000
+    # run again, with one more value: only its runs are new
+    before = (out / "table.csv").read_text()
+    r = _sweep(cfg, "--vary", "link.loss=0,0.3,0.6", "--seeds", "2", "--out", out, "--jobs", "2")
+    assert r.returncode == 0, r.stderr
+    again = read_rows(out / "table.csv", ["link.loss"])
+    assert len(again) == 6 and [x for x in again if x["link.loss"] != 0.3] == rows
+    assert before.splitlines()[1] in (out / "table.csv").read_text()
+    # a row is its config: run it again and get the same error, to the bit
+    one = rows[3]
+    run = tmp_path / "again"
+    rr = subprocess.run(
+        [*CLI, "run", str(out / one["config"]), "--out", str(run), "--quiet"], capture_output=True
+    )
+    assert rr.returncode in (0, 3), rr.stderr
+    from swarm_sitl.campaigns.point import metrics_of
+
+    assert metrics_of(run, "", 0.0)["max_error_m"] == one["max_error_m"]
+
+
+@pytest.mark.system
+def test_the_same_campaign_on_a_local_dask_cluster_gives_the_same_rows(tmp_path):
+    from distributed import LocalCluster
+
+    import swarm_sitl
+
+    cfg = _config(tmp_path)
+    vary = {"link.loss": [0.0, 0.6]}
+    here = swarm_sitl.sweep(cfg, vary, seeds=[3], out=tmp_path / "here", jobs=2)
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
+        there = swarm_sitl.sweep(
+            cfg, vary, seeds=[3], out=tmp_path / "there", scheduler=cluster.scheduler_address
+        )
+
+    def strip(rows):
+        return [{k: v for k, v in r.items() if k != "wall_s"} for r in rows]
+
+    assert len(here.rows) == 2 and strip(here.rows) == strip(there.rows)
+
+
+@pytest.mark.system
+def test_an_interrupted_campaign_keeps_every_finished_row_and_the_same_command_finishes_it(tmp_path):
+    out = tmp_path / "c"
+    args = [*CLI, "sweep", str(_config(tmp_path)), "--vary", "link.loss=0:0.3:0.1", "--seeds", "1"]
+    args += ["--out", str(out), "--jobs", "1", "--quiet"]
+    proc = subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    table = out / "table.csv"
+    end = time.monotonic() + 120
+    while time.monotonic() < end and len(read_rows(table, ["link.loss"])) < 1:
+        time.sleep(0.2)
+    proc.send_signal(signal.SIGTERM)
+    _out, err = proc.communicate(timeout=60)
+    assert proc.returncode == 143, err
+    assert "interrupted (SIGTERM)" in err and "the same command runs the rest" in err
+    kept = read_rows(table, ["link.loss"])
+    assert 1 <= len(kept) < 4 and all(r["failure"] == "" for r in kept)
+    r = subprocess.run(args, capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    done = read_rows(table, ["link.loss"])
+    assert len(done) == 4 and all(r in done for r in kept)
+
+
+@pytest.mark.system
+def test_bad_campaigns_are_one_line_before_anything_runs(tmp_path):
+    cfg = _config(tmp_path)
+    for args, message in [
+        (["--vary", "gains.kp=1,2"], r"no setting 'gains\.kp'"),
+        (["--vary", "link.loss=0.5:0.1:0.1"], r"the range '0.5:0.1:0.1' is empty"),
+        (["--vary", "link.loss=0,1.5"], r"sweep link\.loss=1\.5: .*less than or equal to 1"),
+        (["--vary", "link.loss=0,0.5", "--duration", "1"], r"the runs end at 1 s, before run\.settle_s"),
+        (
+            ["--vary", "link.loss=0,0.5", "--scheduler", "tcp://127.0.0.1:9"],
+            r"cannot reach the Dask scheduler",
+        ),
+        (["--vary", "link.loss=0", "--seeds", "x"], r"--seeds x: a count or a comma list"),
+    ]:
+        r = _sweep(cfg, *args, "--out", tmp_path / "bad", timeout=60)
+        lines = r.stderr.strip().splitlines()
+        assert r.returncode == 2 and len(lines) == 1 and lines[0].startswith("swarm-sitl: error: "), r.stderr
+        assert __import__("re").search(message, lines[0]), lines[0]
+        assert not (tmp_path / "bad" / "table.csv").exists()
