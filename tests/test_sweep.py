@@ -139,6 +139,14 @@ def test_a_campaign_writes_one_row_per_run_resumes_and_each_row_runs_again_from_
     again = read_rows(out / "table.csv", ["link.loss"])
     assert len(again) == 6 and [x for x in again if x["link.loss"] != 0.3] == rows
     assert before.splitlines()[1] in (out / "table.csv").read_text()
+    # another bound judges the same runs again: none is flown
+    r = _sweep(cfg, "--vary", "link.loss=0,0.3,0.6", "--seeds", "2", "--out", out, "--bound", "1e-9")
+    assert r.returncode == 0, r.stderr
+    judged = read_rows(out / "table.csv", ["link.loss"])
+    assert [x["passed"] for x in judged] == [
+        0
+    ] * 6 and "breaking point: link.loss breaks at its first value" in r.stdout
+    assert [{**x, "passed": 0} for x in again] == judged  # the same runs, to the wall time
     # a row is its config: run it again and get the same error, to the bit
     one = rows[3]
     run = tmp_path / "again"

@@ -133,7 +133,7 @@ def _open_campaign(out: Path, spec: dict[str, Any]) -> None:
             raise SweepSpecError(f"{path}: cannot read it ({e})") from None
         if old.get("base_sha256") != spec["base_sha256"] or old.get("keys") != spec["keys"]:
             raise SweepSpecError(
-                f"--out {out} holds another campaign (its config, bound, plan or swept keys differ); "
+                f"--out {out} holds another campaign (its config, plan or swept keys differ); "
                 "give another --out"
             )
         spec = {**spec, "values": _merge_values(old.get("values", {}), spec["values"])}
@@ -145,6 +145,21 @@ def _open_campaign(out: Path, spec: dict[str, Any]) -> None:
         tmp.replace(path)
     except OSError as e:
         raise SweepSpecError(f"--out {out}: cannot write there ({e.strerror or e})") from None
+
+
+def _flown(base: dict) -> str:
+    """What the runs fly: the base config but its bound, which only judges them (a campaign run
+    again with another ``--bound`` judges its rows again, flying none of them)."""
+    data = {**base, "run": {k: v for k, v in base["run"].items() if k != "max_formation_error_m"}}
+    return yaml.safe_dump(data, sort_keys=True)
+
+
+def judge(rows: list[dict[str, Any]], bound_m: float) -> None:
+    """Each row's ``passed`` against ``bound_m``: it completed and its largest error after settling
+    is within the bound."""
+    for r in rows:
+        err = float(r["max_error_m"])
+        r["passed"] = int(r["failure"] == "" and err == err and err <= bound_m)
 
 
 def _merge_values(old: dict[str, list[float]], new: dict[str, list[float]]) -> dict[str, list[float]]:
@@ -194,12 +209,13 @@ def sweep(
         "seeds": seed_list,
         "bound_m": bound,
         "duration_s": base["duration_s"],
-        "base_sha256": hashlib.sha256(base_text.encode()).hexdigest(),
+        "base_sha256": hashlib.sha256(_flown(base).encode()).hexdigest(),
     }
     _open_campaign(out, spec)
     (out / "base.yaml").write_text(base_text)
     client = connect(scheduler) if scheduler else None
     campaign = Campaign(out, keys, bound, read_rows(out / TABLE, keys))
+    judge(campaign.rows, bound)
     writer = TableWriter(out / TABLE, keys)
     try:
         _run(campaign, base, points, seed_list, 0, writer, client, jobs, progress, keep_runs)
@@ -248,11 +264,11 @@ def _run(
         for s in seeds:
             row = {**p, "seed": s}
             key = row_key(keys, row)
-            if key in done:
-                continue
             name = _name(p, s)
             text = yaml.safe_dump(point_data(base, p, s), sort_keys=False)
-            (campaign.out / POINTS / f"{name}.yaml").write_text(text)
+            (campaign.out / POINTS / f"{name}.yaml").write_text(text)  # a row's config, run or not
+            if key in done:
+                continue
             keep = str(campaign.out / "runs" / name) if keep_runs else None
             tasks.append(Task(key, name, text, keep))
             by_key[key] = {**row, "refined": int(refined > 0), "config": f"{POINTS}/{name}.yaml"}
@@ -262,6 +278,7 @@ def _run(
     with tqdm(total=len(tasks), unit="run", disable=not progress, desc=f"sweep {', '.join(keys)}") as bar:
         for task, metrics in runs:
             row = {**by_key[task.key], **metrics}
+            judge([row], campaign.bound_m)
             writer.add(row)
             campaign.rows.append(row)
             bar.update(1)
