@@ -177,6 +177,7 @@ def sweep(
     bound_m: float | None = None,
     jobs: int | None = None,
     scheduler: str | None = None,
+    scheduler_timeout_s: float = 10.0,
     refine: int = 0,
     progress: bool = False,
     keep_runs: bool = False,
@@ -187,7 +188,8 @@ def sweep(
     (keys: ``grid``'s docstring). ``seeds``: a count (0..n-1) or the seeds. ``faults``: a base
     plan under the swept entries. ``bound_m``: the pass/fail bound (default: the config's
     ``run.max_formation_error_m``). ``jobs``: runs at once here (default: one per core);
-    ``scheduler``: a Dask scheduler's address instead. ``refine``: bisection steps between the
+    ``scheduler``: a Dask scheduler's address instead (reached
+    within ``scheduler_timeout_s``). ``refine``: bisection steps between the
     last value that holds and the first that breaks (one swept key)."""
     items = _vary(vary)
     keys = [k for k, _ in items]
@@ -211,9 +213,14 @@ def sweep(
         "duration_s": base["duration_s"],
         "base_sha256": hashlib.sha256(_flown(base).encode()).hexdigest(),
     }
-    _open_campaign(out, spec)
-    (out / "base.yaml").write_text(base_text)
-    client = connect(scheduler) if scheduler else None
+    client = connect(scheduler, scheduler_timeout_s) if scheduler else None  # before anything is written
+    try:
+        _open_campaign(out, spec)
+        (out / "base.yaml").write_text(base_text)
+    except BaseException:
+        if client is not None:
+            client.close()
+        raise
     campaign = Campaign(out, keys, bound, read_rows(out / TABLE, keys))
     judge(campaign.rows, bound)
     writer = TableWriter(out / TABLE, keys)

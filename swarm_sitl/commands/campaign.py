@@ -34,6 +34,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
             bound_m=args.bound,
             jobs=args.jobs,
             scheduler=args.scheduler,
+            scheduler_timeout_s=args.scheduler_timeout,
             refine=args.refine,
             progress=not args.quiet,
             keep_runs=args.keep_runs,
@@ -79,6 +80,9 @@ def add_sweep(sub: Any) -> None:
     s.add_argument("--bound", type=float, help="the pass/fail bound [m] (default: run.max_formation_error_m)")
     s.add_argument("--jobs", type=int, help="runs at once on this machine (default: one per core)")
     s.add_argument("--scheduler", help="a Dask scheduler's address (tcp://HOST:8786): run there instead")
+    s.add_argument(
+        "--scheduler-timeout", type=float, default=10.0, help="seconds to reach the scheduler (default 10)"
+    )
     s.add_argument("--refine", type=int, default=0, help="bisection steps at the breaking point (one key)")
     s.add_argument("--keep-runs", action="store_true", help="keep each run's directory in OUT/runs")
     s.add_argument("--quiet", action="store_true", help="no progress bar")
