@@ -220,3 +220,47 @@ def test_bad_campaigns_are_one_line_before_anything_runs(tmp_path):
         assert r.returncode == 2 and len(lines) == 1 and lines[0].startswith("swarm-sitl: error: "), r.stderr
         assert __import__("re").search(message, lines[0]), lines[0]
         assert not (tmp_path / "bad").exists()  # nothing written either
+
+
+@pytest.mark.integration
+def test_refine_bisects_between_the_last_value_that_holds_and_the_first_that_breaks_once(
+    tmp_path, monkeypatch
+):
+    """With runs whose largest error is their loss value (a stand-in for the runner), a bound of
+    0.7 on the grid 0, 0.5, 1 holds up to 0.5 and breaks at 1; two bisection steps fly 0.75
+    (breaks) then 0.625 (holds). The same command again flies nothing."""
+    import swarm_sitl.campaigns.sweep as sweep_mod
+
+    flown: list[float] = []
+
+    def fake_runs(tasks, jobs):
+        for t in tasks:
+            loss = sum(e.get("loss", 0.0) for e in yaml.safe_load(t.config_yaml)["faults"]["plan"]) / 4
+            flown.append(round(loss, 12))
+            metrics = {"passed": 1, "max_error_m": loss, "final_error_m": loss, "recovered_s": math.nan}
+            yield (
+                t,
+                {
+                    **metrics,
+                    "delivered_min": 1.0,
+                    "delivered_mean": 1.0,
+                    "failsafe_s": 0.0,
+                    "failure": "",
+                    "wall_s": 0.0,
+                },
+            )
+
+    monkeypatch.setattr(sweep_mod, "run_local", fake_runs)
+    monkeypatch.setattr(sweep_mod.charts, "error_chart", lambda *a, **k: tmp_path / "chart.png")
+    kw = {"out": tmp_path / "c", "seeds": [0], "bound_m": 0.7, "duration_s": 30.0, "refine": 2}
+    c = sweep_mod.sweep(CONFIGS / "paper.yaml", {"link.loss": [0.0, 0.5, 1.0]}, **kw)
+    assert flown == [0.0, 0.5, 1.0, 0.75, 0.625] and c.breaking_point() == (0.625, 0.75)
+    assert [r["refined"] for r in c.rows] == [0, 0, 1, 1, 0] and [r["passed"] for r in c.rows] == [
+        1,
+        1,
+        1,
+        0,
+        0,
+    ]
+    again = sweep_mod.sweep(CONFIGS / "paper.yaml", {"link.loss": [0.0, 0.5, 1.0]}, **kw)
+    assert len(flown) == 5 and again.rows == c.rows

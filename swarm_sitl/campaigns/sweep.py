@@ -76,7 +76,7 @@ def _seeds(seeds: int | Sequence[int]) -> list[int]:
 
 
 def _name(point: dict[str, float], seed: int) -> str:
-    parts = [f"{k}-{v:g}" for k, v in point.items()] + [f"seed-{seed}"]
+    parts = [f"{k}-{v:.12g}" for k, v in point.items()] + [f"seed-{seed}"]
     return re.sub(r"[^A-Za-z0-9._-]", "_", "_".join(parts))
 
 
@@ -226,14 +226,19 @@ def sweep(
     writer = TableWriter(out / TABLE, keys)
     try:
         _run(campaign, base, points, seed_list, 0, writer, client, jobs, progress, keep_runs)
+        # the bisection from the grid's own values, each step's midpoint added: run again, the
+        # same command takes the same steps (their rows are in the table) and flies nothing
+        values = {round(v, 12) for v in items[0][1]}
         for step in range(refine):
-            held, broke = campaign.breaking_point()
+            so_far = [r for r in campaign.rows if round(r[keys[0]], 12) in values]
+            held, broke = breaking_point(so_far, keys[0])
             if held is None or broke is None:
                 break
             mid = round((held + broke) / 2, 12)
             if mid in (held, broke):
                 break
             _check_points(base, [{keys[0]: mid}], seed_list[0])
+            values.add(mid)
             mids = [{keys[0]: mid}]
             _run(campaign, base, mids, seed_list, step + 1, writer, client, jobs, progress, keep_runs)
     except KeyboardInterrupt as e:
