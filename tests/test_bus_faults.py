@@ -412,6 +412,7 @@ def test_every_mavlink_datagram_meets_the_fate_the_plan_draws_for_it_and_is_coun
     n = 400
     want = {"up": dict.fromkeys(EdgeStats.FIELDS, 0), "down": dict.fromkeys(EdgeStats.FIELDS, 0)}
     held: list[tuple[float, str, bytes]] = []  # real time: what the model holds, (due, way, data)
+    last_lost = {"up": False, "down": False}  # a run of lost datagrams goes on
     order = 0
     for k in range(n + 1):
         ms = k * 10
@@ -434,6 +435,8 @@ def test_every_mavlink_datagram_meets_the_fate_the_plan_draws_for_it_and_is_coun
                 order += 1
             w = want[way]
             w["received"] += 1
+            w["loss_runs"] += int(f.lost and not last_lost[way])
+            last_lost[way] = f.lost
             frame = _lpos_datagram(ms)
             if way == "up":
                 written, clock_only = [], []
@@ -535,7 +538,7 @@ def test_the_delay_summary_is_the_median_p99_and_max_of_the_delays():
     view = np.zeros(len(EdgeStats.FIELDS), dtype=np.int64)
     st.bind(view)  # the counts so far move with it
     st.lost += 3
-    assert view.tolist() == [0, 0, 3, 0, 200, 0]
+    assert view.tolist() == [0, 0, 3, 0, 200, 0, 0]
 
 
 def test_an_in_neighbour_is_settled_for_the_steps_that_arrived_and_those_the_plan_has_it_down():

@@ -193,7 +193,7 @@ def test_entries_act_in_plan_order_and_a_loss_ends_it():
 def test_the_mixer_is_splitmix64():
     """The published first outputs of splitmix64 seeded with 0 (Vigna's reference): its state
     advances by the golden gamma and each output is the finaliser of it, which is ``_mix``."""
-    from swarm_sitl.faults.plan import _mix
+    from swarm_sitl.faults.draws import _mix
 
     gamma = 0x9E3779B97F4A7C15
     assert [_mix(k * gamma % 2**64) for k in range(3)] == [

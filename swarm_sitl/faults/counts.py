@@ -27,17 +27,27 @@ class EdgeStats:
     counts live in an int64 array, which ``bind`` moves into a file that outlives the process
     (``NamedCounts``): a killed incarnation's counts still add up in the run's summary."""
 
-    FIELDS = ("received", "delivered", "lost", "corrupt", "delayed", "duplicated")
+    FIELDS = ("received", "delivered", "lost", "corrupt", "delayed", "duplicated", "loss_runs")
     received = _Count(0)  #: arrived (over zenoh, or as datagrams)
     delivered = _Count(1)  #: handed on (a duplicate counts twice)
     lost = _Count(2)  #: hidden by the plan (drop, loss)
     corrupt = _Count(3)  #: corrupted by the plan (and dropped by a checksum)
     delayed = _Count(4)  #: delivered later than on time (delay, stall, reorder)
     duplicated = _Count(5)  #: delivered a second time
+    #: runs of lost messages in a row (``lost / loss_runs``: the mean burst length)
+    loss_runs = _Count(6)
 
     def __init__(self) -> None:
         self.counts = np.zeros(len(self.FIELDS), dtype=np.int64)
         self.delays_s: list[float] = []  #: how much later each delayed one came [s]
+        self.last_lost = False  #: whether the message before was lost (a run goes on)
+
+    def count_fate(self, lost: bool) -> None:
+        """A lost message (``lost``) or not: ``lost`` and ``loss_runs`` as they go."""
+        if lost:
+            self.lost += 1
+            self.loss_runs += not self.last_lost
+        self.last_lost = lost
 
     def bind(self, view: np.ndarray) -> None:
         """Count in ``view`` from now on (what was counted so far is carried over)."""

@@ -115,8 +115,8 @@ class FaultyBus:
         dt = clock.period_s
         at = m.t_s if clock.lockstep else clock.now_s()
         f = fate(self.plan.seed, self.rules[src], channel_of(src, self.node), m.step, at, self.end_s, dt)
+        st.count_fate(f.lost)
         if f.lost:
-            st.lost += 1
             return
         if f.corrupt:
             data = bytearray(encode_message(m))

@@ -73,7 +73,10 @@ class MavlinkFaults:
         return self.stats[way]
 
     def _fate(self, way: str, key: int, t_s: float) -> Any:
-        return fate(self.seed, self.rules[way], self.channel[way], key, t_s, self.end_s, self.clock.period_s)
+        # a bursty entry's chain moves one step per datagram: per tick in lockstep (keys are ms)
+        step = key // self._period_ms if self.clock.lockstep else key
+        rules, channel = self.rules[way], self.channel[way]
+        return fate(self.seed, rules, channel, key, t_s, self.end_s, self.clock.period_s, step)
 
     # -- uplink ----------------------------------------------------------------------------------
     def send(
@@ -87,12 +90,11 @@ class MavlinkFaults:
         st = counted or EdgeStats()
         st.received += 1
         f = self._fate("up", key, stamp_ms / 1000 if lockstep else self.clock.now_s())
+        st.count_fate(bool(f.lost or (f.corrupt and not counted)))
         if f.lost or f.corrupt:
             if f.corrupt and counted:
                 st.corrupt += 1
                 write(_flipped(frame, self.seed, self.channel["up"], key))
-            else:
-                st.lost += 1
             if lockstep:
                 clock_only(stamp_ms + self._period_ms)
             return
@@ -121,11 +123,11 @@ class MavlinkFaults:
         st = counted or EdgeStats()
         st.received += 1
         f = self._fate("down", key, t)
+        st.count_fate(bool(f.lost or (f.corrupt and not counted)))
         if f.lost or f.corrupt:
             if self.clock.lockstep:
                 self.lost_ms = key
             if f.lost or not counted:
-                st.lost += 1
                 return None
             st.corrupt += 1
             return _flipped(data, self.seed, self.channel["down"], key)

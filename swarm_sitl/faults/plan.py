@@ -18,12 +18,15 @@ A plan is the ``faults:`` section of a config, or a file given with ``swarm-sitl
 One entry names one *what*, one *how* and optionally *when*:
 
 - what (links): ``edge: [src, dst]`` (an edge of the graph), ``into: i`` / ``out_of: i`` (every edge
-  into or out of follower i), ``leader_edges: true`` (every edge out of node 0);
+  into or out of follower i), ``leader_edges: true`` (every edge out of node 0), ``partition:
+  [[0, 1, 2], [3, 4]]`` (groups of nodes that cannot hear each other: every edge from one group to
+  another; its how is ``drop`` unless it names another; a node in no group hears everyone);
 - how (links): ``drop: true`` (every message), ``loss: p``, ``delay_s: d`` (plus ``jitter_s: j``,
   uniform in [0, j]), ``stall: true`` (held from ``from_s`` and released in one burst at
   ``until_s``), ``duplicate: p`` (delivered again a period later), ``reorder: p`` (held one period,
   so it comes after the next one), ``corrupt: p`` (one byte flipped: the receiver's checksum drops
-  and counts it);
+  and counts it), ``bursty: {p, r, loss_bad, loss_good}`` (lost in bursts: the Gilbert-Elliott
+  model with netem's parameters, ``bursts``);
 - what (a vehicle link): ``mavlink: i`` (follower i's link to its vehicle) with ``direction: up``
   (setpoints), ``down`` (telemetry) or ``both`` (the default); it fails by the same hows, applied to
   datagrams where the controller sends and receives them. In lockstep it fails by ``drop``,
@@ -56,11 +59,14 @@ from typing import Annotated, Literal, NamedTuple
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
+from swarm_sitl.faults.bursts import GilbertElliott, state_at
+from swarm_sitl.faults.draws import uniform
+
 Probability = Annotated[float, Field(gt=0, le=1)]
 NonNegative = Annotated[float, Field(ge=0)]
 
-LINK_WHAT = ("edge", "into", "out_of", "leader_edges", "mavlink")
-LINK_HOW = ("drop", "loss", "delay_s", "stall", "duplicate", "reorder", "corrupt")
+LINK_WHAT = ("edge", "into", "out_of", "leader_edges", "partition", "mavlink")
+LINK_HOW = ("drop", "loss", "bursty", "delay_s", "stall", "duplicate", "reorder", "corrupt")
 PROCESS_WHAT = ("controller", "vehicle", "leader")
 PROCESS_HOW = ("kill", "freeze_s")
 
@@ -74,12 +80,15 @@ class FaultSpec(BaseModel):
     into: Annotated[int, Field(ge=1)] | None = None  #: every edge into this follower
     out_of: Annotated[int, Field(ge=1)] | None = None  #: every edge out of this follower
     leader_edges: Literal[True] | None = None  #: every edge out of the leader
+    #: groups of nodes (0: the leader) that cannot hear each other: every edge between two groups
+    partition: list[list[Annotated[int, Field(ge=0)]]] | None = None
     mavlink: Annotated[int, Field(ge=1)] | None = None  #: this follower's MAVLink link to its vehicle
     #: which way, with ``mavlink``: ``up`` (setpoints, to the vehicle), ``down`` (telemetry), ``both``
     direction: Literal["up", "down", "both"] | None = None
 
     drop: Literal[True] | None = None  #: every message is lost
     loss: Probability | None = None  #: each message is lost with this probability
+    bursty: GilbertElliott | None = None  #: lost in bursts (``bursts.GilbertElliott``)
     delay_s: NonNegative | None = None  #: each message comes this much later [s]
     jitter_s: NonNegative = 0.0  #: plus a uniform draw in [0, jitter_s] [s] (with delay_s)
     stall: Literal[True] | None = None  #: held until ``until_s``, then released at once
@@ -97,6 +106,15 @@ class FaultSpec(BaseModel):
 
     from_s: NonNegative = 0.0  #: the fault starts [s]
     until_s: Annotated[float, Field(gt=0)] | None = None  #: and ends [s] (default: the end of the run)
+
+    @model_validator(mode="before")
+    @classmethod
+    def _partition_drops(cls, data: object) -> object:
+        """A partition with no how cuts its edges (``drop``)."""
+        named = isinstance(data, dict) and any(data.get(k) is not None for k in LINK_HOW + PROCESS_HOW)
+        if isinstance(data, dict) and data.get("partition") is not None and not named:
+            return {**data, "drop": True}
+        return data
 
     @model_validator(mode="after")
     def _one_of_each(self) -> "FaultSpec":
@@ -127,6 +145,12 @@ class FaultSpec(BaseModel):
             raise ValueError("jitter_s goes with delay_s")
         if self.stall and self.until_s is None:
             raise ValueError("a stall needs until_s (when the held messages are released)")
+        if self.partition is not None:
+            nodes = [n for g in self.partition for n in g]
+            if len(self.partition) < 2 or any(not g for g in self.partition):
+                raise ValueError("a partition is two or more groups of nodes, none empty")
+            if len(set(nodes)) != len(nodes):
+                raise ValueError("a node is in two groups of the partition")
         if self.until_s is not None and self.until_s <= self.from_s:
             raise ValueError(f"until_s ({self.until_s:g}) must be after from_s ({self.from_s:g})")
         return self
@@ -150,6 +174,8 @@ class FaultSpec(BaseModel):
             return self.process
         if self.edge is not None:
             return f"edge {self.edge[0]}->{self.edge[1]}"
+        if self.partition is not None:
+            return "partition " + " | ".join(",".join(map(str, g)) for g in self.partition)
         if self.mavlink is not None:
             way = {"up": "uplink", "down": "downlink"}.get(self.direction or "both", "both ways")
             return f"MAVLink of vehicle {self.mavlink}, {way}"
@@ -171,6 +197,8 @@ class FaultSpec(BaseModel):
             return "drop"
         if self.stall:
             return "stall"
+        if self.bursty is not None:
+            return self.bursty.describe()
         if self.delay_s is not None:
             return f"delay {self.delay_s:g} s" + (f" + U(0, {self.jitter_s:g}) s" if self.jitter_s else "")
         for k in ("loss", "duplicate", "reorder", "corrupt"):
@@ -186,6 +214,9 @@ class FaultSpec(BaseModel):
             return []
         if self.edge is not None:
             return [e for e in es if e == tuple(self.edge)]
+        if self.partition is not None:
+            group = {n: g for g, nodes in enumerate(self.partition) for n in nodes}
+            return [e for e in es if e[0] in group and e[1] in group and group[e[0]] != group[e[1]]]
         if self.into is not None:
             return [e for e in es if e[1] == self.into]
         if self.out_of is not None:
@@ -218,6 +249,9 @@ class FaultPlan(BaseModel):
                 node = getattr(f, key)
                 if node is not None and not 1 <= node <= n_followers:
                     raise ValueError(f"{where}.{key}: follower {node} is not 1..{n_followers}")
+            for node in [n for g in f.partition or [] for n in g]:
+                if node > n_followers:
+                    raise ValueError(f"{where}.partition: node {node} is not 0..{n_followers}")
             if not f.is_process and f.mavlink is None and not f.edges(graph_edges):
                 raise ValueError(f"{where}: {f.what} is not in the graph")
             end = f.from_s + (f.restart_after_s or f.freeze_s or 0.0)
@@ -245,9 +279,9 @@ class FaultPlan(BaseModel):
     def check_lockstep(self) -> None:
         """What a lockstep run cannot do, as a ``ValueError`` naming the entry (one line)."""
         for j, f in enumerate(self.plan):
-            if f.mavlink is not None and f.how.split()[0] not in ("drop", "loss", "corrupt"):
+            if f.mavlink is not None and f.how.split()[0] not in ("drop", "loss", "bursty", "corrupt"):
                 raise ValueError(
-                    f"faults.plan.{j}: in lockstep a MAVLink link fails by drop, loss or corrupt "
+                    f"faults.plan.{j}: in lockstep a MAVLink link fails by drop, loss, bursty or corrupt "
                     "(a lost setpoint or sample is a period on what was there); "
                     f"{f.how} it in a real-time run"
                 )
@@ -292,25 +326,6 @@ class FaultPlan(BaseModel):
 
 
 # -- the fate of one message ---------------------------------------------------------------------
-_MASK = (1 << 64) - 1
-
-
-def _mix(x: int) -> int:
-    """splitmix64's finaliser: a 64-bit integer hash with every input bit reaching every output bit."""
-    x = (x + 0x9E3779B97F4A7C15) & _MASK
-    x = ((x ^ (x >> 30)) * 0xBF58476D1CE4E5B9) & _MASK
-    x = ((x ^ (x >> 27)) * 0x94D049BB133111EB) & _MASK
-    return x ^ (x >> 31)
-
-
-def uniform(seed: int, *keys: int) -> float:
-    """A draw in [0, 1) that depends only on ``seed`` and ``keys`` (non-negative integers)."""
-    h = _mix(seed)
-    for k in keys:
-        h = _mix(h ^ k)
-    return (h >> 11) / float(1 << 53)
-
-
 class Fate(NamedTuple):
     """What the plan does to one message."""
 
@@ -335,9 +350,11 @@ def fate(
     t_s: float,
     end_s: float,
     period_s: float,
+    step: int | None = None,
 ) -> Fate:
     """The fate of message ``key`` (its step) on ``channel`` at time ``t_s``, under ``rules``
-    (``FaultPlan.on_edge``): entries act in plan order, a loss ends it."""
+    (``FaultPlan.on_edge``): entries act in plan order, a loss ends it. ``step``: the message's
+    place in its stream, for a bursty entry's chain (default ``key``)."""
     lost = corrupt = duplicate = False
     delay = 0.0
     acted: list[int] = []
@@ -345,6 +362,11 @@ def fate(
         if not f.active(t_s, end_s):
             continue
         draw = uniform(seed, j, channel, key, _DRAW)
+        if f.bursty is not None:
+            bad = state_at(f.bursty, seed, j, channel, key if step is None else step)
+            if draw < (f.bursty.loss_bad if bad else f.bursty.loss_good):
+                return Fate(True, False, 0.0, False, (*acted, j))
+            continue
         if f.drop or (f.loss is not None and draw < f.loss):
             return Fate(True, False, 0.0, False, (*acted, j))
         if f.corrupt is not None and draw < f.corrupt:

@@ -1,0 +1,136 @@
+"""Link models of the fault plan beyond independent loss: bursty loss (Gilbert-Elliott, netem's
+parameters) against the model's closed forms, and partitions; then a lockstep swarm under bursty
+loss on every edge, its counts against the model and the same run twice."""
+
+import math
+
+import numpy as np
+import pytest
+import yaml
+
+from swarm_sitl.config.load import ConfigError, parse_config
+from swarm_sitl.faults import bursts
+from swarm_sitl.faults.bursts import GilbertElliott
+from swarm_sitl.faults.plan import FaultSpec, edge_channel, fate
+from tests.conftest import CONFIGS
+
+
+def _paper(plan: list[dict]) -> dict:
+    data = yaml.safe_load((CONFIGS / "paper.yaml").read_text())
+    data["faults"] = {"seed": 3, "plan": plan}
+    return data
+
+
+def _losses(model: dict, n: int, seed: int = 1) -> np.ndarray:
+    rules = [(0, FaultSpec(edge=(1, 4), bursty=model))]
+    return np.array([fate(seed, rules, edge_channel(1, 4), k, 0.0, 1.0, 0.01).lost for k in range(n)])
+
+
+def _runs(lost: np.ndarray) -> np.ndarray:
+    """The lengths of the runs of True in ``lost``."""
+    edges = np.diff(np.concatenate([[0], lost.astype(int), [0]]))
+    return np.nonzero(edges == -1)[0] - np.nonzero(edges == 1)[0]
+
+
+@pytest.mark.unit
+@pytest.mark.parametrize(
+    "model",
+    [{"p": 0.05, "r": 0.25}, {"p": 0.02, "r": 0.1, "loss_bad": 0.8, "loss_good": 0.01}],
+    ids=["clean bursts", "lossy good state"],
+)
+def test_bursty_loss_has_the_models_mean_loss(model):
+    """The mean of a two-state chain's losses: variance of the mean pi (1 - pi) / n times
+    (1 + lambda) / (1 - lambda), lambda = 1 - p - r its second eigenvalue (an upper bound when
+    the states lose only in part); five standard deviations."""
+    ge = GilbertElliott(**model)
+    n = 100_000
+    lost = _losses(model, n)
+    lam = 1 - ge.p - ge.r
+    sigma = math.sqrt(ge.mean_loss * (1 - ge.mean_loss) / n * (1 + lam) / (1 - lam))
+    assert abs(lost.mean() - ge.mean_loss) < 5 * sigma, (lost.mean(), ge.mean_loss)
+    assert ge.mean_loss == pytest.approx((ge.r * ge.loss_good + ge.p * ge.loss_bad) / (ge.p + ge.r))
+
+
+@pytest.mark.unit
+def test_clean_bursts_are_geometric_with_mean_one_over_r():
+    """With loss_bad 1 and loss_good 0 a burst is a stay in the bad state: geometric, mean 1 / r,
+    standard deviation sqrt(1 - r) / r; its mean over the bursts seen within five of theirs."""
+    ge = GilbertElliott(p=0.05, r=0.25)
+    runs = _runs(_losses({"p": 0.05, "r": 0.25}, 100_000))
+    sigma = math.sqrt(1 - ge.r) / ge.r / math.sqrt(len(runs))
+    assert abs(runs.mean() - ge.mean_burst) < 5 * sigma, (runs.mean(), len(runs))
+    # the shape: P(length 1) = r
+    assert abs((runs == 1).mean() - ge.r) < 5 * math.sqrt(ge.r * (1 - ge.r) / len(runs))
+
+
+@pytest.mark.unit
+def test_a_chain_is_the_same_whatever_order_it_is_asked_in_and_each_entry_and_edge_its_own():
+    model = {"p": 0.1, "r": 0.3}
+    first = _losses(model, 2000)
+    bursts._CHAINS.clear()
+    rules = [(0, FaultSpec(edge=(1, 4), bursty=model))]
+    order = [1500, 3, 1999, 700, 0, 1200]
+    again = [fate(1, rules, edge_channel(1, 4), k, 0.0, 1.0, 0.01).lost for k in order]
+    assert again == [bool(first[k]) for k in order]
+    other_edge = [fate(1, rules, edge_channel(2, 4), k, 0.0, 1.0, 0.01).lost for k in range(2000)]
+    other_seed = _losses(model, 2000, seed=2)
+    assert other_edge != first.tolist() and other_seed.tolist() != first.tolist()
+
+
+@pytest.mark.unit
+@pytest.mark.parametrize(
+    "entry, message",
+    [
+        ({"edge": [1, 4], "bursty": {"p": 0, "r": 0.5}}, r"faults\.plan\.0\.bursty\.p: .*greater than 0"),
+        ({"edge": [1, 4], "bursty": {"p": 0.1}}, r"faults\.plan\.0\.bursty\.r: missing key"),
+        ({"edge": [1, 4], "bursty": {"p": 0.1, "r": 0.2, "loss_bad": 0}}, r"loses nothing"),
+        ({"edge": [1, 4], "bursty": {"p": 0.1, "r": 0.2, "h": 0.5}}, r"bursty\.h: unknown key"),
+        ({"partition": [[0, 1, 2, 3, 4]]}, r"two or more groups"),
+        ({"partition": [[0, 1], [1, 2]]}, r"a node is in two groups"),
+        ({"partition": [[0, 1], [2, 9]]}, r"faults\.plan\.0\.partition: node 9 is not 0\.\.4"),
+    ],
+)
+def test_a_bad_link_model_is_one_line_naming_it(entry, message):
+    with pytest.raises(ConfigError, match=message):
+        parse_config(_paper([entry]), "paper.yaml")
+
+
+@pytest.mark.unit
+def test_a_partition_cuts_every_edge_between_its_groups_for_its_window():
+    cfg = parse_config(_paper([{"partition": [[0, 1, 2], [3, 4]], "from_s": 5, "until_s": 6}]), "paper.yaml")
+    edges = cfg.graph_edges()
+    spec = cfg.faults.plan[0]
+    crossing = [e for e in edges if (e[0] in (0, 1, 2)) != (e[1] in (0, 1, 2))]
+    assert crossing and spec.edges(edges) == crossing and spec.drop and spec.how == "drop"
+    rules = [(0, spec)]
+    src, dst = crossing[0]
+    cut = [k for k in range(1000) if fate(0, rules, edge_channel(src, dst), k, k * 0.01, 10.0, 0.01).lost]
+    assert cut == list(range(500, 600))
+    some = parse_config(_paper([{"partition": [[0], [3]], "loss": 0.5}]), "paper.yaml").faults.plan[0]
+    assert some.edges(edges) == [(0, 3)] and some.loss == 0.5 and not some.drop  # node 4 in no group
+
+
+@pytest.mark.system
+def test_a_lockstep_swarm_under_bursty_loss_counts_the_models_loss_and_bursts_and_repeats_itself(tmp_path):
+    from swarm_sitl import Swarm
+
+    model = {"p": 0.05, "r": 0.25}
+    ge = GilbertElliott(**model)
+    cfg = parse_config(_paper([]), "paper.yaml")
+    plan = [{"into": f.id, "bursty": model} for f in cfg.followers]
+    results = []
+    for run in ("a", "b"):
+        with Swarm(cfg, faults=plan, seed=11, out=tmp_path / run) as swarm:
+            results.append(swarm.run(duration_s=20.0))
+    edges = {k: v for k, v in results[0].links.items() if "->" in k}
+    received = sum(v["received"] for v in edges.values())
+    lost = sum(v["lost"] for v in edges.values())
+    runs = sum(v["loss_runs"] for v in edges.values())
+    lam = 1 - ge.p - ge.r
+    sigma = math.sqrt(ge.mean_loss * (1 - ge.mean_loss) / received * (1 + lam) / (1 - lam))
+    assert abs(lost / received - ge.mean_loss) < 5 * sigma, (lost, received)
+    burst_sigma = math.sqrt(1 - ge.r) / ge.r / math.sqrt(runs)
+    assert abs(lost / runs - ge.mean_burst) < 5 * burst_sigma, (lost, runs)
+    assert results[0].ok and results[0].max_formation_error_m(after_s=15) < 0.05
+    for name in ["summary.json", "events.jsonl", *(f"follower_{i}.npz" for i in range(1, 5))]:
+        assert (tmp_path / "a" / name).read_bytes() == (tmp_path / "b" / name).read_bytes(), name
