@@ -105,17 +105,26 @@ def _step(ap: Autopilot, f, n_steps: int) -> None:
     left = n_steps
     while left > 0:
         chunk = f.own_steps(left)
+        assert 0 < chunk <= left, chunk  # (else this loop would never end)
         ap.advance(chunk)
         left -= chunk
         f.check_failsafe()
+
+
+def _until_failsafe(ap: Autopilot, f, max_steps: int = 3000) -> None:
+    """One attitude step at a time until the vehicle leaves offboard (at most ``max_steps``)."""
+    for _ in range(max_steps):
+        if f.mode != MODE_OFFBOARD:
+            return
+        _step(ap, f, 1)
+    raise AssertionError(f"still in offboard after {max_steps} steps")
 
 
 @pytest.mark.unit
 @pytest.mark.parametrize("timeout_s", [0.05, 0.5, 1.3])
 def test_the_failsafe_begins_the_first_step_after_sp_timeout_without_a_setpoint(timeout_s):
     ap, f, said, events = _modes(ACTION_HOLD, timeout_s)
-    while f.mode == MODE_OFFBOARD:
-        _step(ap, f, 1)
+    _until_failsafe(ap, f)
     assert f.mode == MODE_FAILSAFE
     assert timeout_s < ap.time_s <= timeout_s + ap.dt_s + 1e-12, (ap.time_s, timeout_s)
     ((t_s, kind, fields),) = events.seen
@@ -125,8 +134,7 @@ def test_the_failsafe_begins_the_first_step_after_sp_timeout_without_a_setpoint(
     # a setpoint brings it back to offboard, and the loss is counted again from it
     assert f.take_setpoint() and f.mode == MODE_OFFBOARD and events.seen[-1][1] == "failsafe_exit"
     t_back = ap.time_s
-    while f.mode == MODE_OFFBOARD:
-        _step(ap, f, 1)
+    _until_failsafe(ap, f)
     assert timeout_s < ap.time_s - t_back <= timeout_s + ap.dt_s + 1e-12
 
 
@@ -242,8 +250,7 @@ def test_entering_and_leaving_the_failsafe_is_said_and_recorded_naming_the_vehic
     ap, f, _said, events = _modes(ACTION_LAND, 0.05)
     f.say = lambda sev, text: severities.append((sev, text))
     before = time.time()
-    while f.mode == MODE_OFFBOARD:
-        _step(ap, f, 1)
+    _until_failsafe(ap, f)
     assert f.take_setpoint()
     f.check_failsafe()
     _step(ap, f, 100)
@@ -266,8 +273,7 @@ def test_entering_and_leaving_the_failsafe_is_said_and_recorded_naming_the_vehic
 @pytest.mark.unit
 def test_the_own_position_loop_runs_once_every_failsafe_period():
     ap, f, _said, _events = _modes(ACTION_HOLD, 0.05)
-    while f.mode == MODE_OFFBOARD:
-        _step(ap, f, 1)
+    _until_failsafe(ap, f)
     calls = []
     real = ap.set_command
     ap.set_command = lambda c: (calls.append(ap.step_index), real(c))  # type: ignore[method-assign]
