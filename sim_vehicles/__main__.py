@@ -23,6 +23,7 @@ from sim_vehicles.mavlink.wire_format import command_roundtrip, encode_attitude_
 from sim_vehicles.plant.autopilot import Autopilot
 from sim_vehicles.plant.failsafe import ACTION_LAND, ACTIONS, failsafe_command, hold_at
 from sim_vehicles.plant.params import MAX_RATE_DEFAULT_RPS, AttitudeGains, VehicleParamError, VehicleParams
+from sim_vehicles.plant.sensors import SensorModel
 from sim_vehicles.runtime.lifeline import (
     batch_scheduling,
     hold_on,
@@ -72,6 +73,16 @@ def _host_port(text: str) -> tuple[str, int]:
     if not host or not port.isdigit() or not 0 < int(port) < 65536:
         raise ValueError(f"--gcs-remote must be HOST:PORT, got {text!r}")
     return host, int(port)
+
+
+def _sensors(a: argparse.Namespace) -> SensorModel | None:
+    """The sensor model the arguments ask for (None: the true state is reported)."""
+    values = (a.position_noise_m, a.velocity_noise_mps, a.attitude_noise_rad, a.sensor_latency_s)
+    if any(v < 0 or v != v for v in values):
+        raise ValueError("sensor noise and latency are zero or positive")
+    if not any(values):
+        return None
+    return SensorModel(a.id, *values, seed=a.sensor_seed)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -131,6 +142,15 @@ def main(argv: list[str] | None = None) -> int:
         default="hold",
         help="what the vehicle flies when its setpoints stop (PX4's COM_OBL_ACT): hold position or land",
     )
+    p.add_argument(
+        "--position-noise-m", type=float, default=0.0, help="reported position noise, per axis [m]"
+    )
+    p.add_argument("--velocity-noise-mps", type=float, default=0.0, help="reported velocity noise [m/s]")
+    p.add_argument("--attitude-noise-rad", type=float, default=0.0, help="reported attitude noise [rad]")
+    p.add_argument(
+        "--sensor-latency-s", type=float, default=0.0, help="the report is the state this long ago [s]"
+    )
+    p.add_argument("--sensor-seed", type=int, default=0, help="seed of the reported state's noise")
     p.add_argument("--events", help="write failsafe events (JSON lines) to this file")
     p.add_argument(
         "--signing-key-file",
@@ -182,6 +202,7 @@ def main(argv: list[str] | None = None) -> int:
             signing_key=key,
             gcs_bind=None if a.gcs_port is None else (a.host, a.gcs_port),
             gcs_remote=_host_port(a.gcs_remote) if a.gcs_remote else None,
+            sensors=_sensors(a),
         )
     except (VehicleParamError, ValueError) as e:
         print(f"sim_vehicles: error: {e}", file=sys.stderr)

@@ -57,6 +57,7 @@ from sim_vehicles.mavlink.wire_format import (
 )
 from sim_vehicles.plant.autopilot import Autopilot
 from sim_vehicles.plant.failsafe import ACTION_HOLD
+from sim_vehicles.plant.sensors import SensorModel
 from sim_vehicles.runtime.event_log import EventLog
 from sim_vehicles.runtime.row_log import RowLog
 from sim_vehicles.vehicle import lockstep_tick, loops, services
@@ -90,6 +91,8 @@ class VehicleEndpoint:
     gcs_rates: TelemetryRates = GCS_RATES
     #: where the ground-station port sends until someone speaks to it (PX4 sends to 14550)
     gcs_remote: tuple[str, int] | None = None
+    #: latency and noise of the state it reports (``plant.sensors``; None: the true state)
+    sensors: SensorModel | None = None
 
     def __post_init__(self) -> None:
         self._lockstep_steps = 0
@@ -317,6 +320,12 @@ class VehicleEndpoint:
         elif not services.answer_request(port, m) and t != "HEARTBEAT":  # a heartbeat needs no answer
             self.stats.rx_unhandled += 1
 
+    def reported_state(self, ms: int) -> np.ndarray:
+        """The state its sample at ``time_boot_ms`` ``ms`` reports: the true state, or what its
+        sensor model makes of it."""
+        x = self.autopilot.state
+        return x if self.sensors is None else self.sensors.reported(ms / 1000, ms, x)
+
     # -- setpoints -------------------------------------------------------------------------------
     def _usual_tick(self, r: np.ndarray) -> bool:
         """Take a setpoint (``tick_frames.read_setpoint``'s ``r``) as a lockstep tick in one
@@ -326,7 +335,7 @@ class VehicleEndpoint:
         ``_stream`` keep them, and the state and frames are theirs bit for bit. False: not the
         usual tick (the general path takes it)."""
         f = self.flight
-        if not (self._lockstep_steps and f.armed and f.mode == MODE_OFFBOARD):
+        if not (self._lockstep_steps and f.armed and f.mode == MODE_OFFBOARD) or self.sensors is not None:
             return False
         v = r.tolist()  # Python floats: cheaper to compare than numpy's scalars
         if not (

@@ -85,6 +85,10 @@ class VehicleState(Protocol):
     home: px4.Home
     system_id: int
 
+    def reported_state(self, ms: int) -> np.ndarray:
+        """The state a sample at ``time_boot_ms`` ``ms`` reports (``plant.sensors``)."""
+        ...
+
 
 class Telemetry:
     """The vehicle's telemetry messages: ``senders`` (the streams) and ``on_request`` (those and
@@ -119,9 +123,8 @@ class Telemetry:
         """LOCAL_POSITION_NED or ATTITUDE_QUATERNION of the current state, converted and packed in
         one compiled call (``tick_frames``). Plain, like every frame queued: the port signs what
         it sends on a signed link."""
-        n = pack(
-            self._out, port.mav.seq, self.vehicle.system_id, px4.AUTOPILOT, layout.spec, ms, self._ap.state
-        )
+        x = self.vehicle.reported_state(ms)
+        n = pack(self._out, port.mav.seq, self.vehicle.system_id, px4.AUTOPILOT, layout.spec, ms, x)
         port.take(self._out, n)
 
     def local_position(self, port: Port, ms: int) -> None:

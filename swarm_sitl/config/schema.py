@@ -98,6 +98,25 @@ class GraphSpec(_Strict):
     edges: list[tuple[int, int] | tuple[int, int, Positive]]  #: [src, dst] or [src, dst, weight]
 
 
+class SensorSpec(_Strict):
+    """What each vehicle reports of its state (LOCAL_POSITION_NED, ATTITUDE_QUATERNION) as an
+    autopilot's estimator gives it (``sim_vehicles.plant.sensors``); the truth files keep the
+    true state. Off by default; ``sim`` reports the same, so a lockstep run still equals it."""
+
+    position_noise_m: Annotated[float, Field(ge=0)] = 0.0  #: Gaussian, per axis [m]
+    velocity_noise_mps: Annotated[float, Field(ge=0)] = 0.0  #: Gaussian, per axis [m/s]
+    attitude_noise_rad: Annotated[float, Field(ge=0)] = 0.0  #: Gaussian error rotation, per axis [rad]
+    latency_s: Annotated[float, Field(ge=0)] = 0.0  #: the report is the state this long ago [s]
+    seed: Annotated[int, Field(ge=0, lt=2**63)] = 0  #: of the noise: the same seed, the same noise
+
+    @property
+    def enabled(self) -> bool:
+        return any(
+            v > 0
+            for v in (self.position_noise_m, self.velocity_noise_mps, self.attitude_noise_rad, self.latency_s)
+        )
+
+
 class VehicleSpec(_Strict):
     mass_kg: Positive  #: every follower's mass m [kg]
     inertia_kgm2: tuple[
@@ -112,6 +131,7 @@ class VehicleSpec(_Strict):
     #: commanded body rates are clipped to +- these (PX4's MC_ROLLRATE_MAX, MC_PITCHRATE_MAX,
     #: MC_YAWRATE_MAX) [rad/s]; the default is PX4's largest setting, 1800 deg/s
     max_rate_rps: tuple[Positive, Positive, Positive] = (MAX_RATE_DEFAULT_RPS,) * 3
+    sensors: SensorSpec = SensorSpec()  #: latency and noise of the state it reports
 
 
 class FollowerSpec(_Strict):

@@ -25,6 +25,7 @@ from sim_vehicles.mavlink.wire_format import (
     sample_fields,
     sample_from_fields,
 )
+from sim_vehicles.plant.sensors import SensorModel
 from swarm_sitl.bus.codec import Message
 from swarm_sitl.config.schema import SwarmConfig
 from swarm_sitl.laws.contract import Received, VehicleSample
@@ -48,6 +49,15 @@ def sample_through_wire(t_s: float, state: np.ndarray) -> VehicleSample:
     return VehicleSample(t_s, s[SAMPLE_P], s[SAMPLE_V], s[SAMPLE_Q])
 
 
+def sensor_model(cfg: SwarmConfig, i: int) -> SensorModel | None:
+    """Follower ``i``'s vehicle's sensor model, as its process builds it (None: off)."""
+    s = cfg.vehicle.sensors
+    if not s.enabled:
+        return None
+    values = (s.position_noise_m, s.velocity_noise_mps, s.attitude_noise_rad, s.latency_s)
+    return SensorModel(i, *values, seed=s.seed)
+
+
 def run_sim(
     cfg: SwarmConfig, n_steps: int | None = None, progress: Callable[[int], None] | None = None
 ) -> Recording:
@@ -64,6 +74,7 @@ def run_sim(
     n_att = cfg.rates.attitude_steps_per_control
     dt = cfg.control_dt_s
     latest: dict[int, Message] = {}
+    sensors = {i: sensor_model(cfg, i) for i in ids}  # (None: the true state is sampled)
 
     def recording() -> Recording:
         t_s = np.arange(n + 1) * dt
@@ -83,7 +94,9 @@ def run_sim(
             ap = aps[i]
             series[i].record_vehicle(k, t, ap.state)
             try:
-                step = laws[i].step(t, sample_through_wire(t, ap.state), inboxes[i])
+                s = sensors[i]
+                x = ap.state if s is None else s.reported(round(t * 1000) / 1000, round(t * 1000), ap.state)
+                step = laws[i].step(t, sample_through_wire(t, x), inboxes[i])
             except LawError as e:
                 raise SimFailedError(e, recording()) from e
             series[i].record_controller(k, step.command, step.record)

@@ -114,6 +114,16 @@ def vehicle_argv(
         "--truth",
         str(vehicle_truth_path(run_dir, i)),
     ]
+    s = v.sensors
+    if s.enabled:
+        argv += [
+            "--position-noise-m",
+            repr(s.position_noise_m),
+            "--velocity-noise-mps",
+            repr(s.velocity_noise_mps),
+        ]
+        argv += ["--attitude-noise-rad", repr(s.attitude_noise_rad), "--sensor-latency-s", repr(s.latency_s)]
+        argv += ["--sensor-seed", str(s.seed)]
     if lockstep:
         argv += ["--lockstep-period-s", repr(cfg.control_dt_s)]
     return argv

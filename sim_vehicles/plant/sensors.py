@@ -1,0 +1,76 @@
+"""What the vehicle reports of its state, as an autopilot's estimator gives it: the true state
+some latency ago, plus seeded noise. Off by default (the report is the true state).
+
+``SensorModel.reported(t_s, key, x)`` takes the true state ``x`` at ``t_s`` (the instant of a
+sample, simulated seconds) and returns the state the vehicle sends in LOCAL_POSITION_NED and
+ATTITUDE_QUATERNION:
+
+- latency: the true state of the last sample at or before ``t_s - latency_s`` (the first sample's
+  until then), as a state estimate that lags;
+- noise: independent zero-mean Gaussian errors, ``position_noise_m`` on each position axis,
+  ``velocity_noise_mps`` on each velocity axis, and an attitude error rotation whose rotation
+  vector has ``attitude_noise_rad`` on each axis (applied in the body frame), drawn from
+  ``(seed, system id, key)``: the same run gets the same noise, whatever the machine does.
+
+The truth files keep the true state, so a run's error plots stay true. Pure: no clock, no I/O.
+"""
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from sim_vehicles.common.quaternion import qmul
+from sim_vehicles.common.state import POS, QUAT, VEL
+
+
+@dataclass
+class SensorModel:
+    """Latency and noise of what vehicle ``system_id`` reports (``reported``)."""
+
+    system_id: int
+    position_noise_m: float = 0.0
+    velocity_noise_mps: float = 0.0
+    attitude_noise_rad: float = 0.0
+    latency_s: float = 0.0
+    seed: int = 0
+    _history: list[tuple[float, np.ndarray]] = field(default_factory=list, repr=False)
+
+    @property
+    def active(self) -> bool:
+        return any(v > 0 for v in (self.position_noise_m, self.velocity_noise_mps, self.attitude_noise_rad))
+
+    def lags(self) -> bool:
+        return self.latency_s > 0
+
+    def reported(self, t_s: float, key: int, x: np.ndarray) -> np.ndarray:
+        """The state to report at ``t_s`` (a new array; ``x`` is not changed)."""
+        y = self._delayed(t_s, x) if self.latency_s > 0 else x.copy()
+        if not self.active:
+            return y
+        e = np.random.default_rng([self.seed, self.system_id, key]).standard_normal(9)
+        y[POS] += self.position_noise_m * e[0:3]
+        y[VEL] += self.velocity_noise_mps * e[3:6]
+        if self.attitude_noise_rad > 0:
+            y[QUAT] = qmul(y[QUAT], _rotation(self.attitude_noise_rad * e[6:9]))
+        return y
+
+    def _delayed(self, t_s: float, x: np.ndarray) -> np.ndarray:
+        """The true state of the newest sample at or before ``t_s - latency_s`` (the oldest kept
+        if none is that old yet); older ones are dropped (times only grow)."""
+        h = self._history
+        if not h or t_s > h[-1][0]:
+            h.append((t_s, x.copy()))
+        cut = t_s - self.latency_s + 1e-9
+        chosen = next((i for i in range(len(h) - 1, -1, -1) if h[i][0] <= cut), 0)
+        del h[:chosen]
+        return h[0][1].copy()
+
+
+def _rotation(v: np.ndarray) -> np.ndarray:
+    """The unit quaternion of rotation vector ``v`` [rad]."""
+    angle = float(np.linalg.norm(v))
+    if angle == 0.0:
+        return np.array([1.0, 0.0, 0.0, 0.0])
+    s = math.sin(angle / 2) / angle
+    return np.array([math.cos(angle / 2), s * v[0], s * v[1], s * v[2]])
