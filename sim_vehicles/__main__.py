@@ -24,6 +24,7 @@ from sim_vehicles.plant.autopilot import Autopilot
 from sim_vehicles.plant.failsafe import ACTION_LAND, ACTIONS, failsafe_command, hold_at
 from sim_vehicles.plant.params import MAX_RATE_DEFAULT_RPS, AttitudeGains, VehicleParamError, VehicleParams
 from sim_vehicles.plant.sensors import SensorModel
+from sim_vehicles.plant.wind import WindModel
 from sim_vehicles.runtime.lifeline import (
     batch_scheduling,
     hold_on,
@@ -73,6 +74,15 @@ def _host_port(text: str) -> tuple[str, int]:
     if not host or not port.isdigit() or not 0 < int(port) < 65536:
         raise ValueError(f"--gcs-remote must be HOST:PORT, got {text!r}")
     return host, int(port)
+
+
+def _wind(a: argparse.Namespace) -> WindModel | None:
+    """The wind the arguments ask for (None: still air)."""
+    if a.gust_mps < 0 or not a.gust_time_s > 0:
+        raise ValueError("--gust-mps is zero or positive and --gust-time-s positive")
+    if not any(a.wind_mps) and a.gust_mps == 0:
+        return None
+    return WindModel(a.id, tuple(a.wind_mps), a.gust_mps, a.gust_time_s, a.wind_seed)
 
 
 def _sensors(a: argparse.Namespace) -> SensorModel | None:
@@ -142,6 +152,11 @@ def main(argv: list[str] | None = None) -> int:
         default="hold",
         help="what the vehicle flies when its setpoints stop (PX4's COM_OBL_ACT): hold position or land",
     )
+    p.add_argument("--drag-ns2pm2", type=float, default=0.0, help="quadratic drag rho C_d A / 2 [N s^2/m^2]")
+    p.add_argument("--wind-mps", type=float, nargs=3, default=[0.0, 0.0, 0.0], help="mean wind [m/s; ENU]")
+    p.add_argument("--gust-mps", type=float, default=0.0, help="gusts' standard deviation per axis [m/s]")
+    p.add_argument("--gust-time-s", type=float, default=1.0, help="gusts' correlation time [s]")
+    p.add_argument("--wind-seed", type=int, default=0, help="seed of the gusts")
     p.add_argument(
         "--position-noise-m", type=float, default=0.0, help="reported position noise, per axis [m]"
     )
@@ -186,7 +201,12 @@ def main(argv: list[str] | None = None) -> int:
     try:
         key = read_key(a.signing_key_file) if a.signing_key_file else None
         params = VehicleParams(
-            a.mass_kg, tuple(a.inertia_kgm2), a.max_thrust_n, a.gravity_mps2, tuple(a.max_rate_rps)
+            a.mass_kg,
+            tuple(a.inertia_kgm2),
+            a.max_thrust_n,
+            a.gravity_mps2,
+            tuple(a.max_rate_rps),
+            a.drag_ns2pm2,
         )
         gains = AttitudeGains(a.l_q, a.k_q)
         ep = VehicleEndpoint(
@@ -204,6 +224,7 @@ def main(argv: list[str] | None = None) -> int:
             gcs_remote=_host_port(a.gcs_remote) if a.gcs_remote else None,
             sensors=_sensors(a),
         )
+        ep.autopilot.wind = _wind(a)
     except (VehicleParamError, ValueError) as e:
         print(f"sim_vehicles: error: {e}", file=sys.stderr)
         return 2

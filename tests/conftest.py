@@ -35,11 +35,20 @@ def compiled_kernels(request: pytest.FixtureRequest) -> None:
         return
     if not any(item.get_closest_marker("system") for item in request.session.items):
         return
-    import sim_vehicles.mavlink.signing as signing
-    from swarm_sitl.running.fork_server import _warm_up
+    import subprocess
+    import sys
 
-    _warm_up(str(CONFIGS / "paper.yaml"))
+    # a vehicle's kernels in a second process while this one compiles the laws': two cores
+    vehicle = subprocess.Popen(
+        [sys.executable, "-c", "from swarm_sitl.running.fork_server import _warm_up; _warm_up(None)"]
+    )
+    import sim_vehicles.mavlink.signing as signing
+    from swarm_sitl.config.load import load_config
+    from swarm_sitl.running.sim import run_sim
+
+    run_sim(load_config(CONFIGS / "paper.yaml"), n_steps=1)
     signing.warm_up()
+    vehicle.wait()
 
 
 @pytest.fixture(scope="session")

@@ -20,8 +20,9 @@ from sim_vehicles.common.command import ZERO3, AttitudeCommand
 from sim_vehicles.common.jit import kernel, kernel_array
 from sim_vehicles.common.state import QUAT, RATE, STATE_SIZE
 from sim_vehicles.plant.params import AttitudeGains, VehicleParams
-from sim_vehicles.plant.rigid_body import rk4_step
+from sim_vehicles.plant.rigid_body import rk4_step, rk4_step_in_air
 from sim_vehicles.plant.torque_law import torque
+from sim_vehicles.plant.wind import WindModel
 
 _ZERO3_ARG = np.zeros(3)  #: what the kernel gets for ``ZERO3``: writable (one signature), never written
 
@@ -41,10 +42,12 @@ def advance_kernel(
     max_thrust_N,
     max_rate,
     dt_s,
+    drag_Ns2pm2,
+    wind_W,
     n_steps,
 ):
     """Advance the state ``n_steps`` attitude-loop steps under one held command (thrust clipped to
-    ``0..max_thrust_N``, body rates to ``+-max_rate``)."""
+    ``0..max_thrust_N``, body rates to ``+-max_rate``); with drag, in the wind ``wind_W``."""
     T = min(max(thrust_N, 0.0), max_thrust_N)
     qc_neg = -q_c
     if np.any(np.abs(omega_c) > max_rate):
@@ -54,7 +57,10 @@ def advance_kernel(
         dot = q[0] * q_c[0] + q[1] * q_c[1] + q[2] * q_c[2] + q[3] * q_c[3]
         qc = q_c if dot >= 0.0 else qc_neg
         tau = torque(q, x[RATE], qc, omega_c, omegadot_c, inertia_kgm2, l_q, k_q)
-        x = rk4_step(x, T, tau, mass_kg, inertia_kgm2, g_mps2, dt_s)
+        if drag_Ns2pm2 > 0.0:
+            x = rk4_step_in_air(x, T, tau, mass_kg, inertia_kgm2, g_mps2, dt_s, drag_Ns2pm2, wind_W)
+        else:  # still air: the step without the drag term at all (the same bits as before it)
+            x = rk4_step(x, T, tau, mass_kg, inertia_kgm2, g_mps2, dt_s)
     return x
 
 
@@ -82,6 +88,9 @@ class Autopilot:
         self._inertia = params.inertia
         #: the body-rate limit in force [rad/s], from ``params.max_rate_rps`` (a PARAM_SET may change it)
         self.max_rate_rps = np.array(params.max_rate_rps, dtype=float)
+        #: the wind at the vehicle [m/s; ENU], changed in place (``wind``, at each ``advance``)
+        self.wind_W = np.zeros(3)
+        self.wind: WindModel | None = None  #: the air it flies in (``plant.wind``); None: still air
         self.set_command(AttitudeCommand(q_c=self.state[QUAT].copy(), thrust_N=params.hover_thrust_N))
 
     @property
@@ -111,9 +120,14 @@ class Autopilot:
             p.max_thrust_N,
             self.max_rate_rps,
             self.dt_s,
+            p.drag_Ns2pm2,
+            self.wind_W,
         )
 
     def advance(self, n_steps: int) -> None:
-        """Run ``n_steps`` attitude-loop steps holding the current command."""
+        """Run ``n_steps`` attitude-loop steps holding the current command (in the wind of the
+        instant they start, if there is one)."""
+        if self.wind is not None:
+            self.wind_W[:] = self.wind.at(self.time_s)
         self.state = advance_kernel(self.state, *self.kernel_args, int(n_steps))
         self.step_index += int(n_steps)

@@ -24,6 +24,8 @@ class VehicleParams:
     g_mps2: float = 9.81
     #: commanded body rates are clipped to +- these (PX4's MC_*RATE_MAX) [rad/s; roll, pitch, yaw]
     max_rate_rps: tuple[float, float, float] = (MAX_RATE_DEFAULT_RPS,) * 3
+    #: quadratic drag, rho C_d A / 2: force -drag |v - w| (v - w) in a wind w [N s^2/m^2] (``wind``)
+    drag_Ns2pm2: float = 0.0
 
     def __post_init__(self) -> None:
         if not self.mass_kg > 0:
@@ -38,6 +40,8 @@ class VehicleParams:
 
         if len(self.max_rate_rps) != 3 or not all(0 < w < math.inf for w in self.max_rate_rps):
             raise VehicleParamError(f"max_rate_rps must be three finite values > 0, got {self.max_rate_rps}")
+        if not 0 <= self.drag_Ns2pm2 < math.inf:
+            raise VehicleParamError(f"drag_Ns2pm2 must be >= 0 and finite, got {self.drag_Ns2pm2}")
 
     @property
     def inertia(self) -> np.ndarray:

@@ -48,3 +48,33 @@ def rk4_step(x, thrust_N, torque_B, mass_kg, inertia_kgm2, g_mps2, dt_s):
     n = np.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
     xn[QUAT] = q / n
     return xn
+
+
+@kernel
+def derivative_in_air(x, thrust_N, torque_B, mass_kg, inertia_kgm2, g_mps2, drag_Ns2pm2, wind_W):
+    """``derivative`` plus quadratic drag in a wind: ``-drag |v - w| (v - w) / m`` on the
+    acceleration (``plant.wind``)."""
+    dx = derivative(x, thrust_N, torque_B, mass_kg, inertia_kgm2, g_mps2)
+    r0 = x[VEL0] - wind_W[0]
+    r1 = x[VEL0 + 1] - wind_W[1]
+    r2 = x[VEL0 + 2] - wind_W[2]
+    c = drag_Ns2pm2 * np.sqrt(r0 * r0 + r1 * r1 + r2 * r2) / mass_kg
+    dx[VEL0] -= c * r0
+    dx[VEL0 + 1] -= c * r1
+    dx[VEL0 + 2] -= c * r2
+    return dx
+
+
+@kernel
+def rk4_step_in_air(x, thrust_N, torque_B, mass_kg, inertia_kgm2, g_mps2, dt_s, drag_Ns2pm2, wind_W):
+    """``rk4_step`` with the drag of ``derivative_in_air`` (the wind held over the step)."""
+    a = (thrust_N, torque_B, mass_kg, inertia_kgm2, g_mps2, drag_Ns2pm2, wind_W)
+    k1 = derivative_in_air(x, *a)
+    k2 = derivative_in_air(x + 0.5 * dt_s * k1, *a)
+    k3 = derivative_in_air(x + 0.5 * dt_s * k2, *a)
+    k4 = derivative_in_air(x + dt_s * k3, *a)
+    xn = x + (dt_s / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
+    q = xn[QUAT]
+    n = np.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
+    xn[QUAT] = q / n
+    return xn

@@ -321,8 +321,7 @@ class VehicleEndpoint:
             self.stats.rx_unhandled += 1
 
     def reported_state(self, ms: int) -> np.ndarray:
-        """The state its sample at ``time_boot_ms`` ``ms`` reports: the true state, or what its
-        sensor model makes of it."""
+        """The state its sample at ``time_boot_ms`` ``ms`` reports (``plant.sensors``)."""
         x = self.autopilot.state
         return x if self.sensors is None else self.sensors.reported(ms / 1000, ms, x)
 
@@ -335,7 +334,8 @@ class VehicleEndpoint:
         ``_stream`` keep them, and the state and frames are theirs bit for bit. False: not the
         usual tick (the general path takes it)."""
         f = self.flight
-        if not (self._lockstep_steps and f.armed and f.mode == MODE_OFFBOARD) or self.sensors is not None:
+        plain = self.sensors is None and self.autopilot.wind is None  # (else the general path's)
+        if not (plain and self._lockstep_steps and f.armed and f.mode == MODE_OFFBOARD):
             return False
         v = r.tolist()  # Python floats: cheaper to compare than numpy's scalars
         if not (

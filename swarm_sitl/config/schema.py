@@ -117,6 +117,21 @@ class SensorSpec(_Strict):
         )
 
 
+class WindSpec(_Strict):
+    """The air every vehicle flies in (``sim_vehicles.plant.wind``): a mean wind plus gusts, a
+    first-order Gauss-Markov process per axis sampled every 10 ms, seeded per vehicle; it acts
+    through ``vehicle.drag_Ns2pm2``. Still by default; ``sim`` flies the same air."""
+
+    mean_mps: Vec3 = (0.0, 0.0, 0.0)  #: mean wind [m/s; ENU]
+    gust_mps: Annotated[float, Field(ge=0)] = 0.0  #: standard deviation of each axis's gust [m/s]
+    gust_time_s: Annotated[float, Field(gt=0)] = 1.0  #: the gusts' correlation time [s]
+    seed: Annotated[int, Field(ge=0, lt=2**63)] = 0  #: of the gusts
+
+    @property
+    def enabled(self) -> bool:
+        return any(self.mean_mps) or self.gust_mps > 0
+
+
 class VehicleSpec(_Strict):
     mass_kg: Positive  #: every follower's mass m [kg]
     inertia_kgm2: tuple[
@@ -132,6 +147,8 @@ class VehicleSpec(_Strict):
     #: MC_YAWRATE_MAX) [rad/s]; the default is PX4's largest setting, 1800 deg/s
     max_rate_rps: tuple[Positive, Positive, Positive] = (MAX_RATE_DEFAULT_RPS,) * 3
     sensors: SensorSpec = SensorSpec()  #: latency and noise of the state it reports
+    #: quadratic drag rho C_d A / 2: the air pushes with -drag |v - w| (v - w) [N s^2/m^2] (``wind``)
+    drag_Ns2pm2: Annotated[float, Field(ge=0)] = 0.0
 
 
 class FollowerSpec(_Strict):
@@ -276,6 +293,7 @@ class SwarmConfig(_Strict):
     signing: SigningSpec = SigningSpec()  #: MAVLink 2 signing of the vehicle links
     run: RunSpec = RunSpec()  #: limits and pacing of a multi-process run
     faults: FaultPlan = FaultPlan()  #: what fails, how and when (``faults``)
+    wind: WindSpec = WindSpec()  #: the air the vehicles fly in (still by default)
 
     @model_validator(mode="after")
     def _cross(self) -> "SwarmConfig":
@@ -290,6 +308,8 @@ class SwarmConfig(_Strict):
         except GraphError as e:
             raise ValueError(f"graph: {e}") from None
         self.faults.check_against(self.graph_edges(), n, self.duration_s)
+        if self.wind.enabled and self.vehicle.drag_Ns2pm2 == 0:
+            raise ValueError("wind: the air pushes a vehicle through its drag: set vehicle.drag_Ns2pm2 > 0")
         if not self.vehicle.max_thrust_N > self.vehicle.mass_kg * self.gravity_mps2:
             raise ValueError(
                 f"vehicle.max_thrust_N ({self.vehicle.max_thrust_N}) must exceed the weight "
@@ -328,7 +348,9 @@ class SwarmConfig(_Strict):
 
     def vehicle_params(self) -> VehicleParams:
         v = self.vehicle
-        return VehicleParams(v.mass_kg, v.inertia_kgm2, v.max_thrust_N, self.gravity_mps2, v.max_rate_rps)
+        return VehicleParams(
+            v.mass_kg, v.inertia_kgm2, v.max_thrust_N, self.gravity_mps2, v.max_rate_rps, v.drag_Ns2pm2
+        )
 
     def attitude_gains(self) -> AttitudeGains:
         return AttitudeGains(self.gains.l_q, self.gains.k_q)

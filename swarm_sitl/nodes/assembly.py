@@ -5,6 +5,7 @@ import numpy as np
 from sim_vehicles.common.state import make_state
 from sim_vehicles.mavlink.wire_format import f32
 from sim_vehicles.plant.autopilot import Autopilot
+from sim_vehicles.plant.wind import WindModel
 from swarm_sitl.bus.codec import Message
 from swarm_sitl.config.schema import SwarmConfig
 from swarm_sitl.laws.contract import LawContext, Received, VehicleSample, reference_values
@@ -95,4 +96,8 @@ def reported_vehicle_params(cfg: SwarmConfig) -> tuple[float, float]:
 def build_autopilot(cfg: SwarmConfig, i: int) -> Autopilot:
     f = cfg.follower(i)
     x0 = make_state(f.initial_position_m, f.initial_velocity_mps, np.asarray(f.initial_quaternion_wxyz))
-    return Autopilot(cfg.vehicle_params(), cfg.attitude_gains(), x0, cfg.attitude_dt_s)
+    ap = Autopilot(cfg.vehicle_params(), cfg.attitude_gains(), x0, cfg.attitude_dt_s)
+    w = cfg.wind
+    if w.enabled:  # the air its vehicle process flies in (``sim_vehicles.__main__``)
+        ap.wind = WindModel(i, w.mean_mps, w.gust_mps, w.gust_time_s, w.seed)
+    return ap

@@ -114,6 +114,12 @@ def vehicle_argv(
         "--truth",
         str(vehicle_truth_path(run_dir, i)),
     ]
+    if v.drag_Ns2pm2 > 0:
+        argv += ["--drag-ns2pm2", repr(v.drag_Ns2pm2)]
+    w = cfg.wind
+    if w.enabled:
+        argv += ["--wind-mps", *map(repr, w.mean_mps), "--gust-mps", repr(w.gust_mps)]
+        argv += ["--gust-time-s", repr(w.gust_time_s), "--wind-seed", str(w.seed)]
     s = v.sensors
     if s.enabled:
         argv += [

@@ -1,0 +1,61 @@
+"""The air a vehicle flies in: a mean wind plus seeded turbulence, and the drag it makes.
+
+The wind at a vehicle is ``mean_mps`` plus gusts: on each axis a first-order Gauss-Markov process
+(seeded coloured noise, the form of the Dryden model's longitudinal component, with one correlation
+time) sampled every ``WIND_DT_S``:
+
+    g[k+1] = a g[k] + gust_mps sqrt(1 - a^2) n[k],   a = exp(-WIND_DT_S / gust_time_s)
+
+with ``n[k]`` standard normal draws of (seed, system id, k) and ``g[0]`` drawn from the process's
+stationary law, so each axis's gust has standard deviation ``gust_mps`` and autocorrelation
+``exp(-|lag| / gust_time_s)`` at any time. An advance of the plant flies the wind of the instant
+it starts (``Autopilot.advance``: a control period, in lockstep and in ``sim`` alike).
+
+The air pushes the vehicle with quadratic drag, ``F = -drag_Ns2pm2 |v - w| (v - w)`` (``rigid_body``:
+``drag_Ns2pm2`` is ``rho C_d A / 2``), so in a steady wind a free vehicle's velocity relative to the
+air decays as ``u(t) = u0 / (1 + drag u0 t / m)``. Pure: the wind at sample k is a function of
+the model and k.
+"""
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+WIND_DT_S = 0.01  #: the gusts' sample period [s]
+
+
+@dataclass
+class WindModel:
+    """Vehicle ``system_id``'s wind: ``at(t_s)`` [m/s; world ENU]."""
+
+    system_id: int
+    mean_mps: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    gust_mps: float = 0.0  #: standard deviation of each axis's gust [m/s]
+    gust_time_s: float = 1.0  #: correlation time of the gusts [s]
+    seed: int = 0
+    _gusts: list[np.ndarray] = field(default_factory=list, repr=False)
+
+    def index(self, t_s: float) -> int:
+        """The gust sample in force at ``t_s``."""
+        return math.floor(t_s / WIND_DT_S + 1e-9)
+
+    def at(self, t_s: float) -> np.ndarray:
+        """The wind at ``t_s`` (a new array)."""
+        w = np.array(self.mean_mps, dtype=float)
+        if self.gust_mps > 0:
+            w += self.gust(self.index(t_s))
+        return w
+
+    def gust(self, k: int) -> np.ndarray:
+        """Gust sample ``k`` (>= 0): the chain kept as far as it was asked, extended on demand."""
+        g = self._gusts
+        if not g:
+            g.append(self.gust_mps * self._normal(0))
+        a = math.exp(-WIND_DT_S / self.gust_time_s)
+        for j in range(len(g), k + 1):
+            g.append(a * g[-1] + self.gust_mps * math.sqrt(1 - a * a) * self._normal(j))
+        return g[k]
+
+    def _normal(self, k: int) -> np.ndarray:
+        return np.random.default_rng([self.seed, self.system_id, k, 77]).standard_normal(3)

@@ -1,0 +1,119 @@
+"""The air a vehicle flies in (``plant.wind``): quadratic drag against its closed form, the gusts'
+spread and correlation time, one-line errors; and the paper's swarm in 5 m/s of wind with gusts
+and noisy reports, in processes as in ``sim``, bit for bit."""
+
+import math
+
+import numpy as np
+import pytest
+import yaml
+
+from sim_vehicles.common.command import AttitudeCommand
+from sim_vehicles.common.state import POS, VEL, make_state
+from sim_vehicles.plant.autopilot import Autopilot
+from sim_vehicles.plant.params import AttitudeGains, VehicleParams
+from sim_vehicles.plant.wind import WIND_DT_S, WindModel
+from swarm_sitl.config.load import ConfigError, parse_config
+from tests.conftest import CONFIGS
+
+
+@pytest.mark.unit
+def test_a_hovering_vehicle_is_carried_by_a_steady_wind_as_quadratic_drag_says():
+    """Level, at hover thrust, in a steady 5 m/s east wind: its velocity relative to the air
+    u = v - w obeys du/dt = -(c/m)|u|u, so u(t) = u0 / (1 + c |u0| t / m); nothing else moves."""
+    c, m = 0.05, 0.85
+    params = VehicleParams(m, (0.04856, 0.04856, 0.08801), 25.0, drag_Ns2pm2=c)
+    ap = Autopilot(params, AttitudeGains(16.0, 16.0), make_state([0.0, 0.0, 10.0], [0.0, 0.0, 0.0]), 0.001)
+    ap.wind = WindModel(1, (5.0, 0.0, 0.0))
+    ap.set_command(AttitudeCommand(np.array([1.0, 0.0, 0.0, 0.0]), m * 9.81))
+    for t_end in (0.5, 1.0, 2.0):
+        ap.advance(round((t_end - ap.time_s) / ap.dt_s))
+        u = ap.state[VEL][0] - 5.0
+        assert u == pytest.approx(-5.0 / (1 + c * 5.0 * t_end / m), rel=1e-9), t_end
+    assert (
+        abs(ap.state[VEL][1]) < 1e-12
+        and abs(ap.state[VEL][2]) < 1e-9
+        and ap.state[POS][2] == pytest.approx(10.0)
+    )
+    still = Autopilot(params, AttitudeGains(16.0, 16.0), make_state([0.0, 0.0, 10.0], [0.0, 0.0, 0.0]), 0.001)
+    still.set_command(AttitudeCommand(np.array([1.0, 0.0, 0.0, 0.0]), m * 9.81))
+    still.advance(2000)
+    assert np.all(still.state[VEL] == 0.0)  # no wind, no drag force
+
+
+@pytest.mark.unit
+def test_the_gusts_have_their_spread_and_correlation_time():
+    """Pooled over seeds and axes: each axis's standard deviation is gust_mps and its
+    autocorrelation at one correlation time exp(-1). An AR(1) series of n samples with coefficient a
+    estimates its variance as n (1 - a^2) / (1 + a^2) independent samples would: five standard
+    errors of that."""
+    sigma, tau, n, seeds = 1.5, 0.5, 5000, 8
+    models = [WindModel(2, gust_mps=sigma, gust_time_s=tau, seed=s) for s in range(seeds)]
+    g = np.array([[m.gust(k) for k in range(n)] for m in models])  # (seed, sample, axis)
+    a = math.exp(-WIND_DT_S / tau)
+    n_eff = seeds * 3 * n * (1 - a * a) / (1 + a * a)
+    assert abs(g.std() / sigma - 1) < 5 / math.sqrt(2 * n_eff), g.std()
+    lag = round(tau / WIND_DT_S)
+    corr = np.mean([np.corrcoef(g[s, :-lag, i], g[s, lag:, i])[0, 1] for s in range(seeds) for i in range(3)])
+    assert abs(corr - math.exp(-1)) < 5 * math.sqrt(1 / n_eff) * 3, corr
+    steady = WindModel(1, (3.0, -4.0, 0.0))
+    assert steady.at(0.0).tolist() == [3.0, -4.0, 0.0] == steady.at(123.4).tolist()
+    w = WindModel(1, (3.0, 0.0, 0.0), gust_mps=1.0, seed=5)
+    assert np.array_equal(
+        w.at(2.005), WindModel(1, (3.0, 0.0, 0.0), gust_mps=1.0, seed=5).at(2.0)
+    )  # held 10 ms
+
+
+def _paper(**over) -> dict:
+    data = yaml.safe_load((CONFIGS / "paper.yaml").read_text())
+    for k, v in over.items():
+        data[k] = v
+    return data
+
+
+@pytest.mark.unit
+def test_wind_without_drag_or_a_negative_drag_is_one_line():
+    with pytest.raises(
+        ConfigError, match=r"wind: the air pushes a vehicle through its drag: set vehicle\.drag_Ns2pm2"
+    ):
+        parse_config(_paper(wind={"mean_mps": [5, 0, 0]}), "paper.yaml")
+    data = _paper()
+    data["vehicle"]["drag_Ns2pm2"] = -1
+    with pytest.raises(ConfigError, match=r"vehicle\.drag_Ns2pm2: .*greater than or equal to 0"):
+        parse_config(data, "paper.yaml")
+    with pytest.raises(ConfigError, match=r"wind\.gust_time_s: .*greater than 0"):
+        parse_config(_paper(wind={"gust_mps": 1, "gust_time_s": 0}), "paper.yaml")
+
+
+@pytest.mark.system
+def test_the_paper_swarm_in_wind_gusts_and_noisy_reports_flies_in_processes_as_in_sim(tmp_path):
+    import subprocess
+    import sys
+
+    from swarm_sitl.config.load import load_config
+    from swarm_sitl.running.sim import run_sim
+
+    data = _paper(
+        duration_s=25.0, wind={"mean_mps": [5.0, 0.0, 0.0], "gust_mps": 1.0, "gust_time_s": 2.0, "seed": 3}
+    )
+    data["vehicle"]["drag_Ns2pm2"] = 0.02
+    data["vehicle"]["sensors"] = {"position_noise_m": 0.03, "seed": 1}
+    path = tmp_path / "windy.yaml"
+    path.write_text(yaml.safe_dump(data))
+    r = subprocess.run(
+        [sys.executable, "-m", "swarm_sitl", "run", str(path), "--out", str(tmp_path / "run")],
+        capture_output=True,
+        text=True,
+    )
+    assert r.returncode == 0, r.stderr
+    assert "formation error" in r.stdout  # it reports its error
+    sim = run_sim(load_config(path))
+    calm = run_sim(load_config(CONFIGS / "paper.yaml").model_copy(update={"duration_s": 25.0}))
+    for i in range(1, 5):
+        a = np.load(tmp_path / "run" / f"follower_{i}.npz")
+        for key in ("p_W", "v_W", "u", "thrust_N", "pos_err_m"):
+            assert np.array_equal(a[key], sim.followers[i][key], equal_nan=True), (i, key)
+        windy = np.linalg.norm(a["pos_err_m"][a["t_s"] >= 20], axis=1)
+        still = np.linalg.norm(calm.followers[i]["pos_err_m"][calm.followers[i]["t_s"] >= 20], axis=1)
+        assert windy.max() > 5 * still.max()  # the air is felt
+        assert windy.max() < 1.0, windy.max()  # and the formation flies on
