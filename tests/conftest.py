@@ -23,17 +23,24 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
             bad.append(f"{item.nodeid}: {layers or 'none'}")
     if bad:
         raise pytest.UsageError(f"mark each test with one of {', '.join(LAYERS)}:\n" + "\n".join(bad))
+    for item in items:  # with pytest-xdist: the system tests on one worker, in order
+        if item.get_closest_marker("system") is not None:
+            item.add_marker(pytest.mark.xdist_group("system"))
 
 
-@pytest.fixture(scope="session", autouse=True)
+_COMPILED: list[bool] = []
+
+
+@pytest.fixture(autouse=True)
 def compiled_kernels(request: pytest.FixtureRequest) -> None:
-    """Before the first test that starts processes: every kernel a vehicle and a node run compiled
-    into numba's disk cache, once, here. On a fresh machine (CI) the first swarm's processes
-    would otherwise each compile them at once (two namespaces' worth in the two-host test, over
-    a minute on two cores), inside the test's time limits."""
-    if os.environ.get("NUMBA_DISABLE_JIT") == "1":
+    """Before the first test of a process that starts processes (a system test): every kernel a
+    vehicle and a node run compiled into numba's disk cache, once, here. On a fresh machine (CI)
+    the first swarm's processes would otherwise each compile them at once (two namespaces' worth
+    in the two-host test, over a minute on two cores), inside the test's time limits."""
+    if _COMPILED or request.node.get_closest_marker("system") is None:
         return
-    if not any(item.get_closest_marker("system") for item in request.session.items):
+    _COMPILED.append(True)
+    if os.environ.get("NUMBA_DISABLE_JIT") == "1":
         return
     import subprocess
     import sys
