@@ -12,6 +12,20 @@ ROOT = Path(__file__).resolve().parents[1]
 CONFIGS = ROOT / "configs"
 #: every test is one of these (``pyproject.toml`` says what each means; ``-m`` selects them)
 LAYERS = ("unit", "integration", "system")
+#: system-test files that run in lockstep or ``sim`` only: nothing in them reads the wall clock
+LOCKSTEP_ONLY = {
+    "test_law_from_docs.py",
+    "test_sweep.py",
+    "test_wind.py",
+    "test_sensors.py",
+    "test_link_models.py",
+    "test_fault_tolerance.py",
+    "test_consensus_pd.py",
+    "test_full_disk.py",
+    "test_law_contract.py",
+    "test_leader_restart.py",
+    "test_counts_across_restarts.py",
+}
 
 
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
@@ -26,9 +40,11 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
     # with pytest-xdist's --dist loadgroup: the system tests on one worker, in their order. The
     # group is a suffix of the node id (what xdist's own hook makes of an xdist_group mark, which
     # may run before this one; pytest 9 no longer reads it, so pyproject.toml keeps pytest 8).
+    # The lockstep-only system tests (CPU, no wall clock) are left free to go to either worker.
     grouped = bool(config.getvalue("loadgroup")) if hasattr(config.option, "loadgroup") else False
     for item in items:
-        if grouped and item.get_closest_marker("system") is not None and "@" not in item.nodeid:
+        free = Path(str(item.fspath)).name in LOCKSTEP_ONLY
+        if grouped and item.get_closest_marker("system") is not None and not free and "@" not in item.nodeid:
             item._nodeid = f"{item.nodeid}@system"
 
 
