@@ -3,6 +3,7 @@ bytes out, the same fields in, and anything it does not handle left to pymavlink
 
 import contextlib
 import os
+import select
 import socket
 import struct
 import time
@@ -176,13 +177,15 @@ def test_a_udp_link_knows_when_a_sample_arrived_without_reading_it_then():
         sample += frames.pack_frame(tx, frames.ATTITUDE_QUATERNION, (40, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0))
         wall_offset = time.time() - time.monotonic()
         sent = time.monotonic()
-        vehicle.sendto(sample, controller_addr)  # on loopback it has arrived when sendto returns
+        vehicle.sendto(sample, controller_addr)
+        # readable: it has arrived (on a loaded machine loopback delivery can lag sendto)
+        assert select.select([link.fileno()], [], [], 5.0)[0]
         arrived_by = time.monotonic()
         time.sleep(0.2)  # read long after it arrived
         read_at = time.monotonic()
         link.poll()
-        # the kernel stamps arrivals on the wall clock: a step of it meanwhile (a time daemon's)
-        # moves the stamp by as much, which the tolerance takes
+        # the kernel stamps arrivals on the wall clock: a step of it meanwhile moves the stamp by as
+        # much, which the tolerance takes
         step = abs((time.time() - time.monotonic()) - wall_offset)
         assert link.sample_ms == 40
         assert sent - 0.005 - step <= link.sample_arrival_mono <= arrived_by + 0.005 + step
