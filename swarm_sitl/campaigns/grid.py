@@ -1,7 +1,7 @@
 """What a campaign varies: ``KEY=VALUES`` specs, and one point's config.
 
 A key is either a dotted path into the config (``duration_s``, ``gains.k_p``, ``run.settle_s``,
-``followers.0.mass_kg``: list items by index) or a link shorthand that puts one fault-plan entry
+``followers.0.offset_m.2``: list items by index) or a link shorthand that puts one fault-plan entry
 on every edge of the graph or every vehicle's MAVLink link:
 
 - ``link.loss``, ``link.corrupt``, ``link.duplicate``, ``link.reorder`` (probabilities),

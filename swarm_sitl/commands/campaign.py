@@ -69,7 +69,7 @@ def add_sweep(sub: Any) -> None:
         action="append",
         required=True,
         metavar="KEY=VALUES",
-        help="a config path (gains.k_p, run.settle_s, followers.0.mass_kg) or link.loss, link.delay_s, "
+        help="a config path (gains.k_p, vehicle.mass_kg, wind.gust_mps) or link.loss, link.delay_s, "
         "link.jitter_s, link.duplicate, link.corrupt, link.reorder (every graph edge), mavlink.loss, "
         "mavlink.corrupt (every vehicle link); VALUES: START:STOP:STEP or a,b,c",
     )
