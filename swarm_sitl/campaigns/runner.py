@@ -4,8 +4,8 @@ whole swarms on its own host. Both call ``point.run_point`` on the same inputs, 
 same wherever it ran (but its wall time)."""
 
 import os
-from collections.abc import Callable, Iterator
-from concurrent.futures import FIRST_COMPLETED, Future, ThreadPoolExecutor, wait
+from collections.abc import Iterator
+from concurrent.futures import FIRST_COMPLETED, ThreadPoolExecutor, wait
 from dataclasses import dataclass
 from typing import Any
 
@@ -80,7 +80,3 @@ def run_dask(tasks: list[Task], client: Any) -> Iterator[tuple[Task, dict[str, A
             yield futures[f], f.result()
     finally:
         client.cancel(list(futures))
-
-
-Runner = Callable[[list[Task]], Iterator[tuple[Task, dict[str, Any]]]]
-__all__ = ["Future", "Runner", "SchedulerError", "Task", "connect", "default_jobs", "run_dask", "run_local"]

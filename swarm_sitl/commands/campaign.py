@@ -4,7 +4,7 @@ import argparse
 import sys
 from typing import Any
 
-from swarm_sitl.commands.common import EXIT_USAGE, CliError, interrupted_exit
+from swarm_sitl.commands.common import CliError, interrupted_exit
 
 
 def cmd_sweep(args: argparse.Namespace) -> int:
@@ -87,6 +87,3 @@ def add_sweep(sub: Any) -> None:
     s.add_argument("--keep-runs", action="store_true", help="keep each run's directory in OUT/runs")
     s.add_argument("--quiet", action="store_true", help="no progress bar")
     s.set_defaults(func=cmd_sweep)
-
-
-__all__ = ["EXIT_USAGE", "add_sweep", "cmd_sweep"]
