@@ -1,8 +1,8 @@
 """What the vehicle reports of its state, as an autopilot's estimator gives it: the true state
 some latency ago, plus seeded noise. Off by default (the report is the true state).
 
-``SensorModel.reported(t_s, key, x)`` takes the true state ``x`` at ``t_s`` (the instant of a
-sample, simulated seconds) and returns the state the vehicle sends in LOCAL_POSITION_NED and
+``SensorModel.reported(time_boot_ms, x)`` takes the true state ``x`` at a sample's
+``time_boot_ms`` (simulated time) and returns the state the vehicle sends in LOCAL_POSITION_NED and
 ATTITUDE_QUATERNION:
 
 - latency: the true state of the last sample at or before ``t_s - latency_s`` (the first sample's
@@ -10,7 +10,7 @@ ATTITUDE_QUATERNION:
 - noise: independent zero-mean Gaussian errors, ``position_noise_m`` on each position axis,
   ``velocity_noise_mps`` on each velocity axis, and an attitude error rotation whose rotation
   vector has ``attitude_noise_rad`` on each axis (applied in the body frame), drawn from
-  ``(seed, system id, key)``: the same run gets the same noise, whatever the machine does.
+  ``(seed, system id, time_boot_ms)``: the same run gets the same noise, whatever the machine does.
 
 The truth files keep the true state, so a run's error plots stay true. Pure: no clock, no I/O.
 """
@@ -40,15 +40,12 @@ class SensorModel:
     def active(self) -> bool:
         return any(v > 0 for v in (self.position_noise_m, self.velocity_noise_mps, self.attitude_noise_rad))
 
-    def lags(self) -> bool:
-        return self.latency_s > 0
-
-    def reported(self, t_s: float, key: int, x: np.ndarray) -> np.ndarray:
-        """The state to report at ``t_s`` (a new array; ``x`` is not changed)."""
-        y = self._delayed(t_s, x) if self.latency_s > 0 else x.copy()
+    def reported(self, time_boot_ms: int, x: np.ndarray) -> np.ndarray:
+        """The state a sample at ``time_boot_ms`` reports (a new array; ``x`` is not changed)."""
+        y = self._delayed(time_boot_ms / 1000, x) if self.latency_s > 0 else x.copy()
         if not self.active:
             return y
-        e = np.random.default_rng([self.seed, self.system_id, key]).standard_normal(9)
+        e = np.random.default_rng([self.seed, self.system_id, time_boot_ms]).standard_normal(9)
         y[POS] += self.position_noise_m * e[0:3]
         y[VEL] += self.velocity_noise_mps * e[3:6]
         if self.attitude_noise_rad > 0:

@@ -323,7 +323,7 @@ class VehicleEndpoint:
     def reported_state(self, ms: int) -> np.ndarray:
         """The state its sample at ``time_boot_ms`` ``ms`` reports (``plant.sensors``)."""
         x = self.autopilot.state
-        return x if self.sensors is None else self.sensors.reported(ms / 1000, ms, x)
+        return x if self.sensors is None else self.sensors.reported(ms, x)
 
     # -- setpoints -------------------------------------------------------------------------------
     def _usual_tick(self, r: np.ndarray) -> bool:

@@ -95,7 +95,7 @@ def run_sim(
             series[i].record_vehicle(k, t, ap.state)
             try:
                 s = sensors[i]
-                x = ap.state if s is None else s.reported(round(t * 1000) / 1000, round(t * 1000), ap.state)
+                x = ap.state if s is None else s.reported(round(t * 1000), ap.state)
                 step = laws[i].step(t, sample_through_wire(t, x), inboxes[i])
             except LawError as e:
                 raise SimFailedError(e, recording()) from e
