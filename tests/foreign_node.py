@@ -126,19 +126,20 @@ class Mav:
 
 
 # -- the bus (docs/bus.md) ----------------------------------------------------------------------
-MESSAGE_HEAD = struct.Struct("<BHIdH")
-VERSION = 3
+MESSAGE_HEAD = struct.Struct("<BHId3dH")  # version, src, step, t_s, position (ENU), value count
+VERSION = 4
 
 
-def encode(src: int, step: int, t_s: float, values: list[float]) -> bytes:
-    body = MESSAGE_HEAD.pack(VERSION, src, step, t_s, len(values)) + struct.pack(f"<{len(values)}d", *values)
+def encode(src: int, step: int, t_s: float, values: list[float], p_enu: tuple = (0.0, 0.0, 0.0)) -> bytes:
+    body = MESSAGE_HEAD.pack(VERSION, src, step, t_s, *p_enu, len(values))
+    body += struct.pack(f"<{len(values)}d", *values)
     return body + struct.pack("<I", zlib.crc32(body))
 
 
 def decode(data: bytes):
     if len(data) < MESSAGE_HEAD.size + 4:
         return None
-    version, src, step, t_s, n = MESSAGE_HEAD.unpack_from(data)
+    version, src, step, t_s, _, _, _, n = MESSAGE_HEAD.unpack_from(data)
     if version != VERSION or len(data) != MESSAGE_HEAD.size + 8 * n + 4:
         return None
     if zlib.crc32(data[:-4]) != struct.unpack_from("<I", data, len(data) - 4)[0]:
@@ -258,10 +259,10 @@ def main() -> int:
         p_r = [v[i] + h * v[3 + i] + h * h / 2 * v[6 + i] + h**3 / 6 * v[9 + i] for i in range(3)]
         v_r = [v[3 + i] + h * v[6 + i] + h * h / 2 * v[9 + i] for i in range(3)]
         a_r = [v[6 + i] + h * v[9 + i] for i in range(3)]
-        for pub in pubs.values():
-            pub.put(encode(a.id, k, t, [*p_r, *v_r, *a_r, *v[9:12]]))
-        ned = lambda e: (e[1], e[0], -e[2])  # noqa: E731  ENU -> NED
+        ned = lambda e: (e[1], e[0], -e[2])  # noqa: E731  ENU <-> NED (its own inverse)
         p, vel = mav.position[1:4], mav.position[4:7]
+        for pub in pubs.values():
+            pub.put(encode(a.id, k, t, [*p_r, *v_r, *a_r, *v[9:12]], ned(p)))
         pr, vr, ar = ned(p_r), ned(v_r), ned(a_r)
         acc = [ar[i] + kp * (pr[i] + off_ned[i] - p[i]) + kv * (vr[i] - vel[i]) for i in range(3)]
         norm = math.sqrt(sum(x * x for x in acc))

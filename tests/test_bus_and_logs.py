@@ -69,12 +69,23 @@ def _with_crc(body: bytes, flip: int | None = None) -> bytes:
         (b"", "0 bytes"),
         (b"\x01" * 10, "10 bytes"),
         (b"\x01" + encode_message(Message(1, 1, 0.0, np.zeros(12)))[1:], "version 1"),
-        (_with_crc(struct.pack("<BHIdH12d", 3, 1, 1, math.nan, 12, *[0.0] * 12)), "non-finite"),
-        (_with_crc(struct.pack("<BHIdH12d", 3, 1, 1, 0.0, 12, 1.0, math.inf, *[0.0] * 10)), "non-finite"),
-        (_with_crc(struct.pack("<BHIdH12d", 3, 1, 1, 0.0, 12, *[0.0] * 12), flip=40), "checksum"),
         (
-            _with_crc(struct.pack("<BHIdH12d", 3, 1, 1, 0.0, 13, *[0.0] * 12)),
-            "117 bytes, its 13 values need 125",
+            _with_crc(struct.pack("<BHId3dH12d", 4, 1, 1, math.nan, 0.0, 0.0, 0.0, 12, *[0.0] * 12)),
+            "non-finite",
+        ),
+        (
+            _with_crc(
+                struct.pack("<BHId3dH12d", 4, 1, 1, 0.0, 0.0, 0.0, 0.0, 12, 1.0, math.inf, *[0.0] * 10)
+            ),
+            "non-finite",
+        ),
+        (
+            _with_crc(struct.pack("<BHId3dH12d", 4, 1, 1, 0.0, 0.0, 0.0, 0.0, 12, *[0.0] * 12), flip=60),
+            "checksum",
+        ),
+        (
+            _with_crc(struct.pack("<BHId3dH12d", 4, 1, 1, 0.0, 0.0, 0.0, 0.0, 13, *[0.0] * 12)),
+            "141 bytes, its 13 values need 149",
         ),
     ],
 )

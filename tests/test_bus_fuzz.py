@@ -23,8 +23,8 @@ from swarm_sitl.bus.session import ZenohSpec, open_session
 from tests.strategies import FUZZ, FUZZ_TIMEOUT
 
 pytestmark = pytest.mark.unit
-HEAD = struct.Struct("<BHIdH")  # version, src, step, t_s, n; then n float64 values and a CRC-32
-VERSION = 3
+HEAD = struct.Struct("<BHId3dH")  # version, src, step, t_s, p_W, n; then n float64 values and a CRC-32
+VERSION = 4
 LENGTH = 12  #: what node 4's bus takes from node 1 (a law whose messages have 12 values)
 HORIZON = 6000
 
@@ -33,7 +33,7 @@ def _estimate(
     src: int, step: int, values: list[float], version: int = VERSION, n: int | None = None
 ) -> bytes:
     """A message as the documented layout has it; ``n``: the count it claims (default: its own)."""
-    body = HEAD.pack(version, src, step, step * 0.01, len(values) if n is None else n)
+    body = HEAD.pack(version, src, step, step * 0.01, 1.0, -2.0, 3.0, len(values) if n is None else n)
     body += struct.pack(f"<{len(values)}d", *values)
     return body + struct.pack("<I", zlib.crc32(body))
 
@@ -42,7 +42,7 @@ def _takes(data: bytes, last: int) -> int | None:
     """The step the bus must take ``data`` as, or None: the oracle."""
     if len(data) < HEAD.size + 4:
         return None
-    version, src, step, t_s, n = HEAD.unpack_from(data)
+    version, src, step, t_s, _, _, _, n = HEAD.unpack_from(data)
     if len(data) != HEAD.size + 8 * n + 4 or version != VERSION or n != LENGTH:
         return None
     values = struct.unpack_from(f"<{n}d", data, HEAD.size)
@@ -72,15 +72,15 @@ inputs = st.one_of(
         steps,
         st.one_of(finite12, st.lists(floats, min_size=12, max_size=12), other_lengths),
         st.sampled_from([1, 0, 2, 4, 65535]),
-        st.sampled_from([3, 3, 3, 0, 1, 2, 255]),
+        st.sampled_from([4, 4, 4, 0, 1, 3, 255]),
         st.sampled_from([None, None, None, 0, 11, 12, 13, 65535]),  # the count it claims
     ),
     st.tuples(
         st.just("mutated"),
         steps,
         finite12,
-        st.lists(st.tuples(st.integers(0, 116), st.integers(0, 255)), min_size=1, max_size=4),
-        st.integers(0, 117),  # cut short, or whole
+        st.lists(st.tuples(st.integers(0, 140), st.integers(0, 255)), min_size=1, max_size=4),
+        st.integers(0, 141),  # cut short, or whole
     ),
 )
 

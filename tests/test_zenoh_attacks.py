@@ -29,7 +29,7 @@ pytestmark = pytest.mark.system
 
 def _estimate(src: int, step: int, value: float) -> bytes:
     """An estimate as the bus's documented layout has it (``docs/bus.md``), written out here."""
-    body = struct.pack("<BHIdH12d", 3, src, step, step * 0.01, 12, *[value] * 12)
+    body = struct.pack("<BHId3dH12d", 4, src, step, step * 0.01, 0.0, 0.0, 0.0, 12, *[value] * 12)
     return body + struct.pack("<I", zlib.crc32(body))
 
 

@@ -1,7 +1,9 @@
 """Byte layouts of what crosses the zenoh bus (little-endian, fixed layouts, versioned).
 
 - message (the estimate a node sends each out-neighbour at each tick; the leader's is the
-  reference): ``u8 version, u16 src, u32 step, f64 t_s, u16 n, n x f64 values, u32 crc32``. ``n``
+  reference): ``u8 version, u16 src, u32 step, f64 t_s, 3 x f64 p_W, u16 n, n x f64 values,
+  u32 crc32``. ``p_W``: where the sender is (its vehicle as sampled; the leader: its reference), which
+  a fault plan's range model reads, as a radio would measure distance. ``n``
   is what the sender's kind sends (``laws.contract``: 12 from the leader, the law's
   ``message_length`` from a follower); float64, so nothing is rounded and lockstep runs equal
   ``sim``; the CRC-32 of the bytes before it, so a corrupted message is dropped, not flown
@@ -21,8 +23,8 @@ from typing import Any, NamedTuple, TypeVar
 
 import numpy as np
 
-VERSION = 3
-_HEAD = struct.Struct("<BHIdH")  #: a message's version, src, step, t_s and value count
+VERSION = 4
+_HEAD = struct.Struct("<BHId3dH")  #: a message's version, src, step, t_s, p_W and value count
 _CRC = 4
 _STATUS = struct.Struct("<BHIdd3d")
 _START = struct.Struct("<Bd")
@@ -76,11 +78,12 @@ class Message(NamedTuple):
     step: int
     t_s: float  #: the instant its values hold at [s]
     values: np.ndarray  #: float64
+    p_W: tuple[float, float, float] = (0.0, 0.0, 0.0)  #: where the sender is [m; ENU]
 
 
 @functools.lru_cache(maxsize=16)  # a swarm uses two lengths; a forged one cannot grow it
 def _message_layout(n: int) -> struct.Struct:
-    return struct.Struct(f"<BHIdH{n}d")
+    return struct.Struct(f"<BHId3dH{n}d")
 
 
 def message_size(n: int) -> int:
@@ -91,14 +94,14 @@ def message_size(n: int) -> int:
 def encode_message(m: Message) -> bytes:
     values = m.values.tolist()  # one call per array instead of a numpy scalar per element
     n = len(values)
-    body = _message_layout(n).pack(VERSION, m.src, m.step, m.t_s, n, *values)
+    body = _message_layout(n).pack(VERSION, m.src, m.step, m.t_s, *m.p_W, n, *values)
     return body + zlib.crc32(body).to_bytes(_CRC, "little")
 
 
 def decode_message(data: bytes) -> Message:
     if len(data) < _HEAD.size + _CRC:
         raise PayloadError(f"message payload has {len(data)} bytes, fewer than a header")
-    version, src, step, t_s, n = _HEAD.unpack_from(data)
+    version, src, step, t_s, x, y, z, n = _HEAD.unpack_from(data)
     if version != VERSION:
         raise PayloadError(f"message payload version {version}, expected {VERSION}")
     size = _HEAD.size + 8 * n + _CRC
@@ -106,10 +109,10 @@ def decode_message(data: bytes) -> Message:
         raise PayloadError(f"message payload has {len(data)} bytes, its {n} values need {size}")
     if zlib.crc32(data[:-_CRC]) != int.from_bytes(data[-_CRC:], "little"):
         raise PayloadError("message payload fails its checksum")
-    values = _message_layout(n).unpack_from(data)[5:]  # a tuple: checked faster than an array
-    if not (math.isfinite(t_s) and all(map(math.isfinite, values))):
+    values = _message_layout(n).unpack_from(data)[8:]  # a tuple: checked faster than an array
+    if not (math.isfinite(t_s + x + y + z) and all(map(math.isfinite, values))):
         raise PayloadError("message payload has a non-finite value")
-    return Message(src, step, t_s, np.array(values))
+    return Message(src, step, t_s, np.array(values), (x, y, z))
 
 
 def encode_status(s: Status) -> bytes:

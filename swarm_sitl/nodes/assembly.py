@@ -23,7 +23,8 @@ class Reference:
 
     def step(self, k: int) -> Message:
         t = k * self.dt_s
-        return Message(0, k, t, reference_values(self.trajectory.derivatives(t)))
+        values = reference_values(self.trajectory.derivatives(t))
+        return Message(0, k, t, values, (float(values[0]), float(values[1]), float(values[2])))
 
 
 def build_leader(cfg: SwarmConfig) -> Reference:

@@ -314,7 +314,7 @@ def run_controller(
             if rows is not None and inputs is not None:  # what it was given, to reproduce it offline
                 np.savez(rows.path.with_suffix(".failure.npz"), **inputs)
             raise
-        bus.publish(Message(i, k, t, step.message))
+        bus.publish(Message(i, k, t, step.message, (float(p[0]), float(p[1]), float(p[2]))))
         if k < n:
             io.send(step.command, round(t * 1000) if lockstep else round((t - io.offset_s) * 1000))
         done = 0.0
