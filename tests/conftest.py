@@ -19,6 +19,7 @@ LOCKSTEP_ONLY = {
     "test_wind.py",
     "test_sensors.py",
     "test_link_models.py",
+    "test_radio_models.py",
     "test_fault_tolerance.py",
     "test_consensus_pd.py",
     "test_full_disk.py",

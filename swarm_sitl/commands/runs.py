@@ -194,8 +194,18 @@ def _degraded_lines(summary: dict) -> list[str]:
                 f"  {edge if edge.startswith('mavlink') else 'edge ' + edge}: "
                 f"{st['delivered']} of {st['received']} delivered, {st['lost']} lost, "
                 f"{st['corrupt']} corrupt, {st['delayed']} delayed, {st['duplicated']} duplicated"
+                + _radio(st)
             )
     return out
+
+
+def _radio(st: dict) -> str:
+    """What the radio models did on an edge (``faults.radio_range``, ``faults.bandwidth``), if any."""
+    parts = [f"{st[k]} {k.replace('_', ' ')}" for k in ("out_of_range", "queue_full", "retried") if st.get(k)]
+    d = st.get("distance_m")
+    if d:
+        parts.append(f"{d['min']:.1f}..{d['max']:.1f} m apart")
+    return f" ({', '.join(parts)})" if parts else ""
 
 
 def _with_fault_file(cfg: SwarmConfig, path: str | None) -> SwarmConfig:

@@ -27,7 +27,18 @@ class EdgeStats:
     counts live in an int64 array, which ``bind`` moves into a file that outlives the process
     (``NamedCounts``): a killed incarnation's counts still add up in the run's summary."""
 
-    FIELDS = ("received", "delivered", "lost", "corrupt", "delayed", "duplicated", "loss_runs")
+    FIELDS = (
+        "received",
+        "delivered",
+        "lost",
+        "corrupt",
+        "delayed",
+        "duplicated",
+        "loss_runs",
+        "out_of_range",
+        "retried",
+        "queue_full",
+    )
     received = _Count(0)  #: arrived (over zenoh, or as datagrams)
     delivered = _Count(1)  #: handed on (a duplicate counts twice)
     lost = _Count(2)  #: hidden by the plan (drop, loss)
@@ -36,11 +47,16 @@ class EdgeStats:
     duplicated = _Count(5)  #: delivered a second time
     #: runs of lost messages in a row (``lost / loss_runs``: the mean burst length)
     loss_runs = _Count(6)
+    out_of_range = _Count(7)  #: lost by a range entry (of ``lost``)
+    retried = _Count(8)  #: through a range entry at a second attempt or later
+    queue_full = _Count(9)  #: dropped at the sender's full queue (a bandwidth budget; of ``lost``)
 
     def __init__(self) -> None:
         self.counts = np.zeros(len(self.FIELDS), dtype=np.int64)
         self.delays_s: list[float] = []  #: how much later each delayed one came [s]
         self.last_lost = False  #: whether the message before was lost (a run goes on)
+        #: the distances range entries saw, sender to receiver [m]: least, sum, most, how many
+        self.distance_m = [math.inf, 0.0, -math.inf, 0]
 
     def count_fate(self, lost: bool) -> None:
         """A lost message (``lost``) or not: ``lost`` and ``loss_runs`` as they go."""
@@ -48,6 +64,13 @@ class EdgeStats:
             self.lost += 1
             self.loss_runs += not self.last_lost
         self.last_lost = lost
+
+    def count_distance(self, d_m: float) -> None:
+        dist = self.distance_m
+        dist[0] = min(dist[0], d_m)
+        dist[1] += d_m
+        dist[2] = max(dist[2], d_m)
+        dist[3] += 1
 
     def bind(self, view: np.ndarray) -> None:
         """Count in ``view`` from now on (what was counted so far is carried over)."""
@@ -62,6 +85,13 @@ class EdgeStats:
                 "median": d[len(d) // 2],
                 "p99": d[math.ceil(0.99 * len(d)) - 1],  # the least at or above 99 % of them
                 "max": d[-1],
+            }
+        n = self.distance_m[3]
+        if n:
+            out["distance_m"] = {
+                "min": self.distance_m[0],
+                "mean": self.distance_m[1] / n,
+                "max": self.distance_m[2],
             }
         return out
 

@@ -25,6 +25,14 @@ Time, for delays and for the plan's ``from_s``/``until_s``:
 - lockstep: a message of step ``s`` is on time at tick ``s + 1``; a delay of ``d`` seconds makes it
   usable from tick ``s + 1 + ceil(d / dt)``; the plan's window is read at the message's own time;
 - real time: from its arrival (run seconds since the start epoch) plus the delay.
+
+Distance and bandwidth. A range entry needs the distance between the two nodes at the message's
+step: the sender's position comes with its message, the receiver's own is the one it published at
+that step (``publish``). In lockstep a message that comes before this node has done its own tick
+of that step waits, undecided, until it has (the message is needed one tick later, so it never
+waits for that); in real time the receiver's newest position serves. A bandwidth entry on the
+sender is its queue, which this node replays for its in-edge (``bandwidth.RadioQueue``): a
+message dropped there is lost (``queue_full``), one that left after the next tick is late.
 """
 
 import contextlib
@@ -37,16 +45,19 @@ from typing import Any
 
 from sim_vehicles.runtime.counter_file import NamedCounts
 from swarm_sitl.bus.clock import POLL_S, RunClock, StallError, wait_until
-from swarm_sitl.bus.codec import Message, PayloadError, Status, decode_message, encode_message
+from swarm_sitl.bus.codec import Message, PayloadError, Status, decode_message, encode_message, message_size
 from swarm_sitl.bus.node_bus import ZenohNodeBus
+from swarm_sitl.faults.bandwidth import RadioQueue
 from swarm_sitl.faults.counts import EdgeStats, counts_names
 from swarm_sitl.faults.plan import FaultPlan, FaultSpec, down_at, fate, uniform
 from swarm_sitl.faults.plan import edge_channel as channel_of
+from swarm_sitl.faults.radio_range import distance_m
 
 _CORRUPT_BYTE = 3  #: salt of the draw that picks the byte a corruption flips
 #: longest block between two looks at the out-neighbours' progress before a planned kill (the
 #: bus's descriptor wakes it when a status comes) [s]
 DELIVERY_POLL_S = 0.05
+_KEEP_STEPS = 64  #: how many of its own steps' positions a node keeps for range entries
 
 
 class FaultyBus:
@@ -95,6 +106,16 @@ class FaultyBus:
             s: plan.on_edge(s, node, graph_edges) for s in sources
         }
         self.stats = {s: EdgeStats() for s in sources}
+        self._graph_edges = graph_edges
+        #: in-neighbours whose messages a range entry needs the distance of
+        self._ranged = {s for s, rules in self.rules.items() if any(f.range is not None for _, f in rules)}
+        #: in-neighbours with a bandwidth budget, and their queues (made at their first message)
+        self._budgeted = {
+            s: f for s, rules in self.rules.items() for _, f in rules if f.bandwidth is not None
+        }
+        self._queues: dict[int, RadioQueue] = {}
+        self._own_p: dict[int, tuple[float, float, float]] = {}  #: this node's position by step
+        self._undecided: list[Message] = []  #: lockstep: waiting for our own position of their step
         self._arrived: dict[int, int] = {}
         self._pending: list[tuple[float, int, Message]] = []  #: heap of (due, order, message)
         self._order = 0
@@ -107,6 +128,14 @@ class FaultyBus:
         if st is None:  # not one of our in-edges (the wrapped bus subscribes to no other)
             return
         self._arrived[src] = max(self._arrived.get(src, -1), m.step)
+        if src in self._ranged and self.clock.lockstep and m.step not in self._own_p:
+            self._undecided.append(m)  # decided when this node publishes that step
+            return
+        self._decide(m)
+
+    def _decide(self, m: Message) -> None:
+        src = m.src
+        st = self.stats[src]
         counted = self.inner.counts(m.step)
         if not counted:
             st = EdgeStats()  # it meets its fate, uncounted (``ZenohNodeBus.counted_steps``)
@@ -114,8 +143,26 @@ class FaultyBus:
         clock = self.clock
         dt = clock.period_s
         at = m.t_s if clock.lockstep else clock.now_s()
-        f = fate(self.plan.seed, self.rules[src], channel_of(src, self.node), m.step, at, self.end_s, dt)
+        left_s = 0.0  # how long after its tick it left its sender's queue [s]
+        if src in self._budgeted:
+            left = self._queue(m).leaves(m.step)
+            if left is None:
+                st.queue_full += 1
+                st.count_fate(True)
+                return
+            left_s = left
+        d = math.nan
+        if src in self._ranged:
+            own = self._own_p.get(m.step) if clock.lockstep else None
+            if own is None:  # real time, or a step before this incarnation's first: the newest
+                own = self._own_p[max(self._own_p)] if self._own_p else m.p_W
+            d = distance_m(m.p_W, own)
+            st.count_distance(d)
+        rules = self.rules[src]
+        f = fate(self.plan.seed, rules, channel_of(src, self.node), m.step, at, self.end_s, dt, distance_m=d)
         st.count_fate(f.lost)
+        st.out_of_range += f.out_of_range
+        st.retried += f.retried
         if f.lost:
             return
         if f.corrupt:
@@ -130,18 +177,43 @@ class FaultyBus:
                 return
         due: float
         if clock.lockstep:
-            due = m.step + 1 + (math.ceil(f.delay_s / dt - 1e-9) if f.delay_s > 0 else 0)
+            # on time at the next tick if it left its queue by then, else at the first tick after
+            queued = max(0, math.ceil(left_s / dt - 1e-9) - 1)
+            due = m.step + 1 + queued + (math.ceil(f.delay_s / dt - 1e-9) if f.delay_s > 0 else 0)
+            late = queued > 0
             again = 1.0
         else:
-            due = clock.now_s() + f.delay_s
+            now = clock.now_s()
+            late = m.t_s + left_s > now
+            due = max(now, m.t_s + left_s) + f.delay_s
             again = dt
-        if f.delay_s > 0:
+        if f.delay_s > 0 or late:
             st.delayed += 1
-            st.delays_s.append(f.delay_s)
+            st.delays_s.append(f.delay_s + (left_s if late else 0.0))
         self._push(due, m)
         if f.duplicate:
             st.duplicated += 1
             self._push(due + again, m)
+
+    def _queue(self, m: Message) -> RadioQueue:
+        """The sender's queue (``bandwidth``), made at its first message (which gives its size)."""
+        q = self._queues.get(m.src)
+        if q is None:
+            f = self._budgeted[m.src]
+            dests = sorted({d for s, d in self._graph_edges if s == m.src})
+            down = self.outages.get(m.src, [])
+            until = self.end_s if f.until_s is None else f.until_s
+            assert f.bandwidth is not None
+            q = self._queues[m.src] = RadioQueue(
+                f.bandwidth,
+                len(dests),
+                dests.index(self.node),
+                message_size(len(m.values)),
+                self.clock.period_s,
+                lambda k: down_at(down, k),
+                lambda t: f.from_s <= t < until,
+            )
+        return q
 
     def _push(self, due: float, m: Message) -> None:
         self._order += 1
@@ -183,6 +255,14 @@ class FaultyBus:
         return self.inner.latest(src)
 
     def publish(self, msg: Message) -> None:
+        if self._ranged:
+            self._own_p[msg.step] = msg.p_W
+            self._own_p.pop(msg.step - _KEEP_STEPS, None)
+            if self._undecided:
+                now = [m for m in self._undecided if m.step <= msg.step]
+                self._undecided = [m for m in self._undecided if m.step > msg.step]
+                for m in now:
+                    self._decide(m)
         if self.own_outages and down_at(self.own_outages, msg.step):
             # the plan kills this node here: as a crash would, with what it has not flushed, once
             # what it published before has reached its readers

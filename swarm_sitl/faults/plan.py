@@ -14,11 +14,14 @@ A plan is the ``faults:`` section of a config, or a file given with ``swarm-sitl
         - {controller: 2, kill: true, from_s: 20, restart_after_s: 2}   # SIGKILL, then started again
         - {controller: 3, freeze_s: 2, from_s: 10}              # SIGSTOP for 2 s
         - {vehicle: 1, kill: true, from_s: 20}                  # a lost aircraft (its controller too)
+        - {all_edges: true, range: {range_m: 40, fading_db: 4}}  # loss with distance
+        - {out_of: 3, bandwidth: {rate_bps: 64000, queue: 8}}   # follower 3's radio
 
 One entry names one *what*, one *how* and optionally *when*:
 
 - what (links): ``edge: [src, dst]`` (an edge of the graph), ``into: i`` / ``out_of: i`` (every edge
-  into or out of follower i), ``leader_edges: true`` (every edge out of node 0), ``partition:
+  into or out of follower i), ``leader_edges: true`` (every edge out of node 0), ``all_edges: true``
+  (every edge of the graph), ``partition:
   [[0, 1, 2], [3, 4]]`` (groups of nodes that cannot hear each other: every edge from one group to
   another; its how is ``drop`` unless it names another; a node in no group hears everyone);
 - how (links): ``drop: true`` (every message), ``loss: p``, ``delay_s: d`` (plus ``jitter_s: j``,
@@ -26,7 +29,11 @@ One entry names one *what*, one *how* and optionally *when*:
   ``until_s``), ``duplicate: p`` (delivered again a period later), ``reorder: p`` (held one period,
   so it comes after the next one), ``corrupt: p`` (one byte flipped: the receiver's checksum drops
   and counts it), ``bursty: {p, r, loss_bad, loss_good}`` (lost in bursts: the Gilbert-Elliott
-  model with netem's parameters, ``bursts``);
+  model with netem's parameters, ``bursts``), ``range: {range_m, exponent, fading_db, retries,
+  retry_s}`` (loss and delay with the distance between the two nodes: log-distance path loss,
+  ``radio_range``), ``bandwidth: {rate_bps, queue}`` (the sending node's radio: messages wait for
+  their air time, a full queue drops; named by ``out_of``, ``leader_edges`` or ``all_edges``, one
+  per node, ``bandwidth``);
 - what (a vehicle link): ``mavlink: i`` (follower i's link to its vehicle) with ``direction: up``
   (setpoints), ``down`` (telemetry) or ``both`` (the default); it fails by the same hows, applied to
   datagrams where the controller sends and receives them. In lockstep it fails by ``drop``,
@@ -59,14 +66,29 @@ from typing import Annotated, Literal, NamedTuple
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
+from swarm_sitl.faults.bandwidth import Bandwidth
 from swarm_sitl.faults.bursts import GilbertElliott, state_at
 from swarm_sitl.faults.draws import uniform
+from swarm_sitl.faults.radio_range import PathLoss
 
 Probability = Annotated[float, Field(gt=0, le=1)]
 NonNegative = Annotated[float, Field(ge=0)]
 
-LINK_WHAT = ("edge", "into", "out_of", "leader_edges", "partition", "mavlink")
-LINK_HOW = ("drop", "loss", "bursty", "delay_s", "stall", "duplicate", "reorder", "corrupt")
+LINK_WHAT = ("edge", "into", "out_of", "leader_edges", "all_edges", "partition", "mavlink")
+LINK_HOW = (
+    "drop",
+    "loss",
+    "bursty",
+    "range",
+    "bandwidth",
+    "delay_s",
+    "stall",
+    "duplicate",
+    "reorder",
+    "corrupt",
+)
+#: the whats that name a node's radio (a bandwidth budget is the sender's)
+NODE_WHAT = ("out_of", "leader_edges", "all_edges")
 PROCESS_WHAT = ("controller", "vehicle", "leader")
 PROCESS_HOW = ("kill", "freeze_s")
 
@@ -80,6 +102,7 @@ class FaultSpec(BaseModel):
     into: Annotated[int, Field(ge=1)] | None = None  #: every edge into this follower
     out_of: Annotated[int, Field(ge=1)] | None = None  #: every edge out of this follower
     leader_edges: Literal[True] | None = None  #: every edge out of the leader
+    all_edges: Literal[True] | None = None  #: every edge of the graph
     #: groups of nodes (0: the leader) that cannot hear each other: every edge between two groups
     partition: list[list[Annotated[int, Field(ge=0)]]] | None = None
     mavlink: Annotated[int, Field(ge=1)] | None = None  #: this follower's MAVLink link to its vehicle
@@ -89,6 +112,8 @@ class FaultSpec(BaseModel):
     drop: Literal[True] | None = None  #: every message is lost
     loss: Probability | None = None  #: each message is lost with this probability
     bursty: GilbertElliott | None = None  #: lost in bursts (``bursts.GilbertElliott``)
+    range: PathLoss | None = None  #: lost and late with distance (``radio_range.PathLoss``)
+    bandwidth: Bandwidth | None = None  #: the sender's radio (``bandwidth.Bandwidth``)
     delay_s: NonNegative | None = None  #: each message comes this much later [s]
     jitter_s: NonNegative = 0.0  #: plus a uniform draw in [0, jitter_s] [s] (with delay_s)
     stall: Literal[True] | None = None  #: held until ``until_s``, then released at once
@@ -129,6 +154,16 @@ class FaultSpec(BaseModel):
             kind = "a process" if what[0] in PROCESS_WHAT else "a link"
             allowed = PROCESS_HOW if what[0] in PROCESS_WHAT else LINK_HOW
             raise ValueError(f"{what[0]} is {kind}: it fails by {', '.join(allowed)}, not {how[0]}")
+        if (self.range is not None or self.bandwidth is not None) and self.mavlink is not None:
+            raise ValueError(
+                f"{how[0]} acts on bus edges: a vehicle's MAVLink link is on board (no distance, "
+                "no shared radio)"
+            )
+        if self.bandwidth is not None and what[0] not in NODE_WHAT:
+            raise ValueError(
+                f"a bandwidth budget is a sending node's radio: name it with {', '.join(NODE_WHAT)}, "
+                f"not {what[0]}"
+            )
         if self.restart_after_s is not None and not self.kill:
             raise ValueError("restart_after_s goes with kill")
         if self.restart_after_s is not None and self.vehicle is not None:
@@ -183,6 +218,8 @@ class FaultSpec(BaseModel):
             return f"edges into {self.into}"
         if self.out_of is not None:
             return f"edges out of {self.out_of}"
+        if self.all_edges:
+            return "every edge"
         return "leader's edges"
 
     @property
@@ -199,6 +236,10 @@ class FaultSpec(BaseModel):
             return "stall"
         if self.bursty is not None:
             return self.bursty.describe()
+        if self.range is not None:
+            return self.range.describe()
+        if self.bandwidth is not None:
+            return self.bandwidth.describe()
         if self.delay_s is not None:
             return f"delay {self.delay_s:g} s" + (f" + U(0, {self.jitter_s:g}) s" if self.jitter_s else "")
         for k in ("loss", "duplicate", "reorder", "corrupt"):
@@ -221,6 +262,8 @@ class FaultSpec(BaseModel):
             return [e for e in es if e[1] == self.into]
         if self.out_of is not None:
             return [e for e in es if e[0] == self.out_of]
+        if self.all_edges:
+            return es
         return [e for e in es if e[0] == 0]
 
     def victims(self) -> list[str]:
@@ -267,6 +310,16 @@ class FaultPlan(BaseModel):
                 raise ValueError(
                     f"{where}.until_s: {f.until_s:g} s is past the end of the run ({duration_s:g} s)"
                 )
+
+        budgeted: dict[int, int] = {}  # sender -> the entry that gives its radio a budget
+        for j, f in enumerate(self.plan):
+            for s in sorted({s for s, _ in f.edges(graph_edges)}) if f.bandwidth is not None else []:
+                if s in budgeted:
+                    raise ValueError(
+                        f"faults.plan.{j}: node {s}'s radio already has a bandwidth budget "
+                        f"(faults.plan.{budgeted[s]}); a node has one"
+                    )
+                budgeted[s] = j
 
         killed: dict[str, float] = {}
         for j, f in sorted(enumerate(self.plan), key=lambda jf: jf[1].from_s):
@@ -334,6 +387,8 @@ class Fate(NamedTuple):
     delay_s: float = 0.0  #: how much later than on time it is delivered [s]
     duplicate: bool = False  #: delivered a second time, one period after the first
     faults: tuple[int, ...] = ()  #: the plan entries that acted on it
+    out_of_range: bool = False  #: lost by a range entry (every attempt failed)
+    retried: bool = False  #: got through a range entry at a second attempt or later
 
 
 ON_TIME = Fate()
@@ -351,15 +406,31 @@ def fate(
     end_s: float,
     period_s: float,
     step: int | None = None,
+    distance_m: float = math.nan,
 ) -> Fate:
     """The fate of message ``key`` (its step) on ``channel`` at time ``t_s``, under ``rules``
     (``FaultPlan.on_edge``): entries act in plan order, a loss ends it. ``step``: the message's
-    place in its stream, for a bursty entry's chain (default ``key``)."""
-    lost = corrupt = duplicate = False
+    place in its stream, for a bursty entry's chain (default ``key``); ``distance_m``: between its
+    sender and receiver when it was sent, for a range entry. A bandwidth entry acts at the
+    sender's queue, not here (``edges``)."""
+    lost = corrupt = duplicate = retried = False
     delay = 0.0
     acted: list[int] = []
     for j, f in rules:
         if not f.active(t_s, end_s):
+            continue
+        if f.bandwidth is not None:
+            continue
+        if f.range is not None:
+            assert not math.isnan(distance_m), "a range entry needs the distance"
+            attempts = f.range.attempts(distance_m, seed, j, channel, key)
+            if attempts == 0:
+                return Fate(True, False, 0.0, False, (*acted, j), out_of_range=True)
+            if attempts == 1:
+                continue
+            retried = True
+            delay += (attempts - 1) * f.range.retry_s
+            acted.append(j)
             continue
         draw = uniform(seed, j, channel, key, _DRAW)
         if f.bursty is not None:
@@ -385,7 +456,7 @@ def fate(
         acted.append(j)
     if not acted:
         return ON_TIME
-    return Fate(lost, corrupt, delay, duplicate, tuple(acted))
+    return Fate(lost, corrupt, delay, duplicate, tuple(acted), retried=retried)
 
 
 def tick_of(t_s: float, period_s: float) -> int:
