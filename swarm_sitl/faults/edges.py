@@ -30,7 +30,8 @@ Distance and bandwidth. A range entry needs the distance between the two nodes a
 step: the sender's position comes with its message, the receiver's own is the one it published at
 that step (``publish``). In lockstep a message that comes before this node has done its own tick
 of that step waits, undecided, until it has (the message is needed one tick later, so it never
-waits for that); in real time the receiver's newest position serves. A bandwidth entry on the
+waits for that); in real time the receiver's newest position serves (one that comes before this
+node's first tick waits for it). A bandwidth entry on the
 sender is its queue, which this node replays for its in-edge (``bandwidth.RadioQueue``): a
 message dropped there is lost (``queue_full``), one that left after the next tick is late.
 """
@@ -115,6 +116,7 @@ class FaultyBus:
         }
         self._queues: dict[int, RadioQueue] = {}
         self._own_p: dict[int, tuple[float, float, float]] = {}  #: this node's position by step
+        self._own_newest: tuple[float, float, float] | None = None
         self._undecided: list[Message] = []  #: lockstep: waiting for our own position of their step
         self._arrived: dict[int, int] = {}
         self._pending: list[tuple[float, int, Message]] = []  #: heap of (due, order, message)
@@ -128,8 +130,10 @@ class FaultyBus:
         if st is None:  # not one of our in-edges (the wrapped bus subscribes to no other)
             return
         self._arrived[src] = max(self._arrived.get(src, -1), m.step)
-        if src in self._ranged and self.clock.lockstep and m.step not in self._own_p:
-            self._undecided.append(m)  # decided when this node publishes that step
+        if src in self._ranged and (
+            m.step not in self._own_p if self.clock.lockstep else self._own_newest is None
+        ):
+            self._undecided.append(m)  # decided when this node publishes that step (or its first)
             return
         self._decide(m)
 
@@ -155,7 +159,8 @@ class FaultyBus:
         if src in self._ranged:
             own = self._own_p.get(m.step) if clock.lockstep else None
             if own is None:  # real time, or a step before this incarnation's first: the newest
-                own = self._own_p[max(self._own_p)] if self._own_p else m.p_W
+                own = self._own_newest
+            assert own is not None  # (a message is decided once this node has published)
             d = distance_m(m.p_W, own)
             st.count_distance(d)
         rules = self.rules[src]
@@ -184,8 +189,8 @@ class FaultyBus:
             again = 1.0
         else:
             now = clock.now_s()
-            late = m.t_s + left_s > now
-            due = max(now, m.t_s + left_s) + f.delay_s
+            late = left_s > 0 and m.t_s + left_s > now  # (a budget's: it has left its queue)
+            due = (m.t_s + left_s if late else now) + f.delay_s
             again = dt
         if f.delay_s > 0 or late:
             st.delayed += 1
@@ -256,11 +261,15 @@ class FaultyBus:
 
     def publish(self, msg: Message) -> None:
         if self._ranged:
-            self._own_p[msg.step] = msg.p_W
-            self._own_p.pop(msg.step - _KEEP_STEPS, None)
+            own = self._own_p
+            own[msg.step] = self._own_newest = msg.p_W
+            if len(own) > 2 * _KEEP_STEPS:  # (a real-time node that skips ticks leaves gaps)
+                for k in [k for k in own if k < msg.step - _KEEP_STEPS]:
+                    del own[k]
             if self._undecided:
-                now = [m for m in self._undecided if m.step <= msg.step]
-                self._undecided = [m for m in self._undecided if m.step > msg.step]
+                last = msg.step if self.clock.lockstep else math.inf
+                now = [m for m in self._undecided if m.step <= last]
+                self._undecided = [m for m in self._undecided if m.step > last]
                 for m in now:
                     self._decide(m)
         if self.own_outages and down_at(self.own_outages, msg.step):
