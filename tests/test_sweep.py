@@ -16,6 +16,7 @@ import yaml
 from swarm_sitl.campaigns.breaking import breaking_point
 from swarm_sitl.campaigns.grid import SweepSpecError, grid, parse_values, parse_vary, point_data
 from swarm_sitl.campaigns.table import TableWriter, read_rows, row_key
+from swarm_sitl.config.load import parse_config
 from tests.conftest import CONFIGS
 
 CLI = [sys.executable, "-m", "swarm_sitl"]
@@ -68,6 +69,41 @@ def test_a_point_puts_one_entry_per_follower_and_sets_config_paths(paper_cfg):
         with pytest.raises(SweepSpecError, match=message):
             point_data(base, point, 0)
     assert len(grid([("a", [1.0, 2.0]), ("b", [3.0, 4.0, 5.0])])) == 6
+
+
+@pytest.mark.unit
+def test_a_link_models_parameters_make_one_entry_on_every_edge_and_a_missing_one_is_named(paper_cfg):
+    base = paper_cfg.model_dump(mode="json")
+    data = point_data(
+        base,
+        {
+            "link.bursty.p": 0.05,
+            "link.bursty.r": 0.25,
+            "link.range.range_m": 30.0,
+            "link.range.fading_db": 0.0,
+        },
+        2,
+    )
+    assert data["faults"]["plan"] == [
+        {"all_edges": True, "bursty": {"p": 0.05, "r": 0.25}},
+        {"all_edges": True, "range": {"range_m": 30.0, "fading_db": 0.0}},  # 0 for an optional one: kept
+    ]
+    cfg = parse_config(data, "point")  # the entries are plan entries
+    assert (
+        cfg.faults.plan[1].range is not None
+        and cfg.faults.plan[1].edges(cfg.graph_edges()) == cfg.graph_edges()
+    )
+    for off in ({"link.bursty.p": 0.0, "link.bursty.r": 0.25}, {"link.bandwidth.rate_bps": 0.0}):
+        assert point_data(base, off, 1)["faults"]["plan"] == []  # a required one at 0: no limit
+    budget = point_data(base, {"link.bandwidth.rate_bps": 64000.0, "link.bandwidth.queue": 4.0}, 1)
+    assert parse_config(budget, "point").faults.plan[0].bandwidth.queue == 4
+    for point, message in [
+        ({"link.bursty.p": 0.1}, r"sweep link\.bursty\.p: a bursty link needs link\.bursty\.r too"),
+        ({"link.radio.range_m": 3.0}, r"link\.MODEL\.PARAM is a model of bursty, range, bandwidth"),
+        ({"link.range.sigma": 3.0}, r"range has no parameter 'sigma' \(link\.range\.range_m, "),
+    ]:
+        with pytest.raises(SweepSpecError, match=message):
+            point_data(base, point, 0)
 
 
 @pytest.mark.unit

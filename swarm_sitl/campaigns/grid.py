@@ -7,17 +7,36 @@ on every edge of the graph or every vehicle's MAVLink link:
 - ``link.loss``, ``link.corrupt``, ``link.duplicate``, ``link.reorder`` (probabilities),
   ``link.delay_s``, ``link.jitter_s`` (seconds; jitter goes with a delay): an entry ``into: i``
   for every follower i, so every edge of the graph meets it;
+- ``link.MODEL.PARAM``, a parameter of a link model (``link.bursty.p``, ``link.range.range_m``,
+  ``link.range.fading_db``, ``link.bandwidth.rate_bps``, ...: the keys of ``bursty:``, ``range:``
+  and ``bandwidth:`` in a plan): one entry ``all_edges: true`` with that model, its other
+  parameters from the other keys of the campaign (a required one must be swept too, with one
+  value if it is to stay fixed) or their defaults;
 - ``mavlink.loss``, ``mavlink.corrupt``: an entry ``mavlink: i`` for every follower, both ways.
 
-A value of 0 puts no entry (the plan's values are positive). VALUES is ``START:STOP:STEP``
-(inclusive of STOP when the steps land on it) or a comma list ``0,0.1,0.5``.
+A value of 0 puts no entry (the plan's values are positive; for a model: 0 for one of its
+required parameters, so ``link.range.range_m=0`` or ``link.bandwidth.rate_bps=0`` is no limit).
+VALUES is ``START:STOP:STEP`` (inclusive of STOP when the steps land on it) or a comma list
+``0,0.1,0.5``.
 """
 
 import math
 from typing import Any
 
+from pydantic import BaseModel
+
+from swarm_sitl.faults.bandwidth import Bandwidth
+from swarm_sitl.faults.bursts import GilbertElliott
+from swarm_sitl.faults.radio_range import PathLoss
+
 LINK_HOW = ("loss", "corrupt", "duplicate", "reorder", "delay_s", "jitter_s")
 MAVLINK_HOW = ("loss", "corrupt")
+#: the link models a campaign can vary, by their key in a plan entry
+LINK_MODELS: dict[str, type[BaseModel]] = {
+    "bursty": GilbertElliott,
+    "range": PathLoss,
+    "bandwidth": Bandwidth,
+}
 MAX_POINTS = 100_000
 
 
@@ -93,8 +112,17 @@ def _set_path(data: dict[str, Any], key: str, value: float) -> None:
 def check_key(key: str) -> None:
     """A shorthand key's own check (a config path is checked against the config)."""
     head, _, how = key.partition(".")
-    if head == "link" and how not in LINK_HOW:
-        raise SweepSpecError(f"sweep {key}: link.* is one of {', '.join('link.' + h for h in LINK_HOW)}")
+    model, dot, param = how.partition(".")
+    if head == "link" and dot:
+        if model not in LINK_MODELS:
+            raise SweepSpecError(f"sweep {key}: link.MODEL.PARAM is a model of {', '.join(LINK_MODELS)}")
+        fields = LINK_MODELS[model].model_fields
+        if param not in fields:
+            known = ", ".join(f"link.{model}.{f}" for f in fields)
+            raise SweepSpecError(f"sweep {key}: {model} has no parameter {param!r} ({known})")
+    elif head == "link" and how not in LINK_HOW:
+        known = ", ".join("link." + h for h in LINK_HOW)
+        raise SweepSpecError(f"sweep {key}: link.* is one of {known}, or link.MODEL.PARAM")
     if head == "mavlink" and how not in MAVLINK_HOW:
         known = ", ".join("mavlink." + h for h in MAVLINK_HOW)
         raise SweepSpecError(f"sweep {key}: mavlink.* is one of {known}")
@@ -114,10 +142,14 @@ def point_data(base: dict[str, Any], point: dict[str, float], seed: int) -> dict
     followers = [f["id"] for f in data["followers"]]
     link: dict[str, float] = {}
     mav: dict[str, float] = {}
+    models: dict[str, dict[str, float]] = {}
     for key, value in point.items():
         check_key(key)
         head, _, how = key.partition(".")
-        if head == "link":
+        if head == "link" and "." in how:
+            model, _, param = how.partition(".")
+            models.setdefault(model, {})[param] = value
+        elif head == "link":
             link[how] = value
         elif head == "mavlink":
             mav[how] = value
@@ -132,6 +164,16 @@ def point_data(base: dict[str, Any], point: dict[str, float], seed: int) -> dict
     if link.get("delay_s"):
         extra = {"jitter_s": link["jitter_s"]} if link.get("jitter_s") else {}
         entries += [{"into": i, "delay_s": link["delay_s"], **extra} for i in followers]
+    for model, params in models.items():
+        required = [n for n, f in LINK_MODELS[model].model_fields.items() if f.is_required()]
+        missing = [n for n in required if n not in params]
+        if missing:
+            raise SweepSpecError(
+                f"sweep link.{model}.{next(iter(params))}: a {model} link needs "
+                f"{', '.join(f'link.{model}.{n}' for n in missing)} too (one value to hold it)"
+            )
+        if all(params[n] for n in required):
+            entries.append({"all_edges": True, model: params})
     for how in MAVLINK_HOW:
         if mav.get(how):
             entries += [{"mavlink": i, how: mav[how]} for i in followers]
