@@ -136,28 +136,32 @@ def test_duplicates_reorders_and_corruptions():
     assert bus.stats[1].corrupt == 20 and inner.dropped == 20 and not any(s == 1 for s, _ in inner.table)
 
 
+class ManualClock(RunClock):
+    """A real-time run's clock that reads ``self.t`` [s], set by the test."""
+
+    def __init__(self) -> None:
+        super().__init__(False, DT)
+        self.t = 0.0
+
+    def now(self) -> float:
+        return self.t
+
+    def now_s(self) -> float:
+        return self.t
+
+
 def test_in_real_time_a_delay_counts_from_arrival():
-    now = [0.0]
-
-    class Clock(RunClock):
-        def now(self) -> float:
-            return now[0]
-
-        def now_s(self) -> float:
-            return now[0]
-
+    clock = ManualClock()
     inner = MemoryBus()
-    bus = FaultyBus(
-        inner, FaultPlan(plan=[{"edge": [1, 4], "delay_s": 0.1}]), 4, EDGES, Clock(False, DT), 60.0
-    )  # type: ignore[arg-type]
-    now[0] = 5.0
+    bus = FaultyBus(inner, FaultPlan(plan=[{"edge": [1, 4], "delay_s": 0.1}]), 4, EDGES, clock, 60.0)  # type: ignore[arg-type]
+    clock.t = 5.0
     inner.arrive(1, 3)  # its own time (0.03 s) does not matter in real time: its arrival does
     bus.poll()
     assert bus.latest(1) is None
-    now[0] = 5.099
+    clock.t = 5.099
     bus.poll()
     assert bus.latest(1) is None
-    now[0] = 5.1
+    clock.t = 5.1
     bus.poll()
     assert bus.latest(1) is not None and bus.latest(1).step == 3
 
@@ -375,17 +379,6 @@ def test_a_restarted_node_waits_for_the_liveliness_of_a_neighbour_that_came_back
         first.publish(Message(0, 400, 4.0, np.zeros(12)))
 
 
-class _Clock(RunClock):
-    """A real-time clock the test moves by hand."""
-
-    def __init__(self) -> None:
-        super().__init__(False, DT)
-        self.t = 0.0
-
-    def now_s(self) -> float:
-        return self.t
-
-
 @pytest.mark.parametrize("lockstep", [True, False], ids=["lockstep", "real time"])
 def test_every_mavlink_datagram_meets_the_fate_the_plan_draws_for_it_and_is_counted_once(lockstep):
     """The link's wrapper against a model: each datagram's fate is drawn here from ``fate`` (the
@@ -407,7 +400,7 @@ def test_every_mavlink_datagram_meets_the_fate_the_plan_draws_for_it_and_is_coun
             {"mavlink": 1, "reorder": 0.1},
         ]
     plan = FaultPlan(seed=5, plan=entries)  # (a seed whose other entries spare the window's edges)
-    clock: RunClock = RunClock(True, DT) if lockstep else _Clock()
+    clock: RunClock = RunClock(True, DT) if lockstep else ManualClock()
     lf = MavlinkFaults(plan, 1, clock, 60.0)
     n = 400
     want = {"up": dict.fromkeys(EdgeStats.FIELDS, 0), "down": dict.fromkeys(EdgeStats.FIELDS, 0)}
@@ -635,7 +628,7 @@ def test_a_node_the_plan_kills_kills_itself_at_its_tick_in_lockstep_only(monkeyp
     import signal
 
     assert killed == [(os.getpid(), signal.SIGKILL)]
-    real = FaultyBus(Inner({}, {}), plan, 0, EDGES, _Clock(), 60.0)  # type: ignore[arg-type]
+    real = FaultyBus(Inner({}, {}), plan, 0, EDGES, ManualClock(), 60.0)  # type: ignore[arg-type]
     _publish(real, 100)  # in real time the supervisor kills, at the plan's wall-clock time
     assert killed == [(os.getpid(), signal.SIGKILL)] and real.outages == {} and real.own_outages == []
 
@@ -656,7 +649,7 @@ def test_lost_leaves_out_the_neighbours_the_plan_brings_back():
 
 
 def test_in_real_time_the_window_is_read_at_arrival_and_a_duplicate_follows_one_period_later():
-    clock = _Clock()
+    clock = ManualClock()
     inner = MemoryBus()
     plan = FaultPlan(plan=[{"edge": [1, 4], "duplicate": 1.0, "from_s": 5.0, "until_s": 15.0}])
     bus = FaultyBus(inner, plan, 4, EDGES, clock, 60.0)  # type: ignore[arg-type]
@@ -664,7 +657,11 @@ def test_in_real_time_the_window_is_read_at_arrival_and_a_duplicate_follows_one_
     inner.arrive(1, 50)  # sent for t = 0.5 s, arrives at 10 s: inside the window
     bus.poll()
     assert bus.stats[1].duplicated == 1 and bus.stats[1].delayed == 0 and bus.stats[1].delays_s == []
-    assert sorted(due for due, _, _ in bus._pending) == [10.0, pytest.approx(10.0 + DT)]  # and its copy
+    assert inner.estimate(1, 50) is not None  # handed on at its arrival
+    assert [due for due, _, _ in bus._pending] == [pytest.approx(10.0 + DT)]  # its copy a period later
+    clock.t = 10.0 + DT
+    bus.poll()
+    assert not bus._pending and bus.stats[1].delivered == 2
 
 
 def test_a_corruption_of_a_byte_that_is_0xff_still_changes_it():

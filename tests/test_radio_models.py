@@ -21,7 +21,7 @@ from swarm_sitl.faults.edges import FaultyBus
 from swarm_sitl.faults.plan import FaultPlan, FaultSpec, edge_channel, fate
 from swarm_sitl.faults.radio_range import PathLoss
 from tests.conftest import CONFIGS
-from tests.test_bus_faults import DT, EDGES, MemoryBus, _Publisher
+from tests.test_bus_faults import DT, EDGES, ManualClock, MemoryBus, _Publisher
 
 PHI = NormalDist().cdf
 
@@ -232,20 +232,11 @@ def test_a_lockstep_receiver_decides_a_range_fate_with_its_own_position_of_that_
 @pytest.mark.integration
 def test_in_real_time_a_range_fate_takes_the_receivers_newest_position_and_a_late_queue_waits():
     """Real time: the distance is to where the receiver last was (it waits for no tick but its
-    first);
-    a message that leaves its sender's queue w after its tick is handed on at t_s + w."""
-    now = [0.0]
-
-    class Clock(RunClock):
-        def now(self) -> float:
-            return now[0]
-
-        def now_s(self) -> float:
-            return now[0]
-
+    first); a message that leaves its sender's queue w after its tick is handed on at t_s + w."""
+    clock = ManualClock()
     plan = FaultPlan(plan=[FaultSpec(edge=(1, 4), range={"range_m": 12.0})])
     inner = _Publisher({})
-    bus = FaultyBus(inner, plan, 4, EDGES, Clock(False, DT), 60.0)  # type: ignore[arg-type]
+    bus = FaultyBus(inner, plan, 4, EDGES, clock, 60.0)  # type: ignore[arg-type]
     inner.wire.append(_at(1, 0, (9.0, 0.0, 0.0)))
     bus.poll()
     assert bus.latest(1) is None  # before node 4's first tick: it waits for where node 4 is
@@ -260,15 +251,15 @@ def test_in_real_time_a_range_fate_takes_the_receivers_newest_position_and_a_lat
     assert bus.stats[1].as_dict()["distance_m"] == {"min": 9.0, "mean": 35 / 3, "max": 15.0}
     plan = FaultPlan(plan=[FaultSpec(out_of=1, bandwidth={"rate_bps": 8 * 141 / 0.025, "queue": 0})])
     inner = _Publisher({})
-    bus = FaultyBus(inner, plan, 4, EDGES, Clock(False, DT), 60.0)  # type: ignore[arg-type]
-    now[0] = 0.481
+    bus = FaultyBus(inner, plan, 4, EDGES, clock, 60.0)  # type: ignore[arg-type]
+    clock.t = 0.481
     inner.wire.append(_at(1, 48, (0.0, 0.0, 0.0)))  # sent at 0.48 s, 25 ms on the air
     bus.poll()  # (queue 0: of every three ticks' messages the first finds the radio idle, 0, 3, .. 48)
     assert bus.latest(1) is None
-    now[0] = 0.5049
+    clock.t = 0.5049
     bus.poll()
     assert bus.latest(1) is None
-    now[0] = 0.5051
+    clock.t = 0.5051
     bus.poll()
     assert bus.latest(1) is not None and bus.stats[1].delays_s == [pytest.approx(0.025)]
 
