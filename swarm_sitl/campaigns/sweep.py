@@ -301,10 +301,11 @@ def draw(campaign: Campaign) -> list[Path]:
     rows, keys, out = campaign.rows, campaign.keys, campaign.out
     title = out.name
     figs = []
-    if len(keys) == 2:
-        figs.append(charts.heat_map(rows, keys, campaign.bound_m, out / "heat_map.png", title))
+    varied = [k for k in keys if len({float(r[k]) for r in rows}) > 1]  # (one value holds a key fixed)
+    if len(varied) == 2:
+        figs.append(charts.heat_map(rows, varied, campaign.bound_m, out / "heat_map.png", title))
     for k in keys:
-        if len(keys) == 1 or len({float(r[k]) for r in rows}) > 1:
+        if len(keys) == 1 or k in varied:
             figs.append(charts.error_chart(rows, k, campaign.bound_m, out / f"error_vs_{k}.png", title))
     return figs
 
