@@ -16,7 +16,7 @@ import yaml
 from swarm_sitl.campaigns.breaking import breaking_point
 from swarm_sitl.campaigns.grid import SweepSpecError, grid, parse_values, parse_vary, point_data
 from swarm_sitl.campaigns.table import TableWriter, read_rows, row_key
-from swarm_sitl.config.load import parse_config
+from swarm_sitl.config.load import ConfigError, parse_config
 from tests.conftest import CONFIGS
 
 CLI = [sys.executable, "-m", "swarm_sitl"]
@@ -93,8 +93,10 @@ def test_a_link_models_parameters_make_one_entry_on_every_edge_and_a_missing_one
         cfg.faults.plan[1].range is not None
         and cfg.faults.plan[1].edges(cfg.graph_edges()) == cfg.graph_edges()
     )
-    for off in ({"link.bursty.p": 0.0, "link.bursty.r": 0.25}, {"link.bandwidth.rate_bps": 0.0}):
-        assert point_data(base, off, 1)["faults"]["plan"] == []  # a required one at 0: no limit
+    assert point_data(base, {"link.bursty.p": 0.0, "link.bursty.r": 0.25}, 1)["faults"]["plan"] == []
+    zero = point_data(base, {"link.range.range_m": 0.0}, 1)  # not "no limit": refused as in a plan
+    with pytest.raises(ConfigError, match=r"faults\.plan\.0\.range\.range_m: .*greater than 0"):
+        parse_config(zero, "point")
     budget = point_data(base, {"link.bandwidth.rate_bps": 64000.0, "link.bandwidth.queue": 4.0}, 1)
     assert parse_config(budget, "point").faults.plan[0].bandwidth.queue == 4
     for point, message in [
@@ -116,6 +118,10 @@ def test_the_breaking_point_is_the_last_value_before_any_seed_fails():
     assert breaking_point(rows((0, 0), (0.5, 1)), "x") == (None, 0)
     # a value that holds after one that broke does not move the point (the first break counts)
     assert breaking_point(rows((0.1, 1), (0.2, 0), (0.3, 1)), "x") == (0.1, 0.2)
+    # a radio's range is harsher as it shrinks: read from the largest down
+    key = "link.range.range_m"
+    ranged = [{key: v, "passed": ok} for v, ok in ((5, 0), (10, 1), (10, 0), (20, 1), (40, 1))]
+    assert breaking_point(ranged, key) == (20, 10) and breaking_point(ranged[3:], key) == (20, None)
 
 
 @pytest.mark.unit

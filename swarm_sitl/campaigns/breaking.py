@@ -1,6 +1,13 @@
-"""Where the formation breaks: the largest swept value up to which every seed holds the bound."""
+"""Where the formation breaks: the gentlest to the harshest swept value, the last up to which
+every seed holds the bound. Most keys grow harsher as they grow (a loss, a delay, a gust); the
+keys in ``HARSHER_WHEN_SMALLER`` (a radio's range, its rate and queue, a bursty link's way back to
+good) are read from the largest value down."""
 
 from typing import Any
+
+HARSHER_WHEN_SMALLER = frozenset(
+    {"link.range.range_m", "link.bandwidth.rate_bps", "link.bandwidth.queue", "link.bursty.r"}
+)
 
 
 def passing_values(rows: list[dict[str, Any]], key: str) -> dict[float, bool]:
@@ -13,12 +20,18 @@ def passing_values(rows: list[dict[str, Any]], key: str) -> dict[float, bool]:
 
 
 def breaking_point(rows: list[dict[str, Any]], key: str) -> tuple[float | None, float | None]:
-    """``(held, broke)``: the largest value of ``key`` such that every seed passed at it and at
-    every smaller value, and the next value (the first at which a seed failed); ``None`` for
+    """``(held, broke)``: the harshest value of ``key`` such that every seed passed at it and at
+    every gentler value, and the next value (the first at which a seed failed); ``None`` for
     held if the first value fails, for broke if none does."""
     held: float | None = None
-    for v, ok in sorted(passing_values(rows, key).items()):
+    values = sorted(passing_values(rows, key).items(), reverse=key in HARSHER_WHEN_SMALLER)
+    for v, ok in values:
         if not ok:
             return held, v
         held = v
     return held, None
+
+
+def toward(key: str) -> str:
+    """How the breaking point reads for ``key``: ``up to`` a value, or ``down to`` it."""
+    return "down to" if key in HARSHER_WHEN_SMALLER else "up to"

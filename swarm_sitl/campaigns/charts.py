@@ -6,7 +6,7 @@ from typing import Any
 
 import numpy as np
 
-from swarm_sitl.campaigns.breaking import breaking_point
+from swarm_sitl.campaigns.breaking import breaking_point, toward
 
 
 def _mpl() -> Any:
@@ -34,7 +34,7 @@ def error_chart(rows: list[dict[str, Any]], key: str, bound_m: float, path: Path
     ax.axhline(bound_m, color="C3", ls="--", lw=1, label=f"bound {bound_m:g} m")
     held, broke = breaking_point(rows, key)
     if held is not None and broke is not None:
-        ax.axvline(held, color="C2", ls=":", lw=1.5, label=f"holds up to {held:g}")
+        ax.axvline(held, color="C2", ls=":", lw=1.5, label=f"holds {toward(key)} {held:g}")
     ax.set_yscale("log")
     ax.set_xlabel(key)
     ax.set_ylabel("largest formation error after settling [m]")

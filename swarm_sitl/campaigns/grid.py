@@ -14,8 +14,7 @@ on every edge of the graph or every vehicle's MAVLink link:
   value if it is to stay fixed) or their defaults;
 - ``mavlink.loss``, ``mavlink.corrupt``: an entry ``mavlink: i`` for every follower, both ways.
 
-A value of 0 puts no entry (the plan's values are positive; for a model: 0 for one of its
-required parameters, so ``link.range.range_m=0`` or ``link.bandwidth.rate_bps=0`` is no limit).
+A value of 0 puts no entry (the plan's values are positive), and so does ``link.bursty.p=0``.
 VALUES is ``START:STOP:STEP`` (inclusive of STOP when the steps land on it) or a comma list
 ``0,0.1,0.5``.
 """
@@ -31,6 +30,9 @@ from swarm_sitl.faults.radio_range import PathLoss
 
 LINK_HOW = ("loss", "corrupt", "duplicate", "reorder", "delay_s", "jitter_s")
 MAVLINK_HOW = ("loss", "corrupt")
+#: a model's key at which 0 puts no entry (a bursty link that never turns bad); 0 elsewhere is
+#: the model's own value (validated: a range or a rate of 0 is refused)
+NO_ENTRY_AT_ZERO = {"bursty": "p"}
 #: the link models a campaign can vary, by their key in a plan entry
 LINK_MODELS: dict[str, type[BaseModel]] = {
     "bursty": GilbertElliott,
@@ -172,7 +174,7 @@ def point_data(base: dict[str, Any], point: dict[str, float], seed: int) -> dict
                 f"sweep link.{model}.{next(iter(params))}: a {model} link needs "
                 f"{', '.join(f'link.{model}.{n}' for n in missing)} too (one value to hold it)"
             )
-        if all(params[n] for n in required):
+        if params.get(NO_ENTRY_AT_ZERO.get(model, ""), 1.0):
             entries.append({"all_edges": True, model: params})
     for how in MAVLINK_HOW:
         if mav.get(how):

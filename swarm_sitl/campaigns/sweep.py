@@ -16,7 +16,7 @@ from typing import Any
 import yaml
 
 from swarm_sitl.campaigns import charts
-from swarm_sitl.campaigns.breaking import breaking_point
+from swarm_sitl.campaigns.breaking import breaking_point, toward
 from swarm_sitl.campaigns.grid import SweepSpecError, check_key, grid, parse_values, parse_vary, point_data
 from swarm_sitl.campaigns.runner import Task, connect, default_jobs, run_dask, run_local
 from swarm_sitl.campaigns.table import TABLE, TableWriter, read_rows, row_key, write_sorted
@@ -318,13 +318,14 @@ def summary_lines(c: Campaign) -> list[str]:
     if len(c.keys) == 1:
         held, broke = c.breaking_point()
         k = c.keys[0]
+        way = toward(k)
         if held is None:
             lines.append(f"breaking point: {k} breaks at its first value, {broke:g}")
         elif broke is None:
-            lines.append(f"breaking point: none; every seed holds the bound up to {k} = {held:g}")
+            lines.append(f"breaking point: none; every seed holds the bound {way} {k} = {held:g}")
         else:
             lines.append(
-                f"breaking point: every seed holds the bound up to {k} = {held:g}; a seed breaks at {broke:g}"
+                f"breaking point: every seed holds the bound {way} {k} = {held:g}; a seed breaks at {broke:g}"
             )
     lines += [f"figure: {p}" for p in c.figures]
     return lines
