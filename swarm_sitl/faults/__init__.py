@@ -2,6 +2,9 @@
 
 - ``plan``: the ``faults:`` section of a config, validated at load, and each message's fate, a
   pure function of the plan's seed and the message (``fate``): the same plan, the same run;
+- the link models a plan entry may name, each a pure function of the run's inputs: ``bursts``
+  (Gilbert-Elliott), ``radio_range`` (path loss with distance, retries), ``bandwidth`` (a node's
+  radio and its queue), with ``draws``, the seeded draws they and ``plan`` make;
 - ``edges``: the plan on a node's in-edges, a wrapper of its bus (``FaultyBus``);
 - ``mavlink``: the plan on a vehicle's MAVLink link, a wrapper of the controller's datagrams;
 - ``counts``: what those wrappers count per edge and per link, in memory or in a file that
