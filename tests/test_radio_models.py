@@ -19,7 +19,7 @@ from swarm_sitl.config.load import ConfigError, parse_config
 from swarm_sitl.faults.bandwidth import Bandwidth, RadioQueue
 from swarm_sitl.faults.edges import FaultyBus
 from swarm_sitl.faults.plan import FaultPlan, FaultSpec, edge_channel, fate
-from swarm_sitl.faults.radio_range import PathLoss
+from swarm_sitl.faults.radio_range import PathLoss, distance_m
 from tests.conftest import CONFIGS
 from tests.test_bus_faults import DT, EDGES, ManualClock, MemoryBus, _Publisher
 
@@ -82,13 +82,34 @@ def test_retries_lose_q_to_the_power_of_the_attempts_and_delay_by_the_geometric_
 
 
 @pytest.mark.unit
+def test_the_distance_is_euclidean_in_three_dimensions_and_the_mean_delay_is_the_geometric_one():
+    assert distance_m((1.0, 2.0, 3.0), (4.0, 6.0, 15.0)) == 13.0  # 3, 4, 12
+    assert distance_m((4.0, 6.0, 15.0), (1.0, 2.0, 3.0)) == 13.0
+    pl = PathLoss(range_m=10.0, fading_db=3.0, retries=2, retry_s=1.0)
+    assert pl.attempt_loss(10.0) == pytest.approx(0.5)  # weights 1, 1/2, 1/4 of attempts 0, 1, 2
+    assert pl.mean_delay_s(10.0) == pytest.approx((0.5 + 2 * 0.25) / 1.75)
+    assert pl.loss(10.0) == pytest.approx(0.125)
+    hard = PathLoss(range_m=10.0, retries=2, retry_s=1.0)
+    assert math.isnan(hard.mean_delay_s(11.0)) and hard.mean_delay_s(9.0) == 0.0 and hard.loss(11.0) == 1.0
+
+
+@pytest.mark.unit
 def test_a_range_entry_draws_the_same_fate_for_a_message_whoever_asks():
-    rules = [(2, FaultSpec(all_edges=True, range={"range_m": 10.0, "fading_db": 5.0, "retries": 1}))]
+    model = {"range_m": 10.0, "fading_db": 5.0, "retries": 1, "retry_s": 0.05}
+    rules = [(2, FaultSpec(all_edges=True, range=model))]
     a = [fate(9, rules, edge_channel(1, 4), k, 0.0, 1.0, DT, distance_m=11.0) for k in range(300)]
     b = [fate(9, rules, edge_channel(1, 4), k, 0.0, 1.0, DT, distance_m=11.0) for k in reversed(range(300))]
     assert a == b[::-1]
     other = [fate(9, rules, edge_channel(2, 4), k, 0.0, 1.0, DT, distance_m=11.0) for k in range(300)]
     assert [f.lost for f in a] != [f.lost for f in other]  # each edge draws its own
+    seeded = [fate(10, rules, edge_channel(1, 4), k, 0.0, 1.0, DT, distance_m=11.0) for k in range(300)]
+    assert [f.lost for f in a] != [f.lost for f in seeded]  # and each seed
+    delayed = [(0, FaultSpec(edge=(1, 4), delay_s=0.1)), *rules]  # delays add up, entry by entry
+    both = [fate(9, delayed, edge_channel(1, 4), k, 0.0, 1.0, DT, distance_m=11.0) for k in range(300)]
+    assert [f.lost for f in both] == [f.lost for f in a]
+    assert [f.delay_s for f in both if not f.lost] == [
+        pytest.approx(0.1 + f.delay_s) for f in a if not f.lost
+    ]
 
 
 # -- the bandwidth budget ------------------------------------------------------------------------
@@ -227,6 +248,84 @@ def test_a_lockstep_receiver_decides_a_range_fate_with_its_own_position_of_that_
     st = bus.stats[1]
     assert st.lost == st.out_of_range == 9 and st.delivered == 11
     assert st.as_dict()["distance_m"] == {"min": 0.0, "mean": 9.5, "max": 19.0}
+    # a sender two ticks ahead (the leader's window allows it): judged at its own step, not ours
+    inner = _Publisher({})
+    bus = FaultyBus(inner, plan, 4, EDGES, clock, 60.0)  # type: ignore[arg-type]
+    inner.wire += [_at(1, 0, (0.0, 0.0, 0.0)), _at(1, 1, (0.0, 0.0, 0.0))]
+    bus.poll()
+    bus.publish(_at(4, 0, (0.0, 0.0, 0.0)))  # 0 m at step 0
+    bus.publish(_at(4, 1, (20.0, 0.0, 0.0)))  # 20 m at step 1
+    assert bus.stats[1].out_of_range == 1 and bus.stats[1].as_dict()["distance_m"]["max"] == 20.0
+
+
+@pytest.mark.integration
+def test_a_receiver_counts_what_the_range_fates_say_and_uses_a_retried_message_its_retries_later():
+    """Lockstep, node 4 at 11 m from node 1 (12 m range, 5 dB fading, 2 retries 15 ms apart):
+    each message's fate as ``fate`` draws it; one through at its second attempt (15 ms late) is
+    used ceil(1.5) = 2 ticks after the on-time tick s + 1, at its third (30 ms) 3 after it."""
+    spec = FaultSpec(edge=(1, 4), range={"range_m": 12.0, "fading_db": 5.0, "retries": 2, "retry_s": 0.015})
+    plan = FaultPlan(seed=4, plan=[spec])
+    inner = _Publisher({})
+    clock = RunClock(True, DT)
+    bus = FaultyBus(inner, plan, 4, EDGES, clock, 60.0)  # type: ignore[arg-type]
+    used_at: dict[int, int] = {}
+    for k in range(301):
+        clock.tick = k
+        bus.poll()
+        for s in range(max(0, k - 5), k):
+            if inner.estimate(1, s) is not None:
+                used_at.setdefault(s, k)
+        bus.publish(_at(4, k, (0.0, 11.0, 0.0)))
+        inner.wire.append(_at(1, k, (0.0, 0.0, 0.0)))
+    fates = [
+        fate(4, [(0, spec)], edge_channel(1, 4), s, s * DT, 60.0, DT, distance_m=11.0) for s in range(300)
+    ]
+    st = bus.stats[1]
+    assert st.received == 300 and st.lost == st.out_of_range == sum(f.lost for f in fates) > 0
+    assert st.retried == sum(f.retried for f in fates) > 0 and st.delayed == st.retried
+    for s, f in enumerate(fates):
+        late = {0.0: 1, 0.015: 3, 0.03: 4}[round(f.delay_s, 6)]
+        assert used_at.get(s) == (None if f.lost else s + late), s
+
+
+@pytest.mark.integration
+def test_a_budget_holds_in_its_window_and_a_sender_back_from_a_kill_has_an_empty_queue():
+    """Node 1 to 4 only, 15 ms a message, a long queue: it falls 5 ms further behind each tick.
+    Killed at 0.5 s and back at 0.7 s, its queue is gone: the message of tick 70 leaves 15 ms
+    after its tick again (used 2 ticks later). The budget ends at 1 s: from tick 100 on time.
+    A delay entry below saturation adds its own delay and no queue time."""
+    plan = FaultPlan(
+        plan=[
+            FaultSpec(out_of=1, bandwidth={"rate_bps": 8 * 141 / 0.015, "queue": 1000}, until_s=1.0),
+            FaultSpec(controller=1, kill=True, from_s=0.5, restart_after_s=0.2),
+        ]
+    )
+    inner = MemoryBus()
+    clock = RunClock(True, DT)
+    bus = FaultyBus(inner, plan, 4, EDGES, clock, 60.0)  # type: ignore[arg-type]
+    used_at: dict[int, int] = {}
+    for k in range(1, 131):
+        clock.tick = k
+        if not 50 <= k - 1 < 70:
+            inner.wire.append(_at(1, k - 1, (0.0, 0.0, 0.0)))
+        bus.poll()
+        used_at.update({s: k for (src, s) in inner.table if src == 1 and s not in used_at})
+    late = {s: k - s for s, k in used_at.items()}
+    assert late[0] == 2 and late[49] == math.ceil((0.015 + 0.005 * 49) / DT)  # 26 ticks behind
+    assert late[70] == 2 and late[99] == math.ceil((0.015 + 0.005 * 29) / DT)
+    assert all(late[s] == 1 for s in range(100, 129)) and not any(50 <= s < 70 for s in late)
+    plan = FaultPlan(
+        plan=[
+            FaultSpec(out_of=1, bandwidth={"rate_bps": 8 * 141 / 0.004}),
+            FaultSpec(edge=(1, 4), delay_s=0.02),
+        ]
+    )
+    inner = MemoryBus()
+    bus = FaultyBus(inner, plan, 4, EDGES, clock, 60.0)  # type: ignore[arg-type]
+    for k in range(20):
+        inner.wire.append(_at(1, k, (0.0, 0.0, 0.0)))
+    bus.poll()
+    assert bus.stats[1].delays_s == [pytest.approx(0.02)] * 20  # 4 ms on the air: on time
 
 
 @pytest.mark.integration

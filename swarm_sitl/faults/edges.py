@@ -58,7 +58,6 @@ _CORRUPT_BYTE = 3  #: salt of the draw that picks the byte a corruption flips
 #: longest block between two looks at the out-neighbours' progress before a planned kill (the
 #: bus's descriptor wakes it when a status comes) [s]
 DELIVERY_POLL_S = 0.05
-_KEEP_STEPS = 64  #: how many of its own steps' positions a node keeps for range entries
 
 
 class FaultyBus:
@@ -115,8 +114,9 @@ class FaultyBus:
             s: f for s, rules in self.rules.items() for _, f in rules if f.bandwidth is not None
         }
         self._queues: dict[int, RadioQueue] = {}
-        self._own_p: dict[int, tuple[float, float, float]] = {}  #: this node's position by step
+        #: this node's position as it last published it, and that step's number
         self._own_newest: tuple[float, float, float] | None = None
+        self._own_step = -1
         self._undecided: list[Message] = []  #: lockstep: waiting for our own position of their step
         self._arrived: dict[int, int] = {}
         self._pending: list[tuple[float, int, Message]] = []  #: heap of (due, order, message)
@@ -131,7 +131,7 @@ class FaultyBus:
             return
         self._arrived[src] = max(self._arrived.get(src, -1), m.step)
         if src in self._ranged and (
-            m.step not in self._own_p if self.clock.lockstep else self._own_newest is None
+            m.step > self._own_step if self.clock.lockstep else self._own_newest is None
         ):
             self._undecided.append(m)  # decided when this node publishes that step (or its first)
             return
@@ -157,9 +157,12 @@ class FaultyBus:
             left_s = left
         d = math.nan
         if src in self._ranged:
-            own = self._own_p.get(m.step) if clock.lockstep else None
-            if own is None:  # real time, or a step before this incarnation's first: the newest
-                own = self._own_newest
+            # Lockstep: this node's position of the message's own step. A message of step s is
+            # decided when this node publishes s, or when it comes after that, and it comes before
+            # this node publishes s + 1, which waits for it (one sender's messages come in order):
+            # either way this node's newest is of step s (of its first step if s is before it,
+            # after a restart). Real time: the newest.
+            own = self._own_newest
             assert own is not None  # (a message is decided once this node has published)
             d = distance_m(m.p_W, own)
             st.count_distance(d)
@@ -261,11 +264,7 @@ class FaultyBus:
 
     def publish(self, msg: Message) -> None:
         if self._ranged:
-            own = self._own_p
-            own[msg.step] = self._own_newest = msg.p_W
-            if len(own) > 2 * _KEEP_STEPS:  # (a real-time node that skips ticks leaves gaps)
-                for k in [k for k in own if k < msg.step - _KEEP_STEPS]:
-                    del own[k]
+            self._own_newest, self._own_step = msg.p_W, msg.step
             if self._undecided:
                 last = msg.step if self.clock.lockstep else math.inf
                 now = [m for m in self._undecided if m.step <= last]

@@ -425,7 +425,7 @@ def fate(
             assert not math.isnan(distance_m), "a range entry needs the distance"
             attempts = f.range.attempts(distance_m, seed, j, channel, key)
             if attempts == 0:
-                return Fate(True, False, 0.0, False, (*acted, j), out_of_range=True)
+                return Fate(True, faults=(*acted, j), out_of_range=True)
             if attempts == 1:
                 continue
             retried = True

@@ -61,9 +61,9 @@ class PathLoss(BaseModel):
     def mean_delay_s(self, distance_m: float) -> float:
         """The mean delay of a message at ``distance_m`` that gets through [s]."""
         q = self.attempt_loss(distance_m)
-        if q >= 1.0:
-            return math.nan
-        weights = [q**a * (1 - q) for a in range(self.retries + 1)]
+        if q == 1.0:
+            return math.nan  # none gets through
+        weights = [q**a for a in range(self.retries + 1)]  # (each times 1 - q: it cancels)
         return self.retry_s * sum(a * w for a, w in enumerate(weights)) / sum(weights)
 
     def attempts(self, distance_m: float, seed: int, entry: int, channel: int, step: int) -> int:
