@@ -299,3 +299,13 @@ def test_refine_bisects_between_the_last_value_that_holds_and_the_first_that_bre
     ]
     again = sweep_mod.sweep(CONFIGS / "paper.yaml", {"link.loss": [0.0, 0.5, 1.0]}, **kw)
     assert len(flown) == 5 and again.rows == c.rows
+    # a second key held at one value: the bisection runs on the varied one, the other kept
+    flown.clear()
+    held = {"link.delay_s": [0.0], "link.loss": [0.0, 0.5, 1.0]}
+    c = sweep_mod.sweep(CONFIGS / "paper.yaml", held, **{**kw, "out": tmp_path / "held"})
+    assert flown == [0.0, 0.5, 1.0, 0.75, 0.625] and c.varied == ["link.loss"]
+    assert c.breaking_point() == (0.625, 0.75) and {r["link.delay_s"] for r in c.rows} == {0.0}
+    with pytest.raises(
+        SweepSpecError, match=r"--refine bisects one varied key .*varies link\.delay_s, link\.loss"
+    ):
+        sweep_mod.sweep(CONFIGS / "paper.yaml", {**held, "link.delay_s": [0.0, 0.1]}, **kw)

@@ -43,9 +43,14 @@ class Campaign:
     def table(self) -> Path:
         return self.out / TABLE
 
+    @property
+    def varied(self) -> list[str]:
+        """The keys that take more than one value in the table (one value holds a key fixed)."""
+        return [k for k in self.keys if len({float(r[k]) for r in self.rows}) > 1]
+
     def breaking_point(self, key: str | None = None) -> tuple[float | None, float | None]:
-        """``(held, broke)`` for ``key`` (default: the only swept key): see ``breaking.breaking_point``."""
-        return breaking_point(self.rows, key or self.keys[0])
+        """``(held, broke)`` for ``key`` (default: the only varied key): see ``breaking.breaking_point``."""
+        return breaking_point(self.rows, key or (self.varied or self.keys)[0])
 
 
 def _vary(vary: Any) -> list[tuple[str, list[float]]]:
@@ -194,8 +199,13 @@ def sweep(
     items = _vary(vary)
     keys = [k for k, _ in items]
     seed_list = _seeds(seeds)
-    if refine and len(keys) != 1:
-        raise SweepSpecError("sweep: --refine bisects one swept key; this campaign has " + str(len(keys)))
+    varied = [k for k, v in items if len(v) > 1] or keys[:1]
+    fixed = {k: v[0] for k, v in items if k not in varied}  # keys held at one value
+    if refine and len(varied) != 1:
+        raise SweepSpecError(
+            "sweep: --refine bisects one varied key (others may hold one value); this campaign varies "
+            + ", ".join(varied)
+        )
     if jobs is not None and jobs < 1:
         raise SweepSpecError(f"sweep: --jobs must be at least 1, got {jobs}")
     base = _base(config, faults, duration_s, bound_m)
@@ -228,18 +238,19 @@ def sweep(
         _run(campaign, base, points, seed_list, 0, writer, client, jobs, progress, keep_runs)
         # the bisection from the grid's own values, each step's midpoint added: run again, the
         # same command takes the same steps (their rows are in the table) and flies nothing
-        values = {round(v, 12) for v in items[0][1]}
+        key = varied[0]
+        values = {round(v, 12) for v in dict(items)[key]}
         for step in range(refine):
-            so_far = [r for r in campaign.rows if round(r[keys[0]], 12) in values]
-            held, broke = breaking_point(so_far, keys[0])
+            so_far = [r for r in campaign.rows if round(r[key], 12) in values]
+            held, broke = breaking_point(so_far, key)
             if held is None or broke is None:
                 break
             mid = round((held + broke) / 2, 12)
             if mid in (held, broke):
                 break
-            _check_points(base, [{keys[0]: mid}], seed_list[0])
+            mids = [{**fixed, key: mid}]
+            _check_points(base, mids, seed_list[0])
             values.add(mid)
-            mids = [{keys[0]: mid}]
             _run(campaign, base, mids, seed_list, step + 1, writer, client, jobs, progress, keep_runs)
     except KeyboardInterrupt as e:
         campaign.interrupted = e
@@ -301,7 +312,7 @@ def draw(campaign: Campaign) -> list[Path]:
     rows, keys, out = campaign.rows, campaign.keys, campaign.out
     title = out.name
     figs = []
-    varied = [k for k in keys if len({float(r[k]) for r in rows}) > 1]  # (one value holds a key fixed)
+    varied = campaign.varied
     if len(varied) == 2:
         figs.append(charts.heat_map(rows, varied, campaign.bound_m, out / "heat_map.png", title))
     for k in keys:
@@ -315,9 +326,9 @@ def summary_lines(c: Campaign) -> list[str]:
     n = len(c.rows)
     passed = sum(int(r["passed"]) for r in c.rows)
     lines = [f"{n} runs in {c.table} ({passed} held the bound of {c.bound_m:g} m)"]
-    if len(c.keys) == 1:
+    if len(c.keys) == 1 or len(c.varied) == 1:
         held, broke = c.breaking_point()
-        k = c.keys[0]
+        k = (c.varied or c.keys)[0]
         way = toward(k)
         if held is None:
             lines.append(f"breaking point: {k} breaks at its first value, {broke:g}")
