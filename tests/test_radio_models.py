@@ -288,6 +288,22 @@ def test_a_receiver_counts_what_the_range_fates_say_and_uses_a_retried_message_i
         assert used_at.get(s) == (None if f.lost else s + late), s
 
 
+def _ticks_of_use(plan: FaultPlan, ticks: int, silent=range(0)) -> tuple[FaultyBus, dict[int, int]]:
+    """Lockstep ticks 1..``ticks`` of node 4, node 1's message of ``k - 1`` arriving before tick k
+    (but for the steps in ``silent``): the bus, and the tick each of node 1's steps was first usable."""
+    inner = MemoryBus()
+    clock = RunClock(True, DT)
+    bus = FaultyBus(inner, plan, 4, EDGES, clock, 60.0)  # type: ignore[arg-type]
+    used_at: dict[int, int] = {}
+    for k in range(1, ticks + 1):
+        clock.tick = k
+        if k - 1 not in silent:
+            inner.wire.append(_at(1, k - 1, (0.0, 0.0, 0.0)))
+        bus.poll()
+        used_at.update({s: k for (src, s) in inner.table if src == 1 and s not in used_at})
+    return bus, used_at
+
+
 @pytest.mark.integration
 def test_a_budget_holds_in_its_window_and_a_sender_back_from_a_kill_has_an_empty_queue():
     """Node 1 to 4 only, 15 ms a message, a long queue: it falls 5 ms further behind each tick.
@@ -300,16 +316,7 @@ def test_a_budget_holds_in_its_window_and_a_sender_back_from_a_kill_has_an_empty
             FaultSpec(controller=1, kill=True, from_s=0.5, restart_after_s=0.2),
         ]
     )
-    inner = MemoryBus()
-    clock = RunClock(True, DT)
-    bus = FaultyBus(inner, plan, 4, EDGES, clock, 60.0)  # type: ignore[arg-type]
-    used_at: dict[int, int] = {}
-    for k in range(1, 131):
-        clock.tick = k
-        if not 50 <= k - 1 < 70:
-            inner.wire.append(_at(1, k - 1, (0.0, 0.0, 0.0)))
-        bus.poll()
-        used_at.update({s: k for (src, s) in inner.table if src == 1 and s not in used_at})
+    _, used_at = _ticks_of_use(plan, 130, silent=range(50, 70))
     late = {s: k - s for s, k in used_at.items()}
     assert late[0] == 2 and late[49] == math.ceil((0.015 + 0.005 * 49) / DT)  # 26 ticks behind
     assert late[70] == 2 and late[99] == math.ceil((0.015 + 0.005 * 29) / DT)
@@ -320,11 +327,7 @@ def test_a_budget_holds_in_its_window_and_a_sender_back_from_a_kill_has_an_empty
             FaultSpec(edge=(1, 4), delay_s=0.02),
         ]
     )
-    inner = MemoryBus()
-    bus = FaultyBus(inner, plan, 4, EDGES, clock, 60.0)  # type: ignore[arg-type]
-    for k in range(20):
-        inner.wire.append(_at(1, k, (0.0, 0.0, 0.0)))
-    bus.poll()
+    bus, _ = _ticks_of_use(plan, 20)
     assert bus.stats[1].delays_s == [pytest.approx(0.02)] * 20  # 4 ms on the air: on time
 
 
@@ -370,17 +373,7 @@ def test_a_message_that_leaves_its_senders_queue_after_the_next_tick_is_used_tha
     after their tick, usable at tick s + 2."""
     for rate, lost, late in ((8 * 141 / 0.008, 0, 0), (8 * 141 / 0.015, 50, 50)):
         plan = FaultPlan(plan=[FaultSpec(out_of=1, bandwidth={"rate_bps": rate, "queue": 0})])
-        inner = MemoryBus()
-        clock = RunClock(True, DT)
-        bus = FaultyBus(inner, plan, 4, EDGES, clock, 60.0)  # type: ignore[arg-type]
-        used_at: dict[int, int] = {}
-        for k in range(1, 101):
-            clock.tick = k
-            inner.wire.append(_at(1, k - 1, (0.0, 0.0, 0.0)))
-            bus.poll()
-            for s in range(k):
-                if inner.estimate(1, s) is not None:
-                    used_at.setdefault(s, k)
+        bus, used_at = _ticks_of_use(plan, 100)
         st = bus.stats[1]
         assert message_size(12) == 141 and st.queue_full == st.lost == lost and st.delayed == late
         assert {k - s for s, k in used_at.items()} == ({2} if late else {1})
