@@ -75,6 +75,9 @@ def test_a_chain_is_the_same_whatever_order_it_is_asked_in_and_each_entry_and_ed
     other_edge = [fate(1, rules, edge_channel(2, 4), k, 0.0, 1.0, 0.01).lost for k in range(2000)]
     other_seed = _losses(model, 2000, seed=2)
     assert other_edge != first.tolist() and other_seed.tolist() != first.tolist()
+    ge = GilbertElliott(**model)  # the states themselves, not only the losses drawn from them
+    chains = [[bursts.state_at(ge, 1, 0, edge_channel(s, 4), k) for k in range(2000)] for s in (1, 2)]
+    assert chains[0] != chains[1]
 
 
 @pytest.mark.unit

@@ -17,6 +17,7 @@ from swarm_sitl.bus.codec import Message, message_size
 from swarm_sitl.config.generator import generate
 from swarm_sitl.config.load import ConfigError, parse_config
 from swarm_sitl.faults.bandwidth import Bandwidth, RadioQueue
+from swarm_sitl.faults.counts import EdgeStats
 from swarm_sitl.faults.edges import FaultyBus
 from swarm_sitl.faults.plan import FaultPlan, FaultSpec, edge_channel, fate
 from swarm_sitl.faults.radio_range import PathLoss, distance_m
@@ -220,6 +221,19 @@ def test_all_edges_names_every_edge_and_the_models_describe_themselves():
     assert ranged.edges(cfg.graph_edges()) == cfg.graph_edges() and ranged.what == "every edge"
     assert ranged.how == "range 40 m (exponent 2, fading 4 dB, 2 retries 0.01 s apart)"
     assert budget.how == "bandwidth 64000 bit/s, queue 8"
+    assert PathLoss(range_m=10).describe() == "range 10 m (exponent 2, fading 0 dB)"  # no retries
+
+
+@pytest.mark.unit
+def test_an_edges_counts_start_a_loss_run_at_a_first_lost_message_and_keep_the_distances_range():
+    st = EdgeStats()
+    for lost in (True, True, False, True):
+        st.count_fate(lost)
+    assert st.lost == 3 and st.loss_runs == 2
+    for d in (0.5, 0.2, 0.1):  # fewer metres than messages: the largest is a distance's, not a count
+        st.count_distance(d)
+    assert st.as_dict()["distance_m"] == {"min": 0.1, "mean": pytest.approx(0.8 / 3), "max": 0.5}
+    assert "distance_m" not in EdgeStats().as_dict()  # no range entry: no distances
 
 
 # -- the receiver's fault stage -------------------------------------------------------------------
@@ -339,16 +353,16 @@ def test_in_real_time_a_range_fate_takes_the_receivers_newest_position_and_a_lat
     plan = FaultPlan(plan=[FaultSpec(edge=(1, 4), range={"range_m": 12.0})])
     inner = _Publisher({})
     bus = FaultyBus(inner, plan, 4, EDGES, clock, 60.0)  # type: ignore[arg-type]
-    inner.wire.append(_at(1, 0, (9.0, 0.0, 0.0)))
+    inner.wire.append(_at(1, 2, (9.0, 0.0, 0.0)))  # its sender runs ahead of node 4
     bus.poll()
     assert bus.latest(1) is None  # before node 4's first tick: it waits for where node 4 is
     bus.publish(_at(4, 0, (0.0, 0.0, 0.0)))
     bus.poll()
     assert bus.latest(1) is not None  # 9 m
     bus.publish(_at(4, 1, (30.0, 0.0, 0.0)))
-    inner.wire += [_at(1, 1, (19.0, 0.0, 0.0)), _at(1, 2, (45.0, 0.0, 0.0))]
+    inner.wire += [_at(1, 3, (19.0, 0.0, 0.0)), _at(1, 4, (45.0, 0.0, 0.0))]
     bus.poll()
-    assert {s for (_, s) in inner.table} == {0, 1}  # 11 m: within range; 15 m: not
+    assert {s for (_, s) in inner.table} == {2, 3}  # 11 m: within range; 15 m: not
     assert bus.stats[1].out_of_range == 1
     assert bus.stats[1].as_dict()["distance_m"] == {"min": 9.0, "mean": 35 / 3, "max": 15.0}
     plan = FaultPlan(plan=[FaultSpec(out_of=1, bandwidth={"rate_bps": 8 * 141 / 0.025, "queue": 0})])
