@@ -111,6 +111,9 @@ def test_a_range_entry_draws_the_same_fate_for_a_message_whoever_asks():
     assert [f.delay_s for f in both if not f.lost] == [
         pytest.approx(0.1 + f.delay_s) for f in a if not f.lost
     ]
+    later = [*rules, (3, FaultSpec(edge=(1, 4), delay_s=0.1))]  # and an entry after it still acts
+    after = [fate(9, later, edge_channel(1, 4), k, 0.0, 1.0, DT, distance_m=11.0) for k in range(300)]
+    assert [f.delay_s for f in after] == [f.delay_s for f in both]
 
 
 # -- the bandwidth budget ------------------------------------------------------------------------
