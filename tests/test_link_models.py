@@ -81,6 +81,26 @@ def test_a_chain_is_the_same_whatever_order_it_is_asked_in_and_each_entry_and_ed
 
 
 @pytest.mark.unit
+@pytest.mark.parametrize("lockstep", [True, False], ids=["lockstep", "real time"])
+def test_a_bursty_mavlink_link_moves_its_chain_one_step_per_datagram(lockstep):
+    """A MAVLink link's bursty chain moves once per datagram: in lockstep, where a datagram's key
+    is its sample time in ms, once per 10 ms tick, so bursts last 1/r datagrams (moved once per
+    key they would last 1/(1 - (1 - r)^10), about 1.06); in real time, where the key counts the
+    datagrams, once per key. Five standard deviations of the mean of geometric bursts."""
+    from swarm_sitl.bus.clock import RunClock
+    from swarm_sitl.faults.mavlink import MavlinkFaults
+    from swarm_sitl.faults.plan import FaultPlan
+
+    ge = GilbertElliott(p=0.05, r=0.25)
+    plan = FaultPlan(seed=2, plan=[FaultSpec(mavlink=1, bursty={"p": ge.p, "r": ge.r})])
+    faults = MavlinkFaults(plan, 1, RunClock(lockstep, 0.01), 1e9)
+    per = 10 if lockstep else 1
+    runs = _runs(np.array([faults._fate("up", per * k, k * 0.01).lost for k in range(100_000)]))
+    sigma = math.sqrt(1 - ge.r) / ge.r / math.sqrt(len(runs))
+    assert abs(runs.mean() - ge.mean_burst) < 5 * sigma, runs.mean()
+
+
+@pytest.mark.unit
 @pytest.mark.parametrize(
     "entry, message",
     [
