@@ -10,7 +10,8 @@ bus carries) takes ``tau = 8 B / rate_bps`` on the air; message ``m`` of the tic
 unless, when it comes, ``queue`` messages already wait behind the one on the air: then it is
 dropped. Below saturation (``n_out tau <= dt``) nothing waits across ticks and the message to the
 ``m``-th receiver (0-based) leaves ``(m + 1) tau`` after its tick; above it the queue fills and, in
-the long run, a fraction ``1 - dt / (n_out tau)`` of the messages is dropped.
+the long run, a fraction ``1 - dt / (n_out tau)`` of the messages is dropped (with a queue that
+holds a period's work, ``queue tau >= dt``; a shorter one leaves the radio idle and drops more).
 
 A message that has left by the next tick is on time, as any message is (lockstep: usable at tick
 ``k + 1``); one that leaves at ``t_k + w`` with ``w > dt`` is usable at tick ``k + ceil(w / dt)``
