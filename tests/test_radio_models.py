@@ -16,7 +16,8 @@ from swarm_sitl.bus.clock import RunClock
 from swarm_sitl.bus.codec import Message, message_size
 from swarm_sitl.config.generator import generate
 from swarm_sitl.config.load import ConfigError, parse_config
-from swarm_sitl.faults.bandwidth import Bandwidth, RadioQueue
+from swarm_sitl.faults import bandwidth
+from swarm_sitl.faults.bandwidth import KEEP_STEPS, Bandwidth, RadioQueue
 from swarm_sitl.faults.counts import EdgeStats
 from swarm_sitl.faults.edges import FaultyBus
 from swarm_sitl.faults.plan import FaultPlan, FaultSpec, edge_channel, fate
@@ -147,6 +148,19 @@ def test_above_saturation_the_radio_sends_one_message_per_air_time_and_drops_the
     waits = [w for row in left for w in row if w is not None]
     assert max(waits) <= (queue + 1) * tau + 1e-12 and min(waits) >= tau - 1e-12
     assert 1 - accepted / (n * n_out) == pytest.approx(1 - DT / (n_out * tau), abs=0.01)
+
+
+@pytest.mark.unit
+def test_a_queue_keeps_only_its_recent_steps_and_replays_an_older_one_the_same(monkeypatch):
+    budget = Bandwidth(rate_bps=180_000, queue=3)  # saturated: 6.3 ms a message, 2 a tick
+    with monkeypatch.context() as m:
+        m.setattr(bandwidth, "KEEP_STEPS", 10**9)  # one that keeps every step
+        every = _queue(budget, 2, 1)
+        fresh = [every.leaves(k) for k in range(5000)]
+    q = _queue(budget, 2, 1)
+    assert [q.leaves(k) for k in range(5000)] == fresh
+    assert len(q._left) <= 2 * KEEP_STEPS  # a long run does not keep every step
+    assert [q.leaves(k) for k in (10, 4999, 3000)] == [fresh[10], fresh[4999], fresh[3000]]
 
 
 @pytest.mark.unit

@@ -62,6 +62,8 @@ def test_the_gusts_have_their_spread_and_correlation_time():
     assert np.array_equal(
         w.at(2.005), WindModel(1, (3.0, 0.0, 0.0), gust_mps=1.0, seed=5).at(2.0)
     )  # held 10 ms
+    again = models[0]  # asked for an earlier sample after a later one: the same chain, drawn again
+    assert np.array_equal(again.gust(n // 2), g[0, n // 2]) and np.array_equal(again.gust(n - 1), g[0, -1])
 
 
 def _paper(**over) -> dict:

@@ -15,12 +15,11 @@ ATTITUDE_QUATERNION:
 The truth files keep the true state, so a run's error plots stay true. Pure: no clock, no I/O.
 """
 
-import math
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from sim_vehicles.common.quaternion import qmul
+from sim_vehicles.common.quaternion import from_axis_angle, qmul
 from sim_vehicles.common.state import POS, QUAT, VEL
 
 
@@ -49,7 +48,8 @@ class SensorModel:
         y[POS] += self.position_noise_m * e[0:3]
         y[VEL] += self.velocity_noise_mps * e[3:6]
         if self.attitude_noise_rad > 0:
-            y[QUAT] = qmul(y[QUAT], _rotation(self.attitude_noise_rad * e[6:9]))
+            v = self.attitude_noise_rad * e[6:9]  # a rotation vector (never zero: a normal draw)
+            y[QUAT] = qmul(y[QUAT], from_axis_angle(v, float(np.linalg.norm(v))))
         return y
 
     def _delayed(self, t_s: float, x: np.ndarray) -> np.ndarray:
@@ -62,12 +62,3 @@ class SensorModel:
         chosen = next((i for i in range(len(h) - 1, -1, -1) if h[i][0] <= cut), 0)
         del h[:chosen]
         return h[0][1].copy()
-
-
-def _rotation(v: np.ndarray) -> np.ndarray:
-    """The unit quaternion of rotation vector ``v`` [rad]."""
-    angle = float(np.linalg.norm(v))
-    if angle == 0.0:
-        return np.array([1.0, 0.0, 0.0, 0.0])
-    s = math.sin(angle / 2) / angle
-    return np.array([math.cos(angle / 2), s * v[0], s * v[1], s * v[2]])

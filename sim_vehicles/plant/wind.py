@@ -34,7 +34,9 @@ class WindModel:
     gust_mps: float = 0.0  #: standard deviation of each axis's gust [m/s]
     gust_time_s: float = 1.0  #: correlation time of the gusts [s]
     seed: int = 0
-    _gusts: list[np.ndarray] = field(default_factory=list, repr=False)
+    #: the newest gust sample asked for, and its index (the chain goes on from it; one asked for
+    #: before it is drawn again from the chain's start)
+    _last: tuple[int, np.ndarray] | None = field(default=None, repr=False)
 
     def index(self, t_s: float) -> int:
         """The gust sample in force at ``t_s``."""
@@ -48,14 +50,18 @@ class WindModel:
         return w
 
     def gust(self, k: int) -> np.ndarray:
-        """Gust sample ``k`` (>= 0): the chain kept as far as it was asked, extended on demand."""
-        g = self._gusts
-        if not g:
-            g.append(self.gust_mps * self._normal(0))
+        """Gust sample ``k`` (>= 0), the chain carried on from the last one asked for (a flight
+        asks in time order: nothing of a long run is kept but its newest sample)."""
+        if self._last is None or k < self._last[0]:
+            j, g = 0, self.gust_mps * self._normal(0)
+        else:
+            j, g = self._last
         a = math.exp(-WIND_DT_S / self.gust_time_s)
-        for j in range(len(g), k + 1):
-            g.append(a * g[-1] + self.gust_mps * math.sqrt(1 - a * a) * self._normal(j))
-        return g[k]
+        while j < k:
+            j += 1
+            g = a * g + self.gust_mps * math.sqrt(1 - a * a) * self._normal(j)
+        self._last = (j, g)
+        return g
 
     def _normal(self, k: int) -> np.ndarray:
         return np.random.default_rng([self.seed, self.system_id, k, 77]).standard_normal(3)

@@ -27,6 +27,8 @@ from typing import Annotated
 
 from pydantic import BaseModel, ConfigDict, Field
 
+KEEP_STEPS = 1024  #: how many of the newest steps' departures a queue keeps (messages come in order)
+
 
 class Bandwidth(BaseModel):
     """``bandwidth:`` of a plan entry: the node's radio (the module's formulas)."""
@@ -67,13 +69,22 @@ class RadioQueue:
         self.period_s = period_s
         self.down = down
         self.active = active
-        self._left: list[float | None] = []  #: per step: when ours left after its tick [s], or None
+        #: per step from ``_first`` on: when ours left after its tick [s], or None
+        self._left: list[float | None] = []
+        self._first = 0
         self._in_air: list[float] = []  #: when each message still queued or on the air leaves [s]
 
     def leaves(self, step: int) -> float | None:
-        while len(self._left) <= step:
-            self._tick(len(self._left))
-        return self._left[step]
+        if step < self._first:  # older than what is kept: replayed from the start
+            self._left, self._first, self._in_air = [], 0, []
+        while self._first + len(self._left) <= step:
+            self._tick(self._first + len(self._left))
+        out = self._left[step - self._first]
+        if len(self._left) > 2 * KEEP_STEPS:  # (a long run keeps only its recent steps)
+            cut = len(self._left) - KEEP_STEPS
+            del self._left[:cut]
+            self._first += cut
+        return out
 
     def _tick(self, k: int) -> None:
         t = k * self.period_s
