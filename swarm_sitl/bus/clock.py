@@ -31,6 +31,11 @@ class RunClock:
         self.tick = 0
         self.epoch_mono = math.nan
 
+    def started(self) -> bool:
+        """Whether the clock reads the run's time: always in lockstep, in real time once the
+        start signal has given the epoch (before it ``now`` is NaN)."""
+        return self.lockstep or not math.isnan(self.epoch_mono)
+
     def now(self) -> float:
         """Lockstep: the tick (a count); real time: run seconds."""
         return float(self.tick) if self.lockstep else time.monotonic() - self.epoch_mono
@@ -50,6 +55,15 @@ class RunClock:
 
 class StallError(RuntimeError):
     """A lockstep input did not come within the stall timeout; the message names it."""
+
+
+def join_tick(
+    now_mono_s: float, epoch_mono_s: float, phase_s: float, dt_s: float, lead_s: float = 0.0
+) -> int:
+    """Real time: the first tick ``k >= 0`` whose instant ``epoch + k * dt + phase`` is at least
+    ``lead_s`` after ``now_mono_s``: where a node that starts (or starts again after a restart)
+    takes up the swarm's clock. Tick 0 for a node that has the start signal before the epoch."""
+    return max(0, math.ceil((now_mono_s + lead_s - epoch_mono_s - phase_s) / dt_s - 1e-9))
 
 
 def wall_epoch_to_monotonic(epoch_unix_s: float) -> float:

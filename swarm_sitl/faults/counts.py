@@ -38,18 +38,23 @@ class EdgeStats:
         "out_of_range",
         "retried",
         "queue_full",
+        "held",
     )
     received = _Count(0)  #: arrived (over zenoh, or as datagrams)
     delivered = _Count(1)  #: handed on (a duplicate counts twice)
     lost = _Count(2)  #: hidden by the plan (drop, loss)
     corrupt = _Count(3)  #: corrupted by the plan (and dropped by a checksum)
     delayed = _Count(4)  #: delivered later than on time (delay, stall, reorder)
-    duplicated = _Count(5)  #: delivered a second time
+    duplicated = _Count(5)  #: delivered a second time (a second copy not yet due is not counted)
     #: runs of lost messages in a row (``lost / loss_runs``: the mean burst length)
     loss_runs = _Count(6)
     out_of_range = _Count(7)  #: lost by a range entry (of ``lost``)
     retried = _Count(8)  #: through a range entry at a second attempt or later
     queue_full = _Count(9)  #: dropped at the sender's full queue (a bandwidth budget; of ``lost``)
+    #: received and still held by the plan (delayed, or waiting to be judged) when the receiver
+    #: ended or was killed. Every message received is accounted for:
+    #: ``received == delivered - duplicated + lost + corrupt + held``
+    held = _Count(10)
 
     def __init__(self) -> None:
         self.counts = np.zeros(len(self.FIELDS), dtype=np.int64)

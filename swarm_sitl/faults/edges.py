@@ -118,19 +118,39 @@ class FaultyBus:
         self._own_newest: tuple[float, float, float] | None = None
         self._own_step = -1
         self._undecided: list[Message] = []  #: lockstep: waiting for our own position of their step
+        #: real time: come before this node had the start signal, so before it had a clock to
+        #: judge them by (``poll`` judges them once it has)
+        self._early: list[Message] = []
+        self._uncounted = EdgeStats()  #: what steps the bus does not count are counted in
         self._arrived: dict[int, int] = {}
-        self._pending: list[tuple[float, int, Message]] = []  #: heap of (due, order, message)
+        #: heap of (due, order, message, whether it is a duplicate's second copy)
+        self._pending: list[tuple[float, int, Message, bool]] = []
         self._order = 0
         inner.deliver = self._admit
 
     # -- the plan ------------------------------------------------------------------------------------
+    def _stats_of(self, m: Message) -> EdgeStats:
+        """Where ``m`` is counted: its edge's stats, or (a step the bus does not count,
+        ``ZenohNodeBus.counted_steps``) stats nobody reads: it meets its fate, uncounted."""
+        return self.stats[m.src] if self.inner.counts(m.step) else self._uncounted
+
     def _admit(self, m: Message) -> None:
         src = m.src
-        st = self.stats.get(src)
-        if st is None:  # not one of our in-edges (the wrapped bus subscribes to no other)
+        if src not in self.stats:  # not one of our in-edges (the wrapped bus subscribes to no other)
             return
+        st = self._stats_of(m)
+        st.received += 1
+        st.held += 1  # until it is delivered, lost or dropped
         self._arrived[src] = max(self._arrived.get(src, -1), m.step)
-        if src in self._ranged and (
+        if not self.clock.started():
+            # real time, before this node has the start signal (a restarted node hears its
+            # in-neighbours before it has the swarm's clock): judged once it has it
+            self._early.append(m)
+            return
+        self._route(m)
+
+    def _route(self, m: Message) -> None:
+        if m.src in self._ranged and (
             m.step > self._own_step if self.clock.lockstep else self._own_newest is None
         ):
             self._undecided.append(m)  # decided when this node publishes that step (or its first)
@@ -139,11 +159,8 @@ class FaultyBus:
 
     def _decide(self, m: Message) -> None:
         src = m.src
-        st = self.stats[src]
         counted = self.inner.counts(m.step)
-        if not counted:
-            st = EdgeStats()  # it meets its fate, uncounted (``ZenohNodeBus.counted_steps``)
-        st.received += 1
+        st = self._stats_of(m)
         clock = self.clock
         dt = clock.period_s
         at = m.t_s if clock.lockstep else clock.now_s()
@@ -153,6 +170,7 @@ class FaultyBus:
             if left is None:
                 st.queue_full += 1
                 st.count_fate(True)
+                st.held -= 1
                 return
             left_s = left
         d = math.nan
@@ -172,6 +190,7 @@ class FaultyBus:
         st.out_of_range += f.out_of_range
         st.retried += f.retried
         if f.lost:
+            st.held -= 1
             return
         if f.corrupt:
             data = bytearray(encode_message(m))
@@ -181,6 +200,7 @@ class FaultyBus:
                 m = decode_message(bytes(data))
             except PayloadError:
                 st.corrupt += 1
+                st.held -= 1
                 self.inner.dropped += counted
                 return
         due: float
@@ -198,10 +218,9 @@ class FaultyBus:
         if f.delay_s > 0 or late:
             st.delayed += 1
             st.delays_s.append(f.delay_s + (left_s if late else 0.0))
-        self._push(due, m)
+        self._push(due, m, False)
         if f.duplicate:
-            st.duplicated += 1
-            self._push(due + again, m)
+            self._push(due + again, m, True)
 
     def _queue(self, m: Message) -> RadioQueue:
         """The sender's queue (``bandwidth``), made at its first message (which gives its size)."""
@@ -223,9 +242,10 @@ class FaultyBus:
             )
         return q
 
-    def _push(self, due: float, m: Message) -> None:
+    def _push(self, due: float, m: Message, copy: bool) -> None:
+        """Hold ``m`` until ``due`` (``clock.now()``'s unit); ``copy``: a duplicate's second copy."""
         self._order += 1
-        heapq.heappush(self._pending, (due, self._order, m))
+        heapq.heappush(self._pending, (due, self._order, m, copy))
 
     def _release(self) -> None:
         pending = self._pending
@@ -233,9 +253,13 @@ class FaultyBus:
             return
         now = self.clock.now()
         while pending and pending[0][0] <= now:
-            _, _, m = heapq.heappop(pending)
-            if self.inner.counts(m.step):
-                self.stats[m.src].delivered += 1
+            _, _, m, copy = heapq.heappop(pending)
+            st = self._stats_of(m)
+            st.delivered += 1
+            if copy:
+                st.duplicated += 1
+            else:
+                st.held -= 1
             self.inner.file(m)
 
     # -- NodeBus -------------------------------------------------------------------------------------
@@ -245,6 +269,10 @@ class FaultyBus:
 
     def poll(self) -> None:
         self.inner.poll()
+        if self._early and self.clock.started():
+            early, self._early = self._early, []
+            for m in early:
+                self._route(m)
         self._release()
 
     def fileno(self) -> int:

@@ -57,7 +57,8 @@ class MavlinkFaults:
         self.stats = {way: EdgeStats() for way in ("up", "down")}
         self.lost_ms = -1  #: lockstep: the latest sample time whose datagram the plan lost
         self._period_ms = round(clock.period_s * 1000)
-        self._held: list[tuple[float, int, str, bytes]] = []  #: real time: (due, order, way, data)
+        #: real time: (due, order, way, data, whether it is a duplicate's second copy)
+        self._held: list[tuple[float, int, str, bytes, bool]] = []
         self._order = itertools.count()
         self._counted_ms = {"up": -1, "down": -1}  #: lockstep: the newest time each way counted
 
@@ -101,13 +102,13 @@ class MavlinkFaults:
         if f.delay_s > 0:
             st.delayed += 1
             st.delays_s.append(f.delay_s)
-            self._hold(f.delay_s, "up", frame)
+            st.held += 1
+            self._hold(f.delay_s, "up", frame, False)
         else:
             st.delivered += 1
             write(frame)
         if f.duplicate:
-            st.duplicated += 1
-            self._hold(f.delay_s + self.clock.period_s, "up", frame)
+            self._hold(f.delay_s + self.clock.period_s, "up", frame, True)
 
     # -- downlink --------------------------------------------------------------------------------
     def receive(self, data: bytes) -> bytes | None:
@@ -132,12 +133,12 @@ class MavlinkFaults:
             st.corrupt += 1
             return _flipped(data, self.seed, self.channel["down"], key)
         if f.duplicate:
-            st.duplicated += 1
-            self._hold(f.delay_s + self.clock.period_s, "down", data)
+            self._hold(f.delay_s + self.clock.period_s, "down", data, True)
         if f.delay_s > 0:
             st.delayed += 1
             st.delays_s.append(f.delay_s)
-            self._hold(f.delay_s, "down", data)
+            st.held += 1
+            self._hold(f.delay_s, "down", data, False)
             return None
         st.delivered += 1
         return data
@@ -147,8 +148,9 @@ class MavlinkFaults:
         """When the first held datagram is due [run s], or None if none is held."""
         return self._held[0][0] if self._held else None
 
-    def _hold(self, delay_s: float, way: str, data: bytes) -> None:
-        heapq.heappush(self._held, (self.clock.now_s() + delay_s, next(self._order), way, data))
+    def _hold(self, delay_s: float, way: str, data: bytes, copy: bool) -> None:
+        """Hold ``data`` for ``delay_s``; ``copy``: a duplicate's second copy (counted when it goes)."""
+        heapq.heappush(self._held, (self.clock.now_s() + delay_s, next(self._order), way, data, copy))
 
     def release(self, write: Callable[[bytes], None]) -> list[bytes]:
         """Send the held uplink datagrams that are due; return the downlink ones to read."""
@@ -158,8 +160,13 @@ class MavlinkFaults:
         now = self.clock.now_s()
         out = []
         while held and held[0][0] <= now:
-            _, _, way, data = heapq.heappop(held)
-            self.stats[way].delivered += 1
+            _, _, way, data, copy = heapq.heappop(held)
+            st = self.stats[way]
+            st.delivered += 1
+            if copy:
+                st.duplicated += 1
+            else:
+                st.held -= 1
             if way == "up":
                 write(data)
             else:

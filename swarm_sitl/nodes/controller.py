@@ -37,6 +37,7 @@ from sim_vehicles.runtime.row_log import RowLog
 from swarm_sitl.bus.clock import (
     RunClock,
     StallError,
+    join_tick,
     linger_after_last_tick,
     sleep_until,
     wait_until,
@@ -241,7 +242,8 @@ def run_controller(
     here), ``events`` takes what the follower sees happen (lost and regained neighbours).
     ``resume_tick``: a controller restarted by a fault plan in lockstep takes its vehicle up at
     this tick (its clock moved there first, through the gap it flew on its own), with a fresh
-    state, like tick 0 (in real time a restarted controller joins at the current tick anyway)."""
+    state, like tick 0. In real time a controller joins at the tick the swarm's clock is at
+    (``join_tick``: the start epoch, its tick phase, the wall clock), whatever ``resume_tick``."""
     who = f"follower {i}"
     r = cfg.run
     dt = cfg.control_dt_s
@@ -264,16 +266,22 @@ def run_controller(
         link.request_sample(r.start_timeout_s)
     io.epoch_mono = wall_epoch_to_monotonic(wait_for_start(bus, link, r.start_timeout_s, who))
     clock.epoch_mono = io.epoch_mono
-    if not lockstep:
-        # offboard only just before the setpoints start: the start signal comes half a second
-        # ahead, and offboard without setpoints for SP_TIMEOUT_S is the vehicle's failsafe
-        sleep_until(io.epoch_mono + phase - ARM_LEAD_S, io.tick_fds, io.read_link)
+    if lockstep:
+        io.first = resume_tick
+    else:
+        # the swarm's clock where it stands: tick 0 at the run's start (the start signal comes
+        # half a second ahead), a later one for a controller started again mid-run (a fault
+        # plan's restart, or one started by hand), which flies its vehicle from there on
+        io.first = join_tick(time.monotonic(), io.epoch_mono, phase, dt, ARM_LEAD_S)
+        # offboard only just before the setpoints start: offboard without setpoints for
+        # SP_TIMEOUT_S is the vehicle's failsafe
+        sleep_until(io.epoch_mono + io.first * dt + phase - ARM_LEAD_S, io.tick_fds, io.read_link)
         link.arm_offboard(r.start_timeout_s)
     late = 0
     max_late = 0.0
     old_samples = 0
     max_age = 0.0
-    k = io.first = resume_tick if lockstep else 0
+    k = io.first
     if lockstep:  # a tick's first read of its link waits in recvfrom for the vehicle's answer
         link.block_reads(SAMPLE_WAIT_S)
     while k <= n:

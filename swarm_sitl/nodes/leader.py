@@ -5,12 +5,12 @@ allow, at most ``run.lockstep_window`` ticks ahead of the slowest of them (their
 say where they are), so a follower never has an unbounded backlog.
 """
 
-import math
 import time
 
 from sim_vehicles.runtime.lifeline import settle_heap
 from swarm_sitl.bus.clock import (
     RunClock,
+    join_tick,
     linger_after_last_tick,
     sleep_until,
     wait_until,
@@ -63,7 +63,7 @@ def run_leader(
         return f"leader at tick {step[0]}: followers {out_neighbours} report no progress (at ticks {at})"
 
     # real time: a leader started again by a fault plan joins at the current tick
-    first = resume_tick if lockstep else max(0, math.ceil((time.monotonic() - epoch_mono) / dt))
+    first = resume_tick if lockstep else join_tick(time.monotonic(), epoch_mono, 0.0, dt)
     for k in range(first, n + 1):
         step[0] = clock.tick = k
         if lockstep:
@@ -78,4 +78,4 @@ def run_leader(
         linger_after_last_tick(epoch_mono + n * dt, dt)
     else:
         bus.drain(r.stall_timeout_s)  # the followers have every estimate before the session closes
-    return NodeReport(n + 1, late, 0.0, 0, bus.dropped)
+    return NodeReport(n + 1 - first, late, 0.0, 0, bus.dropped)
