@@ -34,6 +34,7 @@ from swarm_sitl.config.schema import SwarmConfig
 from swarm_sitl.rundir.layout import expected_run_bytes
 from swarm_sitl.rundir.metrics import bound_failures, describe_inputs
 from swarm_sitl.rundir.outputs import write_outputs
+from swarm_sitl.rundir.rejoins import rejoin_lines
 from swarm_sitl.rundir.whole_files import WriteError
 
 
@@ -175,6 +176,12 @@ def _run_and_record(
     print("\n".join(summary_lines(out.summary)))
     for line in _degraded_lines(out.summary):
         print(line)
+    restarts, not_back = rejoin_lines(out.summary)
+    for line in restarts:
+        print(line)
+    if not cfg.run.max_formation_error_m:  # with a bound they are its failures (stderr, exit 3)
+        for line in not_back:
+            print(f"  {line}")
     return held_to_bound(out.bound_failures)
 
 

@@ -259,6 +259,11 @@ class RunSpec(_Strict):
     #: run (exit 3, naming it and its stale inputs) [m]; none by default
     max_formation_error_m: Positive | None = None
     settle_s: Annotated[float, Field(ge=0)] = 20.0  #: the bound and the summary's peaks count from here [s]
+    #: after a fault plan's restart of a controller or the leader, every follower that depends on
+    #: it must be back within ``max_formation_error_m`` (0.1 m without one) this long after the
+    #: restart, and stay there; one that is not is named, and fails a run with a bound
+    #: (``docs/faults.md``, *Restarts*) [s]
+    rejoin_within_s: Positive = 10.0
     #: a vehicle lost (a fault plan's kill) ends the run (exit 1 naming it); by default the rest
     #: of the swarm flies on and the loss is recorded
     stop_on_loss: bool = False

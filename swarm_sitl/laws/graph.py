@@ -63,15 +63,21 @@ class Graph:
     def out_neighbours(self, node: int) -> tuple[int, ...]:
         return tuple(sorted(e.dst for e in self.edges if e.src == node))
 
-    def unreachable_followers(self) -> list[int]:
-        reached = {0}
-        frontier = [0]
+    def reached_from(self, node: int) -> set[int]:
+        """``node`` and every node a directed path leads to from it: whose information depends
+        on ``node``'s (every follower, from the leader)."""
+        reached = {node}
+        frontier = [node]
         while frontier:
             s = frontier.pop()
             for e in self.edges:
                 if e.src == s and e.dst not in reached:
                     reached.add(e.dst)
                     frontier.append(e.dst)
+        return reached
+
+    def unreachable_followers(self) -> list[int]:
+        reached = self.reached_from(0)
         return [i for i in range(1, self.n_followers + 1) if i not in reached]
 
     def adjacency_bar(self) -> np.ndarray:

@@ -5,6 +5,7 @@ from typing import Any
 import numpy as np
 
 from swarm_sitl.rundir.recording import Recording
+from swarm_sitl.rundir.rejoins import rejoin_lines
 
 
 def _norm(a: np.ndarray) -> np.ndarray:
@@ -95,9 +96,14 @@ def summarize(
 
 def bound_failures(summary: dict, bound_m: float | None) -> list[str]:
     """One line per follower whose formation error after the settling time exceeds ``bound_m``
-    (``run.max_formation_error_m``), naming its degraded inputs where the run recorded them."""
+    (``run.max_formation_error_m``), naming its degraded inputs where the run recorded them, and
+    one per follower that did not rejoin after a planned restart (``rejoins``)."""
     if bound_m is None:
         return []
+    return _past_bound(summary, bound_m) + rejoin_lines(summary)[1]
+
+
+def _past_bound(summary: dict, bound_m: float) -> list[str]:
     settle = summary["swarm"]["settle_from_s"]
     inputs = summary.get("inputs", {})
     lost = set(summary.get("lost", []))  # a lost aircraft is recorded, not held to the bound

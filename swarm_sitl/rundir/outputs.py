@@ -12,6 +12,7 @@ from swarm_sitl.rundir.events import write_events
 from swarm_sitl.rundir.merge import inputs_and_links, run_events, vehicle_refusals
 from swarm_sitl.rundir.metrics import summarize
 from swarm_sitl.rundir.recording import Recording, write_run
+from swarm_sitl.rundir.rejoins import judge_rejoins
 
 
 def write_outputs(cfg: SwarmConfig, rec: Recording, run_dir: Path, processes: bool = False) -> dict:
@@ -31,5 +32,14 @@ def write_outputs(cfg: SwarmConfig, rec: Recording, run_dir: Path, processes: bo
             "events": len(events),
         }
         summary["lost"] = sorted(e["vehicle"] for e in events if e["kind"] == "vehicle_lost")
+        summary["rejoins"] = judge_rejoins(
+            rec.followers,
+            events,
+            cfg.build_graph(),
+            cfg.duration_s,
+            cfg.run.max_formation_error_m,
+            cfg.run.rejoin_within_s,
+            set(summary["lost"]),
+        )
     write_run(run_dir, cfg.to_yaml(), rec, summary)
     return summary
