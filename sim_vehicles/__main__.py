@@ -16,15 +16,15 @@ from pathlib import Path
 import numpy as np
 from pymavlink.dialects.v20 import common as mav
 
-from sim_vehicles.common.state import QUAT, RATE, make_state
+from sim_vehicles.common.state import QUAT, RATE
 from sim_vehicles.mavlink import frames, signing, tick_frames
 from sim_vehicles.mavlink.signing import read_key
 from sim_vehicles.mavlink.wire_format import command_roundtrip, encode_attitude_quaternion
+from sim_vehicles.models.build import build_vehicle, sensor_model
+from sim_vehicles.models.spec import Gusts, SensorNoise, VehicleSpec, VehicleSpecError
 from sim_vehicles.plant.autopilot import Autopilot
 from sim_vehicles.plant.failsafe import ACTION_LAND, ACTIONS, failsafe_command, hold_at
-from sim_vehicles.plant.params import MAX_RATE_DEFAULT_RPS, AttitudeGains, VehicleParamError, VehicleParams
-from sim_vehicles.plant.sensors import SensorModel
-from sim_vehicles.plant.wind import WindModel
+from sim_vehicles.plant.params import VehicleParamError
 from sim_vehicles.runtime.lifeline import (
     batch_scheduling,
     hold_on,
@@ -37,30 +37,32 @@ from sim_vehicles.vehicle import lockstep_tick
 from sim_vehicles.vehicle.endpoint import VehicleEndpoint
 
 
-def warm_up(params: VehicleParams, gains: AttitudeGains, attitude_hz: float) -> None:
+def warm_up(spec: VehicleSpec) -> None:
     """Load the compiled kernels for the argument types they will see (the plant's for the hover
     command's read-only zero rates, then a command from the wire; the per-tick frames'), so the
     first setpoints are not held up by it. Kernels are typed by their arguments, not their
     values: a fork server that calls this once with any valid vehicle spares every vehicle it
     forks the loads."""
-    ap = Autopilot(params, gains, make_state([0.0, 0.0, 0.0]), 1.0 / attitude_hz)
+    ap = build_vehicle(dataclasses.replace(spec, wind=None, position_m=(0.0, 0.0, 0.0)), 1)
+    params = ap.params
     ap.advance(1)
     ap.set_command(command_roundtrip(ap.command, params.max_thrust_N))
     ap.advance(1)
     tick_frames.warm_up()
     signing.warm_up()
-    lockstep_tick.step_and_sample(
-        ap.state,
-        ap.kernel_args,
-        1,
-        np.zeros(lockstep_tick.SAMPLE_BYTES, np.uint8),
-        0,
-        1,
-        1,
-        frames.LOCAL_POSITION_NED.spec,
-        frames.ATTITUDE_QUATERNION.spec,
-        0,
-    )
+    if isinstance(ap, Autopilot):  # the one-call lockstep tick is the paper model's
+        lockstep_tick.step_and_sample(
+            ap.state,
+            ap.kernel_args,
+            1,
+            np.zeros(lockstep_tick.SAMPLE_BYTES, np.uint8),
+            0,
+            1,
+            1,
+            frames.LOCAL_POSITION_NED.spec,
+            frames.ATTITUDE_QUATERNION.spec,
+            0,
+        )
     # the lower-rate streams (ATTITUDE, ATTITUDE_TARGET, HIGHRES_IMU) and the failsafe's loop:
     # without these a vehicle loaded them in flight, 20-70 ms of CPU each
     x = ap.state
@@ -76,23 +78,64 @@ def _host_port(text: str) -> tuple[str, int]:
     return host, int(port)
 
 
-def _wind(a: argparse.Namespace) -> WindModel | None:
-    """The wind the arguments ask for (None: still air)."""
-    if a.gust_mps < 0 or not a.gust_time_s > 0:
-        raise ValueError("--gust-mps is zero or positive and --gust-time-s positive")
-    if not any(a.wind_mps) and a.gust_mps == 0:
-        return None
-    return WindModel(a.id, tuple(a.wind_mps), a.gust_mps, a.gust_time_s, a.wind_seed)
+#: flags that set a field of the spec (``--mass-kg`` sets ``mass_kg``), over ``--spec``'s
+SPEC_FLAGS = {
+    "position": "position_m",
+    "velocity": "velocity_mps",
+    "quaternion": "quaternion_wxyz",
+    "gravity_mps2": "g_mps2",
+    "mass_kg": "mass_kg",
+    "inertia_kgm2": "inertia_kgm2",
+    "max_thrust_n": "max_thrust_N",
+    "max_rate_rps": "max_rate_rps",
+    "l_q": "l_q",
+    "k_q": "k_q",
+    "setpoint_timeout_s": "setpoint_timeout_s",
+    "failsafe_action": "failsafe_action",
+    "drag_ns2pm2": "drag_Ns2pm2",
+    "attitude_hz": "attitude_hz",
+    "model": "model",
+}
+WIND_FLAGS = {
+    "wind_mps": "mean_mps",
+    "gust_mps": "gust_mps",
+    "gust_time_s": "gust_time_s",
+    "wind_seed": "seed",
+}
+SENSOR_FLAGS = {
+    "position_noise_m": "position_noise_m",
+    "velocity_noise_mps": "velocity_noise_mps",
+    "attitude_noise_rad": "attitude_noise_rad",
+    "sensor_latency_s": "latency_s",
+    "sensor_seed": "seed",
+}
 
 
-def _sensors(a: argparse.Namespace) -> SensorModel | None:
-    """The sensor model the arguments ask for (None: the true state is reported)."""
-    values = (a.position_noise_m, a.velocity_noise_mps, a.attitude_noise_rad, a.sensor_latency_s)
-    if any(v < 0 or v != v for v in values):
-        raise ValueError("sensor noise and latency are zero or positive")
-    if not any(values):
-        return None
-    return SensorModel(a.id, *values, seed=a.sensor_seed)
+def _given(a: argparse.Namespace, flags: dict[str, str]) -> dict[str, object]:
+    """The spec fields the flags in ``flags`` that were given set (lists as tuples)."""
+    out: dict[str, object] = {}
+    for flag, name in flags.items():
+        v = getattr(a, flag)
+        if v is not None:
+            out[name] = tuple(v) if isinstance(v, list) else v
+    return out
+
+
+def vehicle_spec(a: argparse.Namespace) -> VehicleSpec:
+    """The vehicle the arguments describe: ``--spec FILE`` (default: the paper's airframe at
+    rest at the origin), with each physical flag given set over it; ``VehicleSpecError`` (one
+    line) if the result is not a vehicle."""
+    base = VehicleSpec.from_json(Path(a.spec).read_text()) if a.spec else VehicleSpec()
+    wind, sensors = _given(a, WIND_FLAGS), _given(a, SENSOR_FLAGS)
+    changes = _given(a, SPEC_FLAGS)
+    try:
+        if wind:
+            changes["wind"] = dataclasses.replace(base.wind or Gusts(), **wind)  # type: ignore[arg-type]
+        if sensors:
+            changes["sensors"] = dataclasses.replace(base.sensors or SensorNoise(), **sensors)  # type: ignore[arg-type]
+        return dataclasses.replace(base, **changes)  # type: ignore[arg-type]
+    except TypeError as e:
+        raise VehicleSpecError(f"vehicle spec: {e}") from None
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -113,59 +156,52 @@ def main(argv: list[str] | None = None) -> int:
         help="the ground-station port sends here until someone speaks to it (PX4 SITL: 127.0.0.1:14550)",
     )
     p.add_argument(
-        "--position",
-        type=float,
-        nargs=3,
-        default=[0.0, 0.0, 0.0],
-        metavar=("E", "N", "U"),
-        help="initial position [m; ENU]",
+        "--spec",
+        metavar="FILE",
+        help="the vehicle, whole, as JSON (sim_vehicles.models.spec.VehicleSpec; a run writes one per "
+        "vehicle to RUN_DIR/procs/vehicle_<i>.spec.json); the flags below set fields over it",
     )
+    p.add_argument("--model", help="the vehicle model (default: paper_vtol)")
     p.add_argument(
-        "--velocity", type=float, nargs=3, default=[0.0, 0.0, 0.0], metavar=("E", "N", "U"), help="[m/s; ENU]"
+        "--position", type=float, nargs=3, metavar=("E", "N", "U"), help="initial position [m; ENU]"
     )
+    p.add_argument("--velocity", type=float, nargs=3, metavar=("E", "N", "U"), help="[m/s; ENU]")
     p.add_argument(
         "--quaternion",
         type=float,
         nargs=4,
-        default=[1.0, 0.0, 0.0, 0.0],
         metavar=("W", "X", "Y", "Z"),
         help="initial attitude [FLU -> ENU]",
     )
-    p.add_argument("--gravity-mps2", type=float, default=9.81)
-    p.add_argument("--mass-kg", type=float, default=0.85)
-    p.add_argument("--inertia-kgm2", type=float, nargs=3, default=[4.856e-2, 4.856e-2, 8.801e-2])
-    p.add_argument("--max-thrust-n", type=float, default=25.0)
+    p.add_argument("--gravity-mps2", type=float)
+    p.add_argument("--mass-kg", type=float)
+    p.add_argument("--inertia-kgm2", type=float, nargs=3)
+    p.add_argument("--max-thrust-n", type=float)
     p.add_argument(
         "--max-rate-rps",
         type=float,
         nargs=3,
-        default=[MAX_RATE_DEFAULT_RPS] * 3,
         metavar=("ROLL", "PITCH", "YAW"),
         help="commanded body rates are clipped to +- these [rad/s] (PX4's MC_*RATE_MAX)",
     )
-    p.add_argument("--l-q", type=float, default=16.0)
-    p.add_argument("--k-q", type=float, default=16.0)
-    p.add_argument("--setpoint-timeout-s", type=float, default=0.5)
+    p.add_argument("--l-q", type=float)
+    p.add_argument("--k-q", type=float)
+    p.add_argument("--setpoint-timeout-s", type=float)
     p.add_argument(
         "--failsafe-action",
         choices=sorted(ACTIONS),
-        default="hold",
         help="what the vehicle flies when its setpoints stop (PX4's COM_OBL_ACT): hold position or land",
     )
-    p.add_argument("--drag-ns2pm2", type=float, default=0.0, help="quadratic drag rho C_d A / 2 [N s^2/m^2]")
-    p.add_argument("--wind-mps", type=float, nargs=3, default=[0.0, 0.0, 0.0], help="mean wind [m/s; ENU]")
-    p.add_argument("--gust-mps", type=float, default=0.0, help="gusts' standard deviation per axis [m/s]")
-    p.add_argument("--gust-time-s", type=float, default=1.0, help="gusts' correlation time [s]")
-    p.add_argument("--wind-seed", type=int, default=0, help="seed of the gusts")
-    p.add_argument(
-        "--position-noise-m", type=float, default=0.0, help="reported position noise, per axis [m]"
-    )
-    p.add_argument("--velocity-noise-mps", type=float, default=0.0, help="reported velocity noise [m/s]")
-    p.add_argument("--attitude-noise-rad", type=float, default=0.0, help="reported attitude noise [rad]")
-    p.add_argument(
-        "--sensor-latency-s", type=float, default=0.0, help="the report is the state this long ago [s]"
-    )
-    p.add_argument("--sensor-seed", type=int, default=0, help="seed of the reported state's noise")
+    p.add_argument("--drag-ns2pm2", type=float, help="quadratic drag rho C_d A / 2 [N s^2/m^2]")
+    p.add_argument("--wind-mps", type=float, nargs=3, help="mean wind [m/s; ENU]")
+    p.add_argument("--gust-mps", type=float, help="gusts' standard deviation per axis [m/s]")
+    p.add_argument("--gust-time-s", type=float, help="gusts' correlation time [s]")
+    p.add_argument("--wind-seed", type=int, help="seed of the gusts")
+    p.add_argument("--position-noise-m", type=float, help="reported position noise, per axis [m]")
+    p.add_argument("--velocity-noise-mps", type=float, help="reported velocity noise [m/s]")
+    p.add_argument("--attitude-noise-rad", type=float, help="reported attitude noise [rad]")
+    p.add_argument("--sensor-latency-s", type=float, help="the report is the state this long ago [s]")
+    p.add_argument("--sensor-seed", type=int, help="seed of the reported state's noise")
     p.add_argument("--events", help="write failsafe events (JSON lines) to this file")
     p.add_argument(
         "--signing-key-file",
@@ -173,7 +209,7 @@ def main(argv: list[str] | None = None) -> int:
         "MAVProxy and QGroundControl derive it); unsigned and wrongly signed messages are refused",
     )
     p.add_argument("--stats", help="write what the vehicle received and refused (JSON) to this file at exit")
-    p.add_argument("--attitude-hz", type=float, default=1000.0)
+    p.add_argument("--attitude-hz", type=float, help="the attitude loop's and plant's rate [Hz]")
     p.add_argument("--tlog", help="write the MAVLink traffic to this .tlog")
     p.add_argument("--truth", help="write the true state at every LOCAL_POSITION_NED to this row log")
     p.add_argument(
@@ -186,53 +222,37 @@ def main(argv: list[str] | None = None) -> int:
     if not 1 <= a.id <= 255:
         print(f"sim_vehicles: error: --id must be 1..255, got {a.id}", file=sys.stderr)
         return 2
-    q = np.asarray(a.quaternion, dtype=float)
-    if abs(float(np.linalg.norm(q)) - 1.0) > 1e-6:
-        print(
-            f"sim_vehicles: error: --quaternion must be a unit quaternion, got {a.quaternion}",
-            file=sys.stderr,
-        )
-        return 2
-    if not a.attitude_hz > 0:
-        print(f"sim_vehicles: error: --attitude-hz must be > 0, got {a.attitude_hz}", file=sys.stderr)
-        return 2
     if a.lockstep_period_s is not None:
         batch_scheduling()
     try:
+        spec = vehicle_spec(a)
         key = read_key(a.signing_key_file) if a.signing_key_file else None
-        params = VehicleParams(
-            a.mass_kg,
-            tuple(a.inertia_kgm2),
-            a.max_thrust_n,
-            a.gravity_mps2,
-            tuple(a.max_rate_rps),
-            a.drag_ns2pm2,
-        )
-        gains = AttitudeGains(a.l_q, a.k_q)
         ep = VehicleEndpoint(
-            Autopilot(params, gains, make_state(a.position, a.velocity, q), 1.0 / a.attitude_hz),
+            build_vehicle(spec, a.id),
             a.id,
             (a.host, a.port),
-            a.setpoint_timeout_s,
+            spec.setpoint_timeout_s,
             tlog_path=a.tlog,
             lockstep_period_s=a.lockstep_period_s,
             truth_path=a.truth,
-            failsafe_action=ACTIONS[a.failsafe_action],
+            failsafe_action=ACTIONS[spec.failsafe_action],
             events_path=a.events,
             signing_key=key,
             gcs_bind=None if a.gcs_port is None else (a.host, a.gcs_port),
             gcs_remote=_host_port(a.gcs_remote) if a.gcs_remote else None,
-            sensors=_sensors(a),
+            sensors=sensor_model(spec, a.id),
         )
-        ep.autopilot.wind = _wind(a)
-    except (VehicleParamError, ValueError) as e:
+    except (VehicleParamError, ValueError) as e:  # VehicleSpecError, a bad key file or address
         print(f"sim_vehicles: error: {e}", file=sys.stderr)
         return 2
     except OSError as e:
+        if a.spec and e.filename == a.spec:
+            print(f"sim_vehicles: error: --spec {a.spec}: {e.strerror}", file=sys.stderr)
+            return 2
         ports = f"{a.port}" + (f" or {a.gcs_port}" if a.gcs_port is not None else "")
         print(f"sim_vehicles: error: cannot bind udp {a.host}:{ports} ({e.strerror})", file=sys.stderr)
         return 2
-    warm_up(params, gains, a.attitude_hz)
+    warm_up(spec)
     mark("ready")
     gcs = ep.gcs_address
     tail = f", ground station on udp:{gcs[0]}:{gcs[1]}" if gcs else ""

@@ -19,6 +19,7 @@ from sim_vehicles.plant.autopilot import Autopilot
 from sim_vehicles.plant.params import AttitudeGains, VehicleParams
 from sim_vehicles.runtime import udp_arrival
 from sim_vehicles.runtime.row_log import read_rows
+from sim_vehicles.vehicle import lockstep_tick
 from sim_vehicles.vehicle.endpoint import VehicleEndpoint
 
 pytestmark = pytest.mark.integration
@@ -248,8 +249,9 @@ def loaded():
         if isinstance(obj, numba.core.registry.CPUDispatcher)
     }
 
+from sim_vehicles.models.spec import VehicleSpec
 params, gains = VehicleParams(0.85, (0.05, 0.05, 0.09), 25.0), AttitudeGains(16.0, 16.0)
-warm_up(params, gains, 1000.0)
+warm_up(VehicleSpec(mass_kg=0.85, inertia_kgm2=(0.05, 0.05, 0.09), max_thrust_N=25.0))
 gcs = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
 gcs.bind(("127.0.0.1", 0))
 ep = VehicleEndpoint(
@@ -331,8 +333,7 @@ def _fly_setpoints(
     logs = {"truth_path": tmp_path / f"{name}.rows", "tlog_path": tmp_path / f"{name}.tlog"}
     ep = VehicleEndpoint(ap, 7, lockstep_period_s=0.01, **logs)
     taken: list[bool] = []
-    general = ep._usual_tick
-    ep._usual_tick = lambda r: usual_tick and (taken.append(general(r)) or taken[-1])  # type: ignore[method-assign]
+    one_call = lockstep_tick.usual_tick
     rx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     rx.bind(("127.0.0.1", 0))
     controller = mavlink2.MAVLink(None, 7, 191)
@@ -340,6 +341,12 @@ def _fly_setpoints(
     ep.armed, ep.mode = True, 1
     sent: list[bytes] = []
     books = []
+
+    def counted(ep_: VehicleEndpoint, r: np.ndarray) -> bool:
+        taken.append(usual_tick and one_call(ep_, r))
+        return taken[-1]
+
+    lockstep_tick.usual_tick = counted  # what the endpoint calls (``lockstep_tick.usual_tick``)
     try:
         for k in range(120):
             q = rng.normal(size=4) * [0.05, 0.05, 0.05, 1.0]
@@ -359,6 +366,7 @@ def _fly_setpoints(
             except BlockingIOError:
                 break
     finally:
+        lockstep_tick.usual_tick = one_call
         rx.close()
         ep.close()
     return sent, ep, taken, books

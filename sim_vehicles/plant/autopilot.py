@@ -91,6 +91,7 @@ class Autopilot:
         #: the wind at the vehicle [m/s; ENU], changed in place (``wind``, at each ``advance``)
         self.wind_W = np.zeros(3)
         self.wind: WindModel | None = None  #: the air it flies in (``plant.wind``); None: still air
+        self.tunables: dict[str, float] = {}  #: none: its gains are the spec's (``l_q``, ``k_q``)
         self.set_command(AttitudeCommand(q_c=self.state[QUAT].copy(), thrust_N=params.hover_thrust_N))
 
     @property
@@ -123,6 +124,10 @@ class Autopilot:
             p.drag_Ns2pm2,
             self.wind_W,
         )
+
+    def set_param(self, name: str, value: float) -> bool:
+        """No parameter of its own can be set (``contract.VehicleModel``)."""
+        return False
 
     def advance(self, n_steps: int) -> None:
         """Run ``n_steps`` attitude-loop steps holding the current command (in the wind of the

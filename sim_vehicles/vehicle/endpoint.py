@@ -55,7 +55,7 @@ from sim_vehicles.mavlink.wire_format import (
     command_of,
     setpoint_of,
 )
-from sim_vehicles.plant.autopilot import Autopilot
+from sim_vehicles.plant.contract import VehicleModel
 from sim_vehicles.plant.failsafe import ACTION_HOLD
 from sim_vehicles.plant.sensors import SensorModel
 from sim_vehicles.runtime.event_log import EventLog
@@ -69,12 +69,11 @@ MAX_CLOCK_STEP_S = 3600.0  #: the furthest a clock-only setpoint may move a lock
 
 
 _SETPOINT = frames.SET_ATTITUDE_TARGET
-_SP_VALID = tick_frames.SP_COMMAND.start + CMD_VALID  #: ``read_setpoint``'s command is valid
 
 
 @dataclass
 class VehicleEndpoint:
-    autopilot: Autopilot
+    autopilot: VehicleModel
     system_id: int
     bind: tuple[str, int] = ("127.0.0.1", 0)
     setpoint_timeout_s: float = 0.5  #: SP_TIMEOUT_S at start (``flight`` keeps the current one)
@@ -259,7 +258,7 @@ class VehicleEndpoint:
             if port is not self.port:  # setpoints come on the controller's port only
                 self.stats.rx_refused += 1
                 return
-            if self._usual_tick(r):
+            if lockstep_tick.usual_tick(self, r):
                 return
             sp = tick_frames.setpoint_of(r)
             if self._addressed(sp.target_system, sp.target_component):
@@ -326,67 +325,6 @@ class VehicleEndpoint:
         return x if self.sensors is None else self.sensors.reported(ms, x)
 
     # -- setpoints -------------------------------------------------------------------------------
-    def _usual_tick(self, r: np.ndarray) -> bool:
-        """Take a setpoint (``tick_frames.read_setpoint``'s ``r``) as a lockstep tick in one
-        compiled call (``lockstep_tick``) if it is the usual one: for this vehicle, stamped with its
-        current time, every field taken and valid, the vehicle armed in offboard, and nothing but
-        the sample due when the period ends. The books are kept as ``_on_setpoint``, ``step`` and
-        ``_stream`` keep them, and the state and frames are theirs bit for bit. False: not the
-        usual tick (the general path takes it)."""
-        f = self.flight
-        plain = self.sensors is None and self.autopilot.wind is None  # (else the general path's)
-        if not (plain and self._lockstep_steps and f.armed and f.mode == MODE_OFFBOARD):
-            return False
-        v = r.tolist()  # Python floats: cheaper to compare than numpy's scalars
-        if not (
-            v[tick_frames.SP_TYPE_MASK] == 0
-            and v[_SP_VALID]
-            and self._addressed(v[tick_frames.SP_TARGET_SYSTEM], v[tick_frames.SP_TARGET_COMPONENT])
-        ):
-            return False
-        ap, port = self.autopilot, self.port
-        streams = port.streams
-        t0 = ap.time_s
-        k1 = ap.step_index + self._lockstep_steps
-        t1 = k1 * ap.dt_s
-        next_send = streams.next_send
-        if not (
-            v[tick_frames.SP_TIME_MS] == round(t0 * 1000)
-            and t1 - t0 <= f.setpoint_timeout_s  # else its failsafe would begin: ``step``'s
-            and t1 + 1e-9 < streams.next_other_s
-            and next_send[LPOS_ID] <= t1 + 1e-9
-            and next_send[ATTQ_ID] <= t1 + 1e-9
-        ):
-            return False
-        port.accepted += 1
-        port.accepted_from = (int(v[tick_frames.SP_SYSID]), int(v[tick_frames.SP_COMPID]))
-        f.offboard_signal_s = f.last_setpoint_s = t0
-        self.stats.setpoints += 1
-        ap.set_command(command_of(r[tick_frames.SP_COMMAND]), kernel_ready=True)  # views of ``r``
-        out = self._sample_out
-        x, end_lpos, end_attq = lockstep_tick.step_and_sample(
-            ap.state,
-            ap.kernel_args,
-            self._lockstep_steps,
-            out,
-            port.mav.seq,
-            self.system_id,
-            px4.AUTOPILOT,
-            frames.LOCAL_POSITION_NED.spec,
-            frames.ATTITUDE_QUATERNION.spec,
-            round(t1 * 1000),
-        )
-        ap.state = x
-        ap.step_index = k1
-        port.take(out, end_lpos)
-        port.take(out, end_attq, end_lpos)
-        streams.sample_sent(t1)
-        if self._truth is not None:
-            self._truth.append((t1,), x)
-        port.flush()
-        self._stream_gcs()
-        return True
-
     def _on_setpoint(self, m: Setpoint) -> None:
         """A setpoint for this vehicle. In lockstep one stamped with its current time is applied
         (armed in offboard) and the vehicle advances exactly one period and streams its sample;

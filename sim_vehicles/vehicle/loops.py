@@ -20,7 +20,7 @@ import time
 from collections.abc import Callable
 from typing import Any, Protocol
 
-from sim_vehicles.plant.autopilot import Autopilot
+from sim_vehicles.plant.contract import VehicleModel
 from sim_vehicles.runtime import udp_arrival
 from sim_vehicles.vehicle.modes import FlightModes
 from sim_vehicles.vehicle.port import Port
@@ -35,7 +35,7 @@ LOCKSTEP_GCS_EVERY_S = 0.005
 class Served(Protocol):
     """What a loop drives: the vehicle (``endpoint.VehicleEndpoint``)."""
 
-    autopilot: Autopilot
+    autopilot: VehicleModel
     boot_unix_s: float  #: real time: the UNIX instant of time_boot_ms = 0
     port: Port
     gcs: Port | None

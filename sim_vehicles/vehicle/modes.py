@@ -22,7 +22,7 @@ from typing import Any
 from pymavlink.dialects.v20 import common as mav
 
 from sim_vehicles.mavlink import px4_profile as px4
-from sim_vehicles.plant.autopilot import Autopilot
+from sim_vehicles.plant.contract import VehicleModel
 from sim_vehicles.plant.failsafe import ACTION_HOLD, FAILSAFE_PERIOD_S, failsafe_command, hold_at
 from sim_vehicles.runtime.event_log import EventLog
 
@@ -37,7 +37,7 @@ class FlightModes:
 
     def __init__(
         self,
-        autopilot: Autopilot,
+        autopilot: VehicleModel,
         system_id: int,
         setpoint_timeout_s: float,
         failsafe_action: int,

@@ -30,7 +30,7 @@ from typing import Any, Protocol
 from pymavlink.dialects.v20 import common as mav
 
 from sim_vehicles.mavlink import px4_profile as px4
-from sim_vehicles.plant.autopilot import Autopilot
+from sim_vehicles.plant.contract import VehicleModel
 from sim_vehicles.vehicle.modes import FlightModes
 from sim_vehicles.vehicle.port import EndpointStats, Port
 
@@ -76,7 +76,7 @@ class Parameters:
     """The parameter protocol over a vehicle's parameters, in the order PARAM_REQUEST_LIST gives
     them: what the vehicle is (``autopilot.params``) and what its ``flight`` may change."""
 
-    def __init__(self, autopilot: Autopilot, flight: FlightModes, stats: EndpointStats):
+    def __init__(self, autopilot: VehicleModel, flight: FlightModes, stats: EndpointStats):
         self.autopilot = autopilot
         self.flight = flight
         self.stats = stats
@@ -90,6 +90,7 @@ class Parameters:
             "SP_TIMEOUT_S": flight.setpoint_timeout_s,
             "COM_OBL_ACT": float(flight.failsafe_action),
             **{n: math.degrees(w) for n, w in zip(RATE_MAX_PARAMS, p.max_rate_rps, strict=True)},
+            **autopilot.tunables,  # the model's own (PX4's gains, for px4_quad_x)
         }
 
     def _apply(self, name: str, value: float) -> None:
@@ -129,8 +130,15 @@ class Parameters:
         if name not in self.values:
             self.stats.rx_invalid += 1
             return
-        lo, hi = SETTABLE.get(name, (math.nan, math.nan))
         value = float(m.param_value)
+        if name in self.autopilot.tunables:  # the model's own: its range is the model's
+            if self.autopilot.set_param(name, value):
+                self.values[name] = self.autopilot.tunables[name]
+            else:
+                self.stats.rx_invalid += 1
+            self.send(port, name)
+            return
+        lo, hi = SETTABLE.get(name, (math.nan, math.nan))
         if lo <= value <= hi:
             self.values[name] = value
             self._apply(name, value)

@@ -26,7 +26,7 @@ from sim_vehicles.mavlink import frames, tick_frames
 from sim_vehicles.mavlink import px4_profile as px4
 from sim_vehicles.mavlink.enu_ned import enu_to_ned, flu_to_frd
 from sim_vehicles.mavlink.wire_format import encode_attitude, encode_attitude_quaternion
-from sim_vehicles.plant.autopilot import Autopilot
+from sim_vehicles.plant.contract import VehicleModel
 from sim_vehicles.vehicle.port import Port
 
 
@@ -80,7 +80,7 @@ GCS_RATES = TelemetryRates(
 class VehicleState(Protocol):
     """What the encoders read of the vehicle."""
 
-    autopilot: Autopilot
+    autopilot: VehicleModel
     armed: bool
     home: px4.Home
     system_id: int
@@ -116,7 +116,7 @@ class Telemetry:
         }
 
     @property
-    def _ap(self) -> Autopilot:
+    def _ap(self) -> VehicleModel:
         return self.vehicle.autopilot
 
     def _sample_part(self, port: Port, pack: Callable[..., int], layout: frames.Layout, ms: int) -> None:

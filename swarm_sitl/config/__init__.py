@@ -2,5 +2,5 @@
 errors (``load``), a generated swarm's config (``generator``, ``swarm-sitl new``) and the
 reference of every key (``reference``, ``docs/config.md``).
 
-May import: sim_vehicles.common, sim_vehicles.plant, laws, bus, faults.
+May import: sim_vehicles.common, sim_vehicles.plant, sim_vehicles.models, laws, bus, faults.
 """

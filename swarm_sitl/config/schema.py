@@ -13,7 +13,9 @@ import numpy as np
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
-from sim_vehicles.plant.params import MAX_RATE_DEFAULT_RPS, AttitudeGains, VehicleParams
+from sim_vehicles.models import spec as vehicle_spec
+from sim_vehicles.models.build import check as model_check
+from sim_vehicles.plant.params import MAX_RATE_DEFAULT_RPS
 from swarm_sitl.bus.access import NodeKeys, node_keys
 from swarm_sitl.bus.session import ZenohSpec
 from swarm_sitl.config.law_entry import resolve, validate_params
@@ -149,6 +151,14 @@ class VehicleSpec(_Strict):
     sensors: SensorSpec = SensorSpec()  #: latency and noise of the state it reports
     #: quadratic drag rho C_d A / 2: the air pushes with -drag |v - w| (v - w) [N s^2/m^2] (``wind``)
     drag_Ns2pm2: Annotated[float, Field(ge=0)] = 0.0
+    #: the vehicle model (``sim_vehicles.models.build``): ``paper_vtol``, the paper's rigid body
+    #: given thrust and torque the instant they are asked for, its torque law as autopilot; or
+    #: ``px4_quad_x``, four rotors in X with motor lag, PX4's mixer and attitude and rate loops
+    #: (``docs/vehicles.md``)
+    model: str = "paper_vtol"
+    #: the model's own parameters by name, each in its range (``px4_quad_x``: Q_MAX_NM, L_ROLL_M,
+    #: L_PITCH_M, T_TAU_S and PX4's MC_* gains; PX4 SIH's quadrotor and PX4's defaults otherwise)
+    params: dict[str, float] = {}
 
 
 class FollowerSpec(_Strict):
@@ -320,6 +330,10 @@ class SwarmConfig(_Strict):
                 f"vehicle.max_thrust_N ({self.vehicle.max_thrust_N}) must exceed the weight "
                 f"{self.vehicle.mass_kg * self.gravity_mps2:.3f} N"
             )
+        try:  # the model and its parameters, as the vehicles will be built (cheap: no kernel runs)
+            model_check(self.vehicle_spec(ids[0]))
+        except vehicle_spec.VehicleSpecError as e:
+            raise ValueError(str(e).replace("vehicle spec: ", "vehicle: ", 1)) from None
         return self
 
     # -- derived objects -------------------------------------------------------------------------
@@ -351,14 +365,34 @@ class SwarmConfig(_Strict):
     def trajectory(self) -> Trajectory:
         return self.leader.trajectory.build()
 
-    def vehicle_params(self) -> VehicleParams:
-        v = self.vehicle
-        return VehicleParams(
-            v.mass_kg, v.inertia_kgm2, v.max_thrust_N, self.gravity_mps2, v.max_rate_rps, v.drag_Ns2pm2
+    def vehicle_spec(self, i: int) -> vehicle_spec.VehicleSpec:
+        """Follower ``i``'s vehicle, whole (``sim_vehicles.models``): what ``sim`` builds and
+        what the run hands its vehicle process as one file."""
+        v, f, w, s = self.vehicle, self.follower(i), self.wind, self.vehicle.sensors
+        return vehicle_spec.VehicleSpec(
+            mass_kg=v.mass_kg,
+            inertia_kgm2=v.inertia_kgm2,
+            max_thrust_N=v.max_thrust_N,
+            g_mps2=self.gravity_mps2,
+            max_rate_rps=v.max_rate_rps,
+            drag_Ns2pm2=v.drag_Ns2pm2,
+            l_q=self.gains.l_q,
+            k_q=self.gains.k_q,
+            attitude_hz=self.rates.attitude_hz,
+            setpoint_timeout_s=v.setpoint_timeout_s,
+            failsafe_action=v.failsafe_action,
+            model=v.model,
+            params=dict(v.params),
+            position_m=f.initial_position_m,
+            velocity_mps=f.initial_velocity_mps,
+            quaternion_wxyz=f.initial_quaternion_wxyz,
+            wind=vehicle_spec.Gusts(w.mean_mps, w.gust_mps, w.gust_time_s, w.seed) if w.enabled else None,
+            sensors=vehicle_spec.SensorNoise(
+                s.position_noise_m, s.velocity_noise_mps, s.attitude_noise_rad, s.latency_s, s.seed
+            )
+            if s.enabled
+            else None,
         )
-
-    def attitude_gains(self) -> AttitudeGains:
-        return AttitudeGains(self.gains.l_q, self.gains.k_q)
 
     def control_gains(self, mass_kg: float | None = None) -> ControlGains:
         """The paper's law's kernel parameters (``paper_law_params`` and the vehicle's)."""

@@ -7,6 +7,6 @@
 - ``entry``: the process entry (``python -m swarm_sitl.nodes controller|leader``): a node built
   from its config, its link, bus, fault wrappers and recording, run, its figures written.
 
-May import: sim_vehicles.common, sim_vehicles.mavlink, sim_vehicles.plant, sim_vehicles.runtime, laws,
-bus, faults, config, rundir, link.
+May import: sim_vehicles.common, sim_vehicles.mavlink, sim_vehicles.plant, sim_vehicles.models,
+sim_vehicles.runtime, laws, bus, faults, config, rundir, link.
 """

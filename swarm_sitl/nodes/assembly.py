@@ -2,10 +2,9 @@
 
 import numpy as np
 
-from sim_vehicles.common.state import make_state
 from sim_vehicles.mavlink.wire_format import f32
-from sim_vehicles.plant.autopilot import Autopilot
-from sim_vehicles.plant.wind import WindModel
+from sim_vehicles.models.build import build_vehicle
+from sim_vehicles.plant.contract import VehicleModel
 from swarm_sitl.bus.codec import Message
 from swarm_sitl.config.schema import SwarmConfig
 from swarm_sitl.laws.contract import LawContext, Received, VehicleSample, reference_values
@@ -94,11 +93,6 @@ def reported_vehicle_params(cfg: SwarmConfig) -> tuple[float, float]:
     return mass, max_thrust
 
 
-def build_autopilot(cfg: SwarmConfig, i: int) -> Autopilot:
-    f = cfg.follower(i)
-    x0 = make_state(f.initial_position_m, f.initial_velocity_mps, np.asarray(f.initial_quaternion_wxyz))
-    ap = Autopilot(cfg.vehicle_params(), cfg.attitude_gains(), x0, cfg.attitude_dt_s)
-    w = cfg.wind
-    if w.enabled:  # the air its vehicle process flies in (``sim_vehicles.__main__``)
-        ap.wind = WindModel(i, w.mean_mps, w.gust_mps, w.gust_time_s, w.seed)
-    return ap
+def build_autopilot(cfg: SwarmConfig, i: int) -> VehicleModel:
+    """Follower ``i``'s vehicle, built as its process builds it: from its spec."""
+    return build_vehicle(cfg.vehicle_spec(i), i)

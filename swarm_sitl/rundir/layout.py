@@ -86,6 +86,11 @@ def controller_incarnations(run_dir: Path, i: int, suffix: str, killed: str = ""
     return found
 
 
+def vehicle_spec_path(run_dir: Path, i: int) -> Path:
+    """What vehicle ``i`` is (``sim_vehicles.models.spec``), as the run hands it to its process."""
+    return procs_dir(run_dir) / f"vehicle_{i}.spec.json"
+
+
 def vehicle_truth_path(run_dir: Path, i: int) -> Path:
     return procs_dir(run_dir) / f"vehicle_{i}.truth"
 

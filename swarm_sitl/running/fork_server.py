@@ -95,13 +95,12 @@ def _warm_up(config_path: str | None) -> None:
     work, so imported here: the supervisor imports this module for ``ForkServer`` only)."""
     import sim_vehicles.__main__
     import swarm_sitl.nodes.entry  # noqa: F401  (every node's modules: its link, bus, faults, laws)
-    from sim_vehicles.plant.params import AttitudeGains, VehicleParams
+    from sim_vehicles.models.spec import VehicleSpec
 
     # the kernels a vehicle and a controller load before they declare themselves ready: the plant,
     # the attitude loop and the per-tick MAVLink frames (each child loaded them from numba's cache,
     # over 0.1 s of CPU apiece, 64 of them at once on two cores in a 64-follower start)
-    vehicle = VehicleParams(1.0, (0.01, 0.01, 0.02), 20.0)
-    sim_vehicles.__main__.warm_up(vehicle, AttitudeGains(1.0, 1.0), 1000.0)  # frames' kernels too
+    sim_vehicles.__main__.warm_up(VehicleSpec())  # frames' kernels too
     if config_path:
         from swarm_sitl.config.load import load_config
         from swarm_sitl.running.sim import run_sim

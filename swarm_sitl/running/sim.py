@@ -25,6 +25,7 @@ from sim_vehicles.mavlink.wire_format import (
     sample_fields,
     sample_from_fields,
 )
+from sim_vehicles.models.build import sensor_model as vehicle_sensors
 from sim_vehicles.plant.sensors import SensorModel
 from swarm_sitl.bus.codec import Message
 from swarm_sitl.config.schema import SwarmConfig
@@ -51,11 +52,7 @@ def sample_through_wire(t_s: float, state: np.ndarray) -> VehicleSample:
 
 def sensor_model(cfg: SwarmConfig, i: int) -> SensorModel | None:
     """Follower ``i``'s vehicle's sensor model, as its process builds it (None: off)."""
-    s = cfg.vehicle.sensors
-    if not s.enabled:
-        return None
-    values = (s.position_noise_m, s.velocity_noise_mps, s.attitude_noise_rad, s.latency_s)
-    return SensorModel(i, *values, seed=s.seed)
+    return vehicle_sensors(cfg.vehicle_spec(i), i)
 
 
 def run_sim(

@@ -20,6 +20,7 @@ from swarm_sitl.rundir.layout import (
     procs_dir,
     signing_key_path,
     vehicle_events_path,
+    vehicle_spec_path,
     vehicle_stats_path,
     vehicle_truth_path,
 )
@@ -66,39 +67,21 @@ def vehicle_argv(
     gcs_remote: str | None = None,
     host: str = "127.0.0.1",
 ) -> list[str]:
-    f, v, g = cfg.follower(i), cfg.vehicle, cfg.gains
+    """Vehicle ``i``'s command line: what it is goes whole in its spec file
+    (``RUN_DIR/procs/vehicle_<i>.spec.json``, written here), where it listens and writes in flags."""
+    spec = vehicle_spec_path(run_dir, i)
+    spec.parent.mkdir(parents=True, exist_ok=True)
+    spec.write_text(cfg.vehicle_spec(i).to_json())
     argv = [
         *module_argv("sim_vehicles"),
         "--id",
         str(i),
+        "--spec",
+        str(spec),
         "--host",
         host,
         "--port",
         str(port),
-        "--position",
-        *map(repr, f.initial_position_m),
-        "--velocity",
-        *map(repr, f.initial_velocity_mps),
-        "--quaternion",
-        *map(repr, f.initial_quaternion_wxyz),
-        "--mass-kg",
-        repr(v.mass_kg),
-        "--inertia-kgm2",
-        *map(repr, v.inertia_kgm2),
-        "--max-thrust-n",
-        repr(v.max_thrust_N),
-        "--max-rate-rps",
-        *map(repr, v.max_rate_rps),
-        "--gravity-mps2",
-        repr(cfg.gravity_mps2),
-        "--l-q",
-        repr(g.l_q),
-        "--k-q",
-        repr(g.k_q),
-        "--setpoint-timeout-s",
-        repr(v.setpoint_timeout_s),
-        "--failsafe-action",
-        v.failsafe_action,
         "--events",
         str(vehicle_events_path(run_dir, i)),
         "--stats",
@@ -107,29 +90,11 @@ def vehicle_argv(
         "--gcs-port",
         str(gcs_port),
         *(["--gcs-remote", gcs_remote] if gcs_remote else []),
-        "--attitude-hz",
-        repr(cfg.rates.attitude_hz),
         "--tlog",
         str(run_dir / "tlogs" / f"vehicle_{i}.tlog"),
         "--truth",
         str(vehicle_truth_path(run_dir, i)),
     ]
-    if v.drag_Ns2pm2 > 0:
-        argv += ["--drag-ns2pm2", repr(v.drag_Ns2pm2)]
-    w = cfg.wind
-    if w.enabled:
-        argv += ["--wind-mps", *map(repr, w.mean_mps), "--gust-mps", repr(w.gust_mps)]
-        argv += ["--gust-time-s", repr(w.gust_time_s), "--wind-seed", str(w.seed)]
-    s = v.sensors
-    if s.enabled:
-        argv += [
-            "--position-noise-m",
-            repr(s.position_noise_m),
-            "--velocity-noise-mps",
-            repr(s.velocity_noise_mps),
-        ]
-        argv += ["--attitude-noise-rad", repr(s.attitude_noise_rad), "--sensor-latency-s", repr(s.latency_s)]
-        argv += ["--sensor-seed", str(s.seed)]
     if lockstep:
         argv += ["--lockstep-period-s", repr(cfg.control_dt_s)]
     return argv

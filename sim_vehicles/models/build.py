@@ -1,0 +1,113 @@
+"""The registry of vehicle models and the one function that builds a vehicle from its spec.
+
+``build_vehicle(spec, system_id)`` is what ``swarm-sitl sim`` flies, what ``python -m
+sim_vehicles`` puts behind its MAVLink endpoint and what the fork server warms up: the same
+object from the same spec, so a lockstep run of processes equals ``sim`` bit for bit.
+
+A model is a function ``(spec, state0, dt_s) -> VehicleModel`` (``plant.contract``: what the
+endpoint and ``sim`` ask of a vehicle). ``MODELS`` names every model a spec may ask for:
+
+- ``paper_vtol`` (the default): the paper's rigid body, thrust and torque applied the instant they
+  are asked for, its torque law as autopilot (``plant.autopilot``); ``spec.params`` must be empty;
+- ``px4_quad_x``: four rotors in X with motor lag, PX4's mixer and attitude and rate loops
+  (``plant.quad_x``); ``spec.params`` takes the airframe's ``quad_x.AIRFRAME`` keys and PX4's
+  gains (``px4_control.GAINS``), each in its range.
+"""
+
+from collections.abc import Callable
+
+import numpy as np
+
+from sim_vehicles.common.state import make_state
+from sim_vehicles.models.spec import VehicleSpec, VehicleSpecError
+from sim_vehicles.plant.autopilot import Autopilot
+from sim_vehicles.plant.contract import VehicleModel
+from sim_vehicles.plant.params import AttitudeGains, VehicleParams
+from sim_vehicles.plant.px4_control import GAINS, RANGES
+from sim_vehicles.plant.quad_x import AIRFRAME, QuadX
+from sim_vehicles.plant.sensors import SensorModel
+from sim_vehicles.plant.wind import WindModel
+
+
+def vehicle_params(spec: VehicleSpec) -> VehicleParams:
+    """What the airframe is, as the plant and the endpoint's parameters take it."""
+    return VehicleParams(
+        spec.mass_kg, spec.inertia_kgm2, spec.max_thrust_N, spec.g_mps2, spec.max_rate_rps, spec.drag_Ns2pm2
+    )
+
+
+def paper_vtol(spec: VehicleSpec, state0: np.ndarray, dt_s: float) -> VehicleModel:
+    """The paper's vehicle: its rigid body (eqs. 2-5) under the paper's torque law, thrust and
+    torque applied the instant they are asked for (``plant.autopilot``)."""
+    if spec.params:
+        raise VehicleSpecError(
+            f"vehicle spec: params: paper_vtol takes none, got {', '.join(sorted(spec.params))}"
+        )
+    return Autopilot(vehicle_params(spec), AttitudeGains(spec.l_q, spec.k_q), state0, dt_s)
+
+
+#: the airframe parameters of ``px4_quad_x`` and their ranges
+QUAD_AIRFRAME_RANGES = {
+    "Q_MAX_NM": (1e-6, 10.0),
+    "L_ROLL_M": (0.01, 5.0),
+    "L_PITCH_M": (0.01, 5.0),
+    "T_TAU_S": (0.0, 1.0),
+}
+
+
+def px4_quad_x(spec: VehicleSpec, state0: np.ndarray, dt_s: float) -> VehicleModel:
+    """A rotor-level quadrotor in X under PX4's attitude and rate control (``plant.quad_x``),
+    its airframe and gains from ``spec.params`` (PX4 SIH's quadrotor and PX4's defaults)."""
+    ranges = {**QUAD_AIRFRAME_RANGES, **RANGES}
+    for name, value in spec.params.items():
+        if name not in ranges:
+            raise VehicleSpecError(
+                f"vehicle spec: params: px4_quad_x has no parameter {name!r} (it has {', '.join(ranges)})"
+            )
+        lo, hi = ranges[name]
+        if not (isinstance(value, int | float) and lo <= value <= hi):
+            raise VehicleSpecError(
+                f"vehicle spec: params: {name} must be within {lo:g}..{hi:g}, got {value!r}"
+            )
+    airframe = {k: float(v) for k, v in spec.params.items() if k in AIRFRAME}
+    px4 = {k: float(v) for k, v in spec.params.items() if k in GAINS}
+    return QuadX(vehicle_params(spec), state0, dt_s, airframe, px4)
+
+
+MODELS: dict[str, Callable[[VehicleSpec, np.ndarray, float], VehicleModel]] = {
+    "paper_vtol": paper_vtol,
+    "px4_quad_x": px4_quad_x,
+}
+
+
+def check(spec: VehicleSpec) -> None:
+    """``VehicleSpecError`` (one line) if ``spec``'s model does not exist or does not take its
+    parameters: what a config's load asks before anything starts."""
+    build_vehicle(spec, 1)
+
+
+def build_vehicle(spec: VehicleSpec, system_id: int) -> VehicleModel:
+    """Vehicle ``system_id`` as ``spec`` says, at its initial state, in its air."""
+    model = MODELS.get(spec.model)
+    if model is None:
+        raise VehicleSpecError(
+            f"vehicle spec: model {spec.model!r} is not one of {', '.join(sorted(MODELS))}"
+        )
+    x0 = make_state(spec.position_m, spec.velocity_mps, np.asarray(spec.quaternion_wxyz, dtype=float))
+    ap = model(spec, x0, 1.0 / spec.attitude_hz)
+    w = spec.wind
+    if w is not None and (any(w.mean_mps) or w.gust_mps > 0):
+        ap.wind = WindModel(system_id, w.mean_mps, w.gust_mps, w.gust_time_s, w.seed)
+    return ap
+
+
+def sensor_model(spec: VehicleSpec, system_id: int) -> SensorModel | None:
+    """What vehicle ``system_id`` reports of its state (None: the true state)."""
+    s = spec.sensors
+    if s is None or not any(
+        v > 0 for v in (s.position_noise_m, s.velocity_noise_mps, s.attitude_noise_rad, s.latency_s)
+    ):
+        return None
+    return SensorModel(
+        system_id, s.position_noise_m, s.velocity_noise_mps, s.attitude_noise_rad, s.latency_s, seed=s.seed
+    )

@@ -1,0 +1,154 @@
+"""The vehicle as one spec (``sim_vehicles.models``): it crosses a process boundary whole and bit
+for bit, one function builds the same vehicle from it wherever it is flown, and what is not a
+vehicle is one line naming the field."""
+
+import dataclasses
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+import yaml
+from hypothesis import given
+from hypothesis import strategies as st
+
+from sim_vehicles.models.build import build_vehicle, sensor_model
+from sim_vehicles.models.spec import Gusts, SensorNoise, VehicleSpec, VehicleSpecError
+from swarm_sitl.config.load import load_config
+from swarm_sitl.nodes.assembly import build_autopilot
+from tests.conftest import CONFIGS
+
+finite = st.floats(-1e6, 1e6, allow_nan=False)
+positive = st.floats(1e-6, 1e6, allow_nan=False)
+
+
+@pytest.mark.unit
+@given(
+    st.tuples(finite, finite, finite),
+    st.tuples(positive, positive, positive),
+    st.floats(0.1, 10.0),
+    positive,
+    st.integers(0, 2**63 - 1),
+)
+def test_a_spec_comes_back_from_its_json_equal_bit_for_bit(position, inertia, mass, drag, seed):
+    spec = VehicleSpec(
+        mass_kg=mass,
+        max_thrust_N=mass * 9.81 * 3.0,
+        inertia_kgm2=inertia,
+        position_m=position,
+        drag_Ns2pm2=drag,
+        wind=Gusts((1.0 / 3.0, 0.1, -2.0), 0.7, 0.9, seed),
+        sensors=SensorNoise(0.01, 0.02, 0.003, 0.04, seed),
+    )
+    back = VehicleSpec.from_json(spec.to_json())
+    assert back == spec
+    assert np.array(back.position_m).tobytes() == np.array(position).tobytes()
+
+
+@pytest.mark.unit
+def test_the_run_builds_the_vehicle_sim_builds_from_the_spec_its_process_reads():
+    """The config's vehicle, through its JSON file, builds the same plant with the same wind and
+    sensors, and flies the same bits (what makes lockstep equal ``sim``)."""
+    data = yaml.safe_load((CONFIGS / "paper.yaml").read_text())
+    data["wind"] = {"mean_mps": [1.0, 0.5, 0.0], "gust_mps": 0.8, "gust_time_s": 0.7, "seed": 4}
+    data["vehicle"]["drag_Ns2pm2"] = 0.02
+    data["vehicle"]["sensors"] = {"position_noise_m": 0.01, "seed": 9}
+    from swarm_sitl.config.load import parse_config
+
+    cfg = parse_config(data)
+    for i in (1, 3):
+        spec = VehicleSpec.from_json(cfg.vehicle_spec(i).to_json())
+        a, b = build_autopilot(cfg, i), build_vehicle(spec, i)
+        assert a.params == b.params and a.gains == b.gains and a.dt_s == b.dt_s
+        for ap in (a, b):
+            for _ in range(20):
+                ap.advance(10)
+        assert a.state.tobytes() == b.state.tobytes()
+        s1, s2 = sensor_model(spec, i), sensor_model(cfg.vehicle_spec(i), i)
+        assert s1 is not None and s2 is not None
+        x = a.state
+        assert s1.reported(120, x).tobytes() == s2.reported(120, x).tobytes()
+
+
+@pytest.mark.unit
+@pytest.mark.parametrize(
+    ("change", "named"),
+    [
+        ({"mass_kg": -1.0}, "mass_kg"),
+        ({"inertia_kgm2": (1.0, 0.0, 1.0)}, "inertia_kgm2"),
+        ({"max_thrust_N": 1.0}, "max_thrust_N"),
+        ({"quaternion_wxyz": (1.0, 1.0, 0.0, 0.0)}, "quaternion_wxyz"),
+        ({"failsafe_action": "explode"}, "failsafe_action"),
+        ({"position_m": (0.0, float("nan"), 0.0)}, "position_m"),
+        ({"wind": Gusts(gust_time_s=0.0)}, "wind"),
+        ({"sensors": SensorNoise(latency_s=-1.0)}, "sensors"),
+    ],
+)
+def test_what_is_not_a_vehicle_is_one_line_naming_the_field(change, named):
+    with pytest.raises(VehicleSpecError, match=f"^vehicle spec: {named}") as e:
+        dataclasses.replace(VehicleSpec(), **change)
+    assert "\n" not in str(e.value)
+
+
+@pytest.mark.unit
+def test_a_spec_file_that_is_not_one_is_refused_in_one_line():
+    for text, named in [
+        ("[1, 2]", "must be a mapping"),
+        ('{"mass": 1}', r"unknown field\(s\) mass"),
+        ("{", "not JSON"),
+        ('{"inertia_kgm2": 5}', "vehicle spec:"),
+    ]:
+        with pytest.raises(VehicleSpecError, match=named):
+            VehicleSpec.from_json(text)
+    with pytest.raises(VehicleSpecError, match="model 'quad9' is not one of paper_vtol"):
+        build_vehicle(VehicleSpec(model="quad9"), 1)
+
+
+@pytest.mark.integration
+def test_the_vehicle_process_refuses_a_bad_spec_file_in_one_line_before_it_binds(tmp_path):
+    bad = tmp_path / "v.json"
+    bad.write_text(json.dumps({**json.loads(VehicleSpec().to_json()), "mass_kg": 0}))
+    for args, named in [
+        (["--spec", str(bad)], "vehicle spec: mass_kg: must be a finite number > 0, got 0"),
+        (["--spec", str(tmp_path / "none.json")], "--spec"),
+        (["--model", "nope"], "model 'nope' is not one of"),
+    ]:
+        r = subprocess.run(
+            [sys.executable, "-m", "sim_vehicles", "--port", "0", *args],
+            capture_output=True,
+            text=True,
+            timeout=60,
+        )
+        assert r.returncode == 2, r.stderr
+        lines = r.stderr.strip().splitlines()
+        assert len(lines) == 1 and named in lines[0], r.stderr
+
+
+@pytest.mark.unit
+def test_flags_set_fields_over_the_spec_file(tmp_path):
+    from sim_vehicles.__main__ import vehicle_spec
+
+    path = tmp_path / "v.json"
+    path.write_text(VehicleSpec(mass_kg=1.2, max_thrust_N=30.0, wind=Gusts(gust_mps=0.5)).to_json())
+    import argparse
+
+    from sim_vehicles.__main__ import SENSOR_FLAGS, SPEC_FLAGS, WIND_FLAGS
+
+    none = {flag: None for flag in [*SPEC_FLAGS, *WIND_FLAGS, *SENSOR_FLAGS]}
+    a = argparse.Namespace(**{**none, "spec": str(path), "position": [1.0, 2.0, 3.0], "wind_seed": 7})
+    spec = vehicle_spec(a)
+    assert spec.mass_kg == 1.2 and spec.position_m == (1.0, 2.0, 3.0)
+    assert spec.wind == Gusts(gust_mps=0.5, seed=7)  # the file's gusts, the flag's seed
+    assert vehicle_spec(argparse.Namespace(**{**none, "spec": None})) == VehicleSpec()
+
+
+@pytest.mark.unit
+def test_the_paper_configs_vehicle_is_the_specs_default_airframe():
+    """``VehicleSpec()``'s defaults are section 4's airframe, what ``python -m sim_vehicles``
+    flies by hand without flags (as before the spec)."""
+    cfg = load_config(CONFIGS / "paper.yaml")
+    spec = cfg.vehicle_spec(1)
+    default = VehicleSpec()
+    same = ("mass_kg", "inertia_kgm2", "max_thrust_N", "g_mps2", "l_q", "k_q", "attitude_hz")
+    assert all(getattr(spec, f) == getattr(default, f) for f in same)
