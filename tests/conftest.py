@@ -26,6 +26,7 @@ LOCKSTEP_ONLY = {
     "test_law_contract.py",
     "test_leader_restart.py",
     "test_counts_across_restarts.py",
+    "test_quad_swarm.py",
 }
 
 

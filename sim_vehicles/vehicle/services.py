@@ -2,10 +2,11 @@
 
 Each answers on the port the request came on, addressed to its sender as PX4 addresses it:
 
-- parameters (``Parameters``): MASS_KG, INERTIA_X/Y/Z, MAX_THRUST_N, SP_TIMEOUT_S, COM_OBL_ACT and
-  MC_ROLLRATE_MAX, MC_PITCHRATE_MAX, MC_YAWRATE_MAX [deg/s] over the parameter protocol; PARAM_SET
-  changes those that may change in flight (``SETTABLE``, within their ranges), answered with
-  PARAM_VALUE of what the vehicle keeps;
+- parameters (``Parameters``): MASS_KG, INERTIA_X/Y/Z, MAX_THRUST_N, SP_TIMEOUT_S, COM_OBL_ACT,
+  MC_ROLLRATE_MAX, MC_PITCHRATE_MAX, MC_YAWRATE_MAX [deg/s] and the model's own (``tunables``:
+  PX4's MC_* gains for ``px4_quad_x``) over the parameter protocol, all REAL32; PARAM_SET changes
+  those that may change in flight (``SETTABLE`` and the model's, within their ranges, as REAL32),
+  answered with PARAM_VALUE of what the vehicle keeps;
 - COMMAND_LONG (``Commands``), each answered with COMMAND_ACK: MAV_CMD_COMPONENT_ARM_DISARM (a
   disarm while armed is refused unless forced, param2 = 21196, as PX4 refuses one in flight),
   MAV_CMD_DO_SET_MODE (PX4's base mode, main mode, sub mode: ``modes``),
@@ -124,13 +125,18 @@ class Parameters:
             self.send(port, name)
 
     def set(self, port: Port, m: Any) -> None:
-        """Set a parameter that may change in flight (``SETTABLE``, within its range); anything else
-        is refused and counted. Answered with PARAM_VALUE of what the vehicle keeps, as PX4 does."""
+        """Set a parameter that may change in flight (``SETTABLE``, or the model's own
+        ``tunables``, within its range, as a REAL32); anything else is refused and counted.
+        Answered with PARAM_VALUE of what the vehicle keeps, as PX4 does."""
         name = m.param_id
         if name not in self.values:
             self.stats.rx_invalid += 1
             return
         value = float(m.param_value)
+        if m.param_type != mav.MAV_PARAM_TYPE_REAL32:  # every one is a float, as PARAM_VALUE says
+            self.stats.rx_invalid += 1
+            self.send(port, name)
+            return
         if name in self.autopilot.tunables:  # the model's own: its range is the model's
             if self.autopilot.set_param(name, value):
                 self.values[name] = self.autopilot.tunables[name]
