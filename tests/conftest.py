@@ -1,4 +1,5 @@
 import os
+import re
 from pathlib import Path
 
 import pytest
@@ -9,6 +10,13 @@ settings.register_profile("swarm", deadline=None, max_examples=100)
 settings.load_profile("swarm")
 
 ROOT = Path(__file__).resolve().parents[1]
+
+
+def page_files(text: str) -> dict[str, str]:
+    """The files a guide in ``docs/`` gives: each ``<!-- file: NAME -->`` and the Python block after it."""
+    return dict(re.findall(r"<!-- file: (\S+) -->\n```python\n(.*?)```", text, re.S))
+
+
 CONFIGS = ROOT / "configs"
 #: every test is one of these (``pyproject.toml`` says what each means; ``-m`` selects them)
 LAYERS = ("unit", "integration", "system")
@@ -27,6 +35,7 @@ LOCKSTEP_ONLY = {
     "test_leader_restart.py",
     "test_counts_across_restarts.py",
     "test_quad_swarm.py",
+    "test_vehicle_from_docs.py",
 }
 
 

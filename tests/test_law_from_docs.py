@@ -2,7 +2,6 @@
 temporary directory, through the page's commands (new --law, check, sim, and its fault test
 through the ``swarm`` fixture, run by pytest there)."""
 
-import re
 import subprocess
 import sys
 from pathlib import Path
@@ -10,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tests.conftest import ROOT
+from tests.conftest import ROOT, page_files
 
 pytestmark = pytest.mark.system
 GUIDE = ROOT / "docs" / "laws.md"
@@ -20,10 +19,6 @@ COMMANDS = [
     "swarm-sitl sim my_swarm.yaml --out runs/mine-sim",
     "python -m pytest test_my_law.py",
 ]
-
-
-def _files(text: str) -> dict[str, str]:
-    return dict(re.findall(r"<!-- file: (\S+) -->\n```python\n(.*?)```", text, re.S))
 
 
 def _sh(cmd: str, cwd: Path) -> subprocess.CompletedProcess:
@@ -38,7 +33,7 @@ def _sh(cmd: str, cwd: Path) -> subprocess.CompletedProcess:
 
 def test_the_guides_law_loads_by_its_entry_flies_and_passes_its_fault_test(tmp_path):
     text = GUIDE.read_text()
-    files = _files(text)
+    files = page_files(text)
     assert set(files) == {"my_law.py", "test_my_law.py"}
     for name, code in files.items():
         (tmp_path / name).write_text(code)

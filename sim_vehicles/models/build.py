@@ -12,13 +12,20 @@ endpoint and ``sim`` ask of a vehicle). ``MODELS`` names every model a spec may 
 - ``px4_quad_x``: four rotors in X with motor lag, PX4's mixer and attitude and rate loops
   (``plant.quad_x``); ``spec.params`` takes the airframe's ``quad_x.AIRFRAME`` keys and PX4's
   gains (``px4_control.GAINS``), each in its range.
+
+A user's own model is an entry, ``"my_vehicle.py:MyVehicle"`` or ``"package.module:MyVehicle"``
+(``common.entry``; a config's relative file path is relative to the config): a class (or any
+callable) taking ``(spec, state0, dt_s)``, held to ``CONTRACT`` when it is built; its own
+parameters come in ``spec.params``. ``models/template.py`` is one, runnable, with the contract
+in its docstring.
 """
 
 from collections.abc import Callable
 
 import numpy as np
 
-from sim_vehicles.common.state import make_state
+from sim_vehicles.common.entry import EntryError, load_entry, one_line
+from sim_vehicles.common.state import STATE_SIZE, make_state
 from sim_vehicles.models.spec import VehicleSpec, VehicleSpecError
 from sim_vehicles.plant.autopilot import Autopilot
 from sim_vehicles.plant.contract import VehicleModel
@@ -80,6 +87,56 @@ MODELS: dict[str, Callable[[VehicleSpec, np.ndarray, float], VehicleModel]] = {
 }
 
 
+#: what a model built from a user's entry must have (``plant.contract.VehicleModel``)
+CONTRACT = (
+    "params",
+    "dt_s",
+    "step_index",
+    "state",
+    "time_s",
+    "command",
+    "set_command",
+    "advance",
+    "max_rate_rps",
+    "wind",
+    "wind_W",
+    "tunables",
+    "set_param",
+)
+
+
+def _user_model(spec: VehicleSpec, state0: np.ndarray, dt_s: float) -> VehicleModel:
+    """A model of the user's (``model: "my_vehicle.py:MyQuad"``), built and held to the contract."""
+    try:
+        factory = load_entry(spec.model, "sim_vehicles_model")
+    except EntryError as e:
+        raise VehicleSpecError(f"vehicle spec: model: {e}") from None
+    if not callable(factory):
+        raise VehicleSpecError(
+            f"vehicle spec: model {spec.model!r} is a {type(factory).__name__}, not callable"
+        )
+    try:
+        vehicle = factory(spec, state0, dt_s)
+    except VehicleSpecError:
+        raise
+    except Exception as e:
+        raise VehicleSpecError(
+            f"vehicle spec: model {spec.model!r}: building it raised {one_line(e)}"
+        ) from None
+    missing = [name for name in CONTRACT if not hasattr(vehicle, name)]
+    if missing:
+        raise VehicleSpecError(
+            f"vehicle spec: model {spec.model!r} does not meet the vehicle contract: no {', '.join(missing)}"
+        )
+    state = np.asarray(vehicle.state)
+    if state.shape != (STATE_SIZE,) or not np.all(np.isfinite(state)):
+        raise VehicleSpecError(
+            f"vehicle spec: model {spec.model!r}: state must be {STATE_SIZE} finite values, "
+            f"got shape {state.shape}"
+        )
+    return vehicle
+
+
 def check(spec: VehicleSpec) -> None:
     """``VehicleSpecError`` (one line) if ``spec``'s model does not exist or does not take its
     parameters: what a config's load asks before anything starts."""
@@ -88,10 +145,11 @@ def check(spec: VehicleSpec) -> None:
 
 def build_vehicle(spec: VehicleSpec, system_id: int) -> VehicleModel:
     """Vehicle ``system_id`` as ``spec`` says, at its initial state, in its air."""
-    model = MODELS.get(spec.model)
+    model = _user_model if ":" in spec.model else MODELS.get(spec.model)
     if model is None:
         raise VehicleSpecError(
-            f"vehicle spec: model {spec.model!r} is not one of {', '.join(sorted(MODELS))}"
+            f"vehicle spec: model {spec.model!r} is not one of {', '.join(sorted(MODELS))} "
+            "nor an entry ('my_vehicle.py:MyVehicle')"
         )
     x0 = make_state(spec.position_m, spec.velocity_mps, np.asarray(spec.quaternion_wxyz, dtype=float))
     ap = model(spec, x0, 1.0 / spec.attitude_hz)

@@ -62,6 +62,7 @@ def cmd_new(args: argparse.Namespace) -> int:
     out = Path(args.o)
     try:
         law = args.law if args.law is None else written_entry(args.law, out.parent)
+        vehicle = args.vehicle if args.vehicle is None else written_entry(args.vehicle, out.parent)
         text = generate(
             args.followers,
             args.graph,
@@ -71,6 +72,7 @@ def cmd_new(args: argparse.Namespace) -> int:
             args.duration,
             law,
             out.parent,
+            vehicle,
         )
     except (GeneratorError, LawEntryError) as e:
         raise CliError(str(e)) from None
@@ -185,6 +187,11 @@ def add_new(sub: Any) -> None:
         "--law",
         metavar="ENTRY",
         help="the followers' law: 'package.module:Class' or 'path/file.py:Class' (default: the paper's)",
+    )
+    n.add_argument(
+        "--vehicle",
+        metavar="MODEL",
+        help="the vehicle model: paper_vtol (default), px4_quad_x or 'file.py:Class' (docs/vehicles.md)",
     )
     n.add_argument("-o", required=True, metavar="FILE", help="the config file to write")
     n.add_argument("--force", action="store_true", help="overwrite FILE if it exists")

@@ -175,10 +175,12 @@ def generate(
     duration_s: float = 60.0,
     law: str | None = None,
     law_base: Path | None = None,
+    vehicle: str | None = None,
 ) -> str:
     """The YAML text of a generated swarm (parsed with the schema before it is returned). ``law``:
     the followers' law entry as the file will hold it (a file entry relative to ``law_base``, the
-    directory the config is written to); default the paper's."""
+    directory the config is written to); default the paper's. ``vehicle``: the vehicle model, a
+    registered one's name or an entry held as ``law`` is; default the paper's vehicle."""
     if not 1 <= followers <= 254:
         raise GeneratorError(f"--followers must be 1..254 (MAVLink system ids), got {followers}")
     if not 0 < duration_s < math.inf:
@@ -228,6 +230,7 @@ def generate(
             "  inertia_kgm2: [0.04856, 0.04856, 0.08801]",
             "  max_thrust_N: 25.0       # above the law's bound m (g + 2 sqrt3 k_eta + sqrt3 k_gamma)",
             "  setpoint_timeout_s: 0.5",
+            *([f"  model: {json.dumps(vehicle)}  # docs/vehicles.md", "  params: {}"] if vehicle else []),
             "",
             "followers:",
             *(
@@ -260,6 +263,8 @@ def generate(
         data = yaml.safe_load(text_)
         if "law" in data:  # validated as load_config will: a file entry found from the config's directory
             data["law"]["entry"] = absolute_entry(data["law"]["entry"], law_base or Path.cwd())
+        if ":" in data["vehicle"].get("model", ""):
+            data["vehicle"]["model"] = absolute_entry(data["vehicle"]["model"], law_base or Path.cwd())
         try:
             return parse_config(data, "generated config")
         except ConfigError as e:

@@ -9,16 +9,13 @@ to widths. ``validate_params`` runs the law's own ``Params`` on its ``params:`` 
 one. Each failure is a ``LawEntryError`` of one line that names the entry.
 """
 
-import hashlib
-import importlib
-import importlib.util
-import sys
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
 from pydantic import BaseModel, ValidationError
 
+from sim_vehicles.common import entry as entry_import
 from swarm_sitl.laws.contract import MAX_MESSAGE_LENGTH
 
 #: names every follower's recording has whatever the law: a law's record may not reuse them
@@ -37,57 +34,25 @@ _RESOLVED: dict[str, type] = {}
 
 def split_entry(entry: str) -> tuple[str, str]:
     """``(module or file, class name)`` of ``"where:Name"``."""
-    where, sep, name = entry.rpartition(":")
-    if not sep or not where or not name.isidentifier():
-        raise LawEntryError(f"entry {entry!r} must be 'package.module:ClassName' or 'path/file.py:ClassName'")
-    return where, name
+    try:
+        return entry_import.split_entry(entry)
+    except entry_import.EntryError as e:
+        raise LawEntryError(str(e)) from None
 
 
-def is_file_entry(entry: str) -> bool:
-    return entry.rpartition(":")[0].endswith(".py")
+is_file_entry = entry_import.is_file_entry
 
 
 def absolute_entry(entry: str, base_dir: Path) -> str:
     """A file entry's path made absolute against ``base_dir`` (any other entry as it is)."""
-    if not is_file_entry(entry):
-        return entry
-    where, name = split_entry(entry)
-    path = Path(where)
-    return entry if path.is_absolute() else f"{(base_dir / path).resolve()}:{name}"
-
-
-def _module(entry: str, where: str) -> Any:
-    if where.endswith(".py"):
-        path = Path(where)
-        if not path.is_file():
-            raise LawEntryError(f"entry {entry!r}: no such file {path}")
-        # one module name per file, whatever its name, so two laws in files of one name coexist
-        digest = hashlib.sha256(str(path.resolve()).encode()).hexdigest()[:12]
-        mod_name = f"swarm_sitl_law_{path.stem}_{digest}"
-        if mod_name in sys.modules:
-            return sys.modules[mod_name]
-        spec = importlib.util.spec_from_file_location(mod_name, path)
-        if spec is None or spec.loader is None:
-            raise LawEntryError(f"entry {entry!r}: {path} cannot be loaded as Python")
-        module = importlib.util.module_from_spec(spec)
-        sys.modules[mod_name] = module
-        try:
-            spec.loader.exec_module(module)
-        except BaseException as e:
-            del sys.modules[mod_name]
-            raise LawEntryError(f"entry {entry!r}: importing {path} failed: {_line(e)}") from None
-        return module
     try:
-        return importlib.import_module(where)
-    except ModuleNotFoundError as e:
-        raise LawEntryError(f"entry {entry!r}: no module named {e.name!r}") from None
-    except BaseException as e:
-        raise LawEntryError(f"entry {entry!r}: importing {where} failed: {_line(e)}") from None
+        return entry_import.absolute_entry(entry, base_dir)
+    except entry_import.EntryError as e:
+        raise LawEntryError(str(e)) from None
 
 
 def _line(e: BaseException) -> str:
-    text = " ".join(str(e).split())
-    return f"{type(e).__name__}: {text}" if text else type(e).__name__
+    return entry_import.one_line(e)
 
 
 def check_contract(cls: Any, entry: str) -> None:
@@ -121,11 +86,10 @@ def resolve(entry: str) -> type:
     """The law class ``entry`` names, imported and checked (once per process)."""
     cls = _RESOLVED.get(entry)
     if cls is None:
-        where, name = split_entry(entry)
-        module = _module(entry, where)
-        if not hasattr(module, name):
-            raise LawEntryError(f"entry {entry!r}: {where} has no {name!r}")
-        cls = getattr(module, name)
+        try:
+            cls = entry_import.load_entry(entry, "swarm_sitl_law")
+        except entry_import.EntryError as e:
+            raise LawEntryError(str(e)) from None
         check_contract(cls, entry)
         _RESOLVED[entry] = cls
     return cls

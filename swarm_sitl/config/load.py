@@ -2,7 +2,8 @@
 
 ``load_config(path)`` returns a frozen ``SwarmConfig`` or raises ``ConfigError`` whose message is
 one line naming the offending key (``schema`` says what a config is). A law given by file
-(``law.entry: "my_law.py:MyLaw"``) is found relative to the config file; the loaded config holds
+(``law.entry: "my_law.py:MyLaw"``), and so a vehicle model (``vehicle.model:
+"my_vehicle.py:MyVehicle"``), is found relative to the config file; the loaded config holds
 its absolute path, so the run directory's copy of it names the same file. ``with_faults`` puts a fault
 plan file in place of a config's own plan, validated against it.
 """
@@ -91,6 +92,13 @@ def load_config(path: str | Path) -> SwarmConfig:
             except LawEntryError as e:
                 raise ConfigError(f"{p}: law: {e}") from None
             data = {**data, "law": {**law, "entry": entry}}  # type: ignore[dict-item]
+        vehicle = data.get("vehicle") if isinstance(data, dict) else None
+        if isinstance(vehicle, dict) and isinstance(vehicle.get("model"), str) and ":" in vehicle["model"]:
+            try:  # a vehicle model of the user's: its file is found as a law's is
+                model = absolute_entry(vehicle["model"], p.parent)
+            except LawEntryError as e:
+                raise ConfigError(f"{p}: vehicle.model: {e}") from None
+            data = {**data, "vehicle": {**vehicle, "model": model}}  # type: ignore[dict-item]
         cfg = parse_config(data, str(p))
         _LAST.clear()
         _LAST[key] = cfg
