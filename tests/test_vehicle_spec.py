@@ -152,3 +152,44 @@ def test_the_paper_configs_vehicle_is_the_specs_default_airframe():
     default = VehicleSpec()
     same = ("mass_kg", "inertia_kgm2", "max_thrust_N", "g_mps2", "l_q", "k_q", "attitude_hz")
     assert all(getattr(spec, f) == getattr(default, f) for f in same)
+
+
+@pytest.mark.unit
+def test_an_old_config_with_the_torque_law_under_gains_loads_with_one_notice():
+    """``gains.l_q``, ``gains.k_q`` moved to ``vehicle``: read from the old place, the same
+    vehicle, one line saying so; given twice with two values, refused."""
+    from swarm_sitl.config.load import ConfigError, parse_config
+
+    data = yaml.safe_load((CONFIGS / "paper.yaml").read_text())
+    new = parse_config(data)
+    assert new.notices == [] and new.vehicle.l_q == 16.0
+    old = {**data, "gains": {**data["gains"], "l_q": 12.0, "k_q": 9.0}, "vehicle": dict(data["vehicle"])}
+    del old["vehicle"]["l_q"], old["vehicle"]["k_q"]
+    cfg = parse_config(old)
+    assert (cfg.vehicle.l_q, cfg.vehicle.k_q) == (12.0, 9.0) and "l_q" not in cfg.gain_dict()
+    assert cfg.vehicle_spec(1).l_q == 12.0
+    assert cfg.notices == [
+        "gains.l_q, gains.k_q: the vehicle's attitude loop now, read as vehicle.l_q, vehicle.k_q "
+        "(move them there)"
+    ]
+    clash = {**old, "vehicle": {**old["vehicle"], "l_q": 5.0}}
+    with pytest.raises(
+        ConfigError, match=r"gains\.l_q and vehicle\.l_q differ: give it once, as vehicle\.l_q"
+    ):
+        parse_config(clash)
+
+
+@pytest.mark.integration
+def test_the_cli_says_the_notice_in_one_line_and_carries_on(tmp_path):
+    data = yaml.safe_load((CONFIGS / "paper.yaml").read_text())
+    data["gains"]["l_q"] = data["vehicle"].pop("l_q")
+    path = tmp_path / "old.yaml"
+    path.write_text(yaml.safe_dump(data))
+    r = subprocess.run(
+        [sys.executable, "-m", "swarm_sitl", "check", str(path)], capture_output=True, text=True, timeout=120
+    )
+    assert r.returncode == 0 and "all conditions hold" in r.stdout
+    assert r.stderr.strip() == (
+        f"swarm-sitl: notice: {path}: gains.l_q: the vehicle's attitude loop now, read as vehicle.l_q "
+        "(move it there)"
+    )

@@ -6,7 +6,9 @@
 - a larger config in real time, with staggered ticks (the default) and with aligned ones: the
   share of control ticks that are late (skipped, or whose setpoint goes out after the next tick's
   instant) and the distribution of when setpoints go out;
-- one vehicle's plant and attitude loop, CPU per 1 kHz step.
+- one vehicle's plant and attitude loop, CPU per 1 kHz step; and beside the config a
+  ``paper_quad.yaml``, ``sim``'s cost per follower-tick on that rotor-level quadrotor against the
+  config's vehicle, and its step's cost.
 
 ``swarm-sitl bench --against DIR`` instead compares this checkout's lockstep ``run`` with another
 source tree's (for example ``git worktree add /tmp/old REV``), runs alternated, each side's run
@@ -149,7 +151,26 @@ def run_bench(cfg_path: str, scale_cfg_path: str, repeats: int = 3, realtime_s: 
         f"  vehicle plant + attitude loop, CPU per 1 kHz step: {long_us:.2f} us in long calls, "
         f"{short_us:.2f} us in calls of 10 steps as the sim makes them (target: < 10 us)"
     )
+    quad_path = Path(cfg_path).with_name("paper_quad.yaml")
+    if quad_path.is_file():  # the rotor-level quadrotor beside the paper's vehicle
+        quad = load_config(quad_path)
+        quad_s, _ = sim_in_process_s(quad)
+        here, there = follower_tick_us(cfg, sim_s), follower_tick_us(quad, quad_s)
+        print(
+            f"  sim, CPU per follower-tick: {cfg.vehicle.model} {here:.1f} us, {quad.vehicle.model} "
+            f"({quad_path.name}) {there:.1f} us = {there / here:.2f}x (target: <= 1.5x)"
+        )
+        long_us, short_us = _vehicle_step_cost_us(quad)
+        print(
+            f"  {quad.vehicle.model}'s rotors, mixer and PX4 loops with its plant, CPU per 1 kHz step: "
+            f"{long_us:.2f} us in long calls, {short_us:.2f} us in calls of 10 steps"
+        )
     return 0 if np.isfinite(best) else 1
+
+
+def follower_tick_us(cfg: SwarmConfig, sim_s: float) -> float:
+    """``sim``'s wall time per follower per control tick [us]: a vehicle's period and its law's tick."""
+    return sim_s / (cfg.n_followers * (cfg.n_control_steps + 1)) * 1e6
 
 
 _RUN_WALL = re.compile(r"simulated in ([0-9.]+) s wall")

@@ -26,7 +26,11 @@ class CliError(Exception):
 
 
 def load(path: str) -> SwarmConfig:
-    return load_config(path)
+    """The config at ``path``; what it says the old way is one notice line each on stderr."""
+    cfg = load_config(path)
+    for line in cfg.notices:
+        print(f"swarm-sitl: notice: {path}: {line}", file=sys.stderr)
+    return cfg
 
 
 def default_run_dir(cfg: SwarmConfig, kind: str) -> Path:

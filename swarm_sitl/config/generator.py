@@ -26,9 +26,7 @@ FORMATIONS = ("circle", "grid", "line")
 TRAJECTORIES = ("helix", "figure_eight", "line")
 SPACING_M = 4.0  #: between neighbouring places of a formation [m]
 INITIAL_SPREAD_M = 2.0  #: initial positions are the formation's places +- this on each axis [m]
-PAPER_GAINS = dict(
-    k_gamma=0.5, k_p=8.0, k_v=8.0, l_a=12.0, k_a=4.0, l_p=4.0, l_v=4.0, k_eta=4.0, l_q=16.0, k_q=16.0
-)
+PAPER_GAINS = dict(k_gamma=0.5, k_p=8.0, k_v=8.0, l_a=12.0, k_a=4.0, l_p=4.0, l_v=4.0, k_eta=4.0)
 #: the suggestion of ``check`` is taken only up to this k_p = k_v. The conditions are sufficient,
 #: and the gains they ask grow fast with n; in sampled time the sgn term's chattering grows with
 #: them. Measured (`sim`, 20 s, helix, grid): layered16 with the suggestion (k_p 94, k_a 152)
@@ -230,6 +228,8 @@ def generate(
             "  inertia_kgm2: [0.04856, 0.04856, 0.08801]",
             "  max_thrust_N: 25.0       # above the law's bound m (g + 2 sqrt3 k_eta + sqrt3 k_gamma)",
             "  setpoint_timeout_s: 0.5",
+            "  l_q: 16.0                # the attitude loop (the paper's torque law)",
+            "  k_q: 16.0",
             *([f"  model: {json.dumps(vehicle)}  # docs/vehicles.md", "  params: {}"] if vehicle else []),
             "",
             "followers:",
@@ -250,8 +250,7 @@ def generate(
         ]
         if law is not None and law != PAPER_LAW:
             lines += [
-                "# the followers' law (docs/laws.md); of the gains above only l_q, k_q (the vehicles'",
-                "# attitude loop) are used with it",
+                "# the followers' law (docs/laws.md); the gains above are the paper's law's, unused with it",
                 "law:",
                 f"  entry: {json.dumps(law)}",
                 "  params: {}",

@@ -11,7 +11,7 @@ from typing import Annotated, Any, Literal
 
 import numpy as np
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, field_validator, model_validator
 
 from sim_vehicles.models import spec as vehicle_spec
 from sim_vehicles.models.build import check as model_check
@@ -27,6 +27,10 @@ from swarm_sitl.laws.zou_meng import ZouMengParams
 
 #: the default law: the paper's (``laws.zou_meng``)
 PAPER_LAW = "swarm_sitl.laws.zou_meng:ZouMengLaw"
+
+
+#: keys that moved from ``gains`` to ``vehicle`` (the paper's torque law is the vehicle's)
+MOVED_TO_VEHICLE = ("l_q", "k_q")
 
 
 class _Strict(BaseModel):
@@ -159,6 +163,10 @@ class VehicleSpec(_Strict):
     #: the model's own parameters by name, each in its range (``px4_quad_x``: Q_MAX_NM, L_ROLL_M,
     #: L_PITCH_M, T_TAU_S and PX4's MC_* gains; PX4 SIH's quadrotor and PX4's defaults otherwise)
     params: dict[str, float] = {}
+    #: ``paper_vtol``'s attitude loop, the paper's torque law: attitude-error gain (under ``gains``
+    #: before; an old config is read with a notice)
+    l_q: Positive = 16.0
+    k_q: Positive = 16.0  #: ``paper_vtol``'s torque law: body-rate-error gain
 
 
 class FollowerSpec(_Strict):
@@ -186,8 +194,6 @@ class GainsSpec(_Strict):
     l_p: Positive  #: auxiliary system: position-error gain
     l_v: Positive  #: auxiliary system: velocity-error gain
     k_eta: Positive  #: auxiliary system: bound of its saturated (tanh) terms [m/s^2]
-    l_q: Positive  #: torque law (the vehicle's attitude loop): attitude-error gain
-    k_q: Positive  #: torque law: body-rate-error gain
 
 
 class EstimatorSpec(_Strict):
@@ -299,8 +305,7 @@ class SwarmConfig(_Strict):
     graph: GraphSpec  #: the directed communication graph (node 0 is the leader)
     vehicle: VehicleSpec  #: every follower's airframe and autopilot
     followers: list[FollowerSpec]  #: one per follower: its place in the formation and initial state
-    #: the paper's law's gains (section 4 for its example), and l_q, k_q: the vehicle's torque law
-    gains: GainsSpec
+    gains: GainsSpec  #: the paper's law's gains (section 4 for its example)
     #: the paper's estimator's sampled-time choices, and how long any law's inbox keeps a message
     estimator: EstimatorSpec = EstimatorSpec()
     law: LawSpec = LawSpec()  #: the followers' control law
@@ -309,6 +314,36 @@ class SwarmConfig(_Strict):
     run: RunSpec = RunSpec()  #: limits and pacing of a multi-process run
     faults: FaultPlan = FaultPlan()  #: what fails, how and when (``faults``)
     wind: WindSpec = WindSpec()  #: the air the vehicles fly in (still by default)
+
+    #: one line each on what the config says the old way (read, and how to write it now)
+    _notices: list[str] = PrivateAttr(default_factory=list)
+
+    @model_validator(mode="wrap")
+    @classmethod
+    def _moved_keys(cls, data: Any, handler: Any) -> "SwarmConfig":
+        """``gains.l_q``, ``gains.k_q`` are the vehicle's now: read from there, with a notice."""
+        moved: list[str] = []
+        if isinstance(data, dict) and isinstance(data.get("gains"), dict):
+            moved = [k for k in MOVED_TO_VEHICLE if k in data["gains"]]
+            if moved:
+                vehicle = dict(data["vehicle"]) if isinstance(data.get("vehicle"), dict) else {}
+                for k in moved:
+                    if k in vehicle and vehicle[k] != data["gains"][k]:
+                        raise ValueError(f"gains.{k} and vehicle.{k} differ: give it once, as vehicle.{k}")
+                    vehicle[k] = data["gains"][k]
+                gains = {k: v for k, v in data["gains"].items() if k not in moved}
+                data = {**data, "gains": gains, "vehicle": vehicle}
+        cfg = handler(data)
+        if moved:
+            old, new = (", ".join(f"{where}.{k}" for k in moved) for where in ("gains", "vehicle"))
+            them = "them" if len(moved) > 1 else "it"
+            cfg._notices.append(f"{old}: the vehicle's attitude loop now, read as {new} (move {them} there)")
+        return cfg
+
+    @property
+    def notices(self) -> list[str]:
+        """What the config said the old way, one line each (``_moved_keys``)."""
+        return list(self._notices)
 
     @model_validator(mode="after")
     def _cross(self) -> "SwarmConfig":
@@ -376,8 +411,8 @@ class SwarmConfig(_Strict):
             g_mps2=self.gravity_mps2,
             max_rate_rps=v.max_rate_rps,
             drag_Ns2pm2=v.drag_Ns2pm2,
-            l_q=self.gains.l_q,
-            k_q=self.gains.k_q,
+            l_q=v.l_q,
+            k_q=v.k_q,
             attitude_hz=self.rates.attitude_hz,
             setpoint_timeout_s=v.setpoint_timeout_s,
             failsafe_action=v.failsafe_action,
