@@ -36,6 +36,7 @@ LOCKSTEP_ONLY = {
     "test_counts_across_restarts.py",
     "test_quad_swarm.py",
     "test_vehicle_from_docs.py",
+    "test_link_from_docs.py",
 }
 
 

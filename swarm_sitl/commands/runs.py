@@ -201,6 +201,7 @@ def _degraded_lines(summary: dict) -> list[str]:
                 f"  {edge if edge.startswith('mavlink') else 'edge ' + edge}: "
                 f"{st['delivered']} of {st['received']} delivered, {st['lost']} lost, "
                 f"{st['corrupt']} corrupt, {st['delayed']} delayed, {st['duplicated']} duplicated"
+                + (f", {st['held']} held at the end" if st.get("held") else "")
                 + _radio(st)
             )
     return out

@@ -92,6 +92,8 @@ def load_config(path: str | Path) -> SwarmConfig:
             except LawEntryError as e:
                 raise ConfigError(f"{p}: law: {e}") from None
             data = {**data, "law": {**law, "entry": entry}}  # type: ignore[dict-item]
+        if isinstance(data, dict) and isinstance(data.get("faults"), dict):
+            data = {**data, "faults": _plan_relative_to(data["faults"], p)}
         vehicle = data.get("vehicle") if isinstance(data, dict) else None
         if isinstance(vehicle, dict) and isinstance(vehicle.get("model"), str) and ":" in vehicle["model"]:
             try:  # a vehicle model of the user's: its file is found as a law's is
@@ -115,6 +117,24 @@ def with_duration(cfg: SwarmConfig, duration_s: float | None) -> SwarmConfig:
     return parse_config({**cfg.model_dump(mode="json"), "duration_s": float(duration_s)}, "--duration")
 
 
+def _plan_relative_to(faults: dict[str, Any], p: Path) -> dict[str, Any]:
+    """A fault plan whose link models' file entries (``model: {entry}``) are made absolute
+    against the directory of ``p``, the file that holds them."""
+    plan = faults.get("plan")
+    if not isinstance(plan, list):
+        return faults
+    out = []
+    for f in plan:
+        model = f.get("model") if isinstance(f, dict) else None
+        if isinstance(model, dict) and isinstance(model.get("entry"), str):
+            try:
+                f = {**f, "model": {**model, "entry": absolute_entry(model["entry"], p.parent)}}
+            except LawEntryError as e:
+                raise ConfigError(f"{p}: faults: {e}") from None
+        out.append(f)
+    return {**faults, "plan": out}
+
+
 def with_faults(cfg: SwarmConfig, path: str | Path) -> SwarmConfig:
     """``cfg`` with the fault plan of the YAML file ``path`` (the mapping that goes under
     ``faults:``, with or without that key) in place of its own, validated against it."""
@@ -124,7 +144,7 @@ def with_faults(cfg: SwarmConfig, path: str | Path) -> SwarmConfig:
         data = data["faults"]
     if not isinstance(data, dict):
         raise ConfigError(f"{p}: expected a fault plan (seed, plan) at the top level")
-    merged = {**cfg.model_dump(mode="json"), "faults": data}
+    merged = {**cfg.model_dump(mode="json"), "faults": _plan_relative_to(data, p)}
     try:
         return SwarmConfig.model_validate(merged)
     except ValidationError as err:

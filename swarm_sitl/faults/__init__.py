@@ -4,7 +4,9 @@
   pure function of the plan's seed and the message (``fate``): the same plan, the same run;
 - the link models a plan entry may name, each a pure function of the run's inputs: ``bursts``
   (Gilbert-Elliott), ``radio_range`` (path loss with distance, retries), ``bandwidth`` (a node's
-  radio and its queue), with ``draws``, the seeded draws they and ``plan`` make;
+  radio and its queue), with ``draws``, the seeded draws they and ``plan`` make; and
+  ``link_model``, the plug-in point for a link model of the user's (``model: {entry, params}``:
+  its contract, ``docs/links.md``);
 - ``edges``: the plan on a node's in-edges, a wrapper of its bus (``FaultyBus``);
 - ``mavlink``: the plan on a vehicle's MAVLink link, a wrapper of the controller's datagrams;
 - ``counts``: what those wrappers count per edge and per link, in memory or in a file that
@@ -14,5 +16,5 @@
 
 Nothing in the loops or the laws knows about faults: they are wrappers of injected interfaces.
 
-May import: sim_vehicles.runtime, laws, bus.
+May import: sim_vehicles.common, sim_vehicles.runtime, laws, bus.
 """

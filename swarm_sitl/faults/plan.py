@@ -33,7 +33,8 @@ One entry names one *what*, one *how* and optionally *when*:
   retry_s}`` (loss and delay with the distance between the two nodes: log-distance path loss,
   ``radio_range``), ``bandwidth: {rate_bps, queue}`` (the sending node's radio: messages wait for
   their air time, a full queue drops; named by ``out_of``, ``leader_edges`` or ``all_edges``, one
-  per node, ``bandwidth``);
+  per node, ``bandwidth``), ``model: {entry, params}`` (a link model of the user's,
+  ``link_model``: the fate of each message from its step, time and distance);
 - what (a vehicle link): ``mavlink: i`` (follower i's link to its vehicle) with ``direction: up``
   (setpoints), ``down`` (telemetry) or ``both`` (the default); it fails by the same hows, applied to
   datagrams where the controller sends and receives them. In lockstep it fails by ``drop``,
@@ -69,6 +70,7 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 from swarm_sitl.faults.bandwidth import Bandwidth
 from swarm_sitl.faults.bursts import GilbertElliott, state_at
 from swarm_sitl.faults.draws import uniform
+from swarm_sitl.faults.link_model import MessageOnLink, ModelEntry
 from swarm_sitl.faults.radio_range import PathLoss
 
 Probability = Annotated[float, Field(gt=0, le=1)]
@@ -86,6 +88,7 @@ LINK_HOW = (
     "duplicate",
     "reorder",
     "corrupt",
+    "model",
 )
 #: the whats that name a node's radio (a bandwidth budget is the sender's)
 NODE_WHAT = ("out_of", "leader_edges", "all_edges")
@@ -120,6 +123,8 @@ class FaultSpec(BaseModel):
     duplicate: Probability | None = None  #: delivered again one period later, with this probability
     reorder: Probability | None = None  #: held back one period (after the next), with this probability
     corrupt: Probability | None = None  #: one byte flipped, with this probability
+    #: a link model of the user's and its parameters (``link_model``: ``{entry, params}``)
+    model: ModelEntry | None = None
 
     controller: Annotated[int, Field(ge=1)] | None = None  #: this follower's controller process
     vehicle: Annotated[int, Field(ge=1)] | None = None  #: this follower's vehicle process
@@ -154,7 +159,9 @@ class FaultSpec(BaseModel):
             kind = "a process" if what[0] in PROCESS_WHAT else "a link"
             allowed = PROCESS_HOW if what[0] in PROCESS_WHAT else LINK_HOW
             raise ValueError(f"{what[0]} is {kind}: it fails by {', '.join(allowed)}, not {how[0]}")
-        if (self.range is not None or self.bandwidth is not None) and self.mavlink is not None:
+        if (self.range is not None or self.bandwidth is not None or self.model is not None) and (
+            self.mavlink is not None
+        ):
             raise ValueError(
                 f"{how[0]} acts on bus edges: a vehicle's MAVLink link is on board (no distance, "
                 "no shared radio)"
@@ -240,6 +247,8 @@ class FaultSpec(BaseModel):
             return self.range.describe()
         if self.bandwidth is not None:
             return self.bandwidth.describe()
+        if self.model is not None:
+            return self.model.describe()
         if self.delay_s is not None:
             return f"delay {self.delay_s:g} s" + (f" + U(0, {self.jitter_s:g}) s" if self.jitter_s else "")
         for k in ("loss", "duplicate", "reorder", "corrupt"):
@@ -430,6 +439,18 @@ def fate(
                 continue
             retried = True
             delay += (attempts - 1) * f.range.retry_s
+            acted.append(j)
+            continue
+        if f.model is not None:
+            m = MessageOnLink(seed, j, channel, key, t_s, period_s, distance_m)
+            effect = f.model.fate(m)
+            if effect is None:
+                continue
+            if effect.lost:
+                return Fate(True, False, 0.0, False, (*acted, j))
+            corrupt = corrupt or effect.corrupt
+            delay += effect.delay_s
+            duplicate = duplicate or effect.duplicate
             acted.append(j)
             continue
         draw = uniform(seed, j, channel, key, _DRAW)

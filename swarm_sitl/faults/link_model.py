@@ -1,0 +1,136 @@
+"""The link-model plug-in point: what happens to one message on one link, from what it needs.
+
+A fault plan names how a link fails. The built-in hows are this plan's keys (``drop``, ``loss``,
+``bursty``, ``range``, ``bandwidth``, ``delay_s``, ``stall``, ``duplicate``, ``reorder``,
+``corrupt``: ``BUILTIN``, each with its parameters and their ranges); a user's own is an entry::
+
+    - {all_edges: true, model: {entry: "my_link.py:DistanceDelay", params: {speed_mps: 200}}}
+
+(``"package.module:Name"`` or ``"path/file.py:Name"``, a relative path relative to the config or
+the plan file that holds it). **The contract** of such a class, checked when the plan loads (one
+line naming the entry otherwise):
+
+- ``Params``: a pydantic model of its parameters, each with its range (``Field(gt=0, le=1)``);
+  the entry's ``params`` are validated by it at load;
+- ``fate(params, m) -> Effect | None``: a pure function of ``m`` (``MessageOnLink``: the plan's
+  seed, the entry's index, the link's channel, the message's step and time, the control period,
+  and the distance between its sender and receiver when it was sent) and the parameters: the
+  message is lost, corrupted, late by ``delay_s`` or duplicated (``Effect``), or untouched
+  (None). Random draws come from ``m.uniform(salt)``, a hash of (seed, entry, link, step, salt):
+  the same plan and seed give every message the same fate in lockstep, in real time and twice;
+- ``needs_distance`` (optional, default False): whether ``m.distance_m`` is needed (the receiver
+  then waits for its own position of the message's step, as for ``range``).
+
+A model acts in plan order with the others on the link (``plan.fate``: a loss ends a message's
+fate, delays add). It acts on the bus's edges (not on a vehicle's MAVLink link).
+"""
+
+import math
+from dataclasses import dataclass
+from typing import Any, NamedTuple
+
+from pydantic import BaseModel, ConfigDict, PrivateAttr, ValidationError, model_validator
+
+from sim_vehicles.common.entry import EntryError, load_entry, one_line
+from swarm_sitl.faults.draws import uniform
+
+#: the hows a plan knows without an entry: their parameters [unit] and ranges (``plan.FaultSpec``)
+BUILTIN = {
+    "drop": "every message lost (true)",
+    "loss": "probability each message is lost, 0 < p <= 1",
+    "bursty": "Gilbert-Elliott bursts: p, r in (0, 1], loss_bad, loss_good in [0, 1] (bursts.py)",
+    "range": "path loss: range_m, exponent, retry_s > 0, fading_db, retries >= 0 (radio_range.py)",
+    "bandwidth": "the sender's radio: rate_bps > 0, queue >= 0 (bandwidth.py)",
+    "delay_s": "a delay >= 0 [s], plus jitter_s >= 0 [s] uniform",
+    "stall": "held until until_s, released at once (true)",
+    "duplicate": "probability each message is delivered again a period later, 0 < p <= 1",
+    "reorder": "probability each message is held one period, 0 < p <= 1",
+    "corrupt": "probability one byte of each message is flipped, 0 < p <= 1",
+}
+
+
+class Effect(NamedTuple):
+    """What a link model does to one message."""
+
+    lost: bool = False
+    corrupt: bool = False  #: one byte flipped (the receiver's checksum drops it)
+    delay_s: float = 0.0  #: how much later than on time [s]
+    duplicate: bool = False  #: delivered a second time, one period after the first
+
+
+@dataclass(frozen=True)
+class MessageOnLink:
+    """One message on one link, as a model sees it."""
+
+    seed: int  #: the plan's
+    entry: int  #: the plan entry's index
+    channel: int  #: the link's (``plan.edge_channel``)
+    step: int  #: the tick the message was sent for
+    t_s: float  #: its time: simulated (lockstep, the time it was sent for) or run seconds (real time)
+    period_s: float  #: the control period [s]
+    distance_m: float = math.nan  #: sender to receiver when it was sent (``needs_distance``) [m]
+
+    def uniform(self, salt: int) -> float:
+        """A uniform draw in [0, 1) of (seed, entry, link, step, ``salt``)."""
+        return uniform(self.seed, self.entry, self.channel, self.step, salt)
+
+
+class LinkModelError(ValueError):
+    """A link-model entry that cannot be flown; one line naming it."""
+
+
+class ModelEntry(BaseModel):
+    """``model:`` of a plan entry: a user's link model and its parameters, resolved at load."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    entry: str  #: ``"my_link.py:Name"`` or ``"package.module:Name"``
+    params: dict[str, Any] = {}  #: validated by the model's ``Params``
+
+    _model: Any = PrivateAttr(default=None)
+    _params: Any = PrivateAttr(default=None)
+
+    @model_validator(mode="after")
+    def _resolve(self) -> "ModelEntry":
+        cls = resolve_link_model(self.entry)
+        try:
+            self._params = cls.Params.model_validate(dict(self.params))
+        except ValidationError as e:
+            err = e.errors()[0]
+            where = ".".join(str(p) for p in err["loc"])
+            msg = err["msg"].removeprefix("Value error, ")
+            raise ValueError(f"params.{where}: {msg} (link model {self.entry})") from None
+        self._model = cls()
+        return self
+
+    @property
+    def needs_distance(self) -> bool:
+        return bool(getattr(self._model, "needs_distance", False))
+
+    def fate(self, m: MessageOnLink) -> Effect | None:
+        effect: Effect | None = self._model.fate(self._params, m)
+        return effect
+
+    def describe(self) -> str:
+        shown = ", ".join(f"{k} {v}" for k, v in self.params.items())
+        return f"{self.entry.rpartition(':')[2]}" + (f" ({shown})" if shown else "")
+
+
+def resolve_link_model(entry: str) -> Any:
+    """The class ``entry`` names, imported and held to the contract (module docstring)."""
+    try:
+        cls = load_entry(entry, "swarm_sitl_link")
+    except EntryError as e:
+        raise LinkModelError(str(e)) from None
+    if not isinstance(cls, type):
+        raise LinkModelError(f"link model {entry!r} is a {type(cls).__name__}, not a class")
+    params = getattr(cls, "Params", None)
+    if not (isinstance(params, type) and issubclass(params, BaseModel)):
+        raise LinkModelError(f"link model {entry!r}: Params must be a pydantic model of its parameters")
+    if not callable(getattr(cls, "fate", None)):
+        raise LinkModelError(f"link model {entry!r}: no fate(params, message) method")
+    try:
+        cls()
+    except Exception as e:
+        raise LinkModelError(f"link model {entry!r}: building it raised {one_line(e)}") from None
+    return cls
