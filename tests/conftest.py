@@ -1,5 +1,7 @@
 import os
 import re
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -13,8 +15,15 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def page_files(text: str) -> dict[str, str]:
-    """The files a guide in ``docs/`` gives: each ``<!-- file: NAME -->`` and the Python block after it."""
-    return dict(re.findall(r"<!-- file: (\S+) -->\n```python\n(.*?)```", text, re.S))
+    """The files a guide in ``docs/`` gives: each ``<!-- file: NAME -->`` and the Python or YAML
+    block after it."""
+    return dict(re.findall(r"<!-- file: (\S+) -->\n```(?:python|yaml)\n(.*?)```", text, re.S))
+
+
+def page_command(cmd: str, cwd: Path) -> "subprocess.CompletedProcess[str]":
+    """A guide's ``swarm-sitl ...`` command line, run in ``cwd`` with this interpreter."""
+    argv = [sys.executable, "-m", "swarm_sitl", *cmd.split()[1:]]
+    return subprocess.run(argv, cwd=cwd, capture_output=True, text=True, timeout=300)
 
 
 CONFIGS = ROOT / "configs"
@@ -74,9 +83,6 @@ def compiled_kernels(request: pytest.FixtureRequest) -> None:
     _COMPILED.append(True)
     if os.environ.get("NUMBA_DISABLE_JIT") == "1":
         return
-    import subprocess
-    import sys
-
     # a vehicle's kernels in a second process while this one compiles the laws': two cores
     vehicle = subprocess.Popen(
         [sys.executable, "-c", "from swarm_sitl.running.fork_server import _warm_up; _warm_up(None)"]

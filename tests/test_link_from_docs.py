@@ -5,9 +5,6 @@ line before anything runs."""
 
 import json
 import re
-import subprocess
-import sys
-from pathlib import Path
 
 import pytest
 import yaml
@@ -15,7 +12,7 @@ import yaml
 from swarm_sitl.config.load import ConfigError, parse_config
 from swarm_sitl.faults.link_model import MessageOnLink
 from swarm_sitl.faults.plan import FaultPlan, edge_channel, fate
-from tests.conftest import CONFIGS, ROOT
+from tests.conftest import CONFIGS, ROOT, page_command, page_files
 
 GUIDE = ROOT / "docs" / "links.md"
 COMMANDS = [
@@ -24,25 +21,16 @@ COMMANDS = [
 ]
 
 
-def _blocks(text: str) -> dict[str, str]:
-    return dict(re.findall(r"<!-- file: (\S+) -->\n```(?:python|yaml)\n(.*?)```", text, re.S))
-
-
-def _sh(cmd: str, cwd: Path) -> subprocess.CompletedProcess:
-    argv = [sys.executable, "-m", "swarm_sitl", *cmd.split()[1:]]
-    return subprocess.run(argv, cwd=cwd, capture_output=True, text=True, timeout=300)
-
-
 @pytest.mark.system
 def test_the_guides_link_model_flies_and_delays_each_message_by_its_distance(tmp_path):
     text = GUIDE.read_text()
-    files = _blocks(text)
+    files = page_files(text)
     assert set(files) == {"my_link.py", "my_plan.yaml"}
     for name, body in files.items():
         (tmp_path / name).write_text(body)
     for cmd in COMMANDS:
         assert cmd in text
-        r = _sh(cmd, tmp_path)
+        r = page_command(cmd, tmp_path)
         assert r.returncode == 0, f"{cmd}: {r.stdout}{r.stderr}"
     assert "delayed" in r.stdout
     summary = json.loads((tmp_path / "runs" / "link" / "summary.json").read_text())

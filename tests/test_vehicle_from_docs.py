@@ -4,16 +4,13 @@ with no edit of the package; the run as processes equals ``sim`` bit for bit. An
 a model is refused: an entry that does not exist, or a class that does not meet the contract."""
 
 import re
-import subprocess
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
 
 from sim_vehicles.models.build import build_vehicle
 from sim_vehicles.models.spec import VehicleSpec, VehicleSpecError
-from tests.conftest import ROOT, page_files
+from tests.conftest import ROOT, page_command, page_files
 
 GUIDE = ROOT / "docs" / "vehicles.md"
 COMMANDS = [
@@ -25,11 +22,6 @@ COMMANDS = [
 ]
 
 
-def _sh(cmd: str, cwd: Path) -> subprocess.CompletedProcess:
-    argv = [sys.executable, "-m", "swarm_sitl", *cmd.split()[1:]]
-    return subprocess.run(argv, cwd=cwd, capture_output=True, text=True, timeout=300)
-
-
 @pytest.mark.system
 def test_the_guides_vehicle_loads_by_its_entry_and_flies_as_processes_equal_to_sim(tmp_path):
     text = GUIDE.read_text()
@@ -38,7 +30,7 @@ def test_the_guides_vehicle_loads_by_its_entry_and_flies_as_processes_equal_to_s
     (tmp_path / "my_vehicle.py").write_text(files["my_vehicle.py"])
     for cmd in COMMANDS:
         assert cmd in text  # the page says exactly these
-        r = _sh(cmd, tmp_path)
+        r = page_command(cmd, tmp_path)
         assert r.returncode == 0, f"{cmd}: {r.stdout}{r.stderr}"
     sim, run = tmp_path / "runs" / "mine-sim", tmp_path / "runs" / "mine-run"
     assert '"model": "' in (run / "procs" / "vehicle_1.spec.json").read_text()
