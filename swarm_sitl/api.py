@@ -128,7 +128,7 @@ class Swarm:
     def run(self, duration_s: float | None = None) -> SwarmResult:
         """Run the swarm (``duration_s`` overrides the config's) and return what it recorded;
         ``OSError`` (one line, saying how to rebuild it) if its run directory could not be written."""
-        from swarm_sitl.running.run import record_run
+        from swarm_sitl.running.run import RunRequest, record_run
 
         cfg = self.config
         if duration_s is not None:
@@ -136,7 +136,7 @@ class Swarm:
         assert self.out is not None
         self._runs += 1
         run_dir = self.out if self._runs == 1 else self.out.with_name(f"{self.out.name}-{self._runs}")
-        outcome = record_run(cfg, run_dir, lockstep=not self.realtime)
+        outcome = record_run(RunRequest(cfg, run_dir, lockstep=not self.realtime))
         if outcome.lost_outputs is not None:  # a full disk: nothing to read back
             raise OSError(outcome.lost_outputs)
         return load_result(run_dir, outcome.failure, outcome.interrupted, outcome.bound_failures)

@@ -54,7 +54,7 @@ from swarm_sitl.config.generator import generate
 from swarm_sitl.config.load import parse_config
 from swarm_sitl.config.schema import SwarmConfig
 from swarm_sitl.rundir.layout import procs_dir
-from swarm_sitl.running.run import run_swarm
+from swarm_sitl.running.run import RunRequest, run_swarm
 from swarm_sitl.running.supervisor import RunFailedError
 
 COLUMNS = (
@@ -128,7 +128,7 @@ def measure(
     sim_wall, sim_cpu = sim_in_process_s(cfg)
     self0 = _cpu_s(resource.RUSAGE_SELF)
     t0 = time.monotonic()
-    res = run_swarm(cfg, work / f"n{n}", lockstep=True)
+    res = run_swarm(RunRequest(cfg, work / f"n{n}"))
     e2e = time.monotonic() - t0
     sup_cpu = _cpu_s(resource.RUSAGE_SELF) - self0
     kinds = _process_stats(work / f"n{n}")
@@ -184,7 +184,7 @@ def measure_realtime(n: int, duration_s: float, work: Path, start: str = "fork")
     """Late ticks and when setpoints go out after their tick's instant, in real time."""
     cfg = scale_config(n, duration_s, start)
     run_dir = work / f"rt{n}"
-    run_swarm(cfg, run_dir, lockstep=False)
+    run_swarm(RunRequest(cfg, run_dir, lockstep=False))
     late, total, done = late_ticks(cfg, run_dir)
     return {
         "followers": n,
@@ -202,7 +202,7 @@ def measure_split(n: int, duration_s: float, work: Path, start: str = "fork") ->
     before = os.environ.get("SWARM_SITL_PROFILE")
     os.environ["SWARM_SITL_PROFILE"] = str(folder)
     try:
-        run_swarm(cfg, work / f"split{n}", lockstep=True)
+        run_swarm(RunRequest(cfg, work / f"split{n}"))
     finally:
         if before is None:
             del os.environ["SWARM_SITL_PROFILE"]

@@ -36,7 +36,7 @@ from swarm_sitl.bench.speed import late_ticks
 from swarm_sitl.config.load import load_config
 from swarm_sitl.rundir.merge import merge_run
 from swarm_sitl.rundir.outputs import write_outputs
-from swarm_sitl.running.run import run_swarm
+from swarm_sitl.running.run import RunRequest, run_swarm
 
 SAMPLE_EVERY_S = 10.0
 SETTLED_AFTER_S = 60.0  #: the growth is measured from here ("after the first minute")
@@ -203,7 +203,7 @@ def run_soak(minutes: float, configs: list[str], out: Path) -> int:
             flush=True,
         )
         w = Watcher(run_dir)
-        run_swarm(cfg, run_dir, lockstep=False, on_progress=w)
+        run_swarm(RunRequest(cfg, run_dir, lockstep=False, on_progress=w))
         w.next_s = 0.0
         late, ticks, _ = late_ticks(cfg, run_dir)
         write_outputs(cfg, merge_run(cfg, run_dir), run_dir, processes=True)

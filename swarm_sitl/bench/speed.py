@@ -32,7 +32,7 @@ from swarm_sitl.config.schema import SwarmConfig
 from swarm_sitl.nodes.assembly import build_autopilot
 from swarm_sitl.rundir.layout import controller_rows_path
 from swarm_sitl.running.children import child_env, module_argv
-from swarm_sitl.running.run import run_swarm
+from swarm_sitl.running.run import RunRequest, run_swarm
 from swarm_sitl.running.sim import run_sim
 from swarm_sitl.running.supervisor import RunFailedError
 
@@ -118,7 +118,7 @@ def run_bench(cfg_path: str, scale_cfg_path: str, repeats: int = 3, realtime_s: 
     sim_s, _ = sim_in_process_s(cfg)
     sim_cost = sim_s / cfg.duration_s
     with tempfile.TemporaryDirectory() as tmp:
-        lock = [run_swarm(cfg, Path(tmp) / f"l{r}", lockstep=True) for r in range(repeats)]
+        lock = [run_swarm(RunRequest(cfg, Path(tmp) / f"l{r}")) for r in range(repeats)]
     lock_best = min(r.run_wall_s for r in lock)
     lock_cost = lock_best / cfg.duration_s
     print(
@@ -137,7 +137,7 @@ def run_bench(cfg_path: str, scale_cfg_path: str, repeats: int = 3, realtime_s: 
     for ticks in ("staggered", "aligned"):  # the default first, then all controllers at one instant
         run = big.model_copy(update={"run": big.run.model_copy(update={"realtime_ticks": ticks})})
         with tempfile.TemporaryDirectory() as tmp:
-            run_swarm(run, Path(tmp), lockstep=False)
+            run_swarm(RunRequest(run, Path(tmp), lockstep=False))
             late, total, done = late_ticks(run, Path(tmp))
         print(
             f"  real time, {scale_cfg_path} ({big.n_followers} followers, {realtime_s:g} s, period "

@@ -146,13 +146,15 @@ def _run_and_record(
     base_port: int = 0,
     external: tuple[int, ...] = (),
 ) -> int:
-    from swarm_sitl.running.run import record_run  # the run machinery: 0.12 s (module doc)
+    from swarm_sitl.running.run import RunRequest, record_run  # the run machinery: 0.12 s (module doc)
 
     warn_if_short_of_disk(cfg, run_dir)
     clock = "lockstep" if lockstep else "real time"
     progress = _RunProgress(cfg, f"{kind} {cfg.name} ({clock})", quiet)
     try:
-        out = record_run(cfg, run_dir, lockstep, mavlink, progress, base_port, progress.note, external)
+        out = record_run(
+            RunRequest(cfg, run_dir, lockstep, mavlink, base_port, external, progress, progress.note)
+        )
     finally:
         progress.close()
     if out.lost_outputs is not None:

@@ -124,20 +124,31 @@ class RunResult:
     endpoints: dict[int, str]
 
 
-def run_swarm(
-    cfg: SwarmConfig,
-    run_dir: Path,
-    lockstep: bool,
-    mavlink: dict[int, str] | None = None,
-    on_progress: Callable[[int, dict[int, float]], None] | None = None,
-    base_port: int = 0,
-    on_vehicles: Callable[[list[str]], None] | None = None,
-    external: tuple[int, ...] = (),
-) -> RunResult:
+@dataclass(frozen=True)
+class RunRequest:
+    """What a run of the swarm as processes takes (``run_swarm``, ``record_run``)."""
+
+    cfg: SwarmConfig
+    run_dir: Path  #: where it writes (created)
+    lockstep: bool = True  #: lockstep (equal to ``sim``), or real time
+    #: each follower's vehicle endpoint (a pymavlink connection string); None: our vehicles
+    mavlink: dict[int, str] | None = None
+    base_port: int = 0  #: our vehicles' ports (``vehicles.PX4_BASE_PORT``'s scheme; 0: free ports)
+    external: tuple[int, ...] = ()  #: followers whose controller is the user's (``run --external``)
+    #: called with the slowest follower's tick and each follower's error as the run goes
+    on_progress: Callable[[int, dict[int, float]], None] | None = None
+    #: called with lines to show: our vehicles' ports, what an external controller must do
+    on_vehicles: Callable[[list[str]], None] | None = None
+
+
+def run_swarm(request: RunRequest) -> RunResult:
     """Run the swarm; vehicles are spawned (on ``base_port``'s ports, ``start_vehicles``; their
     ports go to ``on_vehicles``) unless ``mavlink`` gives each follower's endpoint. The followers
     in ``external`` get no controller from the run: each one's is the user's, told where to meet
     its vehicle and the bus (``external_controllers``), and the run waits for it as for its own."""
+    cfg, run_dir, lockstep, mavlink = request.cfg, request.run_dir, request.lockstep, request.mavlink
+    on_progress, on_vehicles, external = request.on_progress, request.on_vehicles, request.external
+    base_port = request.base_port
     if lockstep:
         try:
             cfg.faults.check_lockstep()
@@ -264,24 +275,16 @@ class Outcome:
     lost_outputs: str | None = None
 
 
-def record_run(
-    cfg: SwarmConfig,
-    run_dir: Path,
-    lockstep: bool,
-    mavlink: dict[int, str] | None = None,
-    on_progress: Callable[[int, dict[int, float]], None] | None = None,
-    base_port: int = 0,
-    on_vehicles: Callable[[list[str]], None] | None = None,
-    external: tuple[int, ...] = (),
-) -> Outcome:
+def record_run(request: RunRequest) -> Outcome:
     """Run the swarm as processes (``run_swarm``) and write its run directory from
     what the processes recorded, however the run ended (a ``KeyboardInterrupt`` is caught and
     reported as ``interrupted``)."""
+    cfg, run_dir = request.cfg, request.run_dir
     failure: str | None = None
     interrupted: KeyboardInterrupt | None = None
     run_wall = startup = float("nan")
     try:
-        result = run_swarm(cfg, run_dir, lockstep, mavlink, on_progress, base_port, on_vehicles, external)
+        result = run_swarm(request)
         run_wall, startup = result.run_wall_s, result.startup_wall_s
     except RunFailedError as e:
         failure = str(e)
