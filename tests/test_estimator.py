@@ -95,12 +95,12 @@ def test_a_tick_after_a_long_gap_keeps_the_internal_step(tmp_path):
     assert np.linalg.norm(out.message[0:3] - told) < 0.3
 
 
-def test_the_paper_laws_params_are_the_kernels_gains_in_their_order():
-    from swarm_sitl.laws.follower_law import ControlGains
+def test_the_paper_laws_params_give_the_kernels_each_gain_by_its_name():
+    from swarm_sitl.laws.paper_gains import PaperGains
     from swarm_sitl.laws.zou_meng import ZouMengParams
 
-    n = len(ControlGains._fields) - 2
-    assert ZouMengParams._fields[:n] == ControlGains._fields[:n]
-    p = ZouMengParams(*map(float, range(1, n + 1)))
-    g = p.control_gains(0.85, 9.81)
-    assert tuple(g) == (*map(float, range(1, n + 1)), 0.85, 9.81)
+    names = list(PaperGains.model_fields)
+    gains = PaperGains(**{n: float(j + 1) for j, n in enumerate(names)})
+    g = ZouMengParams(gains, 0.05, 12.0).control_gains(0.85, 9.81)
+    assert {n: getattr(g, n) for n in names} == {n: float(j + 1) for j, n in enumerate(names)}
+    assert (g.sign_boundary_layer, g.bracket_a_weight, g.mass_kg, g.g_mps2) == (0.05, 12.0, 0.85, 9.81)

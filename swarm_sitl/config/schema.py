@@ -22,6 +22,7 @@ from swarm_sitl.config.law_entry import resolve, validate_params
 from swarm_sitl.faults.plan import FaultPlan
 from swarm_sitl.laws.follower_law import HOLD_EXTRAPOLATE, HOLD_ZERO_ORDER, ControlGains
 from swarm_sitl.laws.graph import Graph, GraphError
+from swarm_sitl.laws.paper_gains import PaperGains
 from swarm_sitl.laws.trajectories import FigureEight, Helix, Line, Trajectory
 from swarm_sitl.laws.zou_meng import ZouMengParams
 
@@ -185,17 +186,6 @@ class FollowerSpec(_Strict):
         return q
 
 
-class GainsSpec(_Strict):
-    k_gamma: Positive  #: estimator: bound of the acceleration estimate, a_hat = k_gamma tanh(gamma) [m/s^2]
-    k_p: Positive  #: estimator: consensus gain on the neighbours' position estimates [1/s]
-    k_v: Positive  #: estimator: consensus gain on the neighbours' velocity estimates [1/s]
-    l_a: Positive  #: estimator: damping of gamma's second-order dynamics [1/s]
-    k_a: Positive  #: estimator: gain of the sliding variable's sign term
-    l_p: Positive  #: auxiliary system: position-error gain
-    l_v: Positive  #: auxiliary system: velocity-error gain
-    k_eta: Positive  #: auxiliary system: bound of its saturated (tanh) terms [m/s^2]
-
-
 class EstimatorSpec(_Strict):
     #: the bracket inside gamma_ddot (docs/paper.md, erratum 7): ``sliding_surface`` weighs its acceleration
     #: sum by l_a, the form Theorem 1's proof and ``swarm-sitl check`` cover; ``printed`` is the
@@ -305,7 +295,7 @@ class SwarmConfig(_Strict):
     graph: GraphSpec  #: the directed communication graph (node 0 is the leader)
     vehicle: VehicleSpec  #: every follower's airframe and autopilot
     followers: list[FollowerSpec]  #: one per follower: its place in the formation and initial state
-    gains: GainsSpec  #: the paper's law's gains (section 4 for its example)
+    gains: PaperGains  #: the paper's law's gains (section 4 for its example)
     #: the paper's estimator's sampled-time choices, and how long any law's inbox keeps a message
     estimator: EstimatorSpec = EstimatorSpec()
     law: LawSpec = LawSpec()  #: the followers' control law
@@ -449,14 +439,7 @@ class SwarmConfig(_Strict):
         """The paper's law's parameters from ``gains``, ``estimator`` and ``rates``."""
         g = self.gains
         return ZouMengParams(
-            g.k_gamma,
-            g.k_p,
-            g.k_v,
-            g.l_a,
-            g.k_a,
-            g.l_p,
-            g.l_v,
-            g.k_eta,
+            g,
             self.estimator.sign_boundary_layer,
             g.l_a if self.estimator.bracket == "sliding_surface" else 1.0,
             self.rates.estimator_substeps,

@@ -2,7 +2,7 @@
 hierarchical position loop for one follower, ``law: {entry: "swarm_sitl.laws.zou_meng:ZouMengLaw"}``,
 the default.
 
-Its parameters are the config's ``gains`` (but ``l_q``, ``k_q``: the vehicle's torque law),
+Its parameters are the config's ``gains`` (``paper_gains.PaperGains``),
 ``estimator`` (bracket, sign boundary layer, neighbour hold) and ``rates.estimator_substeps``
 (``config.schema.SwarmConfig.law_params``); ``swarm-sitl check`` checks Theorem 1's conditions
 for them. Its message is its estimate of the leader's state, ``[p_hat, v_hat, a_hat, a_hat_dot]``
@@ -46,6 +46,7 @@ from swarm_sitl.laws.follower_law import (
     controller_tick,
     gains_vector,
 )
+from swarm_sitl.laws.paper_gains import PaperGains
 
 #: a controller whose output is not finite and whose inputs are older than this many periods says
 #: so: on a saturated machine in real time the estimator diverges on old estimates
@@ -71,25 +72,24 @@ _A_HAT = slice(OUT_A_HAT.start, OUT_A_HAT.start + 6)  #: a_hat, a_hat_dot in ``c
 
 
 class ZouMengParams(NamedTuple):
-    """The law's parameters (the paper's symbols; ``config.schema.GainsSpec`` says each)."""
+    """The law's parameters: its gains (``paper_gains.PaperGains``) and how it is sampled."""
 
-    k_gamma: float
-    k_p: float
-    k_v: float
-    l_a: float
-    k_a: float
-    l_p: float
-    l_v: float
-    k_eta: float
+    gains: PaperGains
     sign_boundary_layer: float  #: 0 = the paper's sgn; > 0 = saturation width (deviation)
     bracket_a_weight: float  #: l_a = the sliding-surface bracket Theorem 1 covers, 1 = as printed
     substeps: int = 10  #: RK4 steps of the controller state per control period
     hold: int = HOLD_EXTRAPOLATE  #: ``follower_law.HOLD_*``: how messages are carried to a tick
 
     def control_gains(self, mass_kg: float, gravity_mps2: float) -> ControlGains:
-        """The kernels' parameters: these gains (``ControlGains``' fields but the last two, in
-        its order: ``tests/test_estimator.py`` holds them to it), with the vehicle's mass and g."""
-        return ControlGains._make((*self[: len(ControlGains._fields) - 2], mass_kg, gravity_mps2))
+        """The kernels' parameters: the gains, by name, the sampling choices and the vehicle's
+        mass and g."""
+        return ControlGains(
+            **self.gains.model_dump(),
+            sign_boundary_layer=self.sign_boundary_layer,
+            bracket_a_weight=self.bracket_a_weight,
+            mass_kg=mass_kg,
+            g_mps2=gravity_mps2,
+        )
 
 
 class ZouMengLaw:
