@@ -40,6 +40,39 @@ def test_the_noise_has_its_spread_on_every_axis_and_is_the_same_for_the_same_see
 
 
 @pytest.mark.unit
+@pytest.mark.parametrize("walk", [0.02, 0.05])
+def test_the_position_bias_wanders_as_a_random_walk_of_its_stated_intensity(walk):
+    """Over many vehicles (ids 1..400, three axes each), the bias after t seconds has variance
+    ``walk^2 t`` (the sample variance of n normals is within 5 of its standard errors,
+    ``sqrt(2 / n)`` relative: a time scale off by 2x is 4x outside it), starts at zero, and its
+    increments over disjoint intervals are uncorrelated (within 5 / sqrt(n)); asked again, or
+    earlier, it is the same walk."""
+    x = _x()
+    ids = range(1, 401)
+    b = {
+        t: np.array(
+            [SensorModel(i, seed=5, position_bias_walk_m_per_sqrt_s=walk).bias(round(t / 0.01)) for i in ids]
+        )
+        for t in (2.0, 4.0)
+    }
+    n = 3 * len(ids)
+    for t, v in b.items():
+        assert abs(v.var() / (walk**2 * t) - 1) < 5 * math.sqrt(2 / n), t
+    first, second = b[2.0].ravel(), (b[4.0] - b[2.0]).ravel()
+    assert abs(np.corrcoef(first, second)[0, 1]) < 5 / math.sqrt(n)
+    m = SensorModel(9, seed=5, position_bias_walk_m_per_sqrt_s=walk)
+    later = m.reported(4000, x)
+    assert np.array_equal(
+        m.reported(2000, x), SensorModel(9, seed=5, position_bias_walk_m_per_sqrt_s=walk).reported(2000, x)
+    )
+    assert np.array_equal(m.reported(4000, x), later)  # asked earlier in between: the same walk
+    assert np.array_equal(
+        SensorModel(9, seed=5, position_bias_walk_m_per_sqrt_s=walk).reported(0, x), x
+    )  # zero at boot
+    assert np.array_equal(later[VEL], x[VEL]) and not np.array_equal(later[POS], x[POS])  # position only
+
+
+@pytest.mark.unit
 def test_a_latency_reports_the_state_of_the_sample_that_long_ago():
     m = SensorModel(1, latency_s=0.05)
     states = [_x((k, 0.0, 0.0)) for k in range(20)]

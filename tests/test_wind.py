@@ -12,7 +12,7 @@ from sim_vehicles.common.command import AttitudeCommand
 from sim_vehicles.common.state import POS, VEL, make_state
 from sim_vehicles.plant.autopilot import Autopilot
 from sim_vehicles.plant.params import AttitudeGains, VehicleParams
-from sim_vehicles.plant.wind import WIND_DT_S, WindModel
+from sim_vehicles.plant.wind import WIND_DT_S, FrozenGusts, WindModel
 from swarm_sitl.config.load import ConfigError, parse_config
 from tests.conftest import CONFIGS
 
@@ -87,19 +87,42 @@ def test_wind_without_drag_or_a_negative_drag_is_one_line():
         parse_config(_paper(wind={"gust_mps": 1, "gust_time_s": 0}), "paper.yaml")
 
 
+@pytest.mark.unit
+def test_the_worlds_gusts_are_felt_alike_across_the_wind_and_later_downstream():
+    """``FrozenGusts``: one field, carried by the mean wind W = (5, 0, 0) m/s. Vehicles of
+    different ids level across the wind feel the same gust at every instant; one 2.5 m
+    downstream feels at t + 0.5 s what the first felt at t (50 gust samples); each vehicle's own
+    gusts (``WindModel``, by id) differ. In still mean air the world's gust is the same anywhere."""
+    kw = {"mean_mps": (5.0, 0.0, 0.0), "gust_mps": 1.0, "gust_time_s": 0.5, "seed": 4}
+    a, b, down = FrozenGusts(**kw), FrozenGusts(**kw), FrozenGusts(**kw)
+    here, across, there = np.array([1.0, 2.0, 3.0]), np.array([1.0, -7.0, 9.0]), np.array([3.5, 2.0, 3.0])
+    times = np.arange(0, 300) * WIND_DT_S + 1.0
+    first = np.array([a.update(t, here) for t in times])
+    assert np.array_equal(first, np.array([b.update(t, across) for t in times]))
+    later = np.array([down.update(t + 0.5, there) for t in times])
+    assert np.allclose(later, first, rtol=0, atol=1e-12)
+    assert first[:, 0].std() > 0.3  # (the gusts are there to be felt)
+    own = [WindModel(i, **kw) for i in (1, 2)]
+    assert not np.allclose([own[0].update(t, here) for t in times], [own[1].update(t, across) for t in times])
+    still = {**kw, "mean_mps": (0.0, 0.0, 0.0)}
+    assert np.array_equal(FrozenGusts(**still).update(2.0, here), FrozenGusts(**still).update(2.0, there))
+
+
 @pytest.mark.system
-def test_the_paper_swarm_in_wind_gusts_and_noisy_reports_flies_in_processes_as_in_sim(tmp_path):
+@pytest.mark.parametrize("air", ["independent", "frozen"])
+def test_the_paper_swarm_in_wind_gusts_and_noisy_reports_flies_in_processes_as_in_sim(tmp_path, air):
     import subprocess
     import sys
 
     from swarm_sitl.config.load import load_config
     from swarm_sitl.running.sim import run_sim
 
-    data = _paper(
-        duration_s=25.0, wind={"mean_mps": [5.0, 0.0, 0.0], "gust_mps": 1.0, "gust_time_s": 2.0, "seed": 3}
-    )
+    wind = {"mean_mps": [5.0, 0.0, 0.0], "gust_mps": 1.0, "gust_time_s": 2.0, "seed": 3, "model": air}
+    data = _paper(duration_s=25.0, wind=wind)
     data["vehicle"]["drag_Ns2pm2"] = 0.02
     data["vehicle"]["sensors"] = {"position_noise_m": 0.03, "seed": 1}
+    if air == "frozen":  # and a wandering bias on each vehicle's reported position
+        data["vehicle"]["sensors"]["position_bias_walk_m_per_sqrt_s"] = 0.002
     path = tmp_path / "windy.yaml"
     path.write_text(yaml.safe_dump(data))
     r = subprocess.run(

@@ -33,7 +33,7 @@ from sim_vehicles.plant.params import AttitudeGains, VehicleParams
 from sim_vehicles.plant.px4_control import GAINS, RANGES
 from sim_vehicles.plant.quad_x import AIRFRAME, QuadX
 from sim_vehicles.plant.sensors import SensorModel
-from sim_vehicles.plant.wind import WindModel
+from sim_vehicles.plant.wind import WIND_MODELS, WindModel
 
 
 def vehicle_params(spec: VehicleSpec) -> VehicleParams:
@@ -155,17 +155,25 @@ def build_vehicle(spec: VehicleSpec, system_id: int) -> VehicleModel:
     ap = model(spec, x0, 1.0 / spec.attitude_hz)
     w = spec.wind
     if w is not None and (any(w.mean_mps) or w.gust_mps > 0):
-        ap.wind = WindModel(system_id, w.mean_mps, w.gust_mps, w.gust_time_s, w.seed)
+        air = WIND_MODELS[w.model]  # the world's field is the same for every id: seeded by 0
+        ap.wind = air(
+            system_id=system_id if air is WindModel else 0,
+            mean_mps=w.mean_mps,
+            gust_mps=w.gust_mps,
+            gust_time_s=w.gust_time_s,
+            seed=w.seed,
+        )
     return ap
 
 
 def sensor_model(spec: VehicleSpec, system_id: int) -> SensorModel | None:
     """What vehicle ``system_id`` reports of its state (None: the true state)."""
     s = spec.sensors
-    if s is None or not any(
-        v > 0 for v in (s.position_noise_m, s.velocity_noise_mps, s.attitude_noise_rad, s.latency_s)
-    ):
+    if s is None:
+        return None
+    values = (s.position_noise_m, s.velocity_noise_mps, s.attitude_noise_rad, s.latency_s)
+    if not any(v > 0 for v in (*values, s.position_bias_walk_m_per_sqrt_s)):
         return None
     return SensorModel(
-        system_id, s.position_noise_m, s.velocity_noise_mps, s.attitude_noise_rad, s.latency_s, seed=s.seed
+        system_id, *values, seed=s.seed, position_bias_walk_m_per_sqrt_s=s.position_bias_walk_m_per_sqrt_s
     )

@@ -35,6 +35,9 @@ class Gusts:
     gust_mps: float = 0.0  #: standard deviation of each axis's gust [m/s]
     gust_time_s: float = 1.0  #: the gusts' correlation time [s]
     seed: int = 0  #: of the gusts
+    #: ``independent``: each vehicle's own gusts (``plant.wind.WindModel``); ``frozen``: the world's,
+    #: one field carried by the mean wind (``plant.wind.FrozenGusts``)
+    model: str = "independent"
 
 
 @dataclass(frozen=True)
@@ -46,6 +49,7 @@ class SensorNoise:
     attitude_noise_rad: float = 0.0  #: error rotation, per axis [rad]
     latency_s: float = 0.0  #: the report is the state this long ago [s]
     seed: int = 0  #: of the noise
+    position_bias_walk_m_per_sqrt_s: float = 0.0  #: the position's bias, a random walk [m/sqrt(s)]
 
 
 @dataclass(frozen=True)
@@ -106,9 +110,17 @@ class VehicleSpec:
             )
         if self.wind is not None and (self.wind.gust_mps < 0 or not self.wind.gust_time_s > 0):
             raise bad("wind", "gust_mps is zero or positive and gust_time_s positive")
+        if self.wind is not None and self.wind.model not in ("independent", "frozen"):
+            raise bad("wind", f"model must be independent or frozen, got {self.wind.model!r}")
         if self.sensors is not None:
             s = self.sensors
-            values = (s.position_noise_m, s.velocity_noise_mps, s.attitude_noise_rad, s.latency_s)
+            values = (
+                s.position_noise_m,
+                s.velocity_noise_mps,
+                s.attitude_noise_rad,
+                s.latency_s,
+                s.position_bias_walk_m_per_sqrt_s,
+            )
             if any(not (v >= 0) for v in values):
                 raise bad("sensors", "noise and latency are zero or positive")
 

@@ -18,7 +18,7 @@ import numpy as np
 
 from sim_vehicles.common.command import ZERO3, AttitudeCommand
 from sim_vehicles.common.jit import kernel, kernel_array
-from sim_vehicles.common.state import QUAT, RATE, STATE_SIZE
+from sim_vehicles.common.state import POS, QUAT, RATE, STATE_SIZE
 from sim_vehicles.plant.params import AttitudeGains, VehicleParams
 from sim_vehicles.plant.rigid_body import rk4_step, rk4_step_in_air
 from sim_vehicles.plant.torque_law import torque
@@ -133,6 +133,6 @@ class Autopilot:
         """Run ``n_steps`` attitude-loop steps holding the current command (in the wind of the
         instant they start, if there is one)."""
         if self.wind is not None:
-            self.wind_W[:] = self.wind.at(self.time_s)
+            self.wind_W[:] = self.wind.update(self.time_s, self.state[POS])
         self.state = advance_kernel(self.state, *self.kernel_args, int(n_steps))
         self.step_index += int(n_steps)

@@ -26,7 +26,7 @@ import numpy as np
 
 from sim_vehicles.common.command import AttitudeCommand
 from sim_vehicles.common.jit import kernel, kernel_array
-from sim_vehicles.common.state import QUAT, RATE, STATE_SIZE
+from sim_vehicles.common.state import POS, QUAT, RATE, STATE_SIZE
 from sim_vehicles.plant.params import VehicleParams
 from sim_vehicles.plant.px4_control import GAINS, RANGES, gain_vector, rate_control, rate_setpoint
 from sim_vehicles.plant.rigid_body import rk4_step, rk4_step_in_air
@@ -181,7 +181,7 @@ class QuadX:
     def advance(self, n_steps: int) -> None:
         """Run ``n_steps`` steps holding the current command (in the wind of the instant they start)."""
         if self.wind is not None:
-            self.wind_W[:] = self.wind.at(self.time_s)
+            self.wind_W[:] = self.wind.update(self.time_s, self.state[POS])
         p = self.params
         q_c, omega_c, thrust = self._args
         self.ext = advance_quad_kernel(

@@ -15,6 +15,11 @@ The air pushes the vehicle with quadratic drag, ``F = -drag_Ns2pm2 |v - w| (v - 
 ``drag_Ns2pm2`` is ``rho C_d A / 2``), so in a steady wind a free vehicle's velocity relative to the
 air decays as ``u(t) = u0 / (1 + drag u0 t / m)``. Pure: the wind at sample k is a function of
 the model and k.
+
+``WindModel`` is each vehicle's own air (its gusts seeded by its system id: vehicles a metre apart
+feel unrelated gusts); ``FrozenGusts`` is the world's (one gust field, carried by the mean wind:
+neighbours feel the same gust). Either is asked ``update(t, position)`` for the wind where the
+vehicle is.
 """
 
 import math
@@ -37,6 +42,11 @@ class WindModel:
     #: the newest gust sample asked for, and its index (the chain goes on from it; one asked for
     #: before it is drawn again from the chain's start)
     _last: tuple[int, np.ndarray] | None = field(default=None, repr=False)
+
+    def update(self, t_s: float, position_m: np.ndarray) -> np.ndarray:
+        """The wind at time ``t_s`` where the vehicle is (RotorPy's winds' call): here the same
+        anywhere, each vehicle's own (a new array)."""
+        return self.at(t_s)
 
     def index(self, t_s: float) -> int:
         """The gust sample in force at ``t_s``."""
@@ -65,3 +75,31 @@ class WindModel:
 
     def _normal(self, k: int) -> np.ndarray:
         return np.random.default_rng([self.seed, self.system_id, k, 77]).standard_normal(3)
+
+
+@dataclass
+class FrozenGusts(WindModel):
+    """The world's gusts, one field for every vehicle (Taylor's frozen turbulence): the gust
+    series of ``WindModel`` (seeded by the world alone, ``system_id`` 0) carried along by the
+    mean wind ``W``, so a vehicle at ``p`` feels at ``t`` the gust of ``tau = t - (p . W) / |W|^2``
+    (``WindModel.gust`` at ``tau``'s sample). Two vehicles level across the wind feel the same
+    gust at once; one ``d`` metres downstream feels it ``d / |W|`` seconds later. In still mean air
+    every vehicle feels the same gust at the same time. Before the field's first sample has
+    reached a vehicle (``tau < 0``) it feels that first sample.
+
+    Each vehicle (process or ``sim``) holds its own instance; they agree because the field is a
+    pure function of the seed and ``tau``."""
+
+    system_id: int = 0
+
+    def update(self, t_s: float, position_m: np.ndarray) -> np.ndarray:
+        w = np.array(self.mean_mps, dtype=float)
+        if self.gust_mps > 0:
+            speed2 = float(w @ w)
+            tau = t_s - float(np.asarray(position_m, dtype=float) @ w) / speed2 if speed2 > 0 else t_s
+            w += self.gust(max(0, self.index(tau)))
+        return w
+
+
+#: the wind models a config may name (``wind.model``): each vehicle's own gusts, or the world's
+WIND_MODELS = {"independent": WindModel, "frozen": FrozenGusts}

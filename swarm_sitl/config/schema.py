@@ -115,13 +115,14 @@ class SensorSpec(_Strict):
     attitude_noise_rad: Annotated[float, Field(ge=0)] = 0.0  #: Gaussian error rotation, per axis [rad]
     latency_s: Annotated[float, Field(ge=0)] = 0.0  #: the report is the state this long ago [s]
     seed: Annotated[int, Field(ge=0, lt=2**63)] = 0  #: of the noise: the same seed, the same noise
+    #: the position's bias, a random walk from zero at boot: its spread after t seconds is this
+    #: times sqrt(t) on each axis, as a GNSS-aided estimate drifts [m/sqrt(s)]
+    position_bias_walk_m_per_sqrt_s: Annotated[float, Field(ge=0)] = 0.0
 
     @property
     def enabled(self) -> bool:
-        return any(
-            v > 0
-            for v in (self.position_noise_m, self.velocity_noise_mps, self.attitude_noise_rad, self.latency_s)
-        )
+        noise = (self.position_noise_m, self.velocity_noise_mps, self.attitude_noise_rad, self.latency_s)
+        return any(v > 0 for v in (*noise, self.position_bias_walk_m_per_sqrt_s))
 
 
 class WindSpec(_Strict):
@@ -133,6 +134,11 @@ class WindSpec(_Strict):
     gust_mps: Annotated[float, Field(ge=0)] = 0.0  #: standard deviation of each axis's gust [m/s]
     gust_time_s: Annotated[float, Field(gt=0)] = 1.0  #: the gusts' correlation time [s]
     seed: Annotated[int, Field(ge=0, lt=2**63)] = 0  #: of the gusts
+    #: whose gusts: ``independent``, each vehicle's own (seeded with its id: neighbours feel
+    #: unrelated gusts); ``frozen``, the world's, one gust field carried by the mean wind (Taylor's
+    #: frozen turbulence: vehicles level across the wind feel the same gust at once, one ``d``
+    #: metres downstream ``d / |mean|`` seconds later; in still mean air, all at once)
+    model: Literal["independent", "frozen"] = "independent"
 
     @property
     def enabled(self) -> bool:
@@ -411,9 +417,16 @@ class SwarmConfig(_Strict):
             position_m=f.initial_position_m,
             velocity_mps=f.initial_velocity_mps,
             quaternion_wxyz=f.initial_quaternion_wxyz,
-            wind=vehicle_spec.Gusts(w.mean_mps, w.gust_mps, w.gust_time_s, w.seed) if w.enabled else None,
+            wind=vehicle_spec.Gusts(w.mean_mps, w.gust_mps, w.gust_time_s, w.seed, w.model)
+            if w.enabled
+            else None,
             sensors=vehicle_spec.SensorNoise(
-                s.position_noise_m, s.velocity_noise_mps, s.attitude_noise_rad, s.latency_s, s.seed
+                s.position_noise_m,
+                s.velocity_noise_mps,
+                s.attitude_noise_rad,
+                s.latency_s,
+                s.seed,
+                s.position_bias_walk_m_per_sqrt_s,
             )
             if s.enabled
             else None,
