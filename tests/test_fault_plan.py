@@ -10,7 +10,8 @@ import pytest
 import yaml
 
 from swarm_sitl.config.load import ConfigError, parse_config, with_faults
-from swarm_sitl.faults.plan import FaultPlan, FaultSpec, edge_channel, fate, uniform
+from swarm_sitl.faults.draws import uniform
+from swarm_sitl.faults.plan import FaultPlan, FaultSpec, edge_channel, fate
 from tests.conftest import CONFIGS
 
 pytestmark = pytest.mark.unit

@@ -2,11 +2,12 @@
 
 - ``plan``: the ``faults:`` section of a config, validated at load, and each message's fate, a
   pure function of the plan's seed and the message (``fate``): the same plan, the same run;
-- the link models a plan entry may name, each a pure function of the run's inputs: ``bursts``
+- the link models a plan entry may name, each a pure function of the run's inputs and a class
+  of one contract (``link_model``: also the plug-in point for a model of the user's, ``model:
+  {entry, params}``, ``docs/links.md``), registered in ``link_models``: ``loss`` (drop, loss),
+  ``delays`` (delay, stall, reorder), ``copies`` (duplicate, corrupt), ``bursts``
   (Gilbert-Elliott), ``radio_range`` (path loss with distance, retries), ``bandwidth`` (a node's
-  radio and its queue), with ``draws``, the seeded draws they and ``plan`` make; and
-  ``link_model``, the plug-in point for a link model of the user's (``model: {entry, params}``:
-  its contract, ``docs/links.md``);
+  radio and its queue), with ``draws``, the seeded draws they make;
 - ``edges``: the plan on a node's in-edges, a wrapper of its bus (``FaultyBus``);
 - ``mavlink``: the plan on a vehicle's MAVLink link, a wrapper of the controller's datagrams;
 - ``counts``: what those wrappers count per edge and per link, in memory or in a file that

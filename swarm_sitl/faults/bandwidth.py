@@ -27,6 +27,8 @@ from typing import Annotated
 
 from pydantic import BaseModel, ConfigDict, Field
 
+from swarm_sitl.faults.link_model import Effect, MessageOnLink
+
 KEEP_STEPS = 1024  #: how many of the newest steps' departures a queue keeps (messages come in order)
 
 
@@ -106,3 +108,13 @@ class RadioQueue:
                 ours = d - t
         self._in_air = in_air
         self._left.append(ours)
+
+
+class Budget:
+    """The link model of ``bandwidth:``: it acts at the sender's queue (``RadioQueue``, replayed by
+    each receiver: ``edges``), not on a message's fate here."""
+
+    Params = Bandwidth
+
+    def fate(self, p: Bandwidth, m: MessageOnLink) -> Effect | None:
+        return None

@@ -22,6 +22,8 @@ from typing import Annotated
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from swarm_sitl.faults.draws import uniform
+from swarm_sitl.faults.link_model import Effect, MessageOnLink
+from swarm_sitl.faults.loss import DRAW, LOST
 
 _STATE = 5  #: salt of the state-transition draws (``plan``'s loss draw is salt 1)
 
@@ -75,3 +77,14 @@ def state_at(model: GilbertElliott, seed: int, entry: int, channel: int, step: i
         bad = u >= model.r if bad else u < model.p
         states.append(bad)
     return bool(states[step])
+
+
+class Bursty:
+    """The link model of ``bursty:``: a message is lost with ``loss_bad`` or ``loss_good`` as the
+    entry's chain is in its bad or good state at the message's place in its stream."""
+
+    Params = GilbertElliott
+
+    def fate(self, p: GilbertElliott, m: MessageOnLink) -> Effect | None:
+        bad = state_at(p, m.seed, m.entry, m.channel, m.chain)
+        return LOST if m.uniform(DRAW) < (p.loss_bad if bad else p.loss_good) else None

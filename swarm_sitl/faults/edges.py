@@ -50,7 +50,8 @@ from swarm_sitl.bus.codec import Message, PayloadError, Status, decode_message, 
 from swarm_sitl.bus.node_bus import ZenohNodeBus
 from swarm_sitl.faults.bandwidth import RadioQueue
 from swarm_sitl.faults.counts import EdgeStats, counts_names
-from swarm_sitl.faults.plan import FaultPlan, FaultSpec, down_at, fate, uniform
+from swarm_sitl.faults.draws import uniform
+from swarm_sitl.faults.plan import FaultPlan, FaultSpec, down_at, fate
 from swarm_sitl.faults.plan import edge_channel as channel_of
 from swarm_sitl.faults.radio_range import distance_m
 

@@ -1,8 +1,9 @@
 """The link-model plug-in point: what happens to one message on one link, from what it needs.
 
-A fault plan names how a link fails. The built-in hows are this plan's keys (``drop``, ``loss``,
+A fault plan names how a link fails. The built-in hows are its keys (``drop``, ``loss``,
 ``bursty``, ``range``, ``bandwidth``, ``delay_s``, ``stall``, ``duplicate``, ``reorder``,
-``corrupt``: ``BUILTIN``, each with its parameters and their ranges); a user's own is an entry::
+``corrupt``), each a model of this contract in its own module (``link_models.LINK_MODELS``); a
+user's own is an entry::
 
     - {all_edges: true, model: {entry: "my_link.py:DistanceDelay", params: {speed_mps: 200}}}
 
@@ -34,20 +35,6 @@ from pydantic import BaseModel, ConfigDict, PrivateAttr, ValidationError, model_
 from sim_vehicles.common.entry import EntryError, load_entry, one_line
 from swarm_sitl.faults.draws import uniform
 
-#: the hows a plan knows without an entry: their parameters [unit] and ranges (``plan.FaultSpec``)
-BUILTIN = {
-    "drop": "every message lost (true)",
-    "loss": "probability each message is lost, 0 < p <= 1",
-    "bursty": "Gilbert-Elliott bursts: p, r in (0, 1], loss_bad, loss_good in [0, 1] (bursts.py)",
-    "range": "path loss: range_m, exponent, retry_s > 0, fading_db, retries >= 0 (radio_range.py)",
-    "bandwidth": "the sender's radio: rate_bps > 0, queue >= 0 (bandwidth.py)",
-    "delay_s": "a delay >= 0 [s], plus jitter_s >= 0 [s] uniform",
-    "stall": "held until until_s, released at once (true)",
-    "duplicate": "probability each message is delivered again a period later, 0 < p <= 1",
-    "reorder": "probability each message is held one period, 0 < p <= 1",
-    "corrupt": "probability one byte of each message is flipped, 0 < p <= 1",
-}
-
 
 class Effect(NamedTuple):
     """What a link model does to one message."""
@@ -56,6 +43,8 @@ class Effect(NamedTuple):
     corrupt: bool = False  #: one byte flipped (the receiver's checksum drops it)
     delay_s: float = 0.0  #: how much later than on time [s]
     duplicate: bool = False  #: delivered a second time, one period after the first
+    out_of_range: bool = False  #: lost because every attempt failed (``range``; counted apart)
+    retried: bool = False  #: got through at a second attempt or later (``range``)
 
 
 @dataclass(frozen=True)
@@ -69,6 +58,13 @@ class MessageOnLink:
     t_s: float  #: its time: simulated (lockstep, the time it was sent for) or run seconds (real time)
     period_s: float  #: the control period [s]
     distance_m: float = math.nan  #: sender to receiver when it was sent (``needs_distance``) [m]
+    #: its place in its stream, for a model with a chain of states (``bursty``: per tick in
+    #: lockstep, where a MAVLink datagram's ``step`` is its stamp in ms); default ``step``
+    chain_step: int = -1
+
+    @property
+    def chain(self) -> int:
+        return self.step if self.chain_step < 0 else self.chain_step
 
     def uniform(self, salt: int) -> float:
         """A uniform draw in [0, 1) of (seed, entry, link, step, ``salt``)."""
@@ -102,6 +98,16 @@ class ModelEntry(BaseModel):
             raise ValueError(f"params.{where}: {msg} (link model {self.entry})") from None
         self._model = cls()
         return self
+
+    @property
+    def model(self) -> Any:
+        """The model (an instance of the entry's class)."""
+        return self._model
+
+    @property
+    def parsed_params(self) -> Any:
+        """Its parameters, validated by its ``Params``."""
+        return self._params
 
     @property
     def needs_distance(self) -> bool:

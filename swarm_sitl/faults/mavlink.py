@@ -25,7 +25,8 @@ from typing import Any
 from sim_vehicles.runtime.counter_file import NamedCounts
 from swarm_sitl.bus.clock import RunClock
 from swarm_sitl.faults.counts import EdgeStats, counts_names
-from swarm_sitl.faults.plan import FaultPlan, fate, mavlink_channel, uniform
+from swarm_sitl.faults.draws import uniform
+from swarm_sitl.faults.plan import FaultPlan, fate, mavlink_channel
 
 _LOCAL_POSITION_NED = 32
 _CORRUPT_BYTE = 3

@@ -63,14 +63,14 @@ without waiting for something that will not come.
 
 import math
 from collections.abc import Iterable
-from typing import Annotated, Literal, NamedTuple
+from typing import Annotated, Any, Literal, NamedTuple
 
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, model_validator
 
 from swarm_sitl.faults.bandwidth import Bandwidth
-from swarm_sitl.faults.bursts import GilbertElliott, state_at
-from swarm_sitl.faults.draws import uniform
+from swarm_sitl.faults.bursts import GilbertElliott
 from swarm_sitl.faults.link_model import MessageOnLink, ModelEntry
+from swarm_sitl.faults.link_models import how_of
 from swarm_sitl.faults.radio_range import PathLoss
 
 Probability = Annotated[float, Field(gt=0, le=1)]
@@ -137,6 +137,8 @@ class FaultSpec(BaseModel):
     from_s: NonNegative = 0.0  #: the fault starts [s]
     until_s: Annotated[float, Field(gt=0)] | None = None  #: and ends [s] (default: the end of the run)
 
+    _how: Any = PrivateAttr(default=None)  #: ``link_how``, once asked
+
     @model_validator(mode="before")
     @classmethod
     def _partition_drops(cls, data: object) -> object:
@@ -200,6 +202,13 @@ class FaultSpec(BaseModel):
     @property
     def is_process(self) -> bool:
         return self.kill is not None or self.freeze_s is not None
+
+    @property
+    def link_how(self) -> tuple[Any, Any]:
+        """``(model, params)`` of a link entry (``link_models.how_of``), made once."""
+        if self._how is None:
+            self._how = how_of(self)
+        return self._how
 
     @property
     def process(self) -> str:
@@ -402,9 +411,6 @@ class Fate(NamedTuple):
 
 ON_TIME = Fate()
 
-#: salts of the independent draws one entry makes for one message
-_DRAW, _JITTER = 1, 2
-
 
 def fate(
     seed: int,
@@ -422,62 +428,27 @@ def fate(
     place in its stream, for a bursty entry's chain (default ``key``); ``distance_m``: between its
     sender and receiver when it was sent, for a range entry. A bandwidth entry acts at the
     sender's queue, not here (``edges``)."""
-    lost = corrupt = duplicate = retried = False
+    corrupt = duplicate = retried = False
     delay = 0.0
     acted: list[int] = []
+    chain = -1 if step is None else step
     for j, f in rules:
         if not f.active(t_s, end_s):
             continue
-        if f.bandwidth is not None:
+        model, params = f.link_how
+        effect = model.fate(params, MessageOnLink(seed, j, channel, key, t_s, period_s, distance_m, chain))
+        if effect is None:
             continue
-        if f.range is not None:
-            assert not math.isnan(distance_m), "a range entry needs the distance"
-            attempts = f.range.attempts(distance_m, seed, j, channel, key)
-            if attempts == 0:
-                return Fate(True, faults=(*acted, j), out_of_range=True)
-            if attempts == 1:
-                continue
-            retried = True
-            delay += (attempts - 1) * f.range.retry_s
-            acted.append(j)
-            continue
-        if f.model is not None:
-            m = MessageOnLink(seed, j, channel, key, t_s, period_s, distance_m)
-            effect = f.model.fate(m)
-            if effect is None:
-                continue
-            if effect.lost:
-                return Fate(True, False, 0.0, False, (*acted, j))
-            corrupt = corrupt or effect.corrupt
-            delay += effect.delay_s
-            duplicate = duplicate or effect.duplicate
-            acted.append(j)
-            continue
-        draw = uniform(seed, j, channel, key, _DRAW)
-        if f.bursty is not None:
-            bad = state_at(f.bursty, seed, j, channel, key if step is None else step)
-            if draw < (f.bursty.loss_bad if bad else f.bursty.loss_good):
-                return Fate(True, False, 0.0, False, (*acted, j))
-            continue
-        if f.drop or (f.loss is not None and draw < f.loss):
-            return Fate(True, False, 0.0, False, (*acted, j))
-        if f.corrupt is not None and draw < f.corrupt:
-            corrupt = True
-        elif f.delay_s is not None:
-            delay += f.delay_s + f.jitter_s * uniform(seed, j, channel, key, _JITTER)
-        elif f.stall:
-            assert f.until_s is not None
-            delay += f.until_s - t_s
-        elif f.reorder is not None and draw < f.reorder:
-            delay += period_s
-        elif f.duplicate is not None and draw < f.duplicate:
-            duplicate = True
-        else:
-            continue
+        if effect.lost:
+            return Fate(True, faults=(*acted, j), out_of_range=effect.out_of_range)
+        corrupt = corrupt or effect.corrupt
+        delay += effect.delay_s
+        duplicate = duplicate or effect.duplicate
+        retried = retried or effect.retried
         acted.append(j)
     if not acted:
         return ON_TIME
-    return Fate(lost, corrupt, delay, duplicate, tuple(acted), retried=retried)
+    return Fate(False, corrupt, delay, duplicate, tuple(acted), retried=retried)
 
 
 def tick_of(t_s: float, period_s: float) -> int:

@@ -31,6 +31,7 @@ from typing import Annotated
 from pydantic import BaseModel, ConfigDict, Field
 
 from swarm_sitl.faults.draws import uniform
+from swarm_sitl.faults.link_model import Effect, MessageOnLink
 
 _ATTEMPT = 16  #: salt of attempt 0's draw (attempt a: 16 + a; the plan's other draws use 1..5)
 _NEAR_M = 1e-9  #: distances are clamped up to this (two nodes at one point: the margin is finite)
@@ -82,3 +83,23 @@ class PathLoss(BaseModel):
 def distance_m(a: tuple[float, float, float], b: tuple[float, float, float]) -> float:
     """The distance between two points [m]."""
     return math.sqrt((a[0] - b[0]) ** 2 + (a[1] - b[1]) ** 2 + (a[2] - b[2]) ** 2)
+
+
+class Range:
+    """The link model of ``range:``: lost when every attempt fails at the message's distance,
+    else late by the retries it took."""
+
+    Params = PathLoss
+    needs_distance = True
+
+    def fate(self, p: PathLoss, m: MessageOnLink) -> Effect | None:
+        assert not math.isnan(m.distance_m), "a range entry needs the distance"
+        attempts = p.attempts(m.distance_m, m.seed, m.entry, m.channel, m.step)
+        if attempts == 0:
+            return OUT_OF_RANGE
+        if attempts == 1:
+            return None
+        return Effect(delay_s=(attempts - 1) * p.retry_s, retried=True)
+
+
+OUT_OF_RANGE = Effect(lost=True, out_of_range=True)

@@ -1,0 +1,46 @@
+"""The link models that make messages late: ``delay_s`` (a fixed delay plus a uniform jitter),
+``stall`` (held until the entry's end, then released at once) and ``reorder`` (held one period
+with a probability, so it comes after the next one). The contract: ``link_model``."""
+
+from typing import Annotated
+
+from pydantic import BaseModel, ConfigDict, Field
+
+from swarm_sitl.faults.link_model import Effect, MessageOnLink
+from swarm_sitl.faults.loss import DRAW
+
+JITTER = 2  #: the salt of a message's jitter draw
+
+
+class Delay:
+    """Each message ``delay_s`` late, plus a draw uniform in ``[0, jitter_s]``."""
+
+    class Params(BaseModel):
+        model_config = ConfigDict(extra="forbid", frozen=True)
+        delay_s: Annotated[float, Field(ge=0)]  #: [s]
+        jitter_s: Annotated[float, Field(ge=0)] = 0.0  #: [s]
+
+    def fate(self, p: Params, m: MessageOnLink) -> Effect:
+        return Effect(delay_s=p.delay_s + p.jitter_s * m.uniform(JITTER))
+
+
+class Stall:
+    """Every message held until ``until_s`` (the entry's end), then released at once."""
+
+    class Params(BaseModel):
+        model_config = ConfigDict(extra="forbid", frozen=True)
+        until_s: Annotated[float, Field(gt=0)]  #: when the held messages go [s]
+
+    def fate(self, p: Params, m: MessageOnLink) -> Effect:
+        return Effect(delay_s=p.until_s - m.t_s)
+
+
+class Reorder:
+    """Each message, with probability ``p``, held one period: it comes after the next one."""
+
+    class Params(BaseModel):
+        model_config = ConfigDict(extra="forbid", frozen=True)
+        p: Annotated[float, Field(gt=0, le=1)]
+
+    def fate(self, p: Params, m: MessageOnLink) -> Effect | None:
+        return Effect(delay_s=m.period_s) if m.uniform(DRAW) < p.p else None

@@ -1,0 +1,39 @@
+"""The link models that lose messages outright: ``drop`` (every one) and ``loss`` (each with a
+probability, an independent draw per message). The contract: ``link_model``."""
+
+from typing import Annotated
+
+from pydantic import BaseModel, ConfigDict, Field
+
+from swarm_sitl.faults.link_model import Effect, MessageOnLink
+
+DRAW = 1  #: the salt of a message's draw (shared by the one-draw models: loss, corrupt, reorder, duplicate)
+LOST = Effect(lost=True)
+
+
+class Drop:
+    """Every message is lost."""
+
+    class Params(BaseModel):
+        model_config = ConfigDict(extra="forbid", frozen=True)
+
+    def fate(self, p: Params, m: MessageOnLink) -> Effect:
+        return LOST
+
+
+class Chance:
+    """A model that does ``EFFECT`` to each message with probability ``p`` (one draw of the
+    message's, ``DRAW``): the base of ``Loss``, ``copies.Duplicate`` and ``copies.Corrupt``."""
+
+    EFFECT = LOST
+
+    class Params(BaseModel):
+        model_config = ConfigDict(extra="forbid", frozen=True)
+        p: Annotated[float, Field(gt=0, le=1)]  #: the probability it acts on a message
+
+    def fate(self, p: Params, m: MessageOnLink) -> Effect | None:
+        return self.EFFECT if m.uniform(DRAW) < p.p else None
+
+
+class Loss(Chance):
+    """Each message is lost with probability ``p``."""
