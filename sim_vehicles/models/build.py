@@ -31,7 +31,7 @@ from sim_vehicles.plant.autopilot import Autopilot
 from sim_vehicles.plant.contract import VehicleModel
 from sim_vehicles.plant.params import AttitudeGains, VehicleParams
 from sim_vehicles.plant.px4_control import GAINS, RANGES
-from sim_vehicles.plant.quad_x import AIRFRAME, QuadX
+from sim_vehicles.plant.quad_x import AIRFRAME, AIRFRAME_RANGES, QuadX
 from sim_vehicles.plant.sensors import SensorModel
 from sim_vehicles.plant.wind import WIND_MODELS, WindModel
 
@@ -53,19 +53,10 @@ def paper_vtol(spec: VehicleSpec, state0: np.ndarray, dt_s: float) -> VehicleMod
     return Autopilot(vehicle_params(spec), AttitudeGains(spec.l_q, spec.k_q), state0, dt_s)
 
 
-#: the airframe parameters of ``px4_quad_x`` and their ranges
-QUAD_AIRFRAME_RANGES = {
-    "Q_MAX_NM": (1e-6, 10.0),
-    "L_ROLL_M": (0.01, 5.0),
-    "L_PITCH_M": (0.01, 5.0),
-    "T_TAU_S": (0.0, 1.0),
-}
-
-
 def px4_quad_x(spec: VehicleSpec, state0: np.ndarray, dt_s: float) -> VehicleModel:
     """A rotor-level quadrotor in X under PX4's attitude and rate control (``plant.quad_x``),
     its airframe and gains from ``spec.params`` (PX4 SIH's quadrotor and PX4's defaults)."""
-    ranges = {**QUAD_AIRFRAME_RANGES, **RANGES}
+    ranges = {**AIRFRAME_RANGES, **RANGES}
     for name, value in spec.params.items():
         if name not in ranges:
             raise VehicleSpecError(

@@ -42,6 +42,13 @@ EXT_SIZE = STATE_SIZE + 10
 #: ``SIH_Q_MAX``, ``SIH_L_ROLL``, ``SIH_L_PITCH``, ``SIH_T_TAU``); its mass, inertia and largest
 #: collective thrust (4 ``T_MAX``) are the spec's
 AIRFRAME = {"Q_MAX_NM": 0.1, "L_ROLL_M": 0.2, "L_PITCH_M": 0.2, "T_TAU_S": 0.05}
+#: each airframe parameter's range (``spec.params`` is held to it when the model is built)
+AIRFRAME_RANGES = {
+    "Q_MAX_NM": (1e-6, 10.0),
+    "L_ROLL_M": (0.01, 5.0),
+    "L_PITCH_M": (0.01, 5.0),
+    "T_TAU_S": (0.0, 1.0),
+}
 
 
 @kernel
