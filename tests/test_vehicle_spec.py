@@ -193,3 +193,35 @@ def test_the_cli_says_the_notice_in_one_line_and_carries_on(tmp_path):
         f"swarm-sitl: notice: {path}: gains.l_q: the vehicle's attitude loop now, read as vehicle.l_q "
         "(move it there)"
     )
+
+
+@pytest.mark.unit
+def test_a_field_added_to_the_vehicle_spec_is_a_config_key_with_no_change_to_the_schema(monkeypatch):
+    """A parameter every model shares is one field of ``VehicleSpec`` (and its use in a model):
+    the config's ``vehicle:`` takes it as it is and hands it on, here a spec with one field more
+    (``motor_kv``); a key that is no field of either is still an unknown key, in one line."""
+    from swarm_sitl.config.load import ConfigError, parse_config
+
+    @dataclasses.dataclass(frozen=True)
+    class Extended(VehicleSpec):
+        motor_kv: float = 0.0
+        props: tuple[float, float] = (0.0, 0.0)
+
+    monkeypatch.setattr("sim_vehicles.models.spec.VehicleSpec", Extended)
+    data = yaml.safe_load((CONFIGS / "paper.yaml").read_text())
+    data["vehicle"].update(motor_kv=920.0, props=[5.0, 4.5])
+    spec = parse_config(data).vehicle_spec(2)
+    assert isinstance(spec, Extended) and spec.motor_kv == 920.0 and spec.props == (5.0, 4.5)
+    assert spec.mass_kg == 0.85  # (and everything else as before)
+    data["vehicle"]["motor_kvv"] = 1.0
+    with pytest.raises(ConfigError, match=r"^config: vehicle: motor_kvv: unknown key$"):
+        parse_config(data)
+    monkeypatch.undo()
+    data["vehicle"].pop("motor_kvv")
+    with pytest.raises(ConfigError, match="vehicle: motor_kv: unknown key"):  # the spec of today has none
+        parse_config(data)
+    for key in ("motor_kv", "props"):
+        data["vehicle"].pop(key)
+    for elsewhere in ("g_mps2", "position_m", "wind"):  # set from the config's other sections
+        with pytest.raises(ConfigError, match=f"vehicle: {elsewhere}: unknown key"):
+            parse_config({**data, "vehicle": {**data["vehicle"], elsewhere: 1.0}})

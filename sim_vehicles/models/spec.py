@@ -149,9 +149,9 @@ class VehicleSpec:
             raise VehicleSpecError(f"vehicle spec: unknown field(s) {', '.join(unknown)}")
         d = dict(data)
         try:
-            for name in ("inertia_kgm2", "max_rate_rps", "position_m", "velocity_mps", "quaternion_wxyz"):
-                if name in d:
-                    d[name] = tuple(d[name])
+            for f in fields(cls):  # JSON's lists back to the tuples the fields are
+                if isinstance(f.default, tuple) and isinstance(d.get(f.name), list):
+                    d[f.name] = tuple(d[f.name])
             if d.get("wind") is not None:
                 w = dict(d["wind"])
                 w["mean_mps"] = tuple(w.get("mean_mps", (0.0, 0.0, 0.0)))

@@ -7,6 +7,7 @@ Two sections are defined where they are used: ``zenoh`` (``bus.session.ZenohSpec
 ``faults`` (``faults.plan.FaultPlan``).
 """
 
+import dataclasses
 from typing import Annotated, Any, Literal
 
 import numpy as np
@@ -145,7 +146,17 @@ class WindSpec(_Strict):
         return any(self.mean_mps) or self.gust_mps > 0
 
 
+#: the fields of a vehicle's spec the config sets from its other sections (not ``vehicle:``'s)
+SET_ELSEWHERE = frozenset({"g_mps2", "attitude_hz", "position_m", "velocity_mps", "quaternion_wxyz", "wind"})
+
+
 class VehicleSpec(_Strict):
+    """Every follower's vehicle. Besides the keys below, ``vehicle:`` takes any other field of the
+    vehicle's spec (``sim_vehicles/models/spec.py``) as it is and hands it to the vehicle: a field
+    added there is a config key with no change here (a key that is neither is an unknown key)."""
+
+    model_config = ConfigDict(extra="allow", frozen=True)
+
     mass_kg: Positive  #: every follower's mass m [kg]
     inertia_kgm2: tuple[
         Positive, Positive, Positive
@@ -174,6 +185,14 @@ class VehicleSpec(_Strict):
     #: before; an old config is read with a notice)
     l_q: Positive = 16.0
     k_q: Positive = 16.0  #: ``paper_vtol``'s torque law: body-rate-error gain
+
+    @model_validator(mode="after")
+    def _spec_fields_only(self) -> "VehicleSpec":
+        spec_fields = {f.name for f in dataclasses.fields(vehicle_spec.VehicleSpec)}
+        unknown = sorted(set(self.model_extra or {}) - (spec_fields - SET_ELSEWHERE))
+        if unknown:
+            raise ValueError(f"{unknown[0]}: unknown key")
+        return self
 
 
 class FollowerSpec(_Strict):
@@ -401,6 +420,7 @@ class SwarmConfig(_Strict):
         what the run hands its vehicle process as one file."""
         v, f, w, s = self.vehicle, self.follower(i), self.wind, self.vehicle.sensors
         return vehicle_spec.VehicleSpec(
+            **{k: tuple(x) if isinstance(x, list) else x for k, x in (v.model_extra or {}).items()},
             mass_kg=v.mass_kg,
             inertia_kgm2=v.inertia_kgm2,
             max_thrust_N=v.max_thrust_N,
