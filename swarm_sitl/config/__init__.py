@@ -1,4 +1,5 @@
-"""A run described by one file: the schema (``schema``), reading a file into it with one-line
+"""A run described by one file: the schema (``schema``; its ``vehicle:`` and ``wind:`` sections in
+``vehicle_section``), reading a file into it with one-line
 errors (``load``), a generated swarm's config (``generator``, ``swarm-sitl new``) and the
 reference of every key (``reference``, ``docs/config.md``).
 

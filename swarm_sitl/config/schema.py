@@ -7,7 +7,6 @@ Two sections are defined where they are used: ``zenoh`` (``bus.session.ZenohSpec
 ``faults`` (``faults.plan.FaultPlan``).
 """
 
-import dataclasses
 from typing import Annotated, Any, Literal
 
 import numpy as np
@@ -16,10 +15,10 @@ from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, field_validator,
 
 from sim_vehicles.models import spec as vehicle_spec
 from sim_vehicles.models.build import check as model_check
-from sim_vehicles.plant.params import MAX_RATE_DEFAULT_RPS
 from swarm_sitl.bus.access import NodeKeys, node_keys
 from swarm_sitl.bus.session import ZenohSpec
 from swarm_sitl.config.law_entry import resolve, validate_params
+from swarm_sitl.config.vehicle_section import VehicleSpec, WindSpec
 from swarm_sitl.faults.plan import FaultPlan
 from swarm_sitl.laws.follower_law import HOLD_EXTRAPOLATE, HOLD_ZERO_ORDER, ControlGains
 from swarm_sitl.laws.graph import Graph, GraphError
@@ -104,95 +103,6 @@ class RatesSpec(_Strict):
 
 class GraphSpec(_Strict):
     edges: list[tuple[int, int] | tuple[int, int, Positive]]  #: [src, dst] or [src, dst, weight]
-
-
-class SensorSpec(_Strict):
-    """What each vehicle reports of its state (LOCAL_POSITION_NED, ATTITUDE_QUATERNION) as an
-    autopilot's estimator gives it (``sim_vehicles.plant.sensors``); the truth files keep the
-    true state. Off by default; ``sim`` reports the same, so a lockstep run still equals it."""
-
-    position_noise_m: Annotated[float, Field(ge=0)] = 0.0  #: Gaussian, per axis [m]
-    velocity_noise_mps: Annotated[float, Field(ge=0)] = 0.0  #: Gaussian, per axis [m/s]
-    attitude_noise_rad: Annotated[float, Field(ge=0)] = 0.0  #: Gaussian error rotation, per axis [rad]
-    latency_s: Annotated[float, Field(ge=0)] = 0.0  #: the report is the state this long ago [s]
-    seed: Annotated[int, Field(ge=0, lt=2**63)] = 0  #: of the noise: the same seed, the same noise
-    #: the position's bias, a random walk from zero at boot: its spread after t seconds is this
-    #: times sqrt(t) on each axis, as a GNSS-aided estimate drifts [m/sqrt(s)]
-    position_bias_walk_m_per_sqrt_s: Annotated[float, Field(ge=0)] = 0.0
-
-    @property
-    def enabled(self) -> bool:
-        noise = (self.position_noise_m, self.velocity_noise_mps, self.attitude_noise_rad, self.latency_s)
-        return any(v > 0 for v in (*noise, self.position_bias_walk_m_per_sqrt_s))
-
-
-class WindSpec(_Strict):
-    """The air every vehicle flies in (``sim_vehicles.plant.wind``): a mean wind plus gusts, a
-    first-order Gauss-Markov process per axis sampled every 10 ms, seeded per vehicle; it acts
-    through ``vehicle.drag_Ns2pm2``. Still by default; ``sim`` flies the same air."""
-
-    mean_mps: Vec3 = (0.0, 0.0, 0.0)  #: mean wind [m/s; ENU]
-    gust_mps: Annotated[float, Field(ge=0)] = 0.0  #: standard deviation of each axis's gust [m/s]
-    gust_time_s: Annotated[float, Field(gt=0)] = 1.0  #: the gusts' correlation time [s]
-    seed: Annotated[int, Field(ge=0, lt=2**63)] = 0  #: of the gusts
-    #: whose gusts: ``independent``, each vehicle's own (seeded with its id: neighbours feel
-    #: unrelated gusts); ``frozen``, the world's, one gust field carried by the mean wind (Taylor's
-    #: frozen turbulence: vehicles level across the wind feel the same gust at once, one ``d``
-    #: metres downstream ``d / |mean|`` seconds later; in still mean air, all at once)
-    model: Literal["independent", "frozen"] = "independent"
-
-    @property
-    def enabled(self) -> bool:
-        return any(self.mean_mps) or self.gust_mps > 0
-
-
-#: the fields of a vehicle's spec the config sets from its other sections (not ``vehicle:``'s)
-SET_ELSEWHERE = frozenset({"g_mps2", "attitude_hz", "position_m", "velocity_mps", "quaternion_wxyz", "wind"})
-
-
-class VehicleSpec(_Strict):
-    """Every follower's vehicle. Besides the keys below, ``vehicle:`` takes any other field of the
-    vehicle's spec (``sim_vehicles/models/spec.py``) as it is and hands it to the vehicle: a field
-    added there is a config key with no change here (a key that is neither is an unknown key)."""
-
-    model_config = ConfigDict(extra="allow", frozen=True)
-
-    mass_kg: Positive  #: every follower's mass m [kg]
-    inertia_kgm2: tuple[
-        Positive, Positive, Positive
-    ]  #: principal moments of inertia J (body x, y, z) [kg m^2]
-    #: the thrust a throttle of 1 gives; above the law's bound (``swarm-sitl check``) [N]
-    max_thrust_N: Positive
-    setpoint_timeout_s: Positive = 0.5  #: failsafe after this long without a valid setpoint
-    #: what the vehicle flies in failsafe (PX4's COM_OBL_ACT): a position hold at the point of
-    #: loss, or a landing (descending at 0.7 m/s holding its horizontal position)
-    failsafe_action: Literal["hold", "land"] = "hold"
-    #: commanded body rates are clipped to +- these (PX4's MC_ROLLRATE_MAX, MC_PITCHRATE_MAX,
-    #: MC_YAWRATE_MAX) [rad/s]; the default is PX4's largest setting, 1800 deg/s
-    max_rate_rps: tuple[Positive, Positive, Positive] = (MAX_RATE_DEFAULT_RPS,) * 3
-    sensors: SensorSpec = SensorSpec()  #: latency and noise of the state it reports
-    #: quadratic drag rho C_d A / 2: the air pushes with -drag |v - w| (v - w) [N s^2/m^2] (``wind``)
-    drag_Ns2pm2: Annotated[float, Field(ge=0)] = 0.0
-    #: the vehicle model (``sim_vehicles.models.build``): ``paper_vtol``, the paper's rigid body
-    #: given thrust and torque the instant they are asked for, its torque law as autopilot; or
-    #: ``px4_quad_x``, four rotors in X with motor lag, PX4's mixer and attitude and rate loops
-    #: (``docs/vehicles.md``)
-    model: str = "paper_vtol"
-    #: the model's own parameters by name, each in its range (``px4_quad_x``: Q_MAX_NM, L_ROLL_M,
-    #: L_PITCH_M, T_TAU_S and PX4's MC_* gains; PX4 SIH's quadrotor and PX4's defaults otherwise)
-    params: dict[str, float] = {}
-    #: ``paper_vtol``'s attitude loop, the paper's torque law: attitude-error gain (under ``gains``
-    #: before; an old config is read with a notice)
-    l_q: Positive = 16.0
-    k_q: Positive = 16.0  #: ``paper_vtol``'s torque law: body-rate-error gain
-
-    @model_validator(mode="after")
-    def _spec_fields_only(self) -> "VehicleSpec":
-        spec_fields = {f.name for f in dataclasses.fields(vehicle_spec.VehicleSpec)}
-        unknown = sorted(set(self.model_extra or {}) - (spec_fields - SET_ELSEWHERE))
-        if unknown:
-            raise ValueError(f"{unknown[0]}: unknown key")
-        return self
 
 
 class FollowerSpec(_Strict):
