@@ -8,7 +8,8 @@
 - ``metrics``: the summary's figures; ``rejoins``: whether the followers came back after a planned
   restart; ``plots``: the figures as PNG; ``mcap_export``: MCAP;
 - ``outputs``: the run directory written from what was recorded; ``whole_files``: each file
-  written whole or not at all.
+  written whole or not at all; ``provenance``: what made the run (versions, plug-ins' hashes,
+  seeds), in its summary.
 
 Compute, record, plot: nothing here runs a swarm.
 

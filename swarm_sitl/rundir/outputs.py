@@ -11,6 +11,7 @@ from swarm_sitl.config.schema import SwarmConfig
 from swarm_sitl.rundir.events import write_events
 from swarm_sitl.rundir.merge import inputs_and_links, run_events, vehicle_refusals
 from swarm_sitl.rundir.metrics import summarize
+from swarm_sitl.rundir.provenance import provenance
 from swarm_sitl.rundir.recording import Recording, write_run
 from swarm_sitl.rundir.rejoins import judge_rejoins
 
@@ -21,6 +22,7 @@ def write_outputs(cfg: SwarmConfig, rec: Recording, run_dir: Path, processes: bo
     masses = {f.id: cfg.vehicle.mass_kg for f in cfg.followers}
     gains = cfg.gain_dict() if cfg.law.is_paper else None
     summary = summarize(rec, gains, masses, cfg.gravity_mps2, cfg.run.settle_s, cfg.vehicle.max_thrust_N)
+    summary["provenance"] = provenance(cfg)
     if processes:
         events = run_events(cfg, run_dir)
         write_events(run_dir / "events.jsonl", events)
