@@ -398,10 +398,6 @@ class SwarmConfig(_Strict):
         return 1.0 / self.rates.control_hz
 
     @property
-    def attitude_dt_s(self) -> float:
-        return 1.0 / self.rates.attitude_hz
-
-    @property
     def n_control_steps(self) -> int:
         return round(self.duration_s * self.rates.control_hz)
 

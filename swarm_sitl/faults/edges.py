@@ -108,12 +108,8 @@ class FaultyBus:
         }
         self.stats = {s: EdgeStats() for s in sources}
         self._graph_edges = graph_edges
-        #: in-neighbours whose messages a range entry needs the distance of
-        self._ranged = {
-            s
-            for s, rules in self.rules.items()
-            if any(f.range is not None or (f.model is not None and f.model.needs_distance) for _, f in rules)
-        }
+        #: in-neighbours whose messages a link model needs the distance of (``range``'s, ...)
+        self._ranged = {s for s, rules in self.rules.items() if any(f.needs_distance for _, f in rules)}
         #: in-neighbours with a bandwidth budget, and their queues (made at their first message)
         self._budgeted = {
             s: f for s, rules in self.rules.items() for _, f in rules if f.bandwidth is not None
@@ -179,7 +175,7 @@ class FaultyBus:
                 return
             left_s = left
         d = math.nan
-        if src in self._ranged:  # a range entry, or a link model that needs the distance
+        if src in self._ranged:  # a link model needs the distance
             # Lockstep: this node's position of the message's own step. A message of step s is
             # decided when this node publishes s, or when it comes after that, and it comes before
             # this node publishes s + 1, which waits for it (one sender's messages come in order):

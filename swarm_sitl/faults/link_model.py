@@ -109,14 +109,6 @@ class ModelEntry(BaseModel):
         """Its parameters, validated by its ``Params``."""
         return self._params
 
-    @property
-    def needs_distance(self) -> bool:
-        return bool(getattr(self._model, "needs_distance", False))
-
-    def fate(self, m: MessageOnLink) -> Effect | None:
-        effect: Effect | None = self._model.fate(self._params, m)
-        return effect
-
     def describe(self) -> str:
         shown = ", ".join(f"{k} {v}" for k, v in self.params.items())
         return f"{self.entry.rpartition(':')[2]}" + (f" ({shown})" if shown else "")

@@ -211,6 +211,12 @@ class FaultSpec(BaseModel):
         return self._how
 
     @property
+    def needs_distance(self) -> bool:
+        """Whether a link entry's model reads the distance between sender and receiver
+        (``range``, or a model of the user's that says so): its receiver gives it."""
+        return bool(getattr(self.link_how[0], "needs_distance", False))
+
+    @property
     def process(self) -> str:
         """The process this entry acts on, as the supervisor names it (``controller_2``, ``leader``)."""
         if self.controller is not None:

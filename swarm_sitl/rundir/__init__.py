@@ -5,8 +5,9 @@
 - ``events``: what happened, merged from every process and the plan;
 - ``merge``: the processes' raw records into a ``Recording``, and the summary's per-edge counts;
 - ``load``: a run directory read back;
-- ``metrics``: the summary's figures; ``rejoins``: whether the followers came back after a planned
-  restart; ``plots``: the figures as PNG; ``mcap_export``: MCAP;
+- ``metrics``: the summary's figures (``settling``: when an error settles); ``rejoins``:
+  whether the followers came back after a planned restart; ``plots``: the figures as PNG;
+  ``mcap_export``: MCAP;
 - ``outputs``: the run directory written from what was recorded; ``whole_files``: each file
   written whole or not at all; ``provenance``: what made the run (versions, plug-ins' hashes,
   seeds), in its summary.

@@ -6,19 +6,11 @@ import numpy as np
 
 from swarm_sitl.rundir.recording import Recording
 from swarm_sitl.rundir.rejoins import rejoin_lines
+from swarm_sitl.rundir.settling import time_to_converge
 
 
 def _norm(a: np.ndarray) -> np.ndarray:
     return np.linalg.norm(a, axis=1)
-
-
-def time_to_converge(t: np.ndarray, err: np.ndarray, tol: float) -> float | None:
-    """First time after which ``err`` stays at or below ``tol`` to the end (None if never)."""
-    above = np.nonzero(~(err <= tol))[0]
-    if above.size == 0:
-        return float(t[0])
-    last = above[-1]
-    return None if last + 1 >= t.size else float(t[last + 1])
 
 
 def summarize(

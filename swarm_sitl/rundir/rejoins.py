@@ -25,6 +25,7 @@ from typing import Any
 import numpy as np
 
 from swarm_sitl.laws.graph import Graph
+from swarm_sitl.rundir.settling import time_to_converge
 
 #: the rejoin bound without ``run.max_formation_error_m`` [m]: the summary's first convergence
 #: level (``time_to_0.1m_s``)
@@ -41,18 +42,6 @@ def dependants(graph: Graph, process: str) -> list[int]:
             return []
         node = int(num)
     return sorted(graph.reached_from(node) - {0})
-
-
-def _back_at(t: np.ndarray, err: np.ndarray, bound_m: float) -> float | None:
-    """The first of ``t`` from which ``err`` stays at or below ``bound_m`` to the end (None: it is
-    above at the last sample, or there are none)."""
-    if not t.size:
-        return None
-    above = np.nonzero(~(err <= bound_m))[0]
-    if not above.size:
-        return float(t[0])
-    last = int(above[-1])
-    return None if last + 1 >= t.size else float(t[last + 1])
 
 
 def judge_rejoins(
@@ -84,7 +73,7 @@ def judge_rejoins(
             err = np.linalg.norm(a["pos_err_m"], axis=1)
             t = a["t_s"]
             ok = np.isfinite(t) & np.isfinite(err) & (t >= t_r) & (t <= until)
-            back = _back_at(t[ok], err[ok], bound)
+            back = time_to_converge(t[ok], err[ok], bound)
             back_after = None if back is None else round(back - t_r, 6)
             if back_after is not None and back_after <= within_s:
                 verdict = "rejoined"

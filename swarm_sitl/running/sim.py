@@ -25,12 +25,11 @@ from sim_vehicles.mavlink.wire_format import (
     sample_fields,
     sample_from_fields,
 )
-from sim_vehicles.models.build import sensor_model as vehicle_sensors
-from sim_vehicles.plant.sensors import SensorModel
+from sim_vehicles.models.build import build_vehicle, sensor_model
 from swarm_sitl.bus.codec import Message
 from swarm_sitl.config.schema import SwarmConfig
 from swarm_sitl.laws.contract import Received, VehicleSample
-from swarm_sitl.nodes.assembly import build_autopilot, build_law, build_leader, reported_vehicle_params
+from swarm_sitl.nodes.assembly import build_law, build_leader, reported_vehicle_params
 from swarm_sitl.nodes.law_host import LawError
 from swarm_sitl.rundir.recording import FollowerSeries, Recording, leader_series
 
@@ -50,11 +49,6 @@ def sample_through_wire(t_s: float, state: np.ndarray) -> VehicleSample:
     return VehicleSample(t_s, s[SAMPLE_P], s[SAMPLE_V], s[SAMPLE_Q])
 
 
-def sensor_model(cfg: SwarmConfig, i: int) -> SensorModel | None:
-    """Follower ``i``'s vehicle's sensor model, as its process builds it (None: off)."""
-    return vehicle_sensors(cfg.vehicle_spec(i), i)
-
-
 def run_sim(
     cfg: SwarmConfig, n_steps: int | None = None, progress: Callable[[int], None] | None = None
 ) -> Recording:
@@ -64,14 +58,15 @@ def run_sim(
     graph = cfg.build_graph()
     leader = build_leader(cfg)
     laws = {i: build_law(cfg, i, *reported_vehicle_params(cfg)) for i in ids}
-    aps = {i: build_autopilot(cfg, i) for i in ids}
+    specs = {i: cfg.vehicle_spec(i) for i in ids}  # each vehicle as its process builds it
+    aps = {i: build_vehicle(specs[i], i) for i in ids}
     series = {i: FollowerSeries(n + 1, laws[i].law.record_fields) for i in ids}
     sources = {i: graph.in_neighbours(i) for i in ids}
     max_thrust = cfg.vehicle.max_thrust_N
     n_att = cfg.rates.attitude_steps_per_control
     dt = cfg.control_dt_s
     latest: dict[int, Message] = {}
-    sensors = {i: sensor_model(cfg, i) for i in ids}  # (None: the true state is sampled)
+    sensors = {i: sensor_model(specs[i], i) for i in ids}  # (None: the true state is sampled)
 
     def recording() -> Recording:
         t_s = np.arange(n + 1) * dt
