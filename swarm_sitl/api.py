@@ -87,8 +87,8 @@ class SwarmResult:
 class Swarm:
     """A swarm to run: a config (path or ``SwarmConfig``), a fault plan, a clock.
 
-    ``faults``: a list of plan entries, a ``{seed, plan}`` mapping or a YAML file; ``seed``
-    overrides the plan's. ``out``: the run directory (default: a temporary one, removed when the
+    ``faults``: a list of plan entries, a ``{seed, plan}`` mapping or a YAML file; ``seed``: the
+    run's seed, of every random stream whose section does not pin its own (``config.seeds``). ``out``: the run directory (default: a temporary one, removed when the
     ``with`` block ends unless ``keep=True``)."""
 
     def __init__(
@@ -103,10 +103,12 @@ class Swarm:
         **run: Any,
     ):
         cfg = config if isinstance(config, SwarmConfig) else load_config(config)
-        data = cfg.model_dump(mode="json")
-        plan = plan_data(faults, seed)
+        data = cfg.data()
+        plan = plan_data(faults)
         if plan is not None:
             data["faults"] = {**data["faults"], **plan}
+        if seed is not None:  # the run's seed: every stream whose section does not pin its own
+            data["seed"] = seed
         if run:  # run.* settings, e.g. max_formation_error_m=0.05
             data["run"] = {**data["run"], **run}
         self.config = parse_config(data, "Swarm")
@@ -132,7 +134,7 @@ class Swarm:
 
         cfg = self.config
         if duration_s is not None:
-            cfg = parse_config({**cfg.model_dump(mode="json"), "duration_s": float(duration_s)}, "duration_s")
+            cfg = parse_config({**cfg.data(), "duration_s": float(duration_s)}, "duration_s")
         assert self.out is not None
         self._runs += 1
         run_dir = self.out if self._runs == 1 else self.out.with_name(f"{self.out.name}-{self._runs}")

@@ -43,12 +43,12 @@ def test_values_are_a_range_with_its_end_or_a_list_and_a_bad_one_is_one_line():
 
 @pytest.mark.unit
 def test_a_point_puts_one_entry_per_follower_and_sets_config_paths(paper_cfg):
-    base = paper_cfg.model_dump(mode="json")
+    base = paper_cfg.data()
     data = point_data(
         base, {"link.loss": 0.3, "link.delay_s": 0.1, "link.jitter_s": 0.02, "gains.k_p": 9.0}, 7
     )
     ids = [f["id"] for f in base["followers"]]
-    assert data["faults"]["seed"] == 7 and data["gains"]["k_p"] == 9.0
+    assert data["seed"] == 7 and "seed" not in data["faults"] and data["gains"]["k_p"] == 9.0
     assert data["faults"]["plan"] == [{"into": i, "loss": 0.3} for i in ids] + [
         {"into": i, "delay_s": 0.1, "jitter_s": 0.02} for i in ids
     ]
@@ -73,7 +73,7 @@ def test_a_point_puts_one_entry_per_follower_and_sets_config_paths(paper_cfg):
 
 @pytest.mark.unit
 def test_a_link_models_parameters_make_one_entry_on_every_edge_and_a_missing_one_is_named(paper_cfg):
-    base = paper_cfg.model_dump(mode="json")
+    base = paper_cfg.data()
     data = point_data(
         base,
         {

@@ -42,12 +42,15 @@ def test_a_hovering_vehicle_is_carried_by_a_steady_wind_as_quadratic_drag_says()
 
 
 @pytest.mark.unit
-def test_the_gusts_have_their_spread_and_correlation_time():
+@pytest.mark.parametrize("tau", [0.25, 0.5])
+def test_the_gusts_have_their_spread_and_correlation_time(tau):
     """Pooled over seeds and axes: each axis's standard deviation is gust_mps and its
-    autocorrelation at one correlation time exp(-1). An AR(1) series of n samples with coefficient a
-    estimates its variance as n (1 - a^2) / (1 + a^2) independent samples would: five standard
-    errors of that."""
-    sigma, tau, n, seeds = 1.5, 0.5, 5000, 8
+    autocorrelation at one correlation time exp(-1), within five standard errors of an AR(1)
+    series with coefficient a: the variance estimate counts n (1 - a^2) / (1 + a^2) independent
+    samples, and the autocorrelation r_h at lag h has Bartlett's variance
+    ((1 + a^2)(1 - a^2h) / (1 - a^2) - 2 h a^2h) / n per series. The other correlation times
+    tau / 2 and 2 tau give exp(-2) and exp(-1/2) there, many standard errors away."""
+    sigma, n, seeds = 1.5, 5000, 8
     models = [WindModel(2, gust_mps=sigma, gust_time_s=tau, seed=s) for s in range(seeds)]
     g = np.array([[m.gust(k) for k in range(n)] for m in models])  # (seed, sample, axis)
     a = math.exp(-WIND_DT_S / tau)
@@ -55,7 +58,11 @@ def test_the_gusts_have_their_spread_and_correlation_time():
     assert abs(g.std() / sigma - 1) < 5 / math.sqrt(2 * n_eff), g.std()
     lag = round(tau / WIND_DT_S)
     corr = np.mean([np.corrcoef(g[s, :-lag, i], g[s, lag:, i])[0, 1] for s in range(seeds) for i in range(3)])
-    assert abs(corr - math.exp(-1)) < 5 * math.sqrt(1 / n_eff) * 3, corr
+    a2h = a ** (2 * lag)
+    var_one = ((1 + a * a) * (1 - a2h) / (1 - a * a) - 2 * lag * a2h) / (n - lag)
+    tol = 5 * math.sqrt(var_one / (seeds * 3))
+    assert abs(corr - math.exp(-1)) < tol, (corr, tol)
+    assert min(abs(math.exp(-2) - math.exp(-1)), abs(math.exp(-0.5) - math.exp(-1))) > 2 * tol
     steady = WindModel(1, (3.0, -4.0, 0.0))
     assert steady.at(0.0).tolist() == [3.0, -4.0, 0.0] == steady.at(123.4).tolist()
     w = WindModel(1, (3.0, 0.0, 0.0), gust_mps=1.0, seed=5)
@@ -71,6 +78,26 @@ def _paper(**over) -> dict:
     for k, v in over.items():
         data[k] = v
     return data
+
+
+@pytest.mark.unit
+def test_the_gusts_start_from_their_stationary_law_and_each_vehicle_has_its_own():
+    """The first sample over 400 seeds has standard deviation gust_mps (a chain started at 0 would
+    give 0 there), within five standard errors of a variance estimate of 1200 normal draws; two
+    vehicles' series in one air are uncorrelated (|r| below five standard errors of a correlation
+    of independent AR(1) series: variance (1 + a^2) / ((1 - a^2) n))."""
+    sigma, tau = 2.0, 0.3
+    first = np.array([WindModel(1, gust_mps=sigma, gust_time_s=tau, seed=s).gust(0) for s in range(400)])
+    assert abs(first.std() / sigma - 1) < 5 / math.sqrt(2 * first.size), first.std()
+    n = 4000
+    one, two = (WindModel(i, gust_mps=sigma, gust_time_s=tau, seed=3) for i in (1, 2))
+    g1 = np.array([one.gust(k) for k in range(n)])
+    g2 = np.array([two.gust(k) for k in range(n)])
+    a = math.exp(-WIND_DT_S / tau)
+    tol = 5 * math.sqrt((1 + a * a) / ((1 - a * a) * n))
+    for i in range(3):
+        assert abs(np.corrcoef(g1[:, i], g2[:, i])[0, 1]) < tol, i
+    assert tol < 0.5  # a shared series would give r = 1
 
 
 @pytest.mark.unit

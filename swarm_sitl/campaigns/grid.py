@@ -136,8 +136,8 @@ def check_key(key: str) -> None:
 
 
 def point_data(base: dict[str, Any], point: dict[str, float], seed: int) -> dict[str, Any]:
-    """The config data of one run: ``base`` (a config's ``model_dump``) with ``point``'s values
-    and the plan's seed; link shorthands add their entries after the base plan's."""
+    """The config data of one run: ``base`` (a config's ``data()``) with ``point``'s values
+    and the run's seed; link shorthands add their entries after the base plan's."""
     import copy
 
     data = copy.deepcopy(base)
@@ -181,7 +181,7 @@ def point_data(base: dict[str, Any], point: dict[str, float], seed: int) -> dict
             entries += [{"mavlink": i, how: mav[how]} for i in followers]
     faults = data.setdefault("faults", {})
     faults["plan"] = [*faults.get("plan", []), *entries]
-    faults["seed"] = seed
+    data["seed"] = seed  # the run's: every random stream the base does not pin (config.seeds)
     return data
 
 

@@ -89,7 +89,7 @@ def _base(
     config: str | Path | SwarmConfig, faults: Any, duration_s: float | None, bound_m: float | None
 ) -> dict:
     cfg = config if isinstance(config, SwarmConfig) else load_config(config)
-    data = cfg.model_dump(mode="json")
+    data = cfg.data()
     plan = plan_data(faults)
     if plan is not None:
         data["faults"] = {**data["faults"], **plan}

@@ -23,6 +23,7 @@ from swarm_sitl.commands.law_check import render_law_check
 from swarm_sitl.config.generator import FORMATIONS, GRAPHS, TRAJECTORIES, GeneratorError, generate
 from swarm_sitl.config.law_entry import LawEntryError, absolute_entry, is_file_entry, split_entry
 from swarm_sitl.config.load import ConfigError, load_config
+from swarm_sitl.config.seeds import seed_lines
 from swarm_sitl.laws.gain_conditions import check_gains
 from swarm_sitl.laws.gain_report import render
 from swarm_sitl.rundir.events import read_events
@@ -37,6 +38,7 @@ from swarm_sitl.rundir.whole_files import WriteError
 def cmd_check(args: argparse.Namespace) -> int:
 
     cfg = load(args.config)
+    print("\n".join(seed_lines(cfg)))
     if not cfg.law.is_paper:
         text, ok = render_law_check(cfg, args.config)
         print(text)

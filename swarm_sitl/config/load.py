@@ -107,6 +107,15 @@ def load_config(path: str | Path) -> SwarmConfig:
     return cfg
 
 
+def with_seed(cfg: SwarmConfig, seed: int | None) -> SwarmConfig:
+    """``cfg`` with the run seed ``seed`` (``--seed``) in place of its own; ``cfg`` itself for None."""
+    if seed is None:
+        return cfg
+    if not 0 <= seed < 2**63:
+        raise ConfigError(f"--seed must be an integer from 0 to 2**63 - 1, got {seed}")
+    return parse_config({**cfg.data(), "seed": seed}, "--seed")
+
+
 def with_duration(cfg: SwarmConfig, duration_s: float | None) -> SwarmConfig:
     """``cfg`` with ``duration_s`` (``--duration``) in place of its own, validated again (a fault
     plan's times must fall within it); ``cfg`` itself for None."""
@@ -114,7 +123,7 @@ def with_duration(cfg: SwarmConfig, duration_s: float | None) -> SwarmConfig:
         return cfg
     if not 0 < duration_s < math.inf:
         raise ConfigError(f"--duration must be a number of seconds > 0, got {duration_s}")
-    return parse_config({**cfg.model_dump(mode="json"), "duration_s": float(duration_s)}, "--duration")
+    return parse_config({**cfg.data(), "duration_s": float(duration_s)}, "--duration")
 
 
 def _plan_relative_to(faults: dict[str, Any], p: Path) -> dict[str, Any]:
@@ -144,17 +153,17 @@ def with_faults(cfg: SwarmConfig, path: str | Path) -> SwarmConfig:
         data = data["faults"]
     if not isinstance(data, dict):
         raise ConfigError(f"{p}: expected a fault plan (seed, plan) at the top level")
-    merged = {**cfg.model_dump(mode="json"), "faults": _plan_relative_to(data, p)}
+    merged = {**cfg.data(), "faults": _plan_relative_to(data, p)}
     try:
         return SwarmConfig.model_validate(merged)
     except ValidationError as err:
         raise ConfigError(f"{p}: {_describe(err)}") from None
 
 
-def plan_data(faults: Any, seed: int | None = None) -> dict[str, Any] | None:
+def plan_data(faults: Any) -> dict[str, Any] | None:
     """``faults`` as the ``faults:`` mapping: a list of entries, a mapping, or a YAML file."""
     if faults is None:
-        return None if seed is None else {"seed": seed}
+        return None
     if isinstance(faults, str | Path):
         try:
             data = yaml.safe_load(Path(faults).read_text())
@@ -165,4 +174,4 @@ def plan_data(faults: Any, seed: int | None = None) -> dict[str, Any] | None:
         faults = {"plan": faults}
     if not isinstance(faults, dict):
         raise ConfigError("faults: expected a list of entries, a mapping (seed, plan) or a file")
-    return {**faults, **({} if seed is None else {"seed": seed})}
+    return dict(faults)

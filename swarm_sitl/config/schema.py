@@ -18,6 +18,7 @@ from sim_vehicles.models.build import check as model_check
 from swarm_sitl.bus.access import NodeKeys, node_keys
 from swarm_sitl.bus.session import ZenohSpec
 from swarm_sitl.config.law_entry import resolve, validate_params
+from swarm_sitl.config.seeds import STREAMS, derive_seeds, stream_seed, without_derived_seeds
 from swarm_sitl.config.vehicle_section import VehicleSpec, WindSpec
 from swarm_sitl.faults.plan import FaultPlan
 from swarm_sitl.laws.follower_law import HOLD_EXTRAPOLATE, HOLD_ZERO_ORDER, ControlGains
@@ -144,8 +145,9 @@ class LawSpec(_Strict):
     entry: str = PAPER_LAW
     #: the law's own parameters, validated by its ``Params`` if it declares one
     params: dict[str, Any] = {}
-    #: seeds each follower's ``LawContext.rng`` (with its id): the only randomness a law may use
-    seed: int = 0
+    #: seeds each follower's ``LawContext.rng`` (with its id): the only randomness a law may use.
+    #: Unset: the run's ``seed``
+    seed: Annotated[int, Field(ge=0, lt=2**63)] = 0
 
     @model_validator(mode="after")
     def _flies(self) -> "LawSpec":
@@ -239,7 +241,12 @@ class SwarmConfig(_Strict):
     run: RunSpec = RunSpec()  #: limits and pacing of a multi-process run
     faults: FaultPlan = FaultPlan()  #: what fails, how and when (``faults``)
     wind: WindSpec = WindSpec()  #: the air the vehicles fly in (still by default)
+    #: the run's seed: every random stream (the fault plan's draws, the gusts, the sensor noise, the
+    #: law's ``rng``) derives from it unless its section sets its own seed (``seeds.py``)
+    seed: Annotated[int, Field(ge=0, lt=2**63)] = 0
 
+    #: the random streams whose section sets its own seed (the others take the run's)
+    _pinned: frozenset[str] = PrivateAttr(default=frozenset())
     #: one line each on what the config says the old way (read, and how to write it now)
     _notices: list[str] = PrivateAttr(default_factory=list)
 
@@ -258,7 +265,9 @@ class SwarmConfig(_Strict):
                     vehicle[k] = data["gains"][k]
                 gains = {k: v for k, v in data["gains"].items() if k not in moved}
                 data = {**data, "gains": gains, "vehicle": vehicle}
+        data, pinned = derive_seeds(data)
         cfg = handler(data)
+        cfg._pinned = pinned
         if moved:
             old, new = (", ".join(f"{where}.{k}" for k in moved) for where in ("gains", "vehicle"))
             them = "them" if len(moved) > 1 else "it"
@@ -404,5 +413,14 @@ class SwarmConfig(_Strict):
     def gain_dict(self) -> dict[str, float]:
         return dict(self.gains.model_dump())
 
+    def seed_streams(self) -> dict[str, tuple[int, bool]]:
+        """Each random stream's seed, and whether its section pins it (else: the run's ``seed``)."""
+        return {name: (int(stream_seed(self, name)), name in self._pinned) for name in STREAMS}
+
+    def data(self) -> dict[str, Any]:
+        """The config as plain data that validates to it again: the streams that take the run's
+        seed are left so (their seeds not written), so another ``seed`` moves them all."""
+        return without_derived_seeds(self.model_dump(mode="json"), self._pinned)
+
     def to_yaml(self) -> str:
-        return yaml.safe_dump(self.model_dump(mode="json"), sort_keys=False)
+        return yaml.safe_dump(self.data(), sort_keys=False)

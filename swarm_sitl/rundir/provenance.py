@@ -85,10 +85,6 @@ def provenance(cfg: SwarmConfig) -> dict[str, Any]:
             what: {"entry": entry, "sha256": file_sha256(_source_file(entry))}
             for what, entry in entries.items()
         },
-        "seeds": {
-            "faults": cfg.faults.seed,
-            "law": cfg.law.seed,
-            "wind": cfg.wind.seed,
-            "sensors": cfg.vehicle.sensors.seed,
-        },
+        "seeds": {"run": cfg.seed, **{name: seed for name, (seed, _) in cfg.seed_streams().items()}},
+        "pinned_seeds": sorted(name for name, (_, pinned) in cfg.seed_streams().items() if pinned),
     }
