@@ -88,7 +88,8 @@ class Swarm:
     """A swarm to run: a config (path or ``SwarmConfig``), a fault plan, a clock.
 
     ``faults``: a list of plan entries, a ``{seed, plan}`` mapping or a YAML file; ``seed``: the
-    run's seed, of every random stream whose section does not pin its own (``config.seeds``). ``out``: the run directory (default: a temporary one, removed when the
+    run's seed, of every random stream whose section does not pin its own (``config.seeds``).
+    ``out``: the run directory (default: a temporary one, removed when the
     ``with`` block ends unless ``keep=True``)."""
 
     def __init__(

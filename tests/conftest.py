@@ -27,6 +27,24 @@ def page_command(cmd: str, cwd: Path) -> "subprocess.CompletedProcess[str]":
 
 
 CONFIGS = ROOT / "configs"
+
+
+def processes_mentioning(text: str) -> list[int]:
+    """Live processes whose command line contains ``text`` (a run directory): what a run left."""
+    found = []
+    for d in Path("/proc").iterdir():
+        if not d.name.isdigit():
+            continue
+        try:
+            cmd = (d / "cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
+            state = (d / "stat").read_text().rsplit(")", 1)[1].split()[0]
+        except OSError:
+            continue
+        if text in cmd and state != "Z":
+            found.append(int(d.name))
+    return found
+
+
 #: every test is one of these (``pyproject.toml`` says what each means; ``-m`` selects them)
 LAYERS = ("unit", "integration", "system")
 #: system-test files that run in lockstep or ``sim`` only: nothing in them reads the wall clock
@@ -41,6 +59,7 @@ LOCKSTEP_ONLY = {
     "test_consensus_pd.py",
     "test_full_disk.py",
     "test_law_contract.py",
+    "test_misbehaving_laws.py",
     "test_leader_restart.py",
     "test_counts_across_restarts.py",
     "test_quad_swarm.py",

@@ -17,10 +17,9 @@ import pytest
 import yaml
 
 from swarm_sitl.rundir.load import load_run
-from tests.conftest import CONFIGS
+from tests.conftest import CONFIGS, processes_mentioning
 from tests.test_swarm_processes import (
     _cmdline,
-    _processes_mentioning,
     _start_run,
     _udp_free,
     _vehicle_ports,
@@ -190,16 +189,14 @@ def test_an_unplanned_stop_fails_the_run_naming_the_stopped_process(tmp_path):
     proc = _start_run(out, "--duration", 60)
     _wait_running(out)
     victim = [
-        p
-        for p in _processes_mentioning(str(out))
-        if "--id 3" in _cmdline(p) and " controller " in _cmdline(p)
+        p for p in processes_mentioning(str(out)) if "--id 3" in _cmdline(p) and " controller " in _cmdline(p)
     ]
     assert len(victim) == 1
     os.kill(victim[0], signal.SIGSTOP)
     _, err = proc.communicate(timeout=120)
     assert proc.returncode == 1
     assert "controller_3 is stopped (SIGSTOP or a debugger) and no fault plan stopped it" in err, err
-    assert not _processes_mentioning(str(tmp_path))
+    assert not processes_mentioning(str(tmp_path))
 
 
 def test_a_killed_supervisor_leaves_a_readable_run_and_nothing_running(tmp_path):
@@ -210,9 +207,9 @@ def test_a_killed_supervisor_leaves_a_readable_run_and_nothing_running(tmp_path)
     proc.kill()  # SIGKILL to the supervisor alone: its children are in sessions of their own
     proc.wait(timeout=10)
     end = time.monotonic() + 15
-    while _processes_mentioning(str(tmp_path)) and time.monotonic() < end:
+    while processes_mentioning(str(tmp_path)) and time.monotonic() < end:
         time.sleep(0.2)
-    assert not _processes_mentioning(str(tmp_path))
+    assert not processes_mentioning(str(tmp_path))
     assert all(_udp_free(p) for p in ports)
     assert not (out / "leader.npz").exists()  # the supervisor never got to write the arrays
     rec = load_run(out)  # what the processes recorded, merged on reading

@@ -156,6 +156,7 @@ def _out(q=LEVEL, thrust=5.0, message=None, record=None) -> LawOutput:
         (_out(q=2 * LEVEL), "not a unit quaternion (norm 2)"),
         (_out(q=[1, 0, 0, 0]), "must be arrays of 4, 3, 3"),
         (_out(record={"y": [1.0, 2.0]}), "fields ['y'] it does not declare"),
+        (_out(record={"x": [1.0, 2.0], "y": [0.0]}), "fields ['y'] it does not declare, lacks []"),
         (_out(record={"x": [1.0]}), "record field 'x' is not 2 number(s)"),
         (None, "step returned NoneType, not a LawOutput"),
         ((LEVEL, 5.0, np.zeros(3)), "its command is ndarray, not an AttitudeCommand"),
@@ -170,6 +171,18 @@ def test_a_tick_that_breaks_the_contract_is_one_line_naming_the_law_the_follower
     text = str(e.value)
     assert text.startswith("law my_laws.py:Scripted, follower 7 at t=0.250 s: ") and says in text, text
     assert "\n" not in text
+
+
+@pytest.mark.unit
+def test_a_law_file_whose_import_failed_is_forgotten_so_the_fixed_file_loads(tmp_path):
+    from swarm_sitl.config.law_entry import LawEntryError, resolve
+
+    path = tmp_path / "fixed_later.py"
+    path.write_text("raise RuntimeError('not yet')\n" + LAWS)
+    with pytest.raises(LawEntryError, match=r"importing .*fixed_later.py failed: RuntimeError: not yet"):
+        resolve(f"{path}:Hover")
+    path.write_text(LAWS)
+    assert resolve(f"{path}:Hover").message_length == 3
 
 
 @pytest.mark.unit
@@ -235,7 +248,10 @@ def test_run_of_a_failing_law_names_the_process_its_code_the_law_and_keeps_the_r
     assert r.returncode == 1, r.stderr
     line = r.stderr.strip()
     assert "\n" not in line and "Traceback" not in line
-    assert line.startswith("swarm-sitl: error: controller_2 exited with code 1: controller 2: error: law ")
+    assert line.startswith(
+        "swarm-sitl: error: controller_2 exited with code 1 (its last tick 50, t=0.500 s): "
+        "controller 2: error: law "
+    )
     assert ":RaisesLater, follower 2 at t=0.510 s: ZeroDivisionError: my bug" in line
     f2 = np.load(out / "follower_2.npz")
     t = f2["t_s"]

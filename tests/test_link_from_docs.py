@@ -48,7 +48,9 @@ def test_the_guides_link_model_flies_and_delays_each_message_by_its_distance(tmp
         )
     cfg = yaml.safe_load((tmp_path / "runs" / "link" / "config.yaml").read_text())
     entry = cfg["faults"]["plan"][0]["model"]["entry"]
-    assert entry == f"{tmp_path / 'my_link.py'}:DistanceDelay"  # absolute: the run directory names it
+    run_dir = tmp_path / "runs" / "link"  # the run directory keeps the model's file and names its copy
+    assert entry == "plugins/my_link.py:DistanceDelay"
+    assert (run_dir / "plugins" / "my_link.py").read_bytes() == (tmp_path / "my_link.py").read_bytes()
 
 
 @pytest.mark.integration

@@ -23,7 +23,8 @@ def test_it_names_the_versions_in_use_and_the_seeds():
     assert (p["numpy"], p["numba"], p["zenoh"], p["pymavlink"]) == tuple(
         metadata.version(d) for d in ("numpy", "numba", "eclipse-zenoh", "pymavlink")
     )
-    assert p["seeds"] == {"run": 0, "faults": 0, "law": 0, "wind": 0, "sensors": 0} and p["pinned_seeds"] == []
+    assert p["seeds"] == {"run": 0, "faults": 0, "law": 0, "wind": 0, "sensors": 0}
+    assert p["pinned_seeds"] == []
     assert p["plugins"]["law"]["entry"] == "swarm_sitl.laws.zou_meng:ZouMengLaw"
     paper_law = ROOT / "swarm_sitl" / "laws" / "zou_meng.py"
     assert p["plugins"]["law"]["sha256"] == hashlib.sha256(paper_law.read_bytes()).hexdigest()

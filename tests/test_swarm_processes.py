@@ -17,7 +17,7 @@ from pymavlink import mavutil
 
 from sim_vehicles.runtime.row_log import read_rows
 from swarm_sitl.running.sim import run_sim
-from tests.conftest import CONFIGS
+from tests.conftest import CONFIGS, processes_mentioning
 
 pytestmark = pytest.mark.system
 # A shell that starts a job in the background ignores SIGINT in it, and an ignored signal stays
@@ -30,22 +30,6 @@ CLI = [sys.executable, "-m", "swarm_sitl"]
 
 def _cli(*args, timeout=240, **kw):
     return subprocess.run([*CLI, *map(str, args)], capture_output=True, text=True, timeout=timeout, **kw)
-
-
-def _processes_mentioning(text: str) -> list[int]:
-    """Live processes whose command line contains ``text`` (a run directory)."""
-    found = []
-    for d in Path("/proc").iterdir():
-        if not d.name.isdigit():
-            continue
-        try:
-            cmd = (d / "cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
-            state = (d / "stat").read_text().rsplit(")", 1)[1].split()[0]
-        except OSError:
-            continue
-        if text in cmd and state != "Z":
-            found.append(int(d.name))
-    return found
 
 
 def _udp_free(port: int) -> bool:
@@ -98,7 +82,7 @@ def test_lockstep_run_equals_sim_and_is_repeatable(tmp_path, sim20):
     _, truth = read_rows(out / "procs" / "vehicle_2.truth")
     assert len(np.unique(np.round(truth[:, 0] * 1000))) == 2001  # stepped exactly once per tick
     assert {"HEARTBEAT", "PARAM_VALUE", "COMMAND_ACK", "ATTITUDE_QUATERNION"} <= set(kinds)
-    assert not _processes_mentioning(str(tmp_path))
+    assert not processes_mentioning(str(tmp_path))
 
 
 def test_realtime_run_reaches_the_formation(tmp_path):
@@ -152,7 +136,7 @@ def test_a_process_failing_to_start_tears_everything_down(tmp_path):
     assert r.returncode == 1
     line = r.stderr.strip().splitlines()[-1]
     assert re.search(r"(leader|controller_\d) exited with code 1: .*zenoh", line), r.stderr
-    assert not _processes_mentioning(str(tmp_path))
+    assert not processes_mentioning(str(tmp_path))
     assert all(_udp_free(p) for p in _vehicle_ports(out))
     cfg["zenoh"] = {"mode": "router", "listen": [taken]}  # the supervisor's router cannot listen
     path.write_text(yaml.safe_dump(cfg))
@@ -160,7 +144,7 @@ def test_a_process_failing_to_start_tears_everything_down(tmp_path):
     busy.close()
     assert r.returncode == 1 and len(r.stderr.strip().splitlines()) == 1, r.stderr
     assert "zenoh (router mode): Can not create a new TCP listener" in r.stderr
-    assert not _processes_mentioning(str(tmp_path))
+    assert not processes_mentioning(str(tmp_path))
 
 
 def _start_run(out: Path, *extra) -> subprocess.Popen:
@@ -199,7 +183,7 @@ def test_ctrl_c_or_sigterm_leaves_no_process_no_bound_port_and_the_run_written(t
     assert proc.returncode == 128 + sig, err
     assert err.strip().splitlines()[-1].startswith(f"swarm-sitl: interrupted ({sig.name}); partial run in")
     assert "Traceback" not in err
-    assert not _processes_mentioning(str(tmp_path))
+    assert not processes_mentioning(str(tmp_path))
     assert all(_udp_free(p) for p in ports)
     a = np.load(out / "follower_1.npz")  # what was recorded is kept
     assert np.isfinite(a["p_W"]).any()
@@ -213,7 +197,7 @@ def test_a_killed_controller_ends_the_run_naming_it(tmp_path):
     _wait_running(out)
     victim = [
         pid
-        for pid in _processes_mentioning(str(out))
+        for pid in processes_mentioning(str(out))
         if " controller " in _cmdline(pid) and "--id 3" in _cmdline(pid)
     ]
     assert len(victim) == 1
@@ -221,7 +205,7 @@ def test_a_killed_controller_ends_the_run_naming_it(tmp_path):
     _, err = proc.communicate(timeout=120)
     assert proc.returncode == 1
     assert "controller_3 exited with code -9" in err
-    assert not _processes_mentioning(str(tmp_path))
+    assert not processes_mentioning(str(tmp_path))
 
 
 def _cmdline(pid: int) -> str:
@@ -272,7 +256,7 @@ def test_own_vehicles_and_controllers_meet_over_given_endpoints(tmp_path, paper_
         # no truth from vehicles that are not ours: the run records the float32 samples it received
         assert np.abs(a["p_W"] - sim.followers[i]["p_W"]).max() < 1e-5
         assert np.array_equal(a["p_hat"], sim.followers[i]["p_hat"])  # the controllers are exact
-    assert not _processes_mentioning(str(tmp_path))
+    assert not processes_mentioning(str(tmp_path))
 
 
 ROUTER = """

@@ -33,6 +33,10 @@ class CounterFile:
         self.value += n
         _COUNT.pack_into(self._map, 0, self.value)
 
+    def set(self, value: int) -> None:
+        self.value = value
+        _COUNT.pack_into(self._map, 0, value)
+
     def close(self) -> None:
         self._map.close()
 

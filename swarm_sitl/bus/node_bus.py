@@ -146,6 +146,9 @@ class ZenohNodeBus:
         self.published = 0  #: estimates published (each on every out-edge)
         #: where ``published`` is kept as it grows, so a killed process's count survives it
         self.published_file: CounterFile | None = None
+        #: where the tick of the newest estimate published is kept (plus one; 0: none yet), so a
+        #: supervisor can say where a process that ended or stalled was (``running.ends``)
+        self.tick_file: CounterFile | None = None
         self.refused: dict[int, int] = {}  #: per sender, payloads that decoded but cannot be (above)
         self._last_step: dict[int, int] = {}  #: per sender, the tick of its last estimate taken
         #: the latest tick an estimate or status may be of now (``nodes.entry``: the run's last tick,
@@ -312,6 +315,8 @@ class ZenohNodeBus:
         self.published += 1
         if self.published_file is not None:  # counted before it goes: sent >= received, always
             self.published_file.add()
+        if self.tick_file is not None:
+            self.tick_file.set(msg.step + 1)
         for p in self._pubs:
             p.put(payload)
 

@@ -143,7 +143,5 @@ def add_base_port(p: argparse.ArgumentParser) -> None:
 def add_run_outputs(p: argparse.ArgumentParser, kind: str) -> None:
     p.add_argument("--out", help=f"run directory (default runs/<name>-{kind}-<time>)")
     p.add_argument("--duration", type=float, help="override duration_s [s]")
-    p.add_argument(
-        "--seed", type=int, help="the run's seed, of every random stream its section does not pin"
-    )
+    p.add_argument("--seed", type=int, help="the run's seed, of every random stream its section does not pin")
     p.add_argument("--quiet", action="store_true", help="no progress bar")

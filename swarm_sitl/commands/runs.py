@@ -52,9 +52,20 @@ def cmd_sim(args: argparse.Namespace) -> int:
     run_dir = run_dir_of(args.out, cfg, "sim")
     n = cfg.n_control_steps
     t0 = time.monotonic()
+    law_log = None
+    if not cfg.law.is_paper:  # what a user's law prints (law_guard bounds it)
+        (run_dir / "logs").mkdir(exist_ok=True)
+        law_log = open(run_dir / "logs" / "laws.log", "w")  # noqa: SIM115  (closed below)
+
+    def hard_stop(line: str, rec: Any) -> None:  # a law held in compiled code: the process ends
+        try:
+            _write_sim(cfg, rec, run_dir)
+        finally:
+            print(f"swarm-sitl: error: {line} (what was recorded is in {run_dir})", file=sys.__stderr__)
+
     try:
         if args.quiet:
-            rec = run_sim(cfg)
+            rec = run_sim(cfg, law_output=law_log, on_hard_stop=hard_stop)
         else:
             with tqdm(total=n + 1, unit="tick", desc=f"sim {cfg.name}", mininterval=0.25, leave=False) as bar:
                 stride = max(1, (n + 1) // 100)
@@ -63,11 +74,14 @@ def cmd_sim(args: argparse.Namespace) -> int:
                     if k % stride == 0 or k == n:
                         bar.update(k + 1 - bar.n)
 
-                rec = run_sim(cfg, progress=progress)
+                rec = run_sim(cfg, progress=progress, law_output=law_log, on_hard_stop=hard_stop)
     except SimFailedError as e:
         _write_sim(cfg, e.recording, run_dir)
         print(f"swarm-sitl: error: {e} (what was recorded is in {run_dir})", file=sys.stderr)
         return EXIT_FAILED
+    finally:
+        if law_log is not None:
+            law_log.close()
     wall = time.monotonic() - t0
 
     summary = _write_sim(cfg, rec, run_dir)

@@ -22,7 +22,7 @@ from swarm_sitl.commands.common import CliError, load, summary_lines
 from swarm_sitl.commands.law_check import render_law_check
 from swarm_sitl.config.generator import FORMATIONS, GRAPHS, TRAJECTORIES, GeneratorError, generate
 from swarm_sitl.config.law_entry import LawEntryError, absolute_entry, is_file_entry, split_entry
-from swarm_sitl.config.load import ConfigError, load_config
+from swarm_sitl.config.load import ConfigError, load_recorded
 from swarm_sitl.config.seeds import seed_lines
 from swarm_sitl.laws.gain_conditions import check_gains
 from swarm_sitl.laws.gain_report import render
@@ -131,7 +131,7 @@ def cmd_plot(args: argparse.Namespace) -> int:
         events = read_events(run_dir / "events.jsonl")
     if "links" in (summary or {}):
         try:
-            edges = load_config(run_dir / "config.yaml").graph_edges()
+            edges = load_recorded(run_dir).graph_edges()
         except ConfigError:
             edges = None
     out = Path(args.out) if args.out else run_dir / "plots"
@@ -146,7 +146,7 @@ def cmd_merge(args: argparse.Namespace) -> int:
     run_dir = Path(args.run_dir)
     if not (run_dir / "config.yaml").is_file() or not procs_dir(run_dir).is_dir():
         raise RunDirError(f"{run_dir}: not a multi-process run directory (no config.yaml and procs/)")
-    cfg = load_config(run_dir / "config.yaml")
+    cfg = load_recorded(run_dir)
     try:
         summary = write_outputs(cfg, merge_run(cfg, run_dir), run_dir, processes=True)
     except WriteError as e:

@@ -17,6 +17,7 @@ from pydantic import ValidationError
 
 from swarm_sitl.config.law_entry import LawEntryError, absolute_entry
 from swarm_sitl.config.schema import SwarmConfig
+from swarm_sitl.faults.link_model import RECORDED
 
 #: libyaml's safe loader where PyYAML was built with it (7x faster: every process of a run reads
 #: the run's config at start), else the pure-Python one; both accept exactly safe YAML
@@ -44,11 +45,13 @@ def _describe(err: ValidationError) -> str:
     return f"{where}{msg}{shown}"
 
 
-def parse_config(data: object, source: str = "config") -> SwarmConfig:
+def parse_config(data: object, source: str = "config", recorded: bool = False) -> SwarmConfig:
+    """``data`` validated; ``recorded``: a run's record, whose plug-ins are named, not imported
+    (``load_recorded``)."""
     if not isinstance(data, dict):
         raise ConfigError(f"{source}: expected a mapping of keys at the top level")
     try:
-        return SwarmConfig.model_validate(data)
+        return SwarmConfig.model_validate(data, context=RECORDED if recorded else None)
     except ValidationError as err:
         raise ConfigError(f"{source}: {_describe(err)}") from None
 
@@ -75,13 +78,21 @@ def _read_yaml(p: Path, text: str | None = None) -> object:
 #: the last config loaded, by (path, text): a process forked from one that loaded the run's config
 #: (``fork_server``) gets it without parsing and validating it again (12-15 ms of CPU for a
 #: 64-follower config, in each of 129 processes)
-_LAST: dict[tuple[str, str], SwarmConfig] = {}
+_LAST: dict[tuple[str, str, bool], SwarmConfig] = {}
 
 
-def load_config(path: str | Path) -> SwarmConfig:
+def load_recorded(run_dir: str | Path) -> SwarmConfig:
+    """The ``config.yaml`` of run directory ``run_dir``, read as what was flown: checked as any
+    config is, but no plug-in it names (a law, a vehicle model, a link model) is imported, so a
+    run directory reads on a machine without them (``plot``, ``export``, ``merge``). Such a config
+    must not be flown: its law's interface is ``rundir.plugins.recorded_law``."""
+    return load_config(Path(run_dir) / "config.yaml", recorded=True)
+
+
+def load_config(path: str | Path, recorded: bool = False) -> SwarmConfig:
     p = Path(path)
     text = _read_text(p)
-    key = (str(p), text)
+    key = (str(p), text, recorded)
     cfg = _LAST.get(key)
     if cfg is None:
         data = _read_yaml(p, text)
@@ -101,7 +112,7 @@ def load_config(path: str | Path) -> SwarmConfig:
             except LawEntryError as e:
                 raise ConfigError(f"{p}: vehicle.model: {e}") from None
             data = {**data, "vehicle": {**vehicle, "model": model}}  # type: ignore[dict-item]
-        cfg = parse_config(data, str(p))
+        cfg = parse_config(data, str(p), recorded)
         _LAST.clear()
         _LAST[key] = cfg
     return cfg

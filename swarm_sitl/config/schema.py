@@ -11,7 +11,15 @@ from typing import Annotated, Any, Literal
 
 import numpy as np
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, field_validator, model_validator
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    PrivateAttr,
+    ValidationInfo,
+    field_validator,
+    model_validator,
+)
 
 from sim_vehicles.models import spec as vehicle_spec
 from sim_vehicles.models.build import check as model_check
@@ -20,6 +28,7 @@ from swarm_sitl.bus.session import ZenohSpec
 from swarm_sitl.config.law_entry import resolve, validate_params
 from swarm_sitl.config.seeds import STREAMS, derive_seeds, stream_seed, without_derived_seeds
 from swarm_sitl.config.vehicle_section import VehicleSpec, WindSpec
+from swarm_sitl.faults.link_model import recorded
 from swarm_sitl.faults.plan import FaultPlan
 from swarm_sitl.laws.follower_law import HOLD_EXTRAPOLATE, HOLD_ZERO_ORDER, ControlGains
 from swarm_sitl.laws.graph import Graph, GraphError
@@ -148,9 +157,17 @@ class LawSpec(_Strict):
     #: seeds each follower's ``LawContext.rng`` (with its id): the only randomness a law may use.
     #: Unset: the run's ``seed``
     seed: Annotated[int, Field(ge=0, lt=2**63)] = 0
+    #: how much the process hosting the law (a controller, ``sim``) may grow while the law runs;
+    #: past it the law's follower ends with one line (``nodes.law_guard``) [MB]
+    max_memory_mb: Positive = 2000.0
+    #: how much a law may print (to its controller's log; ``sim``: ``RUN_DIR/logs/laws.log``); the
+    #: rest is dropped and counted [MB]
+    max_output_mb: Annotated[float, Field(ge=0)] = 10.0
 
     @model_validator(mode="after")
-    def _flies(self) -> "LawSpec":
+    def _flies(self, info: ValidationInfo) -> "LawSpec":
+        if recorded(info):  # a run's record: read, never imported (``config.load.load_recorded``)
+            return self
         cls = resolve(self.entry)
         if self.is_paper:
             if self.params:
@@ -189,6 +206,12 @@ class RunSpec(_Strict):
     #: new interpreter. Either way each is its own process with its own sockets.
     start: Literal["fork", "spawn"] = "fork"
     stall_timeout_s: Positive = 20.0  #: lockstep: a process waiting this long for an input gives up
+    #: a law's step that does not return within this ends its follower with one line naming the law,
+    #: the follower, the tick and the wait (``nodes.law_guard``; ``sim`` too). In real time a
+    #: controller whose ticks stop this long is named as well, and a run ends at most this long
+    #: after its duration. Less than ``stall_timeout_s``: the stalled follower is named, not those
+    #: waiting on it. A law that compiles on its first step must do it within this, or when built
+    tick_timeout_s: Positive = 10.0
     status_every: Annotated[int, Field(ge=1)] = 10  #: ticks between status messages of a controller
     lockstep_window: Annotated[int, Field(ge=1)] = 50  #: ticks the leader may run ahead in lockstep
     #: rate a controller asks its vehicle for ATTITUDE and HIGHRES_IMU, which it does not use [Hz]
@@ -213,6 +236,11 @@ class RunSpec(_Strict):
 
     @model_validator(mode="after")
     def _window(self) -> "RunSpec":
+        if self.tick_timeout_s >= self.stall_timeout_s:
+            raise ValueError(
+                f"tick_timeout_s ({self.tick_timeout_s:g}) must be less than stall_timeout_s "
+                f"({self.stall_timeout_s:g}): a stalled law is named before those waiting on it give up"
+            )
         if self.lockstep_window <= self.status_every:
             raise ValueError(
                 f"lockstep_window ({self.lockstep_window}) must exceed status_every ({self.status_every}), "
@@ -247,12 +275,14 @@ class SwarmConfig(_Strict):
 
     #: the random streams whose section sets its own seed (the others take the run's)
     _pinned: frozenset[str] = PrivateAttr(default=frozenset())
+    #: read from a run directory (``config.load.load_recorded``): its plug-ins are not imported
+    _recorded: bool = PrivateAttr(default=False)
     #: one line each on what the config says the old way (read, and how to write it now)
     _notices: list[str] = PrivateAttr(default_factory=list)
 
     @model_validator(mode="wrap")
     @classmethod
-    def _moved_keys(cls, data: Any, handler: Any) -> "SwarmConfig":
+    def _moved_keys(cls, data: Any, handler: Any, info: ValidationInfo) -> "SwarmConfig":
         """``gains.l_q``, ``gains.k_q`` are the vehicle's now: read from there, with a notice."""
         moved: list[str] = []
         if isinstance(data, dict) and isinstance(data.get("gains"), dict):
@@ -268,6 +298,7 @@ class SwarmConfig(_Strict):
         data, pinned = derive_seeds(data)
         cfg = handler(data)
         cfg._pinned = pinned
+        cfg._recorded = recorded(info)
         if moved:
             old, new = (", ".join(f"{where}.{k}" for k in moved) for where in ("gains", "vehicle"))
             them = "them" if len(moved) > 1 else "it"
@@ -280,7 +311,7 @@ class SwarmConfig(_Strict):
         return list(self._notices)
 
     @model_validator(mode="after")
-    def _cross(self) -> "SwarmConfig":
+    def _cross(self, info: ValidationInfo) -> "SwarmConfig":
         ids = [f.id for f in self.followers]
         n = len(ids)
         if n == 0:
@@ -299,6 +330,8 @@ class SwarmConfig(_Strict):
                 f"vehicle.max_thrust_N ({self.vehicle.max_thrust_N}) must exceed the weight "
                 f"{self.vehicle.mass_kg * self.gravity_mps2:.3f} N"
             )
+        if recorded(info):
+            return self
         try:  # the model and its parameters, as the vehicles will be built (cheap: no kernel runs)
             model_check(self.vehicle_spec(ids[0]))
         except vehicle_spec.VehicleSpecError as e:
@@ -377,8 +410,16 @@ class SwarmConfig(_Strict):
         return self.paper_law_params().control_gains(mass, self.gravity_mps2)
 
     def law_class(self) -> Any:
-        """The followers' law (``law.entry``), imported once per process."""
+        """The followers' law (``law.entry``), imported once per process; not for a config read
+        from a run directory (``is_recorded``: its law's interface is ``rundir.plugins``')."""
+        if self._recorded:
+            raise RuntimeError("a config read from a run directory does not import its law")
         return resolve(self.law.entry)
+
+    @property
+    def is_recorded(self) -> bool:
+        """Read from a run directory (``config.load.load_recorded``): to read, not to fly."""
+        return self._recorded
 
     def law_params(self) -> Any:
         """What the law's ``LawContext.params`` is: for the paper's law its gains and choices

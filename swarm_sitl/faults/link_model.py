@@ -30,7 +30,7 @@ import math
 from dataclasses import dataclass
 from typing import Any, NamedTuple
 
-from pydantic import BaseModel, ConfigDict, PrivateAttr, ValidationError, model_validator
+from pydantic import BaseModel, ConfigDict, PrivateAttr, ValidationError, ValidationInfo, model_validator
 
 from sim_vehicles.common.entry import EntryError, load_entry, one_line
 from swarm_sitl.faults.draws import uniform
@@ -71,6 +71,16 @@ class MessageOnLink:
         return uniform(self.seed, self.entry, self.channel, self.step, salt)
 
 
+#: the validation context of a config read from a run directory (``config.load.load_recorded``):
+#: its plug-ins are named, not imported
+RECORDED = {"recorded": True}
+
+
+def recorded(info: ValidationInfo) -> bool:
+    """Whether a config is being read as a run's record (``RECORDED``)."""
+    return isinstance(info.context, dict) and bool(info.context.get("recorded"))
+
+
 class LinkModelError(ValueError):
     """A link-model entry that cannot be flown; one line naming it."""
 
@@ -87,7 +97,9 @@ class ModelEntry(BaseModel):
     _params: Any = PrivateAttr(default=None)
 
     @model_validator(mode="after")
-    def _resolve(self) -> "ModelEntry":
+    def _resolve(self, info: ValidationInfo) -> "ModelEntry":
+        if recorded(info):  # a run's record: read, never imported
+            return self
         cls = resolve_link_model(self.entry)
         try:
             self._params = cls.Params.model_validate(dict(self.params))

@@ -24,6 +24,7 @@ Every tick is written to ``procs/controller_<i>.rows`` (``row_log``) as it happe
 """
 
 import math
+import sys
 import time
 from typing import NamedTuple
 
@@ -49,7 +50,8 @@ from swarm_sitl.config.schema import SwarmConfig
 from swarm_sitl.laws.contract import VehicleSample
 from swarm_sitl.link.vehicle_link import VehicleLink
 from swarm_sitl.nodes.assembly import build_law
-from swarm_sitl.nodes.law_host import LawError, warm_up
+from swarm_sitl.nodes.law_guard import LawGuard, max_output_bytes
+from swarm_sitl.nodes.law_host import HostedLaw, LawError, warm_up
 from swarm_sitl.nodes.neighbour_inbox import NeighbourInbox
 from swarm_sitl.rundir.recording import command_parts
 
@@ -247,17 +249,60 @@ def run_controller(
     who = f"follower {i}"
     r = cfg.run
     dt = cfg.control_dt_s
-    n = cfg.n_control_steps
     clock = RunClock(lockstep, dt) if clock is None else clock
     events = EventLog(None, f"controller_{i}") if events is None else events
     link.connect(r.start_timeout_s)
-    phase = cfg.tick_phase_s(i, lockstep)
     law = build_law(cfg, i, link.params["MASS_KG"], link.params["MAX_THRUST_N"])
     sources = [s for s, _ in cfg.build_graph().in_neighbours(i)]
     io = _Inputs(who, link, bus, sources, dt)
     inbox_of = NeighbourInbox(i, sources, cfg.estimator.staleness_s, events)
     _warm_up(cfg, i, link, sources)
     settle_heap()
+    guard = None
+    if not cfg.law.is_paper:  # a user's law: stopped if it hangs, exits or floods (law_guard)
+        guard = LawGuard(
+            r.tick_timeout_s,
+            cfg.law.max_memory_mb,
+            sys.stdout,
+            max_output_bytes(cfg.law.max_output_mb),
+            None if rows is None else lambda line: _last_words(rows, line),
+        )
+        law.guard = guard
+    try:
+        return _loop(cfg, i, link, bus, lockstep, rows, clock, events, resume_tick, law, io, inbox_of)
+    finally:
+        if guard is not None:
+            guard.close()
+
+
+def _last_words(rows: RowLog, line: str) -> None:
+    """A law held in compiled code past its guard's stop: the rows so far kept, the line said."""
+    try:
+        rows.flush()
+    finally:
+        print(line, file=sys.__stderr__, flush=True)
+
+
+def _loop(
+    cfg: SwarmConfig,
+    i: int,
+    link: VehicleLink,
+    bus: NodeBus,
+    lockstep: bool,
+    rows: RowLog | None,
+    clock: RunClock,
+    events: EventLog,
+    resume_tick: int,
+    law: HostedLaw,
+    io: "_Inputs",
+    inbox_of: NeighbourInbox,
+) -> NodeReport:
+    """``run_controller``'s ticks, its law built and warmed up."""
+    who = f"follower {i}"
+    r = cfg.run
+    dt = cfg.control_dt_s
+    n = cfg.n_control_steps
+    phase = cfg.tick_phase_s(i, lockstep)
     link.request_rates(dt, r.other_telemetry_hz, r.start_timeout_s)
     if lockstep and resume_tick:
         link.advance_to(round(resume_tick * dt * 1000), r.start_timeout_s)

@@ -45,7 +45,9 @@ from swarm_sitl.rundir.layout import (
     controller_stats_path,
     counts_path,
     leader_stats_path,
+    node_stem,
     published_path,
+    tick_path,
 )
 from swarm_sitl.rundir.metrics import describe_inputs
 
@@ -157,6 +159,7 @@ def cmd_controller(cfg: SwarmConfig, args: argparse.Namespace) -> int:
             zbus.horizon = _horizon(clock, cfg.n_control_steps)
             if out is not None:
                 zbus.published_file = CounterFile(published_path(out, i, args.incarnation))
+                zbus.tick_file = CounterFile(tick_path(out, node_stem(i, args.incarnation)))
             if args.lockstep:  # up to this incarnation's planned kill: what it waited for there
                 kills = [
                     k for k, _ in cfg.faults.outages(cfg.control_dt_s).get(i, []) if k > args.resume_tick
@@ -215,6 +218,7 @@ def cmd_leader(cfg: SwarmConfig, args: argparse.Namespace) -> int:
             zbus.horizon = _horizon(clock, cfg.n_control_steps)
             if args.out:
                 zbus.published_file = CounterFile(published_path(Path(args.out), 0, args.incarnation))
+                zbus.tick_file = CounterFile(tick_path(Path(args.out), node_stem(0, args.incarnation)))
             node_bus: NodeBus = _faulty_bus(cfg, zbus, 0, clock, args.resume_tick) or zbus
             bus = node_bus
             rep = run_leader(cfg, node_bus, args.lockstep, outs, clock, args.resume_tick)

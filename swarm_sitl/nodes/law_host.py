@@ -11,7 +11,9 @@ The record of a tick is flat, in ``record_fields``' order (``rundir.recording.la
 recording puts the command before it (``rundir.recording.COMMAND_FIELDS``).
 """
 
+import contextlib
 import math
+import os
 from collections.abc import Mapping
 from typing import Any, NamedTuple
 
@@ -19,6 +21,7 @@ import numpy as np
 
 from sim_vehicles.common.command import AttitudeCommand
 from swarm_sitl.laws.contract import REFERENCE_LENGTH, LawOutput, Received, VehicleSample
+from swarm_sitl.nodes.law_guard import LawExit, LawGuard, LawStopped
 from swarm_sitl.rundir.recording import layout
 
 #: how far a command quaternion's norm may be from 1 (the vehicle refuses it beyond)
@@ -57,16 +60,30 @@ class HostedLaw:
         self.record_width = sum(s.stop - s.start for s in self.layout.values())
         self._record = np.zeros(self.record_width)
         self._step = law.step
+        #: what stops a step that hangs, exits or floods (``law_guard``); None: unguarded (the paper's)
+        self.guard: LawGuard | None = None
 
     def _fail(self, t: float, what: str) -> LawError:
         return LawError(f"law {self.name}, follower {self.id} at t={t:.3f} s: {what}")
 
     def step(self, t: float, sample: VehicleSample, inbox: Mapping[int, Received]) -> HostedStep:
         """Tick ``t`` with the newest usable message of each in-neighbour (``inbox``)."""
+        guard = self.guard
         try:
+            if guard is not None:
+                guard.enter(self.name, self.id, t)
             out = self._step(t, sample, inbox)
+        except LawStopped as e:
+            raise self._fail(t, str(e) or (guard.stop_reason if guard else "stopped")) from None
+        except LawExit as e:
+            raise self._fail(t, f"it called os._exit({e.code}), which ends nothing here") from None
+        except SystemExit as e:
+            raise self._fail(t, f"it called sys.exit({e.code!r}), which ends nothing here") from None
         except Exception as e:
             raise self._fail(t, one_line(e)) from e
+        finally:
+            if guard is not None:
+                guard.leave()
         if type(out) is not LawOutput and not (isinstance(out, tuple) and len(out) == 3):
             raise self._fail(
                 t, f"step returned {type(out).__name__}, not a LawOutput(command, message, record)"
@@ -166,12 +183,14 @@ class HostedLaw:
 
 def warm_up(law: Any, sample: VehicleSample, sources: list[int], message_length: int) -> None:
     """Two ticks of a scratch law on still inputs, so compiled code loads before the first real
-    tick; a law that cannot step on them is left to fail, if it does, at its real tick."""
+    tick; a law that cannot step on them is left to fail, if it does, at its real tick. What the
+    scratch ticks print is not the law's output: it is dropped."""
     z = np.zeros(REFERENCE_LENGTH)
     inbox = {s: Received(z if s == 0 else np.zeros(message_length), 0.0, 0.0) for s in sources}
     dt = 0.01
-    for k in range(2):
-        try:
-            law.step(k * dt, sample._replace(t_s=k * dt), inbox)
-        except Exception:
-            return
+    with open(os.devnull, "w") as null, contextlib.redirect_stdout(null), contextlib.redirect_stderr(null):
+        for k in range(2):
+            try:
+                law.step(k * dt, sample._replace(t_s=k * dt), inbox)
+            except Exception:
+                return

@@ -116,12 +116,27 @@ def published_path(run_dir: Path, node: int, incarnation: int = 0) -> Path:
     return procs_dir(run_dir) / f"{_incarnated(name, incarnation)}.published"
 
 
+def tick_path(run_dir: Path, stem: str) -> Path:
+    """Process ``stem``'s (``controller_2.1``, ``leader``) newest published tick plus one: a counter
+    file (0: none yet), kept when the process ends (``running.ends``)."""
+    return procs_dir(run_dir) / f"{stem}.tick"
+
+
+def node_stem(node: int, incarnation: int = 0) -> str:
+    return _incarnated("leader" if node == 0 else f"controller_{node}", incarnation)
+
+
 def leader_stats_path(run_dir: Path, incarnation: int = 0) -> Path:
     return procs_dir(run_dir) / f"{_incarnated('leader', incarnation)}.stats.json"
 
 
 def supervisor_events_path(run_dir: Path) -> Path:
     return procs_dir(run_dir) / "supervisor.events"
+
+
+def lost_events_path(run_dir: Path) -> Path:
+    """Processes that exited unplanned and that a real-time run flew on without (``process_lost``)."""
+    return procs_dir(run_dir) / "lost.events"
 
 
 def router_events_path(run_dir: Path) -> Path:

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from swarm_sitl.config.load import ConfigError, load_config
+from swarm_sitl.config.load import ConfigError, load_recorded
 from swarm_sitl.rundir.layout import procs_dir
 from swarm_sitl.rundir.merge import merge_run
 from swarm_sitl.rundir.recording import Recording
@@ -35,7 +35,7 @@ def load_run(run_dir: str | Path) -> Recording:
     if not followers:
         raise RunDirError(f"{d}: run directory has no follower_<i>.npz")
     try:
-        trajectory = load_config(d / "config.yaml").trajectory()
+        trajectory = load_recorded(d).trajectory()
     except ConfigError:
         trajectory = None
     return Recording(leader, followers, offsets).with_errors(trajectory)
@@ -45,7 +45,7 @@ def _merged_from_procs(d: Path) -> Recording:
     """A run whose supervisor died before it wrote the arrays (SIGKILL): what every process
     recorded, merged now."""
     try:
-        cfg = load_config(d / "config.yaml")
+        cfg = load_recorded(d)
     except ConfigError as e:
         raise RunDirError(f"{d}: no leader.npz, and its config.yaml is unreadable ({e})") from None
     return merge_run(cfg, d)

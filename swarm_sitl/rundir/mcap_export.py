@@ -30,7 +30,7 @@ from typing import Any
 import numpy as np
 from mcap.writer import Writer
 
-from swarm_sitl.config.load import load_config
+from swarm_sitl.config.load import load_recorded
 from swarm_sitl.rundir.load import load_run
 
 _VEC = {"type": "object", "properties": {k: {"type": "number"} for k in "xyz"}}
@@ -99,7 +99,7 @@ def write_mcap(run_dir: str | Path, path: str | Path) -> dict[str, int]:
     """Write ``run_dir`` as MCAP to ``path``; returns the message count per channel."""
     run_dir = Path(run_dir)
     rec = load_run(run_dir)
-    cfg = load_config(run_dir / "config.yaml")
+    cfg = load_recorded(run_dir)
     trajectory = cfg.trajectory()
     counts: dict[str, int] = {}
     with open(path, "wb") as f:

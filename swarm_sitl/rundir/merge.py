@@ -30,6 +30,7 @@ from swarm_sitl.rundir.layout import (
     controller_incarnations,
     controller_stats_path,
     leader_stats_path,
+    lost_events_path,
     published_path,
     read_start,
     router_events_path,
@@ -38,6 +39,7 @@ from swarm_sitl.rundir.layout import (
     vehicle_stats_path,
     vehicle_truth_path,
 )
+from swarm_sitl.rundir.plugins import recorded_law
 from swarm_sitl.rundir.recording import COMMAND_WIDTH, FollowerSeries, Recording, leader_series
 
 
@@ -57,7 +59,8 @@ def _rows(path: Path, columns: list[str]) -> np.ndarray:
 def merge_run(cfg: SwarmConfig, run_dir: Path) -> Recording:
     n = cfg.n_control_steps
     dt = cfg.control_dt_s
-    record_fields = cfg.law_class().record_fields
+    law = recorded_law(run_dir)  # what the run flew (never imported from a run directory)
+    record_fields = law["record_fields"] if law is not None else cfg.law_class().record_fields
     columns = controller_columns(record_fields)
     at = {name: j for j, name in enumerate(columns)}
     sample = slice(at[SAMPLE_COLUMNS[0]], at[SAMPLE_COLUMNS[-1]] + 1)
@@ -225,7 +228,7 @@ def run_events(cfg: SwarmConfig, run_dir: Path) -> list[dict[str, Any]]:
     """The plan's fault intervals and every process's events, in time order."""
     files = [p for f in cfg.followers for p in controller_incarnations(run_dir, f.id, ".events")]
     files += [vehicle_events_path(run_dir, f.id) for f in cfg.followers]
-    files += [supervisor_events_path(run_dir), router_events_path(run_dir)]
+    files += [supervisor_events_path(run_dir), router_events_path(run_dir), lost_events_path(run_dir)]
     start = read_start(run_dir)
     realtime = start is not None and not start.get("lockstep", True)
     return merge_events(cfg, files, start["epoch_unix_s"] if start is not None and realtime else None)

@@ -1,6 +1,7 @@
 """A run's outputs: the run directory written from what was recorded.
 
-``write_outputs`` writes ``config.yaml``, the arrays and ``summary.json`` (for a multi-process run
+``write_outputs`` writes ``config.yaml`` (naming the copies of its plug-ins it keeps in
+``plugins/``: ``rundir.plugins``), the arrays and ``summary.json`` (for a multi-process run
 also ``events.jsonl`` and, in the summary, each follower's inputs and each edge's traffic);
 ``running.run.record_run`` calls it however a run ended.
 """
@@ -11,6 +12,7 @@ from swarm_sitl.config.schema import SwarmConfig
 from swarm_sitl.rundir.events import write_events
 from swarm_sitl.rundir.merge import inputs_and_links, run_events, vehicle_refusals
 from swarm_sitl.rundir.metrics import summarize
+from swarm_sitl.rundir.plugins import keep, manifest_of
 from swarm_sitl.rundir.provenance import provenance
 from swarm_sitl.rundir.recording import Recording, write_run
 from swarm_sitl.rundir.rejoins import judge_rejoins
@@ -22,7 +24,8 @@ def write_outputs(cfg: SwarmConfig, rec: Recording, run_dir: Path, processes: bo
     masses = {f.id: cfg.vehicle.mass_kg for f in cfg.followers}
     gains = cfg.gain_dict() if cfg.law.is_paper else None
     summary = summarize(rec, gains, masses, cfg.gravity_mps2, cfg.run.settle_s, cfg.vehicle.max_thrust_N)
-    summary["provenance"] = provenance(cfg)
+    config_text = keep(cfg, run_dir)  # the plug-ins copied in, config.yaml naming the copies
+    summary["provenance"] = provenance(cfg, manifest_of(run_dir))
     if processes:
         events = run_events(cfg, run_dir)
         write_events(run_dir / "events.jsonl", events)
@@ -43,5 +46,5 @@ def write_outputs(cfg: SwarmConfig, rec: Recording, run_dir: Path, processes: bo
             cfg.run.rejoin_within_s,
             set(summary["lost"]),
         )
-    write_run(run_dir, cfg.to_yaml(), rec, summary)
+    write_run(run_dir, config_text, rec, summary)
     return summary

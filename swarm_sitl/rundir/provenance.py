@@ -11,16 +11,14 @@ code, libraries or plug-ins can be told apart.
   the sensors').
 """
 
-import hashlib
-import importlib.util
 import platform
 import subprocess
 from importlib import metadata
 from pathlib import Path
 from typing import Any
 
-from sim_vehicles.common.entry import is_file_entry, split_entry
 from swarm_sitl.config.schema import SwarmConfig
+from swarm_sitl.rundir.plugins import entries, file_sha256, source_file
 
 _LIBRARIES = {"numpy": "numpy", "numba": "numba", "zenoh": "eclipse-zenoh", "pymavlink": "pymavlink"}
 GIT_TIMEOUT_S = 2.0  #: the longest ``git describe`` may take before it is left out [s]
@@ -50,41 +48,23 @@ def _git_describe(root: Path) -> str | None:
     return r.stdout.strip() or None if r.returncode == 0 else None
 
 
-def _source_file(entry: str) -> Path | None:
-    """The file a plug-in entry's code is in (None: it cannot be found)."""
-    where, _ = split_entry(entry)
-    if is_file_entry(entry):
-        return Path(where)
-    try:
-        spec = importlib.util.find_spec(where)
-    except (ImportError, ValueError):
-        return None
-    return Path(spec.origin) if spec is not None and spec.origin else None
-
-
-def file_sha256(path: Path | None) -> str | None:
-    if path is None or not path.is_file():
-        return None
-    return hashlib.sha256(path.read_bytes()).hexdigest()
-
-
-def provenance(cfg: SwarmConfig) -> dict[str, Any]:
-    """``summary.json``'s ``provenance`` of a run of ``cfg`` (module docstring)."""
+def provenance(cfg: SwarmConfig, kept: dict[str, Any] | None = None) -> dict[str, Any]:
+    """``summary.json``'s ``provenance`` of a run of ``cfg`` (module docstring); ``kept``: the
+    run directory's record of its plug-ins (``plugins.json``), whose hashes it takes (a config
+    read from a run directory hashes nothing: its plug-ins are not looked for)."""
+    plugins = {
+        what: {"entry": entry, "sha256": None if cfg.is_recorded else file_sha256(source_file(entry))}
+        for what, entry in entries(cfg.model_dump(mode="json")).items()
+    }
+    for what, k in (kept or {}).items():
+        if what in plugins and isinstance(k, dict):
+            plugins[what] = {"entry": k.get("entry"), "sha256": k.get("sha256"), "kept": k.get("kept")}
     root = Path(__file__).resolve().parents[2]
-    entries = {"law": cfg.law.entry}
-    if ":" in cfg.vehicle.model:
-        entries["vehicle"] = cfg.vehicle.model
-    for j, f in enumerate(cfg.faults.plan):
-        if f.model is not None:
-            entries[f"faults.plan.{j}"] = f.model.entry
     return {
         "swarm_sitl": {"version": _version("swarm-sitl"), "git": _git_describe(root)},
         "python": platform.python_version(),
         **{name: _version(dist) for name, dist in _LIBRARIES.items()},
-        "plugins": {
-            what: {"entry": entry, "sha256": file_sha256(_source_file(entry))}
-            for what, entry in entries.items()
-        },
+        "plugins": plugins,
         "seeds": {"run": cfg.seed, **{name: seed for name, (seed, _) in cfg.seed_streams().items()}},
         "pinned_seeds": sorted(name for name, (_, pinned) in cfg.seed_streams().items() if pinned),
     }

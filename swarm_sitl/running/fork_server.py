@@ -105,7 +105,10 @@ def _warm_up(config_path: str | None) -> None:
         from swarm_sitl.config.load import load_config
         from swarm_sitl.running.sim import run_sim
 
-        run_sim(load_config(config_path), n_steps=1)
+        # stdout is the supervisor's channel: what a user's law prints (on import, building, its
+        # first tick) goes to the server's log
+        with contextlib.redirect_stdout(sys.stderr):
+            run_sim(load_config(config_path), n_steps=1)
 
 
 def _send(out: IO[str], msg: dict[str, Any]) -> None:
@@ -252,7 +255,12 @@ class ForkServer:
                 return None
             self._buf += chunk
         line, self._buf = self._buf.split(b"\n", 1)
-        msg: dict[str, Any] = json.loads(line)
+        try:
+            msg: dict[str, Any] = json.loads(line)
+        except ValueError:
+            raise ForkServerError(
+                f"the fork server wrote something it should not on its channel: {line[:80]!r}"
+            ) from None
         return msg
 
     def _take(self, msg: dict[str, Any]) -> None:

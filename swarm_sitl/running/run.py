@@ -38,7 +38,9 @@ from swarm_sitl.rundir.layout import (
 from swarm_sitl.rundir.merge import merge_run
 from swarm_sitl.rundir.metrics import bound_failures
 from swarm_sitl.rundir.outputs import write_outputs
+from swarm_sitl.rundir.plugins import keep as keep_plugins
 from swarm_sitl.rundir.whole_files import WriteError
+from swarm_sitl.running import ends
 from swarm_sitl.running.children import PARENT_ENV, child_env, module_argv
 from swarm_sitl.running.fork_server import ForkServer
 from swarm_sitl.running.hub import RunMonitor, open_hub
@@ -156,10 +158,15 @@ def run_swarm(request: RunRequest) -> RunResult:
             raise ConfigError(str(e)) from None
     run_dir.mkdir(parents=True, exist_ok=True)
     cfg_path = run_dir / "config.yaml"
-    cfg_path.write_text(cfg.to_yaml())
+    try:  # the nodes fly the plug-ins kept in the run directory (``rundir.plugins``)
+        cfg_path.write_text(keep_plugins(cfg, run_dir))
+    except OSError as e:
+        raise RunFailedError(f"cannot write {cfg_path} ({e.strerror or e})") from None
     procs_dir(run_dir).mkdir(parents=True, exist_ok=True)
     t_spawn = time.monotonic()
     sup = Supervisor(run_dir)
+    sup.completed = lambda child: ends.completed(run_dir, child)
+    sup.last_tick = lambda child: ends.last_tick(run_dir, cfg.control_dt_s, child)
     try:
         if not cfg.law.is_paper:  # a user's law that cannot take its first tick fails here, named
             for f in cfg.followers:
@@ -179,6 +186,7 @@ def run_swarm(request: RunRequest) -> RunResult:
             session, cfg.zenoh.connect, EventLog(router_events_path(run_dir), "supervisor"), lockstep
         )
     faults = None
+    lost: ends.LostLog | None = None
     if cfg.faults.plan:
         events = supervisor_events_path(run_dir)
         faults = ProcessFaults(cfg.faults, cfg.control_dt_s, cfg.run.stop_on_loss, sup, lockstep, events)
@@ -228,6 +236,12 @@ def run_swarm(request: RunRequest) -> RunResult:
         t_start = time.monotonic()
         next_start_put = 0.0
         next_progress = 0.0
+        watch = None
+        if not lockstep:  # a controller that stops ticking, a run that does not end (ends)
+            watch = ends.TickWatch(cfg, run_dir, time.monotonic() + (epoch - time.time()))
+            if not cfg.run.stop_on_loss:  # an unplanned exit is recorded and ridden through
+                lost = ends.LostLog(run_dir, epoch)
+                sup.ride_through, sup.on_lost = True, lost.add
         while not sup.finished():
             if faults is not None:
                 try:
@@ -235,6 +249,8 @@ def run_swarm(request: RunRequest) -> RunResult:
                 except LostAircraftError as e:
                     raise RunFailedError(str(e)) from None
             sup.check()
+            if watch is not None:
+                watch.check(sup.children, time.monotonic())
             if router is not None:
                 router.check(time.time() - epoch)
             now = time.monotonic()
@@ -248,8 +264,13 @@ def run_swarm(request: RunRequest) -> RunResult:
         run_wall = time.monotonic() - t_start
         if on_progress is not None:
             on_progress(cfg.n_control_steps, monitor.errors_m())
+        if sup.lost:
+            flew_on = " (the swarm flew on to the end: run.stop_on_loss false)"
+            raise RunFailedError("; ".join(sup.lost) + flew_on)
         return RunResult(run_wall, startup, endpoints)
     finally:
+        if lost is not None:
+            lost.close()
         if faults is not None:
             faults.close()
         if router is not None:

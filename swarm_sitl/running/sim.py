@@ -14,9 +14,11 @@ recorded up to it.
 """
 
 from collections.abc import Callable
+from typing import IO
 
 import numpy as np
 
+from sim_vehicles.common.command import AttitudeCommand
 from sim_vehicles.mavlink.wire_format import (
     SAMPLE_P,
     SAMPLE_Q,
@@ -26,10 +28,12 @@ from sim_vehicles.mavlink.wire_format import (
     sample_from_fields,
 )
 from sim_vehicles.models.build import build_vehicle, sensor_model
+from sim_vehicles.models.spec import VehicleSpec
 from swarm_sitl.bus.codec import Message
 from swarm_sitl.config.schema import SwarmConfig
 from swarm_sitl.laws.contract import Received, VehicleSample
 from swarm_sitl.nodes.assembly import build_law, build_leader, reported_vehicle_params
+from swarm_sitl.nodes.law_guard import LawGuard, max_output_bytes
 from swarm_sitl.nodes.law_host import LawError
 from swarm_sitl.rundir.recording import FollowerSeries, Recording, leader_series
 
@@ -49,10 +53,29 @@ def sample_through_wire(t_s: float, state: np.ndarray) -> VehicleSample:
     return VehicleSample(t_s, s[SAMPLE_P], s[SAMPLE_V], s[SAMPLE_Q])
 
 
+def _load_kernels(spec: VehicleSpec, i: int, n_att: int, max_thrust: float) -> None:
+    """A scratch vehicle's tick through the wire: the compiled kernels a tick runs loaded (their
+    memory taken) before a law's guard measures what the law takes."""
+    ap = build_vehicle(spec, i)
+    ap.set_command(command_roundtrip(AttitudeCommand(np.array([1.0, 0.0, 0.0, 0.0]), 0.0), max_thrust))
+    ap.advance(n_att)
+    sample_through_wire(0.0, ap.state)
+
+
 def run_sim(
-    cfg: SwarmConfig, n_steps: int | None = None, progress: Callable[[int], None] | None = None
+    cfg: SwarmConfig,
+    n_steps: int | None = None,
+    progress: Callable[[int], None] | None = None,
+    law_output: IO[str] | None = None,
+    on_hard_stop: Callable[[str, Recording], None] | None = None,
 ) -> Recording:
-    """Run ``n_steps`` control periods (default: the config's duration); rows 0..n_steps."""
+    """Run ``n_steps`` control periods (default: the config's duration); rows 0..n_steps.
+
+    A user's law runs guarded (``nodes.law_guard``): a step past ``run.tick_timeout_s``, memory
+    past ``law.max_memory_mb``, ``sys.exit`` and ``os._exit`` each end the run with
+    ``SimFailedError``; what it prints goes to ``law_output`` (None: where it would), bounded by
+    ``law.max_output_mb``. A step that cannot be stopped (compiled code) ends the process after
+    ``on_hard_stop`` is given its line and what was recorded."""
     n = cfg.n_control_steps if n_steps is None else n_steps
     ids = [f.id for f in cfg.followers]
     graph = cfg.build_graph()
@@ -78,25 +101,41 @@ def run_sim(
     def heard(i: int) -> list[tuple[int, Message]]:
         return [(s, latest[s]) for s, _ in sources[i] if s in latest]
 
-    for k in range(n + 1):
-        t = k * dt
-        inboxes = {i: {s: Received(m.values, m.t_s, t - m.t_s) for s, m in heard(i)} for i in ids}
-        new: dict[int, Message] = {0: leader.step(k)}
-        for i in ids:
-            ap = aps[i]
-            series[i].record_vehicle(k, t, ap.state)
-            try:
-                s = sensors[i]
-                x = ap.state if s is None else s.reported(round(t * 1000), ap.state)
-                step = laws[i].step(t, sample_through_wire(t, x), inboxes[i])
-            except LawError as e:
-                raise SimFailedError(e, recording()) from e
-            series[i].record_controller(k, step.command, step.record)
-            new[i] = Message(i, k, t, step.message)
-            if k < n:
-                ap.set_command(command_roundtrip(step.command, max_thrust))
-                ap.advance(n_att)
-        latest = new
-        if progress is not None:
-            progress(k)
+    guard = None
+    if not cfg.law.is_paper:
+        _load_kernels(specs[ids[0]], ids[0], n_att, max_thrust)  # the guard counts the law's memory
+        guard = LawGuard(
+            cfg.run.tick_timeout_s,
+            cfg.law.max_memory_mb,
+            law_output,
+            max_output_bytes(cfg.law.max_output_mb),
+            None if on_hard_stop is None else lambda line: on_hard_stop(line, recording()),
+        )
+        for law in laws.values():
+            law.guard = guard
+    try:
+        for k in range(n + 1):
+            t = k * dt
+            inboxes = {i: {s: Received(m.values, m.t_s, t - m.t_s) for s, m in heard(i)} for i in ids}
+            new: dict[int, Message] = {0: leader.step(k)}
+            for i in ids:
+                ap = aps[i]
+                series[i].record_vehicle(k, t, ap.state)
+                try:
+                    s = sensors[i]
+                    x = ap.state if s is None else s.reported(round(t * 1000), ap.state)
+                    step = laws[i].step(t, sample_through_wire(t, x), inboxes[i])
+                except LawError as e:
+                    raise SimFailedError(e, recording()) from e
+                series[i].record_controller(k, step.command, step.record)
+                new[i] = Message(i, k, t, step.message)
+                if k < n:
+                    ap.set_command(command_roundtrip(step.command, max_thrust))
+                    ap.advance(n_att)
+            latest = new
+            if progress is not None:
+                progress(k)
+    finally:
+        if guard is not None:
+            guard.close()
     return recording()

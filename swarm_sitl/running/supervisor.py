@@ -3,10 +3,13 @@
 ``Supervisor`` starts each child in its own session with its output in ``RUN_DIR/logs/<name>.log``
 and ``SWARM_SITL_PARENT_PID`` set (children die with it, ``sim_vehicles.runtime.lifeline``),
 forked from the fork server where it has one (``fork_server``). ``check`` raises
-``RunFailedError`` naming a child that failed, unless the fault plan made it (``planned_exit``,
-``planned_stop``). Whatever happens (completion, Ctrl-C, a child failing, an exception here),
-``close()`` sends SIGTERM to every child still running, waits, then SIGKILLs: no orphan process,
-no port left bound.
+``RunFailedError`` naming a child that exited before the run's end, with any code (a node that
+exits 0 without having finished its ticks too: ``completed``), unless the fault plan made it
+(``planned_exit``, ``planned_stop``); the line names its code, its last tick (``last_tick``) and
+why, from its log. With ``ride_through`` set such an exit is recorded (``on_lost``) and the run
+flies on without it; ``lost`` keeps the lines. Whatever happens (completion, Ctrl-C, a child
+failing, an exception here), ``close()`` sends SIGTERM to every child still running, waits, then
+SIGKILLs: no orphan process, no port left bound.
 """
 
 import contextlib
@@ -41,7 +44,8 @@ class Child:
     log_path: Path
     must_finish: bool  #: leader/controllers end by themselves; vehicles run until torn down
     process: str = ""  #: the process it is an incarnation of (``controller_2`` for ``controller_2.1``)
-    retired: bool = False  #: gone as the fault plan said (killed, or replaced by a restart)
+    retired: bool = False  #: gone as the fault plan said (killed, or replaced by a restart), or lost
+    first_tick: int = 0  #: the tick it starts at (``--resume-tick``: a restarted node's)
     stopped_since: float = math.inf  #: when it was first seen stopped [monotonic s]
 
     @property
@@ -77,6 +81,15 @@ class Supervisor:
     env_for: Callable[[str], dict[str, str]] = lambda process: {}
     #: when set, children that run ``python -P -m sim_vehicles|swarm_sitl`` are forked from it
     fork_server: ForkServer | None = None
+    #: whether a node that exited 0 had done all its ticks (a vehicle: not asked)
+    completed: Callable[[Child], bool] = lambda child: True
+    #: what a child's last tick was, for the line (``""``: unknown)
+    last_tick: Callable[[Child], str] = lambda child: ""
+    #: an unplanned exit is recorded and ridden through, not the run's end (real time,
+    #: ``run.stop_on_loss: false``); ``on_lost`` is told of each with its line
+    ride_through: bool = False
+    on_lost: Callable[[Child, int, str], None] = lambda child, code, line: None
+    lost: list[str] = field(default_factory=list)  #: the lines of the exits ridden through
 
     def child(self, process: str) -> Child | None:
         """The live incarnation of ``process``, if any."""
@@ -115,7 +128,8 @@ class Supervisor:
                 env=env,
                 start_new_session=True,
             )
-        child = Child(name, proc, log_path, must_finish, process or name)
+        first = int(argv[argv.index("--resume-tick") + 1]) if "--resume-tick" in argv else 0
+        child = Child(name, proc, log_path, must_finish, process or name, first_tick=first)
         self.children.append(child)
         return child
 
@@ -142,14 +156,32 @@ class Supervisor:
             code = c.proc.poll()
             if code is None:
                 continue
-            if code != 0 or not c.must_finish:
-                if self.planned_exit(c, code):
-                    continue
-                why = getattr(c.proc, "error", "") or c.last_line()
-                raise RunFailedError(f"{c.name} exited with code {code}" + (f": {why}" if why else ""))
+            if code == 0 and c.must_finish and self.completed(c):
+                continue
+            if self.planned_exit(c, code):
+                continue
+            line = self.exit_line(c, code)
+            if not self.ride_through:
+                raise RunFailedError(line)
+            c.retired = True
+            self.lost.append(line)
+            self.on_lost(c, code, line)
+
+    def exit_line(self, c: Child, code: int) -> str:
+        """One line: who exited, with what code, where it was, and why (its log's last line)."""
+        why = getattr(c.proc, "error", "") or c.last_line()
+        where = self.last_tick(c)
+        before = " before the run's end" if code == 0 else ""
+        return (
+            f"{c.name} exited with code {code}{before}"
+            + (f" ({where})" if where else "")
+            + (f": {why}" if why and code != 0 else "")
+        )
 
     def finished(self) -> bool:
-        return all(c.proc.poll() == 0 for c in self.children if c.must_finish and not c.retired)
+        return all(
+            c.proc.poll() == 0 and self.completed(c) for c in self.children if c.must_finish and not c.retired
+        )
 
     def close(self) -> None:
         alive = [c for c in self.children if c.proc.poll() is None]

@@ -1,0 +1,144 @@
+"""A user's law that misbehaves in follower 2 from t = 0.5 s (``tests/misbehaving_laws.py``):
+``sys.exit(0)``, ``os._exit(3)``, an endless loop, 50 ms per tick, memory without bound, 10 kB
+printed per tick. In ``sim`` and in a lockstep run (``test_misbehaving_laws_realtime.py``: in real
+time), each ends with the one line that names the law, the follower, the tick and what it did
+(exit code 1), or flies to the end (the slow law, the chatty one: exit 0); the run directory is
+readable; no process is left; the wall time is bounded by the run's limits."""
+
+import json
+import math
+import re
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from swarm_sitl.nodes.law_guard import HARD_STOP_S
+from swarm_sitl.rundir.load import load_run
+from tests import misbehaving_laws as laws
+from tests.conftest import CONFIGS, processes_mentioning
+
+CLI = [sys.executable, "-m", "swarm_sitl"]
+LAWS_FILE = Path(laws.__file__)
+DURATION_S = 1.5
+TICK_TIMEOUT_S = 1.5
+MAX_MEMORY_MB = 150.0
+MAX_OUTPUT_MB = 0.2
+#: startup (compiled kernels loaded, processes ready) and teardown of a run, on 2 busy cores [s]
+START_AND_END_S = 60.0
+
+#: law -> what its one line says after "law <entry>, follower 2 at t=0.5..s: " (None: it flies on)
+SAYS = {
+    "SysExit": "it called sys.exit(0), which ends nothing here",
+    "OsExit": "it called os._exit(3), which ends nothing here",
+    "Loops": f"its step did not return within {TICK_TIMEOUT_S:g} s (run.tick_timeout_s)",
+    "Hoards": f"past law.max_memory_mb {MAX_MEMORY_MB:g}",
+    "Slow": None,
+    "Chatty": None,
+}
+
+
+def config(tmp_path: Path, name: str, duration_s: float = DURATION_S) -> Path:
+    data = yaml.safe_load((CONFIGS / "paper.yaml").read_text())
+    data["duration_s"] = duration_s
+    data["law"] = {
+        "entry": f"{LAWS_FILE}:{name}",
+        "max_memory_mb": MAX_MEMORY_MB,
+        "max_output_mb": MAX_OUTPUT_MB,
+    }
+    data["run"] = {**data.get("run", {}), "tick_timeout_s": TICK_TIMEOUT_S}
+    path = tmp_path / f"{name}.yaml"
+    path.write_text(yaml.safe_dump(data))
+    return path
+
+
+def fly(tmp_path: Path, command: str, name: str, *extra: str) -> tuple[subprocess.CompletedProcess, float]:
+    out = tmp_path / f"{command}-{name}"
+    duration = 1.0 if name == "Slow" else DURATION_S
+    argv = [*CLI, command, str(config(tmp_path, name, duration)), "--out", str(out), "--quiet", *extra]
+    t0 = time.monotonic()
+    r = subprocess.run(argv, capture_output=True, text=True, timeout=240)
+    return r, time.monotonic() - t0
+
+
+def bound_s(name: str) -> float:
+    """The wall time a run of ``name`` may take: its ticks (50 ms each for the slow law), the
+    guard's timeout and hard stop for the loop, and the run's start and end."""
+    ticks = (1.0 / 0.01 + 1) * laws.SLOW_S if name == "Slow" else DURATION_S
+    return ticks + TICK_TIMEOUT_S + HARD_STOP_S + START_AND_END_S
+
+
+def law_path(command: str) -> str:
+    """How the line names the law's file: ``sim`` flies it where it is; ``run`` flies the copy
+    its run directory keeps (``rundir.plugins``)."""
+    return re.escape(str(LAWS_FILE)) if command == "sim" else rf"\S+/plugins/{LAWS_FILE.name}"
+
+
+def failure_window(name: str) -> tuple[float, float]:
+    """When follower 2's law can fail [s]: at 0.5 s; a hoarder once it holds more than the bound
+    (16 MB a tick: the 10th tick from 0.5 s), and at most 20 ticks later (the guard looks every
+    50 ms; a tick that allocates 16 MB takes over 2.5 ms)."""
+    if name != "Hoards":
+        return laws.FROM_S, laws.FROM_S
+    first = laws.FROM_S + (math.floor(MAX_MEMORY_MB * 1e6 / laws.HOARD_BYTES)) * 0.01
+    return first, first + 0.2
+
+
+def the_line(r: subprocess.CompletedProcess) -> str:
+    line = r.stderr.strip().splitlines()[-1] if r.stderr.strip() else ""
+    assert "Traceback" not in r.stderr, r.stderr[-2000:]
+    return line
+
+
+def check_recorded(out: Path, name: str, failed: bool) -> None:
+    """The run directory reads; follower 2 recorded up to its failure (none after), the others to
+    the failure at least."""
+    rec = load_run(out)
+    t = rec.followers[2]["t_s"]
+    p2 = rec.followers[2]["p_W"]
+    before = t < laws.FROM_S - 0.05
+    assert np.isfinite(p2[before]).all(), name
+    if failed:
+        assert np.isnan(p2[t > laws.FROM_S + 0.25]).all(), name
+    else:
+        assert np.isfinite(p2).all(), name
+    json.loads((out / "summary.json").read_text())
+
+
+@pytest.mark.system
+@pytest.mark.parametrize("name", list(SAYS))
+@pytest.mark.parametrize("command", ["sim", "run"])
+def test_a_misbehaving_law_ends_the_run_in_one_line_or_flies_on(tmp_path, command, name):
+    r, wall = fly(tmp_path, command, name)
+    out = tmp_path / f"{command}-{name}"
+    line = the_line(r)
+    says = SAYS[name]
+    if says is None:
+        assert r.returncode == 0, r.stderr[-2000:]
+        check_recorded(out, name, failed=False)
+    else:
+        assert r.returncode == 1, r.stderr[-2000:]
+        assert "\n" not in line and line.startswith("swarm-sitl: error: ")
+        found = re.search(rf"law {law_path(command)}:{name}, follower 2 at t=([0-9.]+) s: ", line)
+        assert found and says in line, line
+        t = float(found[1])
+        lo, hi = failure_window(name)
+        assert lo - 1e-9 <= t <= hi + 1e-9, line
+        if command == "run":  # the tick before the one that failed was its last
+            k = round(t / 0.01)
+            head = f"swarm-sitl: error: controller_2 exited with code 1 (its last tick {k - 1},"
+            assert line.startswith(head), line
+        check_recorded(out, name, failed=True)
+    assert wall < bound_s(name), wall
+    assert not processes_mentioning(str(out))
+    if name == "Chatty":  # bounded: the limit, its two lines, and what the process says itself
+        log = out / "logs" / ("laws.log" if command == "sim" else "controller_2.log")
+        text = log.read_text()
+        assert MAX_OUTPUT_MB * 1e6 <= len(text) < MAX_OUTPUT_MB * 1e6 + 2000, len(text)
+        printed = (round(DURATION_S / 0.01) + 1) * (len(laws.CHATTER) + 1)
+        dropped = int(text.split("[swarm-sitl: ")[-1].split(" bytes")[0])
+        assert dropped == printed - MAX_OUTPUT_MB * 1e6
