@@ -290,29 +290,34 @@ def test_a_lockstep_receiver_decides_a_range_fate_with_its_own_position_of_that_
 
 
 @pytest.mark.integration
-def test_a_receiver_counts_what_the_range_fates_say_and_uses_a_retried_message_its_retries_later():
+@pytest.mark.parametrize("seed", range(10))
+def test_a_receiver_counts_what_the_range_fates_say_and_uses_a_retried_message_its_retries_later(seed):
     """Lockstep, node 4 at 11 m from node 1 (12 m range, 5 dB fading, 2 retries 15 ms apart):
     each message's fate as ``fate`` draws it; one through at its second attempt (15 ms late) is
-    used ceil(1.5) = 2 ticks after the on-time tick s + 1, at its third (30 ms) 3 after it."""
+    used ceil(1.5) = 2 ticks after the on-time tick s + 1, at its third (30 ms) 3 after it. The
+    receiver ticks on past the last message (``LAST_USE`` ticks) so a late last one is seen used."""
     spec = FaultSpec(edge=(1, 4), range={"range_m": 12.0, "fading_db": 5.0, "retries": 2, "retry_s": 0.015})
-    plan = FaultPlan(seed=4, plan=[spec])
+    plan = FaultPlan(seed=seed, plan=[spec])
     inner = _Publisher({})
     clock = RunClock(True, DT)
     bus = FaultyBus(inner, plan, 4, EDGES, clock, 60.0)  # type: ignore[arg-type]
     used_at: dict[int, int] = {}
-    for k in range(301):
+    n, last_use = 300, 4  # (the latest use: 30 ms late, 3 ticks after s + 1)
+    for k in range(n + 1 + last_use):
         clock.tick = k
         bus.poll()
-        for s in range(max(0, k - 5), k):
+        for s in range(max(0, k - 5), min(k, n + 1)):
             if inner.estimate(1, s) is not None:
                 used_at.setdefault(s, k)
-        bus.publish(_at(4, k, (0.0, 11.0, 0.0)))
-        inner.wire.append(_at(1, k, (0.0, 0.0, 0.0)))
+        if k <= n:
+            bus.publish(_at(4, k, (0.0, 11.0, 0.0)))
+            inner.wire.append(_at(1, k, (0.0, 0.0, 0.0)))
     fates = [
-        fate(4, [(0, spec)], edge_channel(1, 4), s, s * DT, 60.0, DT, distance_m=11.0) for s in range(300)
+        fate(seed, [(0, spec)], edge_channel(1, 4), s, s * DT, 60.0, DT, distance_m=11.0)
+        for s in range(n + 1)
     ]
     st = bus.stats[1]
-    assert st.received == 300 and st.lost == st.out_of_range == sum(f.lost for f in fates) > 0
+    assert st.received == n + 1 and st.lost == st.out_of_range == sum(f.lost for f in fates) > 0
     assert st.retried == sum(f.retried for f in fates) > 0 and st.delayed == st.retried
     for s, f in enumerate(fates):
         late = {0.0: 1, 0.015: 3, 0.03: 4}[round(f.delay_s, 6)]

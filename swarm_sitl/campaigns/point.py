@@ -46,22 +46,61 @@ class PointError(RuntimeError):
     """A point that could not run at all (its config refused, the command missing): one line."""
 
 
-def run_point(config_yaml: str, name: str, keep_dir: str | None = None) -> dict[str, Any]:
+#: a point past its wall budget is interrupted (its run writes what it recorded), then killed this
+#: long after if it has not ended [s]
+INTERRUPT_GRACE_S = 30.0
+
+
+def run_command(cfg_path: Path, run_dir: Path) -> list[str]:
+    """The command that flies a point: a lockstep ``swarm-sitl run``."""
+    return [sys.executable, "-m", "swarm_sitl", "run", str(cfg_path), "--out", str(run_dir), "--quiet"]
+
+
+def _timed_out(timeout_s: float, wall_s: float) -> dict[str, Any]:
+    row: dict[str, Any] = dict.fromkeys(METRICS, math.nan)
+    row.update(passed=0, failure=f"timed out after {timeout_s:g} s (the point's wall budget)")
+    row["wall_s"] = round(wall_s, 3)
+    return row
+
+
+def run_point(
+    config_yaml: str,
+    name: str,
+    keep_dir: str | None = None,
+    plugins: dict[str, bytes] | None = None,
+    timeout_s: float | None = None,
+) -> dict[str, Any]:
     """Run the config ``config_yaml`` in lockstep and return its metrics (``METRICS``). The run
-    directory is ``keep_dir`` if given (kept), else a temporary one (removed)."""
+    directory is ``keep_dir`` if given (kept), else a temporary one (removed). ``plugins``: the
+    files its plug-in entries name (``plugins/my_law.py``, relative to the config), shipped with
+    the point and written beside it (``rundir.plugins.pack``). A run past ``timeout_s`` of wall
+    time is interrupted and its row failed ``timed out``."""
     work = Path(tempfile.mkdtemp(prefix=f"sweep-{name}-"))
     try:
         cfg_path = work / f"{name}.yaml"
         cfg_path.write_text(config_yaml)
+        for rel, body in (plugins or {}).items():
+            (work / rel).parent.mkdir(parents=True, exist_ok=True)
+            (work / rel).write_bytes(body)
         run_dir = Path(keep_dir) if keep_dir else work / "run"
         if keep_dir:
             shutil.rmtree(run_dir, ignore_errors=True)
-        cmd = [sys.executable, "-m", "swarm_sitl", "run", str(cfg_path), "--out", str(run_dir), "--quiet"]
+        cmd = run_command(cfg_path, run_dir)
         t0 = time.monotonic()
         proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         RUNNING.add(proc)
         try:
-            stdout, stderr = proc.communicate()
+            try:
+                stdout, stderr = proc.communicate(timeout=timeout_s)
+            except subprocess.TimeoutExpired:
+                proc.send_signal(signal.SIGINT)  # the run writes what it recorded
+                try:
+                    proc.communicate(timeout=INTERRUPT_GRACE_S)
+                except subprocess.TimeoutExpired:
+                    proc.kill()
+                    proc.communicate()
+                assert timeout_s is not None
+                return _timed_out(timeout_s, time.monotonic() - t0)
         finally:
             RUNNING.discard(proc)
         r = subprocess.CompletedProcess(cmd, proc.returncode, stdout, stderr)
@@ -117,14 +156,7 @@ def metrics_of(run_dir: Path, failure: str, wall_s: float) -> dict[str, Any]:
     after = finite & (t >= settle_s)
     max_err = float(worst[after].max()) if after.any() else math.nan
     final = float(worst[finite][-1]) if finite.any() else math.nan
-    recovered = math.nan
-    if ends and finite.any():
-        end = max(ends)
-        over = np.nonzero(finite & (t >= end) & (worst > bound))[0]
-        if over.size == 0:
-            recovered = 0.0
-        elif over[-1] != np.nonzero(finite)[0][-1]:  # (still out at the end: never recovered)
-            recovered = float(t[over[-1] + 1] - end)
+    recovered = recovered_after(t, worst, bound, max(ends)) if ends and finite.any() else math.nan
     fractions = [
         min(1.0, st["delivered"] / st["received"])
         for name, st in summary.get("links", {}).items()
@@ -138,13 +170,28 @@ def metrics_of(run_dir: Path, failure: str, wall_s: float) -> dict[str, Any]:
         "recovered_s": recovered,
         "delivered_min": min(fractions) if fractions else math.nan,
         "delivered_mean": float(np.mean(fractions)) if fractions else math.nan,
-        "failsafe_s": _failsafe_s(events, float(t[-1])),
+        "failsafe_s": failsafe_s(events, float(t[-1])),
         "failure": failure,
         "wall_s": round(wall_s, 3),
     }
 
 
-def _failsafe_s(events: list[dict[str, Any]], end_s: float) -> float:
+def recovered_after(t: np.ndarray, worst: np.ndarray, bound: float, end_s: float) -> float:
+    """From ``end_s`` (the plan's last window's end) to the first sample from which the error
+    ``worst`` stays within ``bound`` to the end (NaN samples skipped): 0 if it never left it,
+    NaN if it is out at the end."""
+    finite = np.isfinite(worst)
+    over = np.nonzero(finite & (t >= end_s) & (worst > bound))[0]
+    if over.size == 0:
+        return 0.0
+    if over[-1] == np.nonzero(finite)[0][-1]:  # still out at the end: never recovered
+        return math.nan
+    return float(t[over[-1] + 1] - end_s)
+
+
+def failsafe_s(events: list[dict[str, Any]], end_s: float) -> float:
+    """The vehicles' time in their setpoint-loss failsafe, summed; one still in it counts to
+    ``end_s``."""
     since: dict[Any, float] = {}
     total = 0.0
     for e in sorted(events, key=lambda e: e.get("t_s", 0.0)):

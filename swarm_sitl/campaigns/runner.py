@@ -22,6 +22,9 @@ class Task:
     name: str  #: the point's file name (``points/NAME.yaml``)
     config_yaml: str
     keep_dir: str | None = None
+    #: the files its plug-in entries name (``plugins/...``): shipped with it, never a path
+    plugins: dict[str, bytes] | None = None
+    timeout_s: float | None = None  #: its wall budget (``point.run_point``)
 
 
 def default_jobs() -> int:
@@ -34,7 +37,12 @@ def run_local(tasks: list[Task], jobs: int) -> Iterator[tuple[Task, dict[str, An
     """Each task's metrics as its run ends, ``jobs`` runs at once."""
     pool = ThreadPoolExecutor(max_workers=jobs, thread_name_prefix="sweep")
     try:
-        yield from _as_done({pool.submit(run_point, t.config_yaml, t.name, t.keep_dir): t for t in tasks})
+        yield from _as_done(
+            {
+                pool.submit(run_point, t.config_yaml, t.name, t.keep_dir, t.plugins, t.timeout_s): t
+                for t in tasks
+            }
+        )
     except BaseException:
         pool.shutdown(wait=False, cancel_futures=True)
         stop_running()  # the runs under way end now, and are not rows
@@ -72,7 +80,9 @@ def run_dask(tasks: list[Task], client: Any) -> Iterator[tuple[Task, dict[str, A
     from distributed import as_completed
 
     futures = {
-        client.submit(run_point, t.config_yaml, t.name, None, pure=False, key=f"sweep-{t.name}"): t
+        client.submit(
+            run_point, t.config_yaml, t.name, None, t.plugins, t.timeout_s, pure=False, key=f"sweep-{t.name}"
+        ): t
         for t in tasks
     }
     try:

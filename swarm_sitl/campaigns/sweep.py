@@ -7,6 +7,7 @@ refined by bisection when asked. Resumable: the rows already in the table are no
 
 import hashlib
 import json
+import math
 import re
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
@@ -22,6 +23,7 @@ from swarm_sitl.campaigns.runner import Task, connect, default_jobs, run_dask, r
 from swarm_sitl.campaigns.table import TABLE, TableWriter, read_rows, row_key, write_sorted
 from swarm_sitl.config.load import ConfigError, load_config, parse_config, plan_data
 from swarm_sitl.config.schema import SwarmConfig
+from swarm_sitl.rundir.plugins import pack
 
 CAMPAIGN = "campaign.json"
 POINTS = "points"
@@ -152,6 +154,31 @@ def _open_campaign(out: Path, spec: dict[str, Any]) -> None:
         raise SweepSpecError(f"--out {out}: cannot write there ({e.strerror or e})") from None
 
 
+@dataclass(frozen=True)
+class Shipment:
+    """What every run of a campaign takes: the base (its plug-ins named ``plugins/...``), the
+    plug-ins' files, and the wall budget of a run."""
+
+    base: dict[str, Any]
+    files: dict[str, bytes]
+    timeout_s: float
+
+
+def default_budget_s(base: dict[str, Any]) -> float:
+    """A run's wall budget unless ``--point-timeout`` says: its start (``run.start_timeout_s``),
+    ten times its simulated duration (a lockstep run of the paper's swarm flies about twice as
+    fast as real time on two busy cores), and a minute of teardown."""
+    return float(base["run"]["start_timeout_s"]) + 10.0 * float(base["duration_s"]) + 60.0
+
+
+def _base_sha256(packed: dict, files: dict[str, bytes]) -> str:
+    """The campaign's identity: what its runs fly, and the bytes of each plug-in file."""
+    h = hashlib.sha256(_flown(packed).encode())
+    for rel in sorted(files):
+        h.update(f"\n{rel} {hashlib.sha256(files[rel]).hexdigest()}".encode())
+    return h.hexdigest()
+
+
 def _flown(base: dict) -> str:
     """What the runs fly: the base config but its bound, which only judges them (a campaign run
     again with another ``--bound`` judges its rows again, flying none of them)."""
@@ -186,6 +213,7 @@ def sweep(
     refine: int = 0,
     progress: bool = False,
     keep_runs: bool = False,
+    point_timeout_s: float | None = None,
 ) -> Campaign:
     """Run a campaign and return its table (``Campaign.rows``).
 
@@ -195,7 +223,10 @@ def sweep(
     ``run.max_formation_error_m``). ``jobs``: runs at once here (default: one per core);
     ``scheduler``: a Dask scheduler's address instead (reached
     within ``scheduler_timeout_s``). ``refine``: bisection steps between the
-    last value that holds and the first that breaks (one swept key)."""
+    last value that holds and the first that breaks (one swept key). ``point_timeout_s``: each
+    run's wall budget, past which its row fails ``timed out`` (default ``default_budget_s``).
+    The plug-ins the config names go with every run as their files (``rundir.plugins.pack``), to a
+    Dask worker too, and are kept in ``OUT/points/plugins/``."""
     items = _vary(vary)
     keys = [k for k, _ in items]
     seed_list = _seeds(seeds)
@@ -208,12 +239,16 @@ def sweep(
         )
     if jobs is not None and jobs < 1:
         raise SweepSpecError(f"sweep: --jobs must be at least 1, got {jobs}")
+    if point_timeout_s is not None and not 0 < point_timeout_s < math.inf:
+        raise SweepSpecError(f"sweep: --point-timeout must be a number of seconds > 0, got {point_timeout_s}")
     base = _base(config, faults, duration_s, bound_m)
     bound = float(base["run"]["max_formation_error_m"])
     points = grid(items)
     _check_points(base, points, seed_list[0])
     out = Path(out)
-    base_text = yaml.safe_dump(base, sort_keys=True)
+    packed, files, _ = pack(base)  # what each run flies: its plug-ins as files beside it
+    ship = Shipment(packed, files, point_timeout_s or default_budget_s(base))
+    base_text = yaml.safe_dump(packed, sort_keys=True)
     spec = {
         "config": str(config) if not isinstance(config, SwarmConfig) else config.name,
         "keys": keys,
@@ -221,12 +256,15 @@ def sweep(
         "seeds": seed_list,
         "bound_m": bound,
         "duration_s": base["duration_s"],
-        "base_sha256": hashlib.sha256(_flown(base).encode()).hexdigest(),
+        "base_sha256": _base_sha256(packed, files),
     }
     client = connect(scheduler, scheduler_timeout_s) if scheduler else None  # before anything is written
     try:
         _open_campaign(out, spec)
         (out / "base.yaml").write_text(base_text)
+        for rel, body in files.items():  # beside the points that name them
+            (out / POINTS / rel).parent.mkdir(parents=True, exist_ok=True)
+            (out / POINTS / rel).write_bytes(body)
     except BaseException:
         if client is not None:
             client.close()
@@ -235,7 +273,7 @@ def sweep(
     judge(campaign.rows, bound)
     writer = TableWriter(out / TABLE, keys)
     try:
-        _run(campaign, base, points, seed_list, 0, writer, client, jobs, progress, keep_runs)
+        _run(campaign, ship, points, seed_list, 0, writer, client, jobs, progress, keep_runs)
         # the bisection from the grid's own values, each step's midpoint added: run again, the
         # same command takes the same steps (their rows are in the table) and flies nothing
         key = varied[0]
@@ -251,7 +289,7 @@ def sweep(
             mids = [{**fixed, key: mid}]
             _check_points(base, mids, seed_list[0])
             values.add(mid)
-            _run(campaign, base, mids, seed_list, step + 1, writer, client, jobs, progress, keep_runs)
+            _run(campaign, ship, mids, seed_list, step + 1, writer, client, jobs, progress, keep_runs)
     except KeyboardInterrupt as e:
         campaign.interrupted = e
     finally:
@@ -267,7 +305,7 @@ def sweep(
 
 def _run(
     campaign: Campaign,
-    base: dict,
+    ship: "Shipment",
     points: list[dict[str, float]],
     seeds: list[int],
     refined: int,
@@ -288,12 +326,12 @@ def _run(
             row = {**p, "seed": s}
             key = row_key(keys, row)
             name = _name(p, s)
-            text = yaml.safe_dump(point_data(base, p, s), sort_keys=False)
+            text = yaml.safe_dump(point_data(ship.base, p, s), sort_keys=False)
             (campaign.out / POINTS / f"{name}.yaml").write_text(text)  # a row's config, run or not
             if key in done:
                 continue
             keep = str(campaign.out / "runs" / name) if keep_runs else None
-            tasks.append(Task(key, name, text, keep))
+            tasks.append(Task(key, name, text, keep, ship.files, ship.timeout_s))
             by_key[key] = {**row, "refined": int(refined > 0), "config": f"{POINTS}/{name}.yaml"}
     if not tasks:
         return

@@ -38,6 +38,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
             refine=args.refine,
             progress=not args.quiet,
             keep_runs=args.keep_runs,
+            point_timeout_s=args.point_timeout,
         )
     except (SweepSpecError, SchedulerError, PointError) as e:
         raise CliError(str(e)) from None
@@ -86,5 +87,12 @@ def add_sweep(sub: Any) -> None:
     )
     s.add_argument("--refine", type=int, default=0, help="bisection steps at the breaking point (one key)")
     s.add_argument("--keep-runs", action="store_true", help="keep each run's directory in OUT/runs")
+    s.add_argument(
+        "--point-timeout",
+        type=float,
+        metavar="S",
+        help="each run's wall budget; a run past it is a failed row, 'timed out' (default: "
+        "run.start_timeout_s + 10 x its duration + 60 s)",
+    )
     s.add_argument("--quiet", action="store_true", help="no progress bar")
     s.set_defaults(func=cmd_sweep)

@@ -1,0 +1,101 @@
+"""The rules of a campaign that no lockstep run is needed to check, each one a plausible bug away:
+the direction every harsher-when-smaller key is read in, a swept jitter that flies a fault, a list
+index past the list's end, the campaign a directory holds, when a run recovered and how long a
+failsafe lasted, and a point that outlasts its wall budget."""
+
+import math
+import sys
+import time
+
+import numpy as np
+import pytest
+
+from swarm_sitl.campaigns.breaking import HARSHER_WHEN_SMALLER, breaking_point, toward
+from swarm_sitl.campaigns.grid import SweepSpecError, point_data
+from swarm_sitl.campaigns.point import failsafe_s, recovered_after, run_point
+from swarm_sitl.campaigns.sweep import _open_campaign
+from swarm_sitl.config.load import parse_config
+
+pytestmark = pytest.mark.unit
+
+
+@pytest.mark.parametrize("key", sorted(HARSHER_WHEN_SMALLER))
+def test_each_key_harsher_when_smaller_is_read_from_its_largest_value_down(key):
+    """Held at the large values, broken below: the break is where it shrank too far."""
+    rows = [{key: v, "passed": int(v >= 0.4)} for v in (0.1, 0.2, 0.4, 0.8) for _ in range(2)]
+    assert breaking_point(rows, key) == (0.4, 0.2) and toward(key) == "down to"
+    rows[-1]["passed"] = 0  # the gentlest value broke: nothing held
+    assert breaking_point(rows, key) == (None, 0.8)
+
+
+def test_a_key_harsher_when_larger_is_read_from_its_smallest_value_up():
+    rows = [{"link.bursty.p": v, "passed": int(v <= 0.2)} for v in (0.1, 0.2, 0.4)]
+    assert breaking_point(rows, "link.bursty.p") == (0.2, 0.4) and toward("link.bursty.p") == "up to"
+
+
+def test_a_jitter_swept_alone_flies_a_delay_with_that_jitter_on_every_edge_into_a_follower(paper_cfg):
+    base = paper_cfg.data()
+    ids = [f.id for f in paper_cfg.followers]
+    data = point_data(base, {"link.jitter_s": 0.02}, 0)
+    entries = data["faults"]["plan"]
+    assert [e["into"] for e in entries] == ids
+    assert all(e["jitter_s"] == 0.02 and 0 < e["delay_s"] < 1e-6 for e in entries)
+    cfg = parse_config(data, "sweep")
+    assert all(f.jitter_s == 0.02 for f in cfg.faults.plan)
+    assert point_data(base, {"link.jitter_s": 0.0}, 0)["faults"]["plan"] == []  # none: no fault
+
+
+def test_a_list_index_at_or_past_the_lists_end_is_one_line(paper_cfg):
+    base = paper_cfg.data()
+    n = len(base["followers"])
+    for index in (n, n + 3):
+        with pytest.raises(SweepSpecError, match=rf"no item {index} \(the list has {n}\)"):
+            point_data(base, {f"followers.{index}.offset_m.0": 1.0}, 0)
+    assert (
+        point_data(base, {f"followers.{n - 1}.offset_m.0": 1.0}, 0)["followers"][n - 1]["offset_m"][0] == 1.0
+    )
+
+
+def test_a_directory_holds_one_campaign_its_base_and_its_keys_both(tmp_path):
+    spec = {"base_sha256": "a" * 64, "keys": ["link.loss"], "values": {"link.loss": [0.1]}, "seeds": [0]}
+    _open_campaign(tmp_path, spec)
+    _open_campaign(tmp_path, {**spec, "values": {"link.loss": [0.2]}, "seeds": [1]})  # grown: the same
+    for other in ({**spec, "base_sha256": "b" * 64}, {**spec, "keys": ["link.delay_s"]}):
+        with pytest.raises(SweepSpecError, match="holds another campaign"):
+            _open_campaign(tmp_path, other)
+
+
+def test_a_run_recovered_at_the_first_sample_from_which_it_stays_in_the_bound():
+    """Out of the bound until t = 3.0 s (inclusive), in from 3.1 s on: recovered 3.1 - 2.0 s after
+    the plan's last window; out again at the end: never; never out: at once."""
+    t = np.round(np.arange(0, 5.0001, 0.1), 10)
+    err = np.where(t <= 3.0, 1.0, 0.01)
+    assert recovered_after(t, err, 0.05, 2.0) == pytest.approx(1.1, abs=1e-12)
+    err[-1] = 1.0
+    assert math.isnan(recovered_after(t, err, 0.05, 2.0))
+    assert recovered_after(t, np.full_like(t, 0.01), 0.05, 2.0) == 0.0
+
+
+def test_a_failsafe_still_on_at_the_end_counts_to_the_end():
+    events = [
+        {"t_s": 1.0, "kind": "failsafe_enter", "vehicle": 1},
+        {"t_s": 1.5, "kind": "failsafe_exit", "vehicle": 1},
+        {"t_s": 4.0, "kind": "failsafe_enter", "vehicle": 2},
+        {"t_s": 4.5, "kind": "failsafe_enter", "vehicle": 2},  # (said twice: counted from the first)
+    ]
+    assert failsafe_s(events, 10.0) == pytest.approx(0.5 + 6.0)
+    assert failsafe_s(events[:2], 10.0) == pytest.approx(0.5)
+
+
+def test_a_point_past_its_wall_budget_is_a_failed_row_timed_out_and_nothing_is_left(tmp_path, monkeypatch):
+    """``swarm-sitl run`` stood in for by a process that never ends: the row fails ``timed out``
+    within the budget and the grace of an interrupt, and the process is gone."""
+    import swarm_sitl.campaigns.point as point
+
+    monkeypatch.setattr(point, "run_command", lambda cfg, run_dir: [sys.executable, "-c", "while True: pass"])
+    t0 = time.monotonic()
+    row = run_point("name: x\n", "hangs", None, None, 1.0)
+    wall = time.monotonic() - t0
+    assert row["passed"] == 0 and row["failure"] == "timed out after 1 s (the point's wall budget)"
+    assert 1.0 <= wall < 1.0 + point.INTERRUPT_GRACE_S + 2.0
+    assert not point.RUNNING
