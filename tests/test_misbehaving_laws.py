@@ -24,7 +24,8 @@ from tests.conftest import CONFIGS, processes_mentioning
 
 CLI = [sys.executable, "-m", "swarm_sitl"]
 LAWS_FILE = Path(laws.__file__)
-DURATION_S = 1.5
+DURATION_S = 1.2
+SLOW_DURATION_S = 0.6  #: the slow law's run: 61 ticks of 50 ms in lockstep
 TICK_TIMEOUT_S = 1.5
 MAX_MEMORY_MB = 150.0
 MAX_OUTPUT_MB = 0.2
@@ -58,7 +59,7 @@ def config(tmp_path: Path, name: str, duration_s: float = DURATION_S) -> Path:
 
 def fly(tmp_path: Path, command: str, name: str, *extra: str) -> tuple[subprocess.CompletedProcess, float]:
     out = tmp_path / f"{command}-{name}"
-    duration = 1.0 if name == "Slow" else DURATION_S
+    duration = SLOW_DURATION_S if name == "Slow" else DURATION_S
     argv = [*CLI, command, str(config(tmp_path, name, duration)), "--out", str(out), "--quiet", *extra]
     t0 = time.monotonic()
     r = subprocess.run(argv, capture_output=True, text=True, timeout=240)
@@ -68,7 +69,7 @@ def fly(tmp_path: Path, command: str, name: str, *extra: str) -> tuple[subproces
 def bound_s(name: str) -> float:
     """The wall time a run of ``name`` may take: its ticks (50 ms each for the slow law), the
     guard's timeout and hard stop for the loop, and the run's start and end."""
-    ticks = (1.0 / 0.01 + 1) * laws.SLOW_S if name == "Slow" else DURATION_S
+    ticks = (SLOW_DURATION_S / 0.01 + 1) * laws.SLOW_S if name == "Slow" else DURATION_S
     return ticks + TICK_TIMEOUT_S + HARD_STOP_S + START_AND_END_S
 
 

@@ -17,6 +17,7 @@ from tests.conftest import processes_mentioning
 from tests.test_misbehaving_laws import (
     DURATION_S,
     SAYS,
+    SLOW_DURATION_S,
     bound_s,
     failure_window,
     fly,
@@ -41,7 +42,8 @@ def test_a_misbehaving_law_in_real_time_is_ridden_through_and_named(tmp_path, na
         assert r.returncode == 0, r.stderr[-2000:]
         if name == "Slow":  # 50 ms a tick: most of its 10 ms ticks are skipped, each counted
             report = json.loads((out / "summary.json").read_text())["inputs"]["2"]
-            assert report["late_ticks"] >= 0.5 * (1.0 / 0.01) and report["max_late_s"] >= laws.SLOW_S, report
+            ticks = SLOW_DURATION_S / 0.01
+            assert report["late_ticks"] >= 0.5 * ticks and report["max_late_s"] >= laws.SLOW_S, report
     else:
         assert r.returncode == 1, r.stderr[-2000:]
         found = re.search(rf"law {law_path('run')}:{name}, follower 2 at t=([0-9.]+) s: ", line)

@@ -1,7 +1,7 @@
 """Robustness campaigns (``swarm-sitl sweep``, ``swarm_sitl.sweep``): the grid and its specs, the
-breaking point and its bisection, the table; and campaigns of real lockstep runs: here and on a
-local Dask cluster (the same rows), judged again at another bound, interrupted and resumed, and
-each row run again from its config."""
+breaking point and its bisection, the table; and campaigns of real lockstep runs, judged again at
+another bound, interrupted and resumed, and each row run again from its config (on a local Dask
+cluster, the same rows: ``test_sweep_plugins.py``)."""
 
 import csv
 import math
@@ -192,26 +192,6 @@ def test_a_campaign_writes_one_row_per_run_is_judged_again_and_each_row_runs_aga
     from swarm_sitl.campaigns.point import metrics_of
 
     assert metrics_of(run, "", 0.0)["max_error_m"] == one["max_error_m"]
-
-
-@pytest.mark.system
-def test_the_same_campaign_on_a_local_dask_cluster_gives_the_same_rows(tmp_path):
-    from distributed import LocalCluster
-
-    import swarm_sitl
-
-    cfg = _config(tmp_path)
-    vary = {"link.loss": [0.0, 0.6]}
-    here = swarm_sitl.sweep(cfg, vary, seeds=[3], out=tmp_path / "here", jobs=2)
-    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
-        there = swarm_sitl.sweep(
-            cfg, vary, seeds=[3], out=tmp_path / "there", scheduler=cluster.scheduler_address
-        )
-
-    def strip(rows):
-        return [{k: v for k, v in r.items() if k != "wall_s"} for r in rows]
-
-    assert len(here.rows) == 2 and strip(here.rows) == strip(there.rows)
 
 
 @pytest.mark.system
