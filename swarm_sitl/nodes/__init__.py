@@ -1,6 +1,8 @@
 """The processes of a swarm but the vehicles: each follower's controller and the leader.
 
 - ``assembly``: the laws of a node built from the config (``sim`` builds them the same way);
+- ``law_host``: a law stepped through its contract; ``law_guard``: a user's law kept from hanging,
+  ending or flooding the process that hosts it (``sim`` too);
 - ``controller``: follower i's loop: its vehicle over MAVLink, its neighbours over the bus, both
   clocks; ``neighbour_inbox``: which neighbour estimates a tick uses (riding through silent ones);
 - ``leader``: node 0, the reference, on the wall clock or a window ahead of the followers;

@@ -10,7 +10,8 @@
   ``mcap_export``: MCAP;
 - ``outputs``: the run directory written from what was recorded; ``whole_files``: each file
   written whole or not at all; ``provenance``: what made the run (versions, plug-ins' hashes,
-  seeds), in its summary.
+  seeds), in its summary; ``plugins``: the plug-ins' files kept in the run directory, so it reads
+  and flies again anywhere.
 
 Compute, record, plot: nothing here runs a swarm.
 

@@ -1,5 +1,6 @@
 """Running a swarm: in one process (``sim``), or as processes that are started, supervised and
-torn down all or nothing (``run``: the whole run; ``supervisor``: the children; ``vehicles``: the
+torn down all or nothing (``run``: the whole run; ``supervisor``: the children; ``ends``: a
+process that ended early or stopped ticking, named; ``vehicles``: the
 simulated vehicles; ``hub``: the supervisor's zenoh session and view of the bus; ``fork_server``:
 children forked from one warmed-up process; ``children``: a child's command line and environment;
 ``router_watch``: a client-mode run's zenoh router, lost and back).
