@@ -12,6 +12,7 @@ import pytest
 
 from sim_vehicles.runtime.counter_file import CounterFile
 from swarm_sitl.config.load import load_config
+from swarm_sitl.nodes.law_guard import HARD_STOP_S
 from swarm_sitl.rundir.layout import procs_dir, tick_path
 from swarm_sitl.running import ends
 from swarm_sitl.running.supervisor import RunFailedError, Supervisor
@@ -124,7 +125,10 @@ def test_ridden_through_an_exit_is_recorded_and_the_others_go_on(tmp_path):
         lost.close()
         sup.close()
     events = [json.loads(x) for x in (procs_dir(tmp_path) / "lost.events").read_text().splitlines()]
-    assert [(e["kind"], e["process"], e["code"]) for e in events] == [("process_lost", "controller_2", 1)]
+    assert [(e["kind"], e["process"], e["code"], e["line"]) for e in events] == [
+        ("process_lost", "controller_2", 1, sup.lost[0])
+    ]
+    assert 0.0 < events[0]["t_s"] < 10.0 and events[0]["source"] == "supervisor"  # since the epoch
 
 
 def test_a_real_time_controller_whose_ticks_stop_is_named_and_a_run_past_its_end(tmp_path):
@@ -136,19 +140,131 @@ def test_a_real_time_controller_whose_ticks_stop_is_named_and_a_run_past_its_end
         t0 = 1000.0
         watch = ends.TickWatch(cfg, tmp_path, t0)
         watch.check(sup.children, t0 + 1.0)
+        # its law's guard gets its turn first: the stop after tick_timeout_s and the hard stop
+        assert (
+            cfg.run.tick_timeout_s + HARD_STOP_S
+            <= watch.allowed_s
+            <= cfg.run.tick_timeout_s + HARD_STOP_S + 1.5
+        )
         watch.check(sup.children, t0 + 1.0 + watch.allowed_s - 0.01)  # not yet
         tick.set(122)  # it ticked: the wait starts again
         watch.check(sup.children, t0 + 1.0 + watch.allowed_s + 0.5)
         with pytest.raises(
             RunFailedError,
-            match=rf"^controller_4 \(law {cfg.law.entry}\) has not ticked for .* last tick 121, t=1.210 s$",
+            match=rf"^controller_4 \(law {cfg.law.entry}\) has not ticked for {watch.allowed_s + 0.1:.1f} s "
+            r".* last tick 121, t=1.210 s$",
         ):
             watch.check(sup.children, t0 + 1.0 + 2 * watch.allowed_s + 0.6)
         tick.set(cfg.n_control_steps + 1)  # its last tick: done, not stalled
         late = t0 + cfg.duration_s + watch.allowed_s + 0.1
-        with pytest.raises(RunFailedError, match=r"^the run did not end .* controller_4 still running$"):
+        sup.spawn("vehicle_4", _sleeps(), False)  # a vehicle runs until torn down: not named
+        with pytest.raises(RunFailedError, match=r"^the run did not end .*: controller_4 still running$"):
             watch.check(sup.children, late)
         watch.check(sup.children, late - 0.2)
     finally:
         tick.close()
+        sup.close()
+
+
+def test_the_exit_line_says_why_from_the_log_for_a_failure_and_not_for_code_0(tmp_path):
+    sup = _supervisor(tmp_path)
+    try:
+        sup.spawn(
+            "vehicle_1",
+            [sys.executable, "-c", "print('first'); print('boom: it broke'); print(); exit(3)"],
+            False,
+        )
+        sup.spawn("leader", [sys.executable, "-c", "print('a line that is not a reason')"], True)
+        _ended(sup)
+        lines = [sup.exit_line(c, c.proc.poll()) for c in sup.children]
+        assert lines == [
+            "vehicle_1 exited with code 3: boom: it broke",
+            "leader exited with code 0 before the run's end",
+        ]
+        assert sup.children[1].first_tick == 0
+    finally:
+        sup.close()
+
+
+def test_a_leader_says_its_last_tick_and_tick_0_is_a_tick(tmp_path):
+    sup = _supervisor(tmp_path)
+    ticks = [_ticked(tmp_path, "leader", 0), _ticked(tmp_path, "controller_1", -1)]
+    try:
+        sup.spawn("leader", _exits(0), True)
+        sup.spawn("controller_1", _exits(0), True)
+        _ended(sup)
+        assert [sup.last_tick(c) for c in sup.children] == [
+            "its last tick 0, t=0.000 s",
+            "before its first tick",
+        ]
+        assert ends.newest_tick(tmp_path, sup.children[0]) == 0
+    finally:
+        for t in ticks:
+            t.close()
+        sup.close()
+
+
+def test_a_child_stopped_by_no_plan_fails_the_run_after_its_grace_and_one_the_plan_stopped_does_not(tmp_path):
+    import signal
+
+    from swarm_sitl.running.supervisor import STOPPED_GRACE_S
+
+    sup = _supervisor(tmp_path)
+    try:
+        victim = sup.spawn("controller_2", _sleeps(), True)
+        time.sleep(0.5)  # the interpreter is up
+        victim.proc.send_signal(signal.SIGSTOP)
+        end = time.monotonic() + 5
+        while not victim.stopped():
+            assert time.monotonic() < end
+            time.sleep(0.02)
+        sup.planned_stop = lambda process: process == "controller_2"
+        sup.check()
+        time.sleep(STOPPED_GRACE_S + 0.1)
+        sup.check()  # the plan stopped it: no failure
+        sup.planned_stop = lambda process: False
+        sup.check()  # seen stopped from now: within its grace
+        time.sleep(STOPPED_GRACE_S + 0.1)
+        with pytest.raises(RunFailedError, match=r"^controller_2 is stopped \(SIGSTOP or a debugger\)"):
+            sup.check()
+    finally:
+        sup.close()
+    assert victim.proc.poll() is not None  # close() woke it and ended it
+
+
+def test_closing_ends_a_child_that_ignores_sigterm(tmp_path, monkeypatch):
+    import swarm_sitl.running.supervisor as supervisor
+
+    monkeypatch.setattr(supervisor, "TERM_GRACE_S", 0.5)
+    sup = _supervisor(tmp_path)
+    stubborn = [
+        sys.executable,
+        "-c",
+        "import signal, time; signal.signal(signal.SIGTERM, signal.SIG_IGN); time.sleep(60)",
+    ]
+    child = sup.spawn("vehicle_3", stubborn, False)
+    polite = sup.spawn("vehicle_4", _sleeps(), False)
+    time.sleep(0.5)
+    t0 = time.monotonic()
+    sup.close()
+    assert child.proc.poll() == -9 and polite.proc.poll() == -15
+    assert time.monotonic() - t0 < 0.5 + 2.0
+
+
+def test_a_controller_stuck_at_its_first_tick_is_named_and_one_that_never_ticked_is_left_to_the_start(
+    tmp_path,
+):
+    cfg = load_config(CONFIGS / "paper.yaml")
+    sup = _supervisor(tmp_path)
+    ticks = [_ticked(tmp_path, "controller_1", 0), _ticked(tmp_path, "controller_2", -1)]
+    try:
+        sup.spawn("controller_2", _sleeps(), True)
+        sup.spawn("controller_1", _sleeps(), True)
+        watch = ends.TickWatch(cfg, tmp_path, 0.0)
+        watch.check(sup.children, 0.5)
+        with pytest.raises(RunFailedError, match=r"^controller_1 .* its last tick 0, t=0.000 s$"):
+            watch.check(sup.children, 0.5 + watch.allowed_s + 0.1)
+    finally:
+        for t in ticks:
+            t.close()
         sup.close()

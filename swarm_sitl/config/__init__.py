@@ -1,7 +1,8 @@
 """A run described by one file: the schema (``schema``; its ``vehicle:`` and ``wind:`` sections in
 ``vehicle_section``; the run's one seed and its streams in ``seeds``), reading a file into it
-with one-line errors (``load``; a run directory's without importing its plug-ins), a generated swarm's config (``generator``, ``swarm-sitl new``) and the
-reference of every key (``reference``, ``docs/config.md``).
+with one-line errors (``load``; a run directory's without importing its plug-ins), a generated
+swarm's config (``generator``, ``swarm-sitl new``) and the reference of every key (``reference``,
+``docs/config.md``).
 
 May import: sim_vehicles.common, sim_vehicles.plant, sim_vehicles.models, laws, bus, faults.
 """
