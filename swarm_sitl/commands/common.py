@@ -8,6 +8,7 @@ after the config schema every command needs (0.6 s), matplotlib costs 0.44 s (``
 """
 
 import argparse
+import math
 import signal
 import sys
 from datetime import datetime
@@ -109,6 +110,14 @@ def summary_lines(summary: dict) -> list[str]:
         if "min_u_z_mps2" in s
         else f"  max thrust / the vehicle's maximum {s['max_thrust_over_bound']:.3f}",
     ]
+    for name, r in summary.get("spec", {}).items():  # the config's requirements
+        rob = r["robustness"]
+        least = min(r["members"].items(), key=lambda kv: -math.inf if kv[1] is None else kv[1], default=None)
+        lines.append(
+            f"  requirement {name}: {'holds' if r['holds'] else 'FAILS'}, robustness "
+            + ("not recorded" if rob is None else f"{rob:.4g}")
+            + (f" (least: {least[0]})" if least is not None else "")
+        )
     return lines
 
 
@@ -144,4 +153,9 @@ def add_run_outputs(p: argparse.ArgumentParser, kind: str) -> None:
     p.add_argument("--out", help=f"run directory (default runs/<name>-{kind}-<time>)")
     p.add_argument("--duration", type=float, help="override duration_s [s]")
     p.add_argument("--seed", type=int, help="the run's seed, of every random stream its section does not pin")
+    p.add_argument(
+        "--spec",
+        metavar="FILE",
+        help="requirements (YAML list: name, over, formula) in place of the config's",
+    )
     p.add_argument("--quiet", action="store_true", help="no progress bar")

@@ -29,7 +29,7 @@ from swarm_sitl.commands.common import (
     run_dir_of,
     summary_lines,
 )
-from swarm_sitl.config.load import with_duration, with_faults, with_seed
+from swarm_sitl.config.load import with_duration, with_faults, with_seed, with_spec
 from swarm_sitl.config.schema import SwarmConfig
 from swarm_sitl.rundir.layout import expected_run_bytes
 from swarm_sitl.rundir.metrics import bound_failures, describe_inputs
@@ -46,7 +46,7 @@ def _write_sim(cfg: SwarmConfig, rec: Any, run_dir: Path) -> dict:
 
 
 def cmd_sim(args: argparse.Namespace) -> int:
-    cfg = with_seed(with_duration(load(args.config), args.duration), args.seed)
+    cfg = with_spec(with_seed(with_duration(load(args.config), args.duration), args.seed), args.spec)
     from swarm_sitl.running.sim import SimFailedError, run_sim  # the run machinery: 0.12 s (module doc)
 
     run_dir = run_dir_of(args.out, cfg, "sim")
@@ -238,7 +238,10 @@ def _with_fault_file(cfg: SwarmConfig, path: str | None) -> SwarmConfig:
 
 
 def cmd_run(args: argparse.Namespace) -> int:
-    cfg = _with_fault_file(with_seed(with_duration(load(args.config), args.duration), args.seed), args.faults)
+    cfg = _with_fault_file(
+        with_spec(with_seed(with_duration(load(args.config), args.duration), args.seed), args.spec),
+        args.faults,
+    )
     check_base_port(cfg, args.base_port)
     external = check_external(cfg, args.external, args.realtime)
     run_dir = run_dir_of(args.out, cfg, "run")
@@ -265,7 +268,10 @@ def check_external(cfg: SwarmConfig, ids: list[int], realtime: bool) -> tuple[in
 
 
 def cmd_controllers(args: argparse.Namespace) -> int:
-    cfg = _with_fault_file(with_seed(with_duration(load(args.config), args.duration), args.seed), args.faults)
+    cfg = _with_fault_file(
+        with_spec(with_seed(with_duration(load(args.config), args.duration), args.seed), args.spec),
+        args.faults,
+    )
     if len(args.mavlink) != cfg.n_followers:
         raise CliError(
             f"--mavlink needs one connection string per follower ({cfg.n_followers}, in id order), "

@@ -118,6 +118,20 @@ def load_config(path: str | Path, recorded: bool = False) -> SwarmConfig:
     return cfg
 
 
+def with_spec(cfg: SwarmConfig, path: str | Path | None) -> SwarmConfig:
+    """``cfg`` held to the requirements of the YAML file ``path`` (``--spec``: a list of
+    requirements, with or without a ``spec:`` key) in place of its own; ``cfg`` itself for None."""
+    if path is None:
+        return cfg
+    p = Path(path)
+    data = _read_yaml(p)
+    if isinstance(data, dict) and set(data) == {"spec"}:
+        data = data["spec"]
+    if not isinstance(data, list):
+        raise ConfigError(f"{p}: expected a list of requirements (name, over, formula)")
+    return parse_config({**cfg.data(), "spec": data}, str(p))
+
+
 def with_seed(cfg: SwarmConfig, seed: int | None) -> SwarmConfig:
     """``cfg`` with the run seed ``seed`` (``--seed``) in place of its own; ``cfg`` itself for None."""
     if seed is None:

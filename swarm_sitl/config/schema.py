@@ -35,6 +35,7 @@ from swarm_sitl.laws.graph import Graph, GraphError
 from swarm_sitl.laws.paper_gains import PaperGains
 from swarm_sitl.laws.trajectories import FigureEight, Helix, Line, Trajectory
 from swarm_sitl.laws.zou_meng import ZouMengParams
+from swarm_sitl.specs.requirement import Requirement, SpecError
 
 #: the default law: the paper's (``laws.zou_meng``)
 PAPER_LAW = "swarm_sitl.laws.zou_meng:ZouMengLaw"
@@ -269,6 +270,9 @@ class SwarmConfig(_Strict):
     run: RunSpec = RunSpec()  #: limits and pacing of a multi-process run
     faults: FaultPlan = FaultPlan()  #: what fails, how and when (``faults``)
     wind: WindSpec = WindSpec()  #: the air the vehicles fly in (still by default)
+    #: requirements the run is held to (``specs.requirement``, ``docs/specs.md``): each judged with
+    #: a robustness in ``summary.json``; one that fails makes the run exit 3, as the bound does
+    spec: list[Requirement] = []
     #: the run's seed: every random stream (the fault plan's draws, the gusts, the sensor noise, the
     #: law's ``rng``) derives from it unless its section sets its own seed (``seeds.py``)
     seed: Annotated[int, Field(ge=0, lt=2**63)] = 0
@@ -330,6 +334,13 @@ class SwarmConfig(_Strict):
                 f"vehicle.max_thrust_N ({self.vehicle.max_thrust_N}) must exceed the weight "
                 f"{self.vehicle.mass_kg * self.gravity_mps2:.3f} N"
             )
+        for req in self.spec:
+            try:
+                req.check_against(ids, self.duration_s)
+            except SpecError as e:
+                raise ValueError(str(e)) from None
+        if len({r.name for r in self.spec}) != len(self.spec):
+            raise ValueError("spec: two requirements of one name")
         if recorded(info):
             return self
         try:  # the model and its parameters, as the vehicles will be built (cheap: no kernel runs)

@@ -5,6 +5,7 @@
 - ``events``: what happened, merged from every process and the plan;
 - ``merge``: the processes' raw records into a ``Recording``, and the summary's per-edge counts;
 - ``load``: a run directory read back;
+- ``requirements``: the run held to its config's ``spec:`` (each requirement's robustness);
 - ``metrics``: the summary's figures (``settling``: when an error settles); ``rejoins``:
   whether the followers came back after a planned restart; ``plots``: the figures as PNG;
   ``mcap_export``: MCAP;
@@ -15,5 +16,5 @@
 
 Compute, record, plot: nothing here runs a swarm.
 
-May import: sim_vehicles.common, sim_vehicles.runtime, laws, faults, config.
+May import: sim_vehicles.common, sim_vehicles.runtime, laws, faults, config, specs.
 """

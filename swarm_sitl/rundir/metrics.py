@@ -6,6 +6,7 @@ import numpy as np
 
 from swarm_sitl.rundir.recording import Recording
 from swarm_sitl.rundir.rejoins import rejoin_lines
+from swarm_sitl.rundir.requirements import spec_lines
 from swarm_sitl.rundir.settling import time_to_converge
 
 
@@ -89,10 +90,12 @@ def summarize(
 def bound_failures(summary: dict, bound_m: float | None) -> list[str]:
     """One line per follower whose formation error after the settling time exceeds ``bound_m``
     (``run.max_formation_error_m``), naming its degraded inputs where the run recorded them, and
-    one per follower that did not rejoin after a planned restart (``rejoins``)."""
+    one per follower that did not rejoin after a planned restart (``rejoins``), and one per
+    requirement of the config's ``spec:`` that fails (``requirements``)."""
+    lines = spec_lines(summary)  # the config's requirements, bound or not
     if bound_m is None:
-        return []
-    return _past_bound(summary, bound_m) + rejoin_lines(summary)[1]
+        return lines
+    return _past_bound(summary, bound_m) + rejoin_lines(summary)[1] + lines
 
 
 def _past_bound(summary: dict, bound_m: float) -> list[str]:

@@ -16,6 +16,7 @@ from swarm_sitl.rundir.plugins import keep, manifest_of
 from swarm_sitl.rundir.provenance import provenance
 from swarm_sitl.rundir.recording import Recording, write_run
 from swarm_sitl.rundir.rejoins import judge_rejoins
+from swarm_sitl.rundir.requirements import judge
 
 
 def write_outputs(cfg: SwarmConfig, rec: Recording, run_dir: Path, processes: bool = False) -> dict:
@@ -26,6 +27,7 @@ def write_outputs(cfg: SwarmConfig, rec: Recording, run_dir: Path, processes: bo
     summary = summarize(rec, gains, masses, cfg.gravity_mps2, cfg.run.settle_s, cfg.vehicle.max_thrust_N)
     config_text = keep(cfg, run_dir)  # the plug-ins copied in, config.yaml naming the copies
     summary["provenance"] = provenance(cfg, manifest_of(run_dir))
+    events: list = []
     if processes:
         events = run_events(cfg, run_dir)
         write_events(run_dir / "events.jsonl", events)
@@ -46,5 +48,7 @@ def write_outputs(cfg: SwarmConfig, rec: Recording, run_dir: Path, processes: bo
             cfg.run.rejoin_within_s,
             set(summary["lost"]),
         )
+    if cfg.spec:  # the config's requirements, each with its robustness
+        summary["spec"] = judge(cfg, rec, events)
     write_run(run_dir, config_text, rec, summary)
     return summary

@@ -1,0 +1,151 @@
+"""A requirement of a config's ``spec:``: a name, what it ranges over, and a formula.
+
+.. code-block:: yaml
+
+    spec:
+      - name: holds_formation
+        over: followers                      # each follower; or: follower 3, followers within
+        formula: "always[20, end] (pos_err_m < 0.05)"   #   2 hops, in-neighbours of 4, pairs
+      - name: keeps_apart
+        over: pairs
+        formula: "always (distance_m > 1.0)"
+
+``over`` is what the formula's signals belong to: a follower (``followers``, ``follower I``,
+``followers within K hops`` of the leader, ``in-neighbours of I``: signals of ``FOLLOWER_SIGNALS``)
+or a pair of followers (``pairs``: ``PAIR_SIGNALS``). The requirement holds for the run when it
+holds for every member; its robustness is the least of its members'. Checked when the config is
+read (``check_against``): a formula that does not parse, a signal its members have not, an
+unknown follower, or an interval that starts after the run, is one line naming the requirement.
+"""
+
+import re
+from dataclasses import dataclass
+from typing import Any
+
+from pydantic import BaseModel, ConfigDict, Field, field_validator
+
+from swarm_sitl.specs.formula import FormulaError, first_start_s, parse, signals_of
+
+#: what a follower's formula may read, and its unit
+FOLLOWER_SIGNALS = {
+    "pos_err_m": "m: |p - p_r - delta_i|, the formation error",
+    "vel_err_mps": "m/s: |v - v_r|",
+    "est_pos_err_m": "m: |p_hat - p_r|, the leader estimate's error (a law that records p_hat)",
+    "altitude_m": "m: the vehicle's height (ENU z)",
+    "speed_mps": "m/s: |v|",
+    "thrust_frac": "1: the commanded thrust over the vehicle's maximum",
+    "failsafe": "1 while the vehicle is in its setpoint-loss failsafe, else 0",
+}
+#: what a pair's formula may read
+PAIR_SIGNALS = {"distance_m": "m: the distance between the two vehicles"}
+
+_OVER = re.compile(
+    r"^(?:(?P<all>followers)|follower (?P<one>\d+)|followers within (?P<hops>\d+) hops?"
+    r"|in-neighbours of (?P<into>\d+)|(?P<pairs>pairs))$"
+)
+
+
+class SpecError(ValueError):
+    """A requirement that cannot be judged; one line naming it."""
+
+
+@dataclass(frozen=True)
+class Over:
+    """What a requirement ranges over."""
+
+    kind: str  #: ``followers``, ``follower``, ``within``, ``into``, ``pairs``
+    value: int = 0  #: the follower, the hops, the node whose in-neighbours
+
+    def members(self, graph: Any, followers: list[int]) -> list[Any]:
+        """The followers (or pairs of followers) it ranges over on ``graph``."""
+        if self.kind == "followers":
+            return list(followers)
+        if self.kind == "follower":
+            return [self.value]
+        if self.kind == "pairs":
+            return [(a, b) for k, a in enumerate(followers) for b in followers[k + 1 :]]
+        if self.kind == "into":
+            return sorted(s for s, _ in graph.in_neighbours(self.value) if s != 0)
+        hops = {0: 0}
+        frontier = [0]
+        while frontier:
+            nxt = []
+            for node in frontier:
+                for dst in graph.out_neighbours(node):
+                    if dst not in hops:
+                        hops[dst] = hops[node] + 1
+                        nxt.append(dst)
+            frontier = nxt
+        return sorted(i for i in followers if hops.get(i, self.value + 1) <= self.value)
+
+
+def parse_over(text: str) -> Over:
+    m = _OVER.match(" ".join(text.split()))
+    if m is None:
+        raise ValueError(
+            f"over: {text!r} is not 'followers', 'follower I', 'followers within K hops', "
+            "'in-neighbours of I' or 'pairs'"
+        )
+    if m["all"]:
+        return Over("followers")
+    if m["pairs"]:
+        return Over("pairs")
+    if m["one"]:
+        return Over("follower", int(m["one"]))
+    if m["hops"]:
+        return Over("within", int(m["hops"]))
+    return Over("into", int(m["into"]))
+
+
+class Requirement(BaseModel):
+    """One named requirement (module docstring)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    name: str = Field(pattern=r"^[A-Za-z0-9_-]+$")  #: how the summary and the lines name it
+    over: str = "followers"  #: what its formula ranges over
+    formula: str  #: signal temporal logic (``specs.formula``) over its members' signals
+
+    @field_validator("formula")
+    @classmethod
+    def _parses(cls, text: str) -> str:
+        try:
+            parse(text)
+        except FormulaError as e:
+            raise ValueError(f"formula: {e}") from None
+        return text
+
+    @field_validator("over")
+    @classmethod
+    def _over(cls, text: str) -> str:
+        parse_over(text)
+        return text
+
+    @property
+    def target(self) -> Over:
+        return parse_over(self.over)
+
+    @property
+    def tree(self) -> Any:
+        return parse(self.formula)
+
+    def check_against(self, followers: list[int], duration_s: float) -> None:
+        """``SpecError`` naming this requirement if its members or its intervals do not fit a run."""
+        over = self.target
+        known = PAIR_SIGNALS if over.kind == "pairs" else FOLLOWER_SIGNALS
+        unknown = sorted(signals_of(self.tree) - set(known))
+        if unknown:
+            raise SpecError(
+                f"spec {self.name}: no signal {', '.join(unknown)} for {self.over} "
+                f"(there: {', '.join(known)})"
+            )
+        if over.kind in ("follower", "into") and over.value not in followers:
+            raise SpecError(
+                f"spec {self.name}: no follower {over.value} (followers {followers[0]}..{followers[-1]})"
+            )
+        start = first_start_s(self.tree)
+        if start >= duration_s:
+            raise SpecError(
+                f"spec {self.name}: its formula first looks at {start:g} s, after the run's end "
+                f"({duration_s:g} s)"
+            )

@@ -1,0 +1,247 @@
+"""Requirements as signal temporal logic (``specs``, ``rundir.requirements``): the robustness's sign
+is the boolean verdict (over random traces and formulas), its values are rtamt's (an independent
+monitor), interval edges are exact, a bad requirement is one line naming it, and a run's verdicts
+land in its summary and its exit code."""
+
+import json
+import math
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+import rtamt
+import yaml
+from hypothesis import given
+from hypothesis import strategies as st
+
+from swarm_sitl.config.load import ConfigError, load_config, parse_config
+from swarm_sitl.rundir.requirements import failsafe_signal
+from swarm_sitl.specs.formula import (
+    END,
+    Always,
+    And,
+    Atom,
+    Eventually,
+    FormulaError,
+    Implies,
+    Not,
+    Or,
+    parse,
+)
+from swarm_sitl.specs.requirement import parse_over
+from swarm_sitl.specs.robustness import robustness
+from tests.conftest import CONFIGS
+
+N = 12  #: samples of a random trace
+
+
+def _atoms() -> st.SearchStrategy:
+    return st.builds(
+        Atom,
+        st.sampled_from(["x", "y"]),
+        st.sampled_from(["<", "<=", ">", ">="]),
+        st.integers(-3, 3).map(float),
+    )
+
+
+def _interval() -> st.SearchStrategy:
+    return st.tuples(st.integers(0, 6), st.one_of(st.integers(1, 8), st.just(None))).filter(
+        lambda ab: ab[1] is None or ab[0] < ab[1]
+    )
+
+
+def _formulas() -> st.SearchStrategy:
+    def extend(inner):
+        return st.one_of(
+            st.builds(Not, inner),
+            st.builds(And, inner, inner),
+            st.builds(Or, inner, inner),
+            st.builds(Implies, inner, inner),
+            st.builds(lambda ab, f: Always(ab[0], END if ab[1] is None else ab[1], f), _interval(), inner),
+            st.builds(
+                lambda ab, f: Eventually(ab[0], END if ab[1] is None else ab[1], f), _interval(), inner
+            ),
+        )
+
+    return st.recursive(_atoms(), extend, max_leaves=5)
+
+
+#: values half-way between the integer thresholds: no atom is ever at its edge (robustness 0)
+_TRACES = st.lists(st.integers(-4, 3).map(lambda v: v + 0.5), min_size=N, max_size=N).map(np.array)
+
+
+def _holds(node, sig: dict, k: int) -> bool:
+    """The boolean semantics, sample by sample (an independent reading of the same definitions)."""
+    if isinstance(node, Atom):
+        v = sig[node.signal][k]
+        return {"<": v < node.value, "<=": v <= node.value, ">": v > node.value, ">=": v >= node.value}[
+            node.op
+        ]
+    if isinstance(node, Not):
+        return not _holds(node.arg, sig, k)
+    if isinstance(node, And):
+        return _holds(node.left, sig, k) and _holds(node.right, sig, k)
+    if isinstance(node, Or):
+        return _holds(node.left, sig, k) or _holds(node.right, sig, k)
+    if isinstance(node, Implies):
+        return (not _holds(node.left, sig, k)) or _holds(node.right, sig, k)
+    n = len(sig["x"])
+    end = n - 1 if math.isinf(node.end_s) else int(node.end_s)
+    window = [j for j in range(k + int(node.start_s), k + end + 1) if j < n]
+    if isinstance(node, Always):
+        return all(_holds(node.arg, sig, j) for j in window)
+    return any(_holds(node.arg, sig, j) for j in window)
+
+
+def _text(node) -> str:
+    """A formula as rtamt writes it (``end``: the last sample)."""
+    if isinstance(node, Atom):
+        return f"({node.signal} {node.op} {node.value:g})"
+    if isinstance(node, Not):
+        return f"(not {_text(node.arg)})"
+    if isinstance(node, And | Or | Implies):
+        op = {And: "and", Or: "or", Implies: "implies"}[type(node)]
+        return f"({_text(node.left)} {op} {_text(node.right)})"
+    end = N - 1 if math.isinf(node.end_s) else int(node.end_s)
+    op = "always" if isinstance(node, Always) else "eventually"
+    return f"({op}[{int(node.start_s)},{end}] {_text(node.arg)})"
+
+
+@pytest.mark.unit
+@given(_formulas(), _TRACES, _TRACES)
+def test_the_sign_of_the_robustness_is_the_boolean_verdict_at_every_sample(f, x, y):
+    sig = {"x": x, "y": y}
+    r = robustness(f, sig, 1.0)
+    for k in range(N):
+        assert (r[k] > 0) == _holds(f, sig, k), (k, r[k])
+
+
+@pytest.mark.unit
+@given(_formulas(), _TRACES, _TRACES)
+def test_the_robustness_is_rtamts_at_every_sample(f, x, y):
+    spec = rtamt.StlDiscreteTimeSpecification()
+    spec.declare_var("x", "float")
+    spec.declare_var("y", "float")
+    spec.spec = _text(f)
+    spec.parse()
+    theirs = np.array([v for _, v in spec.evaluate({"time": list(range(N)), "x": list(x), "y": list(y)})])
+    ours = robustness(f, {"x": x, "y": y}, 1.0)
+    assert np.array_equal(np.isinf(theirs), np.isinf(ours)) and np.allclose(theirs, ours, atol=1e-12)
+
+
+@pytest.mark.unit
+@pytest.mark.parametrize(("spike_s", "holds"), [(0.4, True), (0.5, False), (1.0, False), (1.1, True)])
+def test_an_interval_reads_its_edges_and_nothing_past_them(spike_s, holds):
+    """``always[0.5, 1.0]`` at 10 samples a second reads the samples at 0.5 to 1.0 s, both
+    included: a spike at either edge breaks it, one just outside does not."""
+    t = np.round(np.arange(0, 3.0001, 0.1), 10)
+    x = np.where(np.isclose(t, spike_s), 5.0, 0.0)
+    r = robustness(parse("always[0.5, 1.0] (x < 1)"), {"x": x}, 0.1)[0]
+    assert (r > 0) == holds and r == (1.0 if holds else -4.0)
+
+
+@pytest.mark.unit
+@pytest.mark.parametrize(
+    ("text", "says"),
+    [
+        ("always[2, 1] (x < 1)", "the interval [2, 1] is empty"),
+        ("always (x < )", "a number expected"),
+        ("x < 1 and", "it ends where a signal was expected"),
+        ("eventually[0, 1] x", "a comparison"),
+        ("(x < 1", "it ends where ')' was expected"),
+        ("x < 1 y > 2", "unexpected 'y'"),
+        ("x ? 1", "cannot read '? 1'"),
+    ],
+)
+def test_a_formula_that_does_not_parse_is_one_line(text, says):
+    with pytest.raises(FormulaError) as e:
+        parse(text)
+    assert says in str(e.value) and "\n" not in str(e.value)
+
+
+def _paper(spec: list[dict], **more) -> dict:
+    data = yaml.safe_load((CONFIGS / "paper.yaml").read_text())
+    return {**data, **more, "spec": spec}
+
+
+@pytest.mark.unit
+@pytest.mark.parametrize(
+    ("req", "says"),
+    [
+        ({"name": "r1", "formula": "always (height < 3)"}, "spec r1: no signal height for followers"),
+        (
+            {"name": "r2", "over": "pairs", "formula": "always (pos_err_m < 3)"},
+            "spec r2: no signal pos_err_m for pairs",
+        ),
+        ({"name": "r3", "over": "follower 9", "formula": "always (pos_err_m < 3)"}, "spec r3: no follower 9"),
+        (
+            {"name": "r4", "formula": "always[80, end] (pos_err_m < 3)"},
+            "spec r4: its formula first looks at 80 s",
+        ),
+        ({"name": "r5", "formula": "always[3, 3] (pos_err_m < 3)"}, "the interval [3, 3] is empty"),
+        ({"name": "r6", "over": "everyone", "formula": "always (pos_err_m < 3)"}, "over: 'everyone' is not"),
+    ],
+)
+def test_a_bad_requirement_is_one_line_naming_it(req, says):
+    with pytest.raises(ConfigError) as e:
+        parse_config(_paper([req], duration_s=60.0), "paper.yaml")
+    assert says in str(e.value) and "\n" not in str(e.value), str(e.value)
+
+
+@pytest.mark.unit
+def test_what_a_requirement_ranges_over_on_the_graph():
+    cfg = load_config(CONFIGS / "paper.yaml")  # 0 -> 1, 2, 3; 1, 2 -> 4
+    g, ids = cfg.build_graph(), [1, 2, 3, 4]
+    assert parse_over("followers within 1 hops").members(g, ids) == [1, 2, 3]
+    assert parse_over("followers within 2 hops").members(g, ids) == [1, 2, 3, 4]
+    assert parse_over("in-neighbours of 4").members(g, ids) == [1, 2]
+    assert parse_over("in-neighbours of 1").members(g, ids) == []  # the leader is not a follower
+    assert parse_over("pairs").members(g, ids) == [(1, 2), (1, 3), (1, 4), (2, 3), (2, 4), (3, 4)]
+
+
+@pytest.mark.unit
+def test_the_failsafe_signal_is_1_from_its_entry_to_its_exit_and_to_the_end_if_it_stays():
+    t = np.round(np.arange(0, 2.0001, 0.1), 10)
+    events = [
+        {"t_s": 0.3, "kind": "failsafe_enter", "vehicle": 2},
+        {"t_s": 0.6, "kind": "failsafe_exit", "vehicle": 2},
+        {"t_s": 1.5, "kind": "failsafe_enter", "vehicle": 2},
+        {"t_s": 0.2, "kind": "failsafe_enter", "vehicle": 3},
+    ]
+    s = failsafe_signal(t, events, 2)
+    assert t[s == 1].tolist() == [0.3, 0.4, 0.5, 1.5, 1.6, 1.7, 1.8, 1.9, 2.0]
+
+
+@pytest.mark.integration
+def test_three_requirements_land_in_the_summary_and_one_that_fails_exits_3(tmp_path):
+    """The paper's swarm for 30 s: its formation error after 25 s is under 0.05 m, no two vehicles
+    come within 1 m, and follower 4 is not within 0.1 mm from 10 s on (it settles to about 0.2 mm):
+    two hold, one fails, in the summary and the exit code."""
+    reqs = [
+        {"name": "formation", "formula": "always[25, end] (pos_err_m < 0.05)"},
+        {"name": "apart", "over": "pairs", "formula": "always (distance_m > 1.0)"},
+        {"name": "tight", "over": "follower 4", "formula": "always[10, end] (pos_err_m < 0.0001)"},
+    ]
+    path = tmp_path / "cfg.yaml"
+    path.write_text(yaml.safe_dump(_paper(reqs, duration_s=30.0)))
+    out = tmp_path / "run"
+    r = subprocess.run(
+        [sys.executable, "-m", "swarm_sitl", "sim", str(path), "--out", str(out), "--quiet"],
+        capture_output=True,
+        text=True,
+        timeout=240,
+    )
+    assert r.returncode == 3, r.stderr
+    assert r.stderr.strip().splitlines()[-1].startswith("swarm-sitl: error: requirement tight (")
+    spec = json.loads((out / "summary.json").read_text())["spec"]
+    assert [spec[n]["holds"] for n in ("formation", "apart", "tight")] == [True, True, False]
+    arrays = np.load(out / "follower_4.npz")
+    err = np.linalg.norm(arrays["pos_err_m"], axis=1)
+    late = arrays["t_s"] >= 10.0 - 1e-9
+    assert spec["tight"]["robustness"] == pytest.approx(0.0001 - err[late].max(), abs=1e-15)
+    every = [np.linalg.norm(np.load(out / f"follower_{i}.npz")["pos_err_m"], axis=1) for i in (1, 2, 3, 4)]
+    t = arrays["t_s"]
+    assert spec["formation"]["robustness"] == pytest.approx(
+        0.05 - max(e[t >= 25.0 - 1e-9].max() for e in every)
+    )
