@@ -110,3 +110,19 @@ def test_a_point_past_its_wall_budget_is_a_failed_row_timed_out_and_nothing_is_l
     assert row["passed"] == 0 and row["failure"] == "timed out after 1 s (the point's wall budget)"
     assert 1.0 <= wall < 1.0 + point.INTERRUPT_GRACE_S + 2.0
     assert not point.RUNNING
+
+
+def test_a_requirement_is_a_column_and_a_run_passes_only_if_every_one_holds():
+    from swarm_sitl.campaigns.sweep import judge
+    from swarm_sitl.campaigns.table import columns
+
+    assert columns(["link.loss"], ["apart", "tight"])[-3:] == ["spec.apart", "spec.tight", "config"]
+    rows = [
+        {"failure": "", "max_error_m": 0.01, "spec.apart": 2.0, "spec.tight": 1e-4},
+        {"failure": "", "max_error_m": 0.01, "spec.apart": 2.0, "spec.tight": -1e-4},
+        {"failure": "", "max_error_m": 0.01, "spec.apart": math.nan, "spec.tight": 1e-4},
+        {"failure": "", "max_error_m": 0.01, "spec.apart": 0.0, "spec.tight": 0.0},  # at the edge: holds
+        {"failure": "", "max_error_m": 0.5, "spec.apart": 2.0, "spec.tight": 1e-4},
+    ]
+    judge(rows, 0.05)
+    assert [r["passed"] for r in rows] == [1, 0, 0, 1, 0]

@@ -162,7 +162,8 @@ def metrics_of(run_dir: Path, failure: str, wall_s: float) -> dict[str, Any]:
         for name, st in summary.get("links", {}).items()
         if "->" in name and st.get("received")
     ]
-    passed = failure == "" and bool(after.any()) and max_err <= bound
+    held = all(r.get("holds", False) for r in summary.get("spec", {}).values())
+    passed = failure == "" and bool(after.any()) and max_err <= bound and held
     return {
         "passed": int(passed),
         "max_error_m": max_err,
@@ -173,6 +174,10 @@ def metrics_of(run_dir: Path, failure: str, wall_s: float) -> dict[str, Any]:
         "failsafe_s": failsafe_s(events, float(t[-1])),
         "failure": failure,
         "wall_s": round(wall_s, 3),
+        **{  # each requirement's robustness (the config's spec:), NaN where nothing was recorded
+            f"spec.{name}": math.nan if r.get("robustness") is None else float(r["robustness"])
+            for name, r in summary.get("spec", {}).items()
+        },
     }
 
 

@@ -20,8 +20,8 @@ from swarm_sitl.campaigns import charts
 from swarm_sitl.campaigns.breaking import breaking_point, toward
 from swarm_sitl.campaigns.grid import SweepSpecError, check_key, grid, parse_values, parse_vary, point_data
 from swarm_sitl.campaigns.runner import Task, connect, default_jobs, run_dask, run_local
-from swarm_sitl.campaigns.table import TABLE, TableWriter, read_rows, row_key, write_sorted
-from swarm_sitl.config.load import ConfigError, load_config, parse_config, plan_data
+from swarm_sitl.campaigns.table import SPEC, TABLE, TableWriter, read_rows, row_key, write_sorted
+from swarm_sitl.config.load import ConfigError, load_config, parse_config, plan_data, with_spec
 from swarm_sitl.config.schema import SwarmConfig
 from swarm_sitl.rundir.plugins import pack
 
@@ -191,7 +191,8 @@ def judge(rows: list[dict[str, Any]], bound_m: float) -> None:
     is within the bound."""
     for r in rows:
         err = float(r["max_error_m"])
-        r["passed"] = int(r["failure"] == "" and err == err and err <= bound_m)
+        held = all(float(v) >= 0 for k, v in r.items() if k.startswith(SPEC))  # NaN: not held
+        r["passed"] = int(r["failure"] == "" and err == err and err <= bound_m and held)
 
 
 def _merge_values(old: dict[str, list[float]], new: dict[str, list[float]]) -> dict[str, list[float]]:
@@ -214,6 +215,7 @@ def sweep(
     progress: bool = False,
     keep_runs: bool = False,
     point_timeout_s: float | None = None,
+    spec: str | Path | None = None,
 ) -> Campaign:
     """Run a campaign and return its table (``Campaign.rows``).
 
@@ -226,7 +228,9 @@ def sweep(
     last value that holds and the first that breaks (one swept key). ``point_timeout_s``: each
     run's wall budget, past which its row fails ``timed out`` (default ``default_budget_s``).
     The plug-ins the config names go with every run as their files (``rundir.plugins.pack``), to a
-    Dask worker too, and are kept in ``OUT/points/plugins/``."""
+    Dask worker too, and are kept in ``OUT/points/plugins/``. ``spec``: a file of requirements in
+    place of the config's (``docs/specs.md``): each is a column of the table (its robustness), and
+    a run passes only if every one holds."""
     items = _vary(vary)
     keys = [k for k, _ in items]
     seed_list = _seeds(seeds)
@@ -241,16 +245,20 @@ def sweep(
         raise SweepSpecError(f"sweep: --jobs must be at least 1, got {jobs}")
     if point_timeout_s is not None and not 0 < point_timeout_s < math.inf:
         raise SweepSpecError(f"sweep: --point-timeout must be a number of seconds > 0, got {point_timeout_s}")
+    source = config
+    if spec is not None:  # requirements in place of the config's
+        config = with_spec(config if isinstance(config, SwarmConfig) else load_config(config), spec)
     base = _base(config, faults, duration_s, bound_m)
     bound = float(base["run"]["max_formation_error_m"])
+    requirements = [r["name"] for r in base.get("spec", [])]  #: a column each: its robustness
     points = grid(items)
     _check_points(base, points, seed_list[0])
     out = Path(out)
     packed, files, _ = pack(base)  # what each run flies: its plug-ins as files beside it
     ship = Shipment(packed, files, point_timeout_s or default_budget_s(base))
     base_text = yaml.safe_dump(packed, sort_keys=True)
-    spec = {
-        "config": str(config) if not isinstance(config, SwarmConfig) else config.name,
+    identity = {
+        "config": str(source) if not isinstance(source, SwarmConfig) else source.name,
         "keys": keys,
         "values": {k: v for k, v in items},
         "seeds": seed_list,
@@ -260,7 +268,7 @@ def sweep(
     }
     client = connect(scheduler, scheduler_timeout_s) if scheduler else None  # before anything is written
     try:
-        _open_campaign(out, spec)
+        _open_campaign(out, identity)
         (out / "base.yaml").write_text(base_text)
         for rel, body in files.items():  # beside the points that name them
             (out / POINTS / rel).parent.mkdir(parents=True, exist_ok=True)
@@ -271,7 +279,7 @@ def sweep(
         raise
     campaign = Campaign(out, keys, bound, read_rows(out / TABLE, keys))
     judge(campaign.rows, bound)
-    writer = TableWriter(out / TABLE, keys)
+    writer = TableWriter(out / TABLE, keys, requirements)
     try:
         _run(campaign, ship, points, seed_list, 0, writer, client, jobs, progress, keep_runs)
         # the bisection from the grid's own values, each step's midpoint added: run again, the
@@ -296,7 +304,7 @@ def sweep(
         writer.close()
         if client is not None:
             client.close()
-    write_sorted(out / TABLE, keys, campaign.rows)
+    write_sorted(out / TABLE, keys, campaign.rows, requirements)
     campaign.rows = read_rows(out / TABLE, keys)
     if not campaign.interrupted and campaign.rows:
         campaign.figures = draw(campaign)

@@ -4,18 +4,21 @@ keeps every finished row), read back to resume and to chart."""
 import csv
 import math
 import os
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 from swarm_sitl.campaigns.point import METRICS
 
 TABLE = "table.csv"
+SPEC = "spec."  #: a requirement's column: its robustness in the run
 
 
-def columns(keys: list[str]) -> list[str]:
+def columns(keys: list[str], requirements: Sequence[str] = ()) -> list[str]:
     """The table's columns: the swept keys, the seed, whether a bisection added it, the metrics,
-    and the config file the run flew (in ``points/``)."""
-    return [*keys, "seed", "refined", *METRICS, "config"]
+    each requirement's robustness (``spec.NAME``: the config's ``spec:``), and the config file the
+    run flew (in ``points/``)."""
+    return [*keys, "seed", "refined", *METRICS, *(f"{SPEC}{r}" for r in requirements), "config"]
 
 
 def row_key(keys: list[str], row: dict[str, Any]) -> tuple[Any, ...]:
@@ -52,9 +55,9 @@ def read_rows(path: Path, keys: list[str]) -> list[dict[str, Any]]:
 class TableWriter:
     """Appends rows to the table, each flushed to disk as it comes."""
 
-    def __init__(self, path: Path, keys: list[str]):
+    def __init__(self, path: Path, keys: list[str], requirements: Sequence[str] = ()):
         self.path = path
-        self.cols = columns(keys)
+        self.cols = columns(keys, requirements)
         new = not path.is_file() or path.stat().st_size == 0
         self._f = path.open("a", newline="")
         self._w = csv.DictWriter(self._f, fieldnames=self.cols)
@@ -71,10 +74,12 @@ class TableWriter:
         self._f.close()
 
 
-def write_sorted(path: Path, keys: list[str], rows: list[dict[str, Any]]) -> None:
+def write_sorted(
+    path: Path, keys: list[str], rows: list[dict[str, Any]], requirements: Sequence[str] = ()
+) -> None:
     """The whole table, sorted by its values and seeds, replacing ``path`` at once."""
     tmp = path.with_name(path.name + ".tmp")
-    cols = columns(keys)
+    cols = columns(keys, requirements)
     with tmp.open("w", newline="") as f:
         w = csv.DictWriter(f, fieldnames=cols)
         w.writeheader()

@@ -39,6 +39,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
             progress=not args.quiet,
             keep_runs=args.keep_runs,
             point_timeout_s=args.point_timeout,
+            spec=args.spec,
         )
     except (SweepSpecError, SchedulerError, PointError) as e:
         raise CliError(str(e)) from None
@@ -87,6 +88,7 @@ def add_sweep(sub: Any) -> None:
     )
     s.add_argument("--refine", type=int, default=0, help="bisection steps at the breaking point (one key)")
     s.add_argument("--keep-runs", action="store_true", help="keep each run's directory in OUT/runs")
+    s.add_argument("--spec", metavar="FILE", help="requirements in place of the config's (docs/specs.md)")
     s.add_argument(
         "--point-timeout",
         type=float,
