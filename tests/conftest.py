@@ -60,6 +60,8 @@ LOCKSTEP_ONLY = {
     "test_full_disk.py",
     "test_law_contract.py",
     "test_misbehaving_laws.py",
+    "test_self_contained_runs.py",
+    "test_sweep_plugins.py",
     "test_leader_restart.py",
     "test_counts_across_restarts.py",
     "test_quad_swarm.py",

@@ -178,7 +178,11 @@ def run_swarm(request: RunRequest) -> RunResult:
     except LawError as e:
         sup.close()
         raise RunFailedError(str(e)) from None
-    hub, session = open_hub(cfg, run_dir, sup)
+    try:
+        hub, session = open_hub(cfg, run_dir, sup)
+    except BaseException:  # (the fork server is up: it goes too, now, not when it sees us gone)
+        sup.close()
+        raise
     monitor = RunMonitor(session, cfg)
     router = None
     if cfg.zenoh.mode == "client":
