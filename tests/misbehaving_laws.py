@@ -91,3 +91,25 @@ class Sleeps(Hover):
     def misbehave(self, t):
         if self.id == 2 and self.sleep_s:
             time.sleep(self.sleep_s)
+
+
+class MixedExits(Hover):
+    """In one run: follower 2 calls ``sys.exit(0)``, 3 ``os._exit(3)``, 4 loops forever."""
+
+    def misbehave(self, t):
+        if t >= FROM_S - 1e-9:
+            {2: SysExit, 3: OsExit, 4: Loops}.get(self.id, Hover).misbehave(self._as_2(), t)
+
+    def _as_2(self):
+        twin = Hover.__new__(Hover)
+        twin.id, twin.hoard = 2, self.hoard
+        return twin
+
+
+class MixedLoads(Hover):
+    """In one run: follower 2 hoards memory, 3 is slow, 4 chatters."""
+
+    def misbehave(self, t):
+        {2: Hoards, 3: Slow, 4: Chatty}.get(self.id, Hover).misbehave(self._as_2(), t)
+
+    _as_2 = MixedExits._as_2

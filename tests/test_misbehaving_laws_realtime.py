@@ -1,11 +1,15 @@
-"""The misbehaving laws of ``test_misbehaving_laws.py`` in a real-time run: a follower whose law
-fails is named in one line (exit 1) once the swarm has flown on to the end without it
-(``run.stop_on_loss: false``, the default: the loss is an event of the run), or at once with
-``run.stop_on_loss: true``; the slow law's follower flies on, its late ticks counted; the wall time
-is the run's duration plus its limits."""
+"""The misbehaving laws of ``test_misbehaving_laws.py`` in real-time runs, three at once (one law
+per follower: ``MixedExits``, ``MixedLoads``): a follower whose law fails is named in one line
+(exit 1) once the swarm has flown on to the end without it (``run.stop_on_loss: false``, the
+default: each loss an event of the run), or at once with ``run.stop_on_loss: true``; the slow law's
+follower flies on, its late ticks counted; the chatty one's log is bounded; the wall time is the
+run's duration plus its limits."""
 
 import json
 import re
+import subprocess
+import sys
+import time
 
 import numpy as np
 import pytest
@@ -16,62 +20,81 @@ from tests import misbehaving_laws as laws
 from tests.conftest import processes_mentioning
 from tests.test_misbehaving_laws import (
     DURATION_S,
+    MAX_OUTPUT_MB,
     SAYS,
-    SLOW_DURATION_S,
     bound_s,
+    config,
     failure_window,
     fly,
     law_path,
     the_line,
 )
 
-#: a real-time tick may come up to a period late, and follower 2's ticks are staggered by 2.5 ms
+#: a real-time tick may come up to a period late, and the followers' ticks are staggered by 2.5 ms
 LATE_S = 0.0125
+FLEW_ON = "(the swarm flew on to the end: run.stop_on_loss false)"
+
+
+def _flew_on(out) -> None:
+    rec = load_run(out)
+    t = rec.followers[1]["t_s"]
+    assert np.isfinite(rec.followers[1]["p_W"][t > t[-1] - 0.1]).all()  # follower 1 to the end
+
+
+def _lost(out) -> list[tuple[str, int]]:
+    lines = (out / "procs" / "lost.events").read_text().splitlines()
+    return sorted((e["process"], e["code"]) for e in map(json.loads, lines))
 
 
 @pytest.mark.system
-@pytest.mark.parametrize("name", list(SAYS))
-def test_a_misbehaving_law_in_real_time_is_ridden_through_and_named(tmp_path, name):
-    r, wall = fly(tmp_path, "run", name, "--realtime")
-    out = tmp_path / f"run-{name}"
+def test_three_laws_that_exit_or_hang_in_real_time_are_ridden_through_and_each_named(tmp_path):
+    r, wall = fly(tmp_path, "run", "MixedExits", "--realtime")
+    out = tmp_path / "run-MixedExits"
     line = the_line(r)
-    rec = load_run(out)
-    end = rec.followers[1]["t_s"] > rec.followers[1]["t_s"][-1] - 0.1
-    assert np.isfinite(rec.followers[1]["p_W"][end]).all()  # the others flew on to the end
-    if SAYS[name] is None:
-        assert r.returncode == 0, r.stderr[-2000:]
-        if name == "Slow":  # 50 ms a tick: most of its 10 ms ticks are skipped, each counted
-            report = json.loads((out / "summary.json").read_text())["inputs"]["2"]
-            ticks = SLOW_DURATION_S / 0.01
-            assert report["late_ticks"] >= 0.5 * ticks and report["max_late_s"] >= laws.SLOW_S, report
-    else:
-        assert r.returncode == 1, r.stderr[-2000:]
-        found = re.search(rf"law {law_path('run')}:{name}, follower 2 at t=([0-9.]+) s: ", line)
-        assert found and SAYS[name] in line, line
-        assert "(the swarm flew on to the end: run.stop_on_loss false) (partial run in" in line, line
+    assert r.returncode == 1 and FLEW_ON in line, r.stderr[-2000:]
+    for i, name in ((2, "SysExit"), (3, "OsExit"), (4, "Loops")):
+        found = re.search(
+            rf"controller_{i} exited with code 1 \(its last tick \d+, t=[0-9.]+ s\): controller {i}: error: "
+            rf"law {law_path('run')}:MixedExits, follower {i} at t=([0-9.]+) s: ",
+            line,
+        )
+        assert found and SAYS[name] in line[found.end() :].split(";")[0], (name, line)
         lo, hi = failure_window(name)
-        if name == "Hoards":  # ticks a hoarder is late for are skipped, and allocate nothing
-            hi = DURATION_S
         assert lo <= float(found[1]) <= hi + LATE_S, line
-        events = [json.loads(x) for x in (out / "procs" / "lost.events").read_text().splitlines()]
-        assert [(e["kind"], e["process"], e["code"]) for e in events] == [("process_lost", "controller_2", 1)]
-    assert wall < bound_s(name), wall
+    assert _lost(out) == [("controller_2", 1), ("controller_3", 1), ("controller_4", 1)]
+    _flew_on(out)
+    assert wall < bound_s("Loops"), wall
+    assert not processes_mentioning(str(out))
+
+
+@pytest.mark.system
+def test_a_hoarding_a_slow_and_a_chatty_law_in_real_time(tmp_path):
+    r, wall = fly(tmp_path, "run", "MixedLoads", "--realtime")
+    out = tmp_path / "run-MixedLoads"
+    line = the_line(r)
+    assert r.returncode == 1 and FLEW_ON in line, r.stderr[-2000:]
+    found = re.search(rf"law {law_path('run')}:MixedLoads, follower 2 at t=([0-9.]+) s: ", line)
+    assert found and SAYS["Hoards"] in line, line
+    lo, _ = failure_window("Hoards")  # ticks a hoarder is late for are skipped, and allocate nothing
+    assert lo <= float(found[1]) <= DURATION_S + LATE_S, line
+    assert _lost(out) == [("controller_2", 1)]
+    report = json.loads((out / "summary.json").read_text())["inputs"]["3"]  # 50 ms a tick
+    ticks = DURATION_S / 0.01
+    assert report["late_ticks"] >= 0.5 * ticks and report["max_late_s"] >= laws.SLOW_S, report
+    log = (out / "logs" / "controller_4.log").read_text()
+    assert MAX_OUTPUT_MB * 1e6 <= len(log) < MAX_OUTPUT_MB * 1e6 + 2000, len(log)
+    _flew_on(out)
+    assert wall < bound_s("Slow") + DURATION_S, wall
     assert not processes_mentioning(str(out))
 
 
 @pytest.mark.system
 def test_with_stop_on_loss_a_failing_law_ends_a_real_time_run_at_once(tmp_path):
     """The same exit, and the run ends there: well before the swarm would have ended."""
-    from tests.test_misbehaving_laws import config
-
     path = config(tmp_path, "OsExit", duration_s=20.0)
     data = yaml.safe_load(path.read_text())
     data["run"]["stop_on_loss"] = True
     path.write_text(yaml.safe_dump(data))
-    import subprocess
-    import sys
-    import time
-
     out = tmp_path / "out"
     t0 = time.monotonic()
     r = subprocess.run(
@@ -86,5 +109,4 @@ def test_with_stop_on_loss_a_failing_law_ends_a_real_time_run_at_once(tmp_path):
     rec = load_run(out)
     assert np.isnan(rec.followers[1]["p_W"][rec.followers[1]["t_s"] > 15.0]).all()
     assert wall < 20.0, wall  # the swarm would have flown 20 s
-    assert laws.FROM_S < 20.0
     assert not processes_mentioning(str(out))

@@ -39,9 +39,9 @@ def test_a_campaign_on_dask_ships_the_law_file_and_gives_the_local_rows(tmp_path
     src.mkdir()
     shutil.copy(ROOT / "examples" / "laws" / "consensus_pd.py", src / "my_law.py")
     cfg = _config(src, "my_law.py:ConsensusPD", 3.0)
-    vary = {"link.loss": [0.0, 0.5]}
+    vary = {"link.loss": [0.5]}
     here = swarm_sitl.sweep(cfg, vary, seeds=[2], out=tmp_path / "here", jobs=2)
-    assert [r["failure"] for r in here.rows] == ["", ""]
+    assert [r["failure"] for r in here.rows] == [""]
     assert (tmp_path / "here" / "points" / "plugins" / "my_law.py").is_file()
 
     real_pack = sweep_module.pack
@@ -69,19 +69,19 @@ def test_a_campaign_on_dask_ships_the_law_file_and_gives_the_local_rows(tmp_path
 
 @pytest.mark.system
 def test_a_run_past_its_wall_budget_is_a_timed_out_row_and_the_campaign_ends(tmp_path):
-    """Follower 2 sleeping 0.1 s a tick makes a 3 s lockstep run last 30 s of wall time; with a
-    budget of 15 s its row fails ``timed out`` and the campaign ends within the budget and the
-    interrupt's grace; the point that sleeps not at all passes."""
+    """Follower 2 sleeping 0.25 s a tick makes a 2 s lockstep run last 50 s of wall time; with a
+    budget of 10 s its row fails ``timed out`` and the campaign ends within the budget and the
+    interrupt's grace; the point that sleeps not at all (a few seconds) passes."""
     src = tmp_path / "src"
     src.mkdir()
-    cfg = _config(src, f"{Path(misbehaving_laws.__file__)}:Sleeps", 3.0, {"sleep_s": 0.0})
+    cfg = _config(src, f"{Path(misbehaving_laws.__file__)}:Sleeps", 2.0, {"sleep_s": 0.0})
     t0 = time.monotonic()
     c = swarm_sitl.sweep(
-        cfg, {"law.params.sleep_s": [0.0, 0.1]}, seeds=[0], out=tmp_path / "c", jobs=2, point_timeout_s=15.0
+        cfg, {"law.params.sleep_s": [0.0, 0.25]}, seeds=[0], out=tmp_path / "c", jobs=2, point_timeout_s=10.0
     )
     wall = time.monotonic() - t0
     by = {r["law.params.sleep_s"]: r for r in c.rows}
     assert by[0.0]["failure"] == "" and by[0.0]["passed"] == 1
-    assert by[0.1]["failure"] == "timed out after 15 s (the point's wall budget)" and by[0.1]["passed"] == 0
-    assert 15.0 <= by[0.1]["wall_s"] < 15.0 + INTERRUPT_GRACE_S
-    assert wall < 15.0 + INTERRUPT_GRACE_S + 60.0
+    assert by[0.25]["failure"] == "timed out after 10 s (the point's wall budget)" and by[0.25]["passed"] == 0
+    assert 10.0 <= by[0.25]["wall_s"] < 10.0 + INTERRUPT_GRACE_S
+    assert wall < 10.0 + INTERRUPT_GRACE_S + 60.0
