@@ -245,3 +245,20 @@ def test_three_requirements_land_in_the_summary_and_one_that_fails_exits_3(tmp_p
     assert spec["formation"]["robustness"] == pytest.approx(
         0.05 - max(e[t >= 25.0 - 1e-9].max() for e in every)
     )
+
+
+@pytest.mark.unit
+def test_a_spec_file_is_a_list_with_or_without_its_key_and_anything_else_is_one_line(tmp_path):
+    from swarm_sitl.config.load import with_spec
+
+    cfg = load_config(CONFIGS / "paper.yaml")
+    reqs = [{"name": "apart", "over": "pairs", "formula": "always (distance_m > 1)"}]
+    for text in (yaml.safe_dump(reqs), yaml.safe_dump({"spec": reqs})):
+        (tmp_path / "spec.yaml").write_text(text)
+        assert [r.name for r in with_spec(cfg, tmp_path / "spec.yaml").spec] == ["apart"]
+    (tmp_path / "spec.yaml").write_text(yaml.safe_dump({"name": "apart"}))
+    with pytest.raises(
+        ConfigError, match=r"spec.yaml: expected a list of requirements \(name, over, formula\)$"
+    ):
+        with_spec(cfg, tmp_path / "spec.yaml")
+    assert with_spec(cfg, None) is cfg

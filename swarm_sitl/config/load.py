@@ -118,15 +118,22 @@ def load_config(path: str | Path, recorded: bool = False) -> SwarmConfig:
     return cfg
 
 
+def section_file(p: Path, key: str) -> object:
+    """A YAML file of one config section (``--faults``, ``--spec``): what goes under ``key:``,
+    written with or without that key."""
+    data = _read_yaml(p)
+    if isinstance(data, dict) and set(data) == {key}:
+        return data[key]
+    return data
+
+
 def with_spec(cfg: SwarmConfig, path: str | Path | None) -> SwarmConfig:
     """``cfg`` held to the requirements of the YAML file ``path`` (``--spec``: a list of
     requirements, with or without a ``spec:`` key) in place of its own; ``cfg`` itself for None."""
     if path is None:
         return cfg
     p = Path(path)
-    data = _read_yaml(p)
-    if isinstance(data, dict) and set(data) == {"spec"}:
-        data = data["spec"]
+    data = section_file(p, "spec")
     if not isinstance(data, list):
         raise ConfigError(f"{p}: expected a list of requirements (name, over, formula)")
     return parse_config({**cfg.data(), "spec": data}, str(p))
@@ -173,9 +180,7 @@ def with_faults(cfg: SwarmConfig, path: str | Path) -> SwarmConfig:
     """``cfg`` with the fault plan of the YAML file ``path`` (the mapping that goes under
     ``faults:``, with or without that key) in place of its own, validated against it."""
     p = Path(path)
-    data = _read_yaml(p)
-    if isinstance(data, dict) and set(data) == {"faults"}:
-        data = data["faults"]
+    data = section_file(p, "faults")
     if not isinstance(data, dict):
         raise ConfigError(f"{p}: expected a fault plan (seed, plan) at the top level")
     merged = {**cfg.data(), "faults": _plan_relative_to(data, p)}
