@@ -81,3 +81,12 @@ def test_three_seeds_fly_three_gust_and_noise_series_and_a_seed_twice_flies_the_
                 assert np.abs(runs[a][i] - runs[b][i]).max() > 1e-6, (air, noise, a, b, i)
         again = flown(air, noise, 1)
         assert all(np.array_equal(again[i], runs[1][i]) for i in again)
+
+
+@pytest.mark.unit
+def test_a_config_without_a_seed_flies_every_stream_at_0_as_before_the_run_seed():
+    """The committed campaigns and configs name no run seed: each stream keeps its old default."""
+    data = _paper()
+    assert "seed" not in data
+    cfg = parse_config(data, "paper")
+    assert cfg.seed == 0 and cfg.seed_streams() == {name: (0, False) for name in STREAMS}

@@ -169,3 +169,18 @@ def test_the_paper_swarm_in_wind_gusts_and_noisy_reports_flies_in_processes_as_i
         still = np.linalg.norm(calm.followers[i]["pos_err_m"][calm.followers[i]["t_s"] >= 20], axis=1)
         assert windy.max() > 5 * still.max()  # the air is felt
         assert windy.max() < 1.0, windy.max()  # and the formation flies on
+
+
+@pytest.mark.unit
+def test_the_worlds_gust_is_the_mean_wind_plus_the_gust_of_the_instant_it_left_upstream():
+    """``FrozenGusts.update(t, p)`` is ``W + g(floor(tau / 10 ms))`` with ``tau = t - p.W / |W|^2``
+    (the first sample before the field reaches p), and ``W + g(t)`` in still mean air."""
+    mean = (4.0, 3.0, 0.0)
+    world = FrozenGusts(mean_mps=mean, gust_mps=1.5, gust_time_s=0.4, seed=7)
+    series = WindModel(0, gust_mps=1.5, gust_time_s=0.4, seed=7)
+    for t, p in ((2.0, (10.0, -2.0, 1.0)), (5.37, (-3.0, 8.0, 0.0)), (0.1, (30.0, 0.0, 0.0))):
+        tau = t - (np.dot(p, mean)) / np.dot(mean, mean)
+        k = max(0, math.floor(tau / WIND_DT_S + 1e-9))
+        assert np.array_equal(world.update(t, np.array(p)), np.array(mean) + series.gust(k)), (t, p)
+    still = FrozenGusts(gust_mps=1.5, gust_time_s=0.4, seed=7)
+    assert np.array_equal(still.update(1.23, np.array([5.0, 5.0, 5.0])), series.gust(123))
