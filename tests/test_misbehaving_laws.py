@@ -80,12 +80,13 @@ def law_path(command: str) -> str:
 
 
 def failure_window(name: str) -> tuple[float, float]:
-    """When follower 2's law can fail [s]: at 0.5 s; a hoarder once it holds more than the bound
-    (16 MB a tick: the 10th tick from 0.5 s), and at most 20 ticks later (the guard looks every
-    50 ms; a tick that allocates 16 MB takes over 2.5 ms)."""
+    """When follower 2's law can fail [s]: at 0.5 s; a hoarder once the process has grown past
+    the bound, which its arrays (16 MB a tick from 0.5 s) reach at the 10th tick, or one tick
+    sooner with the process's own growth since the guard started (under one array), and at most
+    20 ticks later (the guard looks every 50 ms; a tick that allocates 16 MB takes over 2.5 ms)."""
     if name != "Hoards":
         return laws.FROM_S, laws.FROM_S
-    first = laws.FROM_S + (math.floor(MAX_MEMORY_MB * 1e6 / laws.HOARD_BYTES)) * 0.01
+    first = laws.FROM_S + (math.floor(MAX_MEMORY_MB * 1e6 / laws.HOARD_BYTES) - 1) * 0.01
     return first, first + 0.2
 
 
