@@ -17,17 +17,7 @@ from swarm_sitl.nodes.law_host import LawError
 def hops_from_leader(cfg: SwarmConfig) -> dict[int, int]:
     """Each follower's fewest hops from node 0 on the graph (config validation has already
     refused a graph where the leader does not reach every follower)."""
-    graph = cfg.build_graph()
-    hops = {0: 0}
-    frontier = [0]
-    while frontier:
-        nxt = []
-        for s in frontier:
-            for d in graph.out_neighbours(s):
-                if d not in hops:
-                    hops[d] = hops[s] + 1
-                    nxt.append(d)
-        frontier = nxt
+    hops = cfg.build_graph().hops_from(0)
     return {i: hops[i] for i in sorted(hops) if i > 0}
 
 

@@ -63,6 +63,20 @@ class Graph:
     def out_neighbours(self, node: int) -> tuple[int, ...]:
         return tuple(sorted(e.dst for e in self.edges if e.src == node))
 
+    def hops_from(self, node: int) -> dict[int, int]:
+        """The fewest edges from ``node`` to each node it reaches (``node`` itself: 0)."""
+        hops = {node: 0}
+        frontier = [node]
+        while frontier:
+            nxt = []
+            for s in frontier:
+                for d in self.out_neighbours(s):
+                    if d not in hops:
+                        hops[d] = hops[s] + 1
+                        nxt.append(d)
+            frontier = nxt
+        return hops
+
     def reached_from(self, node: int) -> set[int]:
         """``node`` and every node a directed path leads to from it: whose information depends
         on ``node``'s (every follower, from the leader)."""

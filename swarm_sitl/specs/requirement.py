@@ -66,16 +66,7 @@ class Over:
             return [(a, b) for k, a in enumerate(followers) for b in followers[k + 1 :]]
         if self.kind == "into":
             return sorted(s for s, _ in graph.in_neighbours(self.value) if s != 0)
-        hops = {0: 0}
-        frontier = [0]
-        while frontier:
-            nxt = []
-            for node in frontier:
-                for dst in graph.out_neighbours(node):
-                    if dst not in hops:
-                        hops[dst] = hops[node] + 1
-                        nxt.append(dst)
-            frontier = nxt
+        hops = graph.hops_from(0)  # (``laws.graph.Graph``)
         return sorted(i for i in followers if hops.get(i, self.value + 1) <= self.value)
 
 
