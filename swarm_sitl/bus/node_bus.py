@@ -47,6 +47,7 @@ from swarm_sitl.bus.codec import (
     encode_message,
     encode_status,
 )
+from swarm_sitl.bus.estimates import EstimateTable
 from swarm_sitl.laws.contract import REFERENCE_LENGTH
 
 
@@ -110,7 +111,7 @@ class NodeBus(Protocol):
     def close(self) -> None: ...
 
 
-class ZenohNodeBus:
+class ZenohNodeBus(EstimateTable):
     """Node ``node`` of swarm ``swarm``: subscribes to its ``in_sources``' edges, publishes on its
     ``out_dests``' edges, watches the status of ``watch_status`` followers (the leader's pacing).
     ``message_length``: how many values a follower's message has (the law's)."""
@@ -128,13 +129,11 @@ class ZenohNodeBus:
     ):
         """``watch_alive``: nodes besides the in-neighbours whose liveliness to follow
         (``alive_puts``: how often each has declared itself ready, a restart counting again)."""
+        super().__init__()
         self.session = session
         self.swarm = swarm
         self.node = node
-        self.dropped = 0
         self.message_length = message_length
-        self._estimates: dict[int, dict[int, Message]] = {}
-        self._latest: dict[int, Message] = {}
         self._progress: dict[int, int] = {}
         self._lost: set[int] = set()
         self._puts: dict[int, int] = {}
@@ -302,13 +301,6 @@ class ZenohNodeBus:
         self._last_step[src] = step
         return True
 
-    def file(self, m: Message) -> None:
-        """Make ``m`` available to the loop (``estimate``, ``latest``)."""
-        self._estimates.setdefault(m.src, {})[m.step] = m
-        cur = self._latest.get(m.src)
-        if cur is None or m.step >= cur.step:
-            self._latest[m.src] = m
-
     # -- the loop's side -------------------------------------------------------------------------
     def publish(self, msg: Message) -> None:
         payload = encode_message(msg)
@@ -326,23 +318,6 @@ class ZenohNodeBus:
 
     def settled(self, src: int, step: int) -> bool:
         return step in self._estimates.get(src, {})
-
-    def estimate(self, src: int, step: int) -> Message | None:
-        return self._estimates.get(src, {}).get(step)
-
-    def latest(self, src: int) -> Message | None:
-        return self._latest.get(src)
-
-    def forget_before(self, step: int) -> None:
-        """Drop the estimates of ticks before ``step``. A table is in arrival order, which is tick
-        order on a reliable link, so this looks only at what it drops (and at one more), however
-        far the sources have run ahead; one that came out of order goes once those before it have."""
-        for table in self._estimates.values():
-            while table:
-                k = next(iter(table))
-                if k >= step:
-                    break
-                del table[k]
 
     def progress(self, follower: int) -> int:
         return self._progress.get(follower, -1)

@@ -2,8 +2,8 @@
 
 Every estimate the wrapped bus decodes comes here first (its ``deliver``). The plan's fate for it
 (``plan.fate``: lost, corrupted, delayed, duplicated) decides whether and when the loop may
-use it; the wrapped bus files it then. Nothing in the loop or the laws knows about faults: a lost
-estimate is one the loop does not get, and it rides through on the last one it has
+use it (``in_edges``); the wrapped bus files it then. Nothing in the loop or the laws knows about
+faults: a lost estimate is one the loop does not get, and it rides through on the last one it has
 (``neighbour_inbox``).
 
 Why at the receiver. Zenoh's reliable transport turns packet loss into delays, not lost
@@ -20,24 +20,11 @@ publishes a tick at or after a neighbour's restart only once that neighbour's ne
 declared itself ready (its liveliness token: its subscriptions are in place), so it misses
 nothing it needs. The leader's window ignores a follower while it is down (``progress``).
 
-Time, for delays and for the plan's ``from_s``/``until_s``:
-
-- lockstep: a message of step ``s`` is on time at tick ``s + 1``; a delay of ``d`` seconds makes it
-  usable from tick ``s + 1 + ceil(d / dt)``; the plan's window is read at the message's own time;
-- real time: from its arrival (run seconds since the start epoch) plus the delay.
-
-Distance and bandwidth. A range entry needs the distance between the two nodes at the message's
-step: the sender's position comes with its message, the receiver's own is the one it published at
-that step (``publish``). In lockstep a message that comes before this node has done its own tick
-of that step waits, undecided, until it has (the message is needed one tick later, so it never
-waits for that); in real time the receiver's newest position serves (one that comes before this
-node's first tick waits for it). A bandwidth entry on the
-sender is its queue, which this node replays for its in-edge (``bandwidth.RadioQueue``): a
-message dropped there is lost (``queue_full``), one that left after the next tick is late.
+The plan's fate for each message, and when it is filed, is the stage ``in_edges.InEdges`` (which
+``sim`` runs too); this wrapper feeds it what zenoh brings and carries out the process faults.
 """
 
 import contextlib
-import heapq
 import math
 import os
 import signal
@@ -46,16 +33,11 @@ from typing import Any
 
 from sim_vehicles.runtime.counter_file import NamedCounts
 from swarm_sitl.bus.clock import POLL_S, RunClock, StallError, wait_until
-from swarm_sitl.bus.codec import Message, PayloadError, Status, decode_message, encode_message, message_size
+from swarm_sitl.bus.codec import Message, Status
 from swarm_sitl.bus.node_bus import ZenohNodeBus
-from swarm_sitl.faults.bandwidth import RadioQueue
-from swarm_sitl.faults.counts import EdgeStats, counts_names
-from swarm_sitl.faults.draws import uniform
-from swarm_sitl.faults.plan import FaultPlan, FaultSpec, down_at, fate
-from swarm_sitl.faults.plan import edge_channel as channel_of
-from swarm_sitl.faults.radio_range import distance_m
+from swarm_sitl.faults.in_edges import InEdges
+from swarm_sitl.faults.plan import FaultPlan, down_at
 
-_CORRUPT_BYTE = 3  #: salt of the draw that picks the byte a corruption flips
 #: longest block between two looks at the out-neighbours' progress before a planned kill (the
 #: bus's descriptor wakes it when a status comes) [s]
 DELIVERY_POLL_S = 0.05
@@ -103,165 +85,13 @@ class FaultyBus:
         for _, back in self.own_outages:
             if back is not None:
                 self._gates += [(back, d, False) for d in dests]
-        self.rules: dict[int, list[tuple[int, FaultSpec]]] = {
-            s: plan.on_edge(s, node, graph_edges) for s in sources
-        }
-        self.stats = {s: EdgeStats() for s in sources}
-        self._graph_edges = graph_edges
-        #: in-neighbours whose messages a link model needs the distance of (``range``'s, ...)
-        self._ranged = {s for s, rules in self.rules.items() if any(f.needs_distance for _, f in rules)}
-        #: in-neighbours with a bandwidth budget, and their queues (made at their first message)
-        self._budgeted = {
-            s: f for s, rules in self.rules.items() for _, f in rules if f.bandwidth is not None
-        }
-        self._queues: dict[int, RadioQueue] = {}
-        #: this node's position as it last published it, and that step's number
-        self._own_newest: tuple[float, float, float] | None = None
-        self._own_step = -1
-        self._undecided: list[Message] = []  #: lockstep: waiting for our own position of their step
-        #: real time: come before this node had the start signal, so before it had a clock to
-        #: judge them by (``poll`` judges them once it has)
-        self._early: list[Message] = []
-        self._uncounted = EdgeStats()  #: what steps the bus does not count are counted in
-        self._arrived: dict[int, int] = {}
-        #: heap of (due, order, message, whether it is a duplicate's second copy)
-        self._pending: list[tuple[float, int, Message, bool]] = []
-        self._order = 0
-        inner.deliver = self._admit
+        self.faults = InEdges(inner, plan, node, graph_edges, clock, end_s, self.outages)
+        inner.deliver = self.faults.admit
 
-    # -- the plan ------------------------------------------------------------------------------------
-    def _stats_of(self, m: Message) -> EdgeStats:
-        """Where ``m`` is counted: its edge's stats, or (a step the bus does not count,
-        ``ZenohNodeBus.counted_steps``) stats nobody reads: it meets its fate, uncounted."""
-        return self.stats[m.src] if self.inner.counts(m.step) else self._uncounted
-
-    def _admit(self, m: Message) -> None:
-        src = m.src
-        if src not in self.stats:  # not one of our in-edges (the wrapped bus subscribes to no other)
-            return
-        st = self._stats_of(m)
-        st.received += 1
-        st.held += 1  # until it is delivered, lost or dropped
-        self._arrived[src] = max(self._arrived.get(src, -1), m.step)
-        if not self.clock.started():
-            # real time, before this node has the start signal (a restarted node hears its
-            # in-neighbours before it has the swarm's clock): judged once it has it
-            self._early.append(m)
-            return
-        self._route(m)
-
-    def _route(self, m: Message) -> None:
-        if m.src in self._ranged and (
-            m.step > self._own_step if self.clock.lockstep else self._own_newest is None
-        ):
-            self._undecided.append(m)  # decided when this node publishes that step (or its first)
-            return
-        self._decide(m)
-
-    def _decide(self, m: Message) -> None:
-        src = m.src
-        counted = self.inner.counts(m.step)
-        st = self._stats_of(m)
-        clock = self.clock
-        dt = clock.period_s
-        at = m.t_s if clock.lockstep else clock.now_s()
-        left_s = 0.0  # how long after its tick it left its sender's queue [s]
-        if src in self._budgeted:
-            left = self._queue(m).leaves(m.step)
-            if left is None:
-                st.queue_full += 1
-                st.count_fate(True)
-                st.held -= 1
-                return
-            left_s = left
-        d = math.nan
-        if src in self._ranged:  # a link model needs the distance
-            # Lockstep: this node's position of the message's own step. A message of step s is
-            # decided when this node publishes s, or when it comes after that, and it comes before
-            # this node publishes s + 1, which waits for it (one sender's messages come in order):
-            # either way this node's newest is of step s (of its first step if s is before it,
-            # after a restart). Real time: the newest.
-            own = self._own_newest
-            assert own is not None  # (a message is decided once this node has published)
-            d = distance_m(m.p_W, own)
-            st.count_distance(d)
-        rules = self.rules[src]
-        f = fate(self.plan.seed, rules, channel_of(src, self.node), m.step, at, self.end_s, dt, distance_m=d)
-        st.count_fate(f.lost)
-        st.out_of_range += f.out_of_range
-        st.retried += f.retried
-        if f.lost:
-            st.held -= 1
-            return
-        if f.corrupt:
-            data = bytearray(encode_message(m))
-            j = int(uniform(self.plan.seed, channel_of(src, self.node), m.step, _CORRUPT_BYTE) * len(data))
-            data[j] ^= 0xFF
-            try:
-                m = decode_message(bytes(data))
-            except PayloadError:
-                st.corrupt += 1
-                st.held -= 1
-                self.inner.dropped += counted
-                return
-        due: float
-        if clock.lockstep:
-            # on time at the next tick if it left its queue by then, else at the first tick after
-            queued = max(0, math.ceil(left_s / dt - 1e-9) - 1)
-            due = m.step + 1 + queued + (math.ceil(f.delay_s / dt - 1e-9) if f.delay_s > 0 else 0)
-            late = queued > 0
-            again = 1.0
-        else:
-            now = clock.now_s()
-            late = left_s > 0 and m.t_s + left_s > now  # (a budget's: it has left its queue)
-            due = (m.t_s + left_s if late else now) + f.delay_s
-            again = dt
-        if f.delay_s > 0 or late:
-            st.delayed += 1
-            st.delays_s.append(f.delay_s + (left_s if late else 0.0))
-        self._push(due, m, False)
-        if f.duplicate:
-            self._push(due + again, m, True)
-
-    def _queue(self, m: Message) -> RadioQueue:
-        """The sender's queue (``bandwidth``), made at its first message (which gives its size)."""
-        q = self._queues.get(m.src)
-        if q is None:
-            f = self._budgeted[m.src]
-            dests = sorted({d for s, d in self._graph_edges if s == m.src})
-            down = self.outages.get(m.src, [])
-            until = self.end_s if f.until_s is None else f.until_s
-            assert f.bandwidth is not None
-            q = self._queues[m.src] = RadioQueue(
-                f.bandwidth,
-                len(dests),
-                dests.index(self.node),
-                message_size(len(m.values)),
-                self.clock.period_s,
-                lambda k: down_at(down, k),
-                lambda t: f.from_s <= t < until,
-            )
-        return q
-
-    def _push(self, due: float, m: Message, copy: bool) -> None:
-        """Hold ``m`` until ``due`` (``clock.now()``'s unit); ``copy``: a duplicate's second copy."""
-        self._order += 1
-        heapq.heappush(self._pending, (due, self._order, m, copy))
-
-    def _release(self) -> None:
-        pending = self._pending
-        if not pending:
-            return
-        now = self.clock.now()
-        while pending and pending[0][0] <= now:
-            _, _, m, copy = heapq.heappop(pending)
-            st = self._stats_of(m)
-            st.delivered += 1
-            if copy:
-                st.duplicated += 1
-            else:
-                st.held -= 1
-            self.inner.file(m)
+    @property
+    def stats(self) -> dict[int, Any]:
+        """Per in-neighbour, what its edge carried (``counts.EdgeStats``)."""
+        return self.faults.stats
 
     # -- NodeBus -------------------------------------------------------------------------------------
     @property
@@ -270,17 +100,14 @@ class FaultyBus:
 
     def poll(self) -> None:
         self.inner.poll()
-        if self._early and self.clock.started():
-            early, self._early = self._early, []
-            for m in early:
-                self._route(m)
-        self._release()
+        self.faults.take_early()
+        self.faults.release()
 
     def fileno(self) -> int:
         return self.inner.fileno()
 
     def settled(self, src: int, step: int) -> bool:
-        if self._arrived.get(src, -1) >= step:
+        if self.faults.arrived.get(src, -1) >= step:
             return True
         down = self.outages.get(src)
         return down is not None and down_at(down, step)
@@ -292,14 +119,7 @@ class FaultyBus:
         return self.inner.latest(src)
 
     def publish(self, msg: Message) -> None:
-        if self._ranged:
-            self._own_newest, self._own_step = msg.p_W, msg.step
-            if self._undecided:
-                last = msg.step if self.clock.lockstep else math.inf
-                now = [m for m in self._undecided if m.step <= last]
-                self._undecided = [m for m in self._undecided if m.step > last]
-                for m in now:
-                    self._decide(m)
+        self.faults.published(msg)
         if self.own_outages and down_at(self.own_outages, msg.step):
             # the plan kills this node here: as a crash would, with what it has not flushed, once
             # what it published before has reached its readers
@@ -388,15 +208,14 @@ class FaultyBus:
         self.inner.close()
 
     def edge_stats(self) -> dict[int, dict[str, Any]]:
-        return {s: st.as_dict() for s, st in self.stats.items()}
+        return self.faults.edge_stats()
 
     def counts_names(self) -> list[str]:
-        return [n for s in self.stats for n in counts_names(f"in {s}")]
+        return self.faults.counts_names()
 
     def keep_counts(self, counts: NamedCounts) -> None:
         """Count every in-edge in ``counts`` (names from ``counts_names``)."""
-        for s, st in self.stats.items():
-            st.bind(counts.view(counts_names(f"in {s}")))
+        self.faults.keep_counts(counts)
 
 
 def acts_on(plan: FaultPlan, node: int, graph_edges: list[tuple[int, int]]) -> bool:
