@@ -224,7 +224,8 @@ def test_lockstep_a_lost_aircraft_takes_its_vehicle_when_its_controller_kills_it
     assert not pf.planned_exit(sup.children["controller_2"], -signal.SIGKILL)  # not in the plan
     assert pf.planned_exit(c1, -signal.SIGKILL) and c1.retired
     sup.children["vehicle_1"].proc.wait(timeout=5)
-    assert sup.dead("vehicle_1") and sup.children["vehicle_1"].retired
+    # ended with SIGTERM: idle since its controller died, it keeps what it recorded up to the loss
+    assert sup.children["vehicle_1"].proc.poll() == -signal.SIGTERM and sup.children["vehicle_1"].retired
     assert pf.lost == {1} and pf.down == {1} and sup.spawned == []
     assert not any(sup.dead(n) for n in sup.children if n not in ("controller_1", "vehicle_1"))
     t = tick_of(2.0, DT) * DT

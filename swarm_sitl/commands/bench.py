@@ -65,6 +65,12 @@ def cmd_bench(args: argparse.Namespace) -> int:
                 args.split or 0,
                 args.empty,
             )
+        if args.sim_plan:
+            from swarm_sitl.bench.plan_cost import run_plan_cost
+
+            if not Path(args.sim_plan).is_file():
+                raise CliError(f"--sim-plan {args.sim_plan}: no such file")
+            return run_plan_cost(args.config, args.sim_plan, args.repeats)
         if args.against:
             from swarm_sitl.bench.speed import compare_trees
 
@@ -88,6 +94,11 @@ def add_bench(sub: Any) -> None:
         "--against",
         metavar="DIR",
         help="only compare the lockstep run with another source tree's, alternated --repeats times",
+    )
+    b.add_argument(
+        "--sim-plan",
+        metavar="FILE",
+        help="instead: sim of --config without and with this fault plan, alternated --repeats times",
     )
     b.add_argument(
         "--scale",

@@ -47,6 +47,11 @@ def _write_sim(cfg: SwarmConfig, rec: Any, run_dir: Path) -> dict:
 
 def cmd_sim(args: argparse.Namespace) -> int:
     cfg = with_spec(with_seed(with_duration(load(args.config), args.duration), args.seed), args.spec)
+    cfg = _with_fault_file(cfg, args.faults)
+    try:
+        cfg.faults.check_lockstep()
+    except ValueError as e:
+        raise CliError(f"sim flies a plan as lockstep does: {e}") from None
     from swarm_sitl.running.sim import SimFailedError, run_sim  # the run machinery: 0.12 s (module doc)
 
     run_dir = run_dir_of(args.out, cfg, "sim")
@@ -355,6 +360,11 @@ def add_sim(sub: Any) -> None:
     """``swarm-sitl sim``: the whole swarm in one process."""
     s = sub.add_parser("sim", help="run the whole swarm in one process and write a run directory")
     s.add_argument("config")
+    s.add_argument(
+        "--faults",
+        metavar="FILE",
+        help="fault plan (YAML: seed, plan) in place of the config's, flown as lockstep flies it",
+    )
     add_run_outputs(s, "sim")
     s.set_defaults(func=cmd_sim)
 

@@ -29,6 +29,7 @@ import math
 import os
 import signal
 import time
+from collections.abc import Callable
 from typing import Any
 
 from sim_vehicles.runtime.counter_file import NamedCounts
@@ -87,6 +88,9 @@ class FaultyBus:
                 self._gates += [(back, d, False) for d in dests]
         self.faults = InEdges(inner, plan, node, graph_edges, clock, end_s, self.outages)
         inner.deliver = self.faults.admit
+        #: what the node keeps before the plan kills it (its rows: a planned kill in lockstep loses
+        #: nothing it recorded, so the run is ``sim``'s under the same plan)
+        self.before_kill: Callable[[], None] | None = None
 
     @property
     def stats(self) -> dict[int, Any]:
@@ -121,9 +125,11 @@ class FaultyBus:
     def publish(self, msg: Message) -> None:
         self.faults.published(msg)
         if self.own_outages and down_at(self.own_outages, msg.step):
-            # the plan kills this node here: as a crash would, with what it has not flushed, once
-            # what it published before has reached its readers
+            # the plan kills this node here, as a crash would (what it keeps, ``before_kill``, kept
+            # first), once what it published before has reached its readers
             self._await_delivery(msg.step)
+            if self.before_kill is not None:
+                self.before_kill()
             os.kill(os.getpid(), signal.SIGKILL)
         if self._gates:
             self._await_readers(msg.step)

@@ -29,17 +29,26 @@ from swarm_sitl.faults.draws import uniform
 from swarm_sitl.faults.plan import FaultPlan, fate, mavlink_channel
 
 _LOCAL_POSITION_NED = 32
+_STATUSTEXT = 253
 _CORRUPT_BYTE = 3
 
 
 def sample_ms(datagram: bytes) -> int | None:
-    """The ``time_boot_ms`` of a datagram whose first frame is LOCAL_POSITION_NED (MAVLink 2), the
-    start of a vehicle's sample; None for any other datagram."""
-    if len(datagram) < 14 or datagram[0] != 0xFD:
-        return None
-    if int.from_bytes(datagram[7:10], "little") != _LOCAL_POSITION_NED:
-        return None
-    return int.from_bytes(datagram[10:14], "little")
+    """The ``time_boot_ms`` of a datagram that is a vehicle's per-tick sample: its first frame is
+    LOCAL_POSITION_NED (MAVLink 2), or comes after the STATUSTEXTs the vehicle said in the same pass
+    (its failsafe, entered or left in that period); None for any other datagram (the answer to a
+    request, which starts with its COMMAND_ACK, is start-up traffic)."""
+    at, end = 0, len(datagram)
+    while at + 14 <= end and datagram[at] == 0xFD:
+        msg_id = int.from_bytes(datagram[at + 7 : at + 10], "little")
+        if msg_id == _LOCAL_POSITION_NED:
+            # (MAVLink 2 drops a payload's trailing zero bytes: a short stamp is zero-extended)
+            return int.from_bytes(datagram[at + 10 : at + 10 + min(4, datagram[at + 1])], "little")
+        if msg_id != _STATUSTEXT:
+            return None
+        signed = datagram[at + 2] & 0x01
+        at += 12 + datagram[at + 1] + (13 if signed else 0)
+    return None
 
 
 def _flipped(data: bytes, seed: int, *keys: int) -> bytes:

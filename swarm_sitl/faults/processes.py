@@ -139,8 +139,12 @@ class ProcessFaults:
         if child is None:
             return
         child.retired = True
+        # lockstep: a lost aircraft's vehicle, idle since its controller died at the planned tick,
+        # is ended with SIGTERM, so it keeps what it recorded up to the loss (as ``sim`` records it);
+        # no simulated time passes meanwhile. Real time: SIGKILL, a crash.
+        sig = signal.SIGTERM if self.lockstep else signal.SIGKILL
         with contextlib.suppress(ProcessLookupError):
-            os.killpg(child.pid, signal.SIGKILL)
+            os.killpg(child.pid, sig)
         self._after_death(name, spec, run_s)
 
     def _after_death(self, name: str, spec: FaultSpec, t_s: float) -> None:

@@ -166,6 +166,8 @@ def cmd_controller(cfg: SwarmConfig, args: argparse.Namespace) -> int:
                 ]
                 zbus.counted_steps = range(args.resume_tick, min([*kills, cfg.n_control_steps]))
             faulty = _faulty_bus(cfg, zbus, i, clock, args.resume_tick)
+            if faulty is not None and rows is not None:
+                faulty.before_kill = rows.flush  # its rows up to a planned kill are kept
             counted = [x for x in (faulty, link_faults) if x is not None]
             if out is not None and counted:  # what it counts under the plan outlives a kill
                 names = [n for x in counted for n in x.counts_names()]

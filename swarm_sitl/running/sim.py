@@ -36,6 +36,7 @@ from swarm_sitl.nodes.assembly import build_law, build_leader, reported_vehicle_
 from swarm_sitl.nodes.law_guard import LawGuard, max_output_bytes
 from swarm_sitl.nodes.law_host import LawError
 from swarm_sitl.rundir.recording import FollowerSeries, Recording, leader_series
+from swarm_sitl.running.sim_plan import PlannedSwarm
 
 
 class SimFailedError(LawError):
@@ -84,6 +85,8 @@ def run_sim(
     specs = {i: cfg.vehicle_spec(i) for i in ids}  # each vehicle as its process builds it
     aps = {i: build_vehicle(specs[i], i) for i in ids}
     series = {i: FollowerSeries(n + 1, laws[i].law.record_fields) for i in ids}
+    # a fault plan: the followers as lockstep runs them under it (``sim_plan``)
+    planned = PlannedSwarm(cfg, series, sample_through_wire) if cfg.faults.plan else None
     sources = {i: graph.in_neighbours(i) for i in ids}
     max_thrust = cfg.vehicle.max_thrust_N
     n_att = cfg.rates.attitude_steps_per_control
@@ -94,9 +97,10 @@ def run_sim(
     def recording() -> Recording:
         t_s = np.arange(n + 1) * dt
         offsets = {i: np.asarray(cfg.follower(i).offset_m, dtype=float) for i in ids}
+        trajectory = cfg.trajectory()
         return Recording(
-            leader_series(cfg.trajectory(), t_s), {i: s.arrays() for i, s in series.items()}, offsets
-        ).with_errors()
+            leader_series(trajectory, t_s), {i: s.arrays() for i, s in series.items()}, offsets
+        ).with_errors(trajectory)  # (a tick that carries an older sample: the reference at its time)
 
     def heard(i: int) -> list[tuple[int, Message]]:
         return [(s, latest[s]) for s, _ in sources[i] if s in latest]
@@ -113,7 +117,18 @@ def run_sim(
         )
         for law in laws.values():
             law.guard = guard
+        if planned is not None:
+            planned.set_guard(guard)
     try:
+        if planned is not None:
+            for k in range(n + 1):
+                try:
+                    planned.tick(k, None if planned.down(0, k) else leader.step(k))
+                except LawError as e:
+                    raise SimFailedError(e, recording()) from e
+                if progress is not None:
+                    progress(k)
+            return recording()
         for k in range(n + 1):
             t = k * dt
             inboxes = {i: {s: Received(m.values, m.t_s, t - m.t_s) for s, m in heard(i)} for i in ids}

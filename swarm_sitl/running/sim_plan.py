@@ -1,0 +1,268 @@
+"""A fault plan in ``sim``, as a lockstep run of processes carries it out, tick for tick.
+
+``sim`` without a plan is ``running.sim``'s loop; with one, each part of the plan acts here by the
+same code and at the same tick as in a lockstep run (``docs/faults.md``), so the two record the
+same run, bit for bit (``tests/test_sim_faults.py``):
+
+- **Edges** (loss, delay, jitter, stall, duplicate, reorder, corrupt, bursty, range, bandwidth,
+  partitions, a user's link model): each follower's in-edges go through the plan's stage
+  (``faults.in_edges.InEdges``) into its ``EstimateTable``, as in the zenoh wrapper; a message of
+  tick ``k`` comes once every node has published tick ``k`` (in lockstep it is needed at ``k + 1``),
+  and the law's inbox is ``neighbour_inbox``'s, as a controller gathers it.
+- **MAVLink** (drop, loss, bursty, corrupt; lockstep's kinds): a setpoint the plan loses is a
+  clock-only one (the vehicle flies one period on what it holds, and counts it as no setpoint:
+  its failsafe after ``setpoint_timeout_s``); a sample it loses is a tick that carries the newest
+  one before it, recorded with that sample's true state and time, as ``merge`` records it (an
+  incarnation's first sample answers its request: start-up traffic, never lost). The fates are
+  keyed by ``time_boot_ms``, as ``faults.mavlink`` keys them in lockstep.
+- **Processes**: a node killed at tick ``k`` publishes nothing from ``k`` on and records nothing
+  (its controller dies before it publishes ``k``); its vehicle flies its failsafe through the gap
+  in simulated time, period by period, and a restarted controller takes it up at its restart
+  tick with a fresh law, inbox and stage, hearing what its in-neighbours publish from that tick
+  on. A lost vehicle takes its controller with it. A freeze costs a lockstep run wall time only:
+  nothing here.
+
+The vehicle is the vehicle process's own arming, modes and failsafe (``sim_vehicles.vehicle.modes``)
+over the same plant, stepped as its endpoint steps it.
+"""
+
+from collections.abc import Callable
+
+import numpy as np
+
+from sim_vehicles.common.command import AttitudeCommand
+from sim_vehicles.mavlink import px4_profile as px4
+from sim_vehicles.mavlink.wire_format import command_roundtrip
+from sim_vehicles.models.build import build_vehicle, sensor_model
+from sim_vehicles.models.spec import VehicleSpec
+from sim_vehicles.plant.failsafe import ACTIONS
+from sim_vehicles.runtime.event_log import EventLog
+from sim_vehicles.vehicle.modes import FlightModes
+from swarm_sitl.bus.clock import RunClock
+from swarm_sitl.bus.codec import Message
+from swarm_sitl.bus.estimates import EstimateTable
+from swarm_sitl.config.schema import SwarmConfig
+from swarm_sitl.faults.in_edges import InEdges
+from swarm_sitl.faults.plan import down_at, fate, mavlink_channel
+from swarm_sitl.laws.contract import VehicleSample
+from swarm_sitl.nodes.assembly import build_law, reported_vehicle_params
+from swarm_sitl.nodes.controller import FORGET_EVERY
+from swarm_sitl.nodes.law_guard import LawGuard
+from swarm_sitl.nodes.law_host import HostedLaw
+from swarm_sitl.nodes.neighbour_inbox import NeighbourInbox
+from swarm_sitl.rundir.recording import FollowerSeries
+
+Sampler = Callable[[float, np.ndarray], VehicleSample]
+
+
+class _Table(EstimateTable):
+    """A follower incarnation's table; it counts the steps its process would (``entry``'s
+    ``counted_steps``: from its first tick to its next planned kill or the run's end)."""
+
+    def __init__(self, counted: range):
+        super().__init__()
+        self.counted = counted
+
+    def counts(self, step: int) -> bool:
+        return step in self.counted
+
+
+class _Vehicle:
+    """One vehicle as its process flies it in lockstep: armed and in offboard from the start."""
+
+    def __init__(self, spec: VehicleSpec, i: int, n_att: int, max_thrust_N: float):
+        self.ap = ap = build_vehicle(spec, i)
+        self.n_att = n_att
+        self.max_thrust_N = max_thrust_N
+        self.sensors = sensor_model(spec, i)
+        say: Callable[[int, str], None] = lambda severity, text: None  # noqa: E731  (no ground station)
+        self.flight = FlightModes(
+            ap, i, spec.setpoint_timeout_s, ACTIONS[spec.failsafe_action], EventLog(None, f"vehicle_{i}"), say
+        )
+        self.flight.arm(True, False)
+        self.offboard()
+
+    def offboard(self) -> None:
+        """``link.handshake.arm_offboard``: a clock-only setpoint at its time, then OFFBOARD."""
+        self.flight.offboard_signal_s = self.ap.time_s
+        self.flight.set_mode(px4.OFFBOARD)
+
+    def step(self) -> None:
+        """One period on what it holds (the endpoint's ``step``: its own loop in its failsafe)."""
+        f, ap = self.flight, self.ap
+        left = self.n_att
+        while left > 0:
+            chunk = f.own_steps(left)
+            ap.advance(chunk)
+            left -= chunk
+            f.check_failsafe()
+
+    def setpoint(self, cmd: AttitudeCommand) -> None:
+        """A valid setpoint stamped with its time: taken, then one period."""
+        f = self.flight
+        f.offboard_signal_s = self.ap.time_s
+        if f.take_setpoint():
+            self.ap.set_command(command_roundtrip(cmd, self.max_thrust_N))
+        self.step()
+
+    def reported(self, ms: int) -> np.ndarray:
+        x = self.ap.state
+        return x if self.sensors is None else self.sensors.reported(ms, x)
+
+
+class _Follower:
+    """One incarnation of a follower's controller: from tick ``first`` on."""
+
+    def __init__(
+        self, law: HostedLaw, table: _Table, stage: InEdges | None, inbox: NeighbourInbox, first: int
+    ):
+        self.law, self.table, self.stage, self.inbox, self.first = law, table, stage, inbox, first
+        #: the newest sample it has (a tick whose own the plan lost carries it), with its true state
+        self.sample: tuple[VehicleSample, np.ndarray] | None = None
+
+    def newest(self, src: int, k: int) -> Message | None:
+        """``controller._Inputs.newest_lockstep`` at tick ``k``."""
+        m = self.table.estimate(src, k - 1)
+        if m is None:
+            m = self.table.latest(src)
+            if m is not None and m.step >= k:
+                return None
+        return m
+
+
+class PlannedSwarm:
+    """The followers, their vehicles and what the plan does to them, tick by tick."""
+
+    def __init__(self, cfg: SwarmConfig, series: dict[int, FollowerSeries], sample: Sampler):
+        cfg.faults.check_lockstep()
+        self.cfg = cfg
+        self.plan = plan = cfg.faults
+        self.series = series
+        self.sample = sample
+        self.dt = dt = cfg.control_dt_s
+        self.n = cfg.n_control_steps
+        self.ids = [f.id for f in cfg.followers]
+        graph = cfg.build_graph()
+        self.edges = cfg.graph_edges()
+        self.sources = {i: [int(s) for s, _ in graph.in_neighbours(i)] for i in self.ids}
+        self.outs: dict[int, list[int]] = {}
+        for s, d in self.edges:
+            self.outs.setdefault(s, []).append(d)
+        self.outages = plan.outages(dt)
+        self.clock = RunClock(True, dt)
+        self.mass_max = reported_vehicle_params(cfg)
+        n_att = cfg.rates.attitude_steps_per_control
+        self.vehicles = {
+            i: _Vehicle(cfg.vehicle_spec(i), i, n_att, cfg.vehicle.max_thrust_N) for i in self.ids
+        }
+        self.period_ms = round(dt * 1000)
+        self.up_rules = {i: plan.on_mavlink(i, True) for i in self.ids}
+        self.down_rules = {i: plan.on_mavlink(i, False) for i in self.ids}
+        #: the nodes whose in-edges a plan entry acts on (the others file what comes as it comes)
+        self.guard: LawGuard | None = None  #: a user's law's guard, given to every incarnation
+        self.faulty = {i for i in self.ids if any(plan.on_edge(s, i, self.edges) for s in self.sources[i])}
+        self.followers: dict[int, _Follower | None] = {i: self._incarnation(i, 0) for i in self.ids}
+
+    # -- incarnations ------------------------------------------------------------------------------
+    def _incarnation(self, i: int, first: int) -> _Follower:
+        law = build_law(self.cfg, i, *self.mass_max)
+        law.guard = self.guard
+        kills = [k for k, _ in self.outages.get(i, []) if k > first]
+        table = _Table(range(first, min([*kills, self.n])))
+        stage = None
+        if i in self.faulty:
+            stage = InEdges(table, self.plan, i, self.edges, self.clock, self.cfg.duration_s, self.outages)
+        inbox = NeighbourInbox(i, self.sources[i], self.cfg.estimator.staleness_s, EventLog(None, f"c{i}"))
+        return _Follower(law, table, stage, inbox, first)
+
+    def set_guard(self, guard: LawGuard) -> None:
+        self.guard = guard
+        for f in self.followers.values():
+            if f is not None:
+                f.law.guard = guard
+
+    def down(self, node: int, k: int) -> bool:
+        return down_at(self.outages.get(node, []), k)
+
+    def _restarts_at(self, node: int, k: int) -> bool:
+        return any(back == k for _, back in self.outages.get(node, []))
+
+    def _returns(self, node: int, k: int) -> bool:
+        """Whether ``node``, down at ``k``, is started again later."""
+        return any(first <= k and back is not None and k < back for first, back in self.outages.get(node, []))
+
+    def _lost(self, rules: list, vehicle: int, uplink: bool, ms: int) -> bool:
+        """``faults.mavlink``'s lockstep fate of the datagram of ``ms`` (lost or corrupted)."""
+        if not rules:
+            return False
+        f = fate(
+            self.plan.seed,
+            rules,
+            mavlink_channel(vehicle, uplink),
+            ms,
+            ms / 1000,
+            self.cfg.duration_s,
+            self.dt,
+            ms // self.period_ms,
+        )
+        return f.lost or f.corrupt
+
+    # -- one tick ----------------------------------------------------------------------------------
+    def tick(self, k: int, leader: Message | None) -> dict[int, Message]:
+        """Tick ``k`` of every follower (``leader``: the reference it published, None if it is
+        down); returns what each follower published."""
+        self.clock.tick = k
+        t = k * self.dt
+        out: dict[int, Message] = {}
+        for i in self.ids:
+            v = self.vehicles[i]
+            if self.down(i, k):
+                self.followers[i] = None
+                if self._returns(i, k):  # its vehicle flies on its own through the gap
+                    v.step()
+                continue
+            f = self.followers[i]
+            if f is None or self._restarts_at(i, k):
+                f = self.followers[i] = self._incarnation(i, k)
+                v.offboard()
+            m = self._follower_tick(i, k, t, f, v)
+            out[i] = m
+        for src, m in ([(0, leader)] if leader is not None else []) + list(out.items()):
+            for d in self.outs.get(src, []):
+                g = self.followers.get(d)
+                if g is None or self.down(d, k):
+                    continue
+                if g.stage is not None:
+                    g.stage.admit(m)
+                else:
+                    g.table.file(m)
+        return out
+
+    def _follower_tick(self, i: int, k: int, t: float, f: _Follower, v: _Vehicle) -> Message:
+        ms = round(t * 1000)
+        # (an incarnation's first sample is the answer to its request, start-up traffic: never lost)
+        if k > f.first and self._lost(self.down_rules[i], i, False, ms) and f.sample is not None:
+            # the newest it has, carried, at its time_boot_ms
+            sample, truth = f.sample
+            sample = sample._replace(t_s=round(sample.t_s * 1000) / 1000)
+        else:
+            sample, truth = self.sample(t, v.reported(ms)), v.ap.state.copy()
+            f.sample = (sample, truth)
+        self.series[i].record_vehicle(k, t, truth, sample.t_s)
+        if f.stage is not None:
+            f.stage.release()
+        inbox = f.inbox.gather(t, lambda s: f.newest(s, k)) if k > f.first else {}
+        step = f.law.step(t, sample, inbox)
+        p = sample.p_W
+        msg = Message(i, k, t, step.message, (float(p[0]), float(p[1]), float(p[2])))
+        if f.stage is not None:
+            f.stage.published(msg)
+        self.series[i].record_controller(k, step.command, step.record)
+        if k < self.n:
+            if self._lost(self.up_rules[i], i, True, ms):
+                v.step()  # a clock-only setpoint in its place
+            else:
+                v.setpoint(step.command)
+        if k % FORGET_EVERY == 0:
+            f.table.forget_before(k - 1)
+        return msg
