@@ -61,11 +61,12 @@ messages are received (``edges``), so a lockstep receiver always knows a message
 without waiting for something that will not come.
 """
 
+import functools
 import math
 from collections.abc import Iterable
 from typing import Annotated, Any, Literal, NamedTuple
 
-from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, model_validator
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from swarm_sitl.faults.bandwidth import Bandwidth
 from swarm_sitl.faults.bursts import GilbertElliott
@@ -137,8 +138,6 @@ class FaultSpec(BaseModel):
     from_s: NonNegative = 0.0  #: the fault starts [s]
     until_s: Annotated[float, Field(gt=0)] | None = None  #: and ends [s] (default: the end of the run)
 
-    _how: Any = PrivateAttr(default=None)  #: ``link_how``, once asked
-
     @model_validator(mode="before")
     @classmethod
     def _partition_drops(cls, data: object) -> object:
@@ -203,12 +202,11 @@ class FaultSpec(BaseModel):
     def is_process(self) -> bool:
         return self.kill is not None or self.freeze_s is not None
 
-    @property
+    @functools.cached_property
     def link_how(self) -> tuple[Any, Any]:
-        """``(model, params)`` of a link entry (``link_models.how_of``), made once."""
-        if self._how is None:
-            self._how = how_of(self)
-        return self._how
+        """``(model, params)`` of a link entry (``link_models.how_of``), made once (kept in the
+        instance's ``__dict__``: read per message, a plain attribute lookup)."""
+        return how_of(self)
 
     @property
     def needs_distance(self) -> bool:

@@ -182,7 +182,8 @@ class PlannedSwarm:
                 f.law.guard = guard
 
     def down(self, node: int, k: int) -> bool:
-        return down_at(self.outages.get(node, []), k)
+        o = self.outages.get(node)
+        return o is not None and down_at(o, k)
 
     def _restarts_at(self, node: int, k: int) -> bool:
         return any(back == k for _, back in self.outages.get(node, []))
