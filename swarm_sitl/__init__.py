@@ -7,13 +7,13 @@ Its folders, each allowed to import only those before it (``tests/test_layout.py
 ``bench`` (speed figures), ``campaigns`` (robustness sweeps), ``commands`` (the CLI's
 subcommands). Above them all: ``cli`` (``swarm-sitl``), ``api`` (``Swarm``: runs from Python,
 with a fault plan, as objects) and ``pytest_plugin`` (the ``swarm`` fixture); ``sweep`` is
-``campaigns.sweep.sweep``.
+``campaigns.sweep.sweep``, ``falsify`` and ``assert_no_counterexample`` are ``falsify.search``'s.
 """
 
 from typing import Any
 
 __version__ = "0.1.0"
-__all__ = ["Swarm", "SwarmResult", "sweep"]
+__all__ = ["Swarm", "SwarmResult", "assert_no_counterexample", "falsify", "sweep"]
 
 
 def __getattr__(name: str) -> Any:
@@ -22,6 +22,10 @@ def __getattr__(name: str) -> Any:
         from swarm_sitl.campaigns.sweep import sweep
 
         return sweep
+    if name in ("falsify", "assert_no_counterexample"):
+        from swarm_sitl.falsify import search
+
+        return getattr(search, name)
     if name in __all__:
         from swarm_sitl import api
 

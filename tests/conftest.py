@@ -64,6 +64,7 @@ LOCKSTEP_ONLY = {
     "test_sweep_plugins.py",
     "test_leader_restart.py",
     "test_sim_faults.py",
+    "test_falsify.py",
     "test_counts_across_restarts.py",
     "test_quad_swarm.py",
     "test_vehicle_from_docs.py",

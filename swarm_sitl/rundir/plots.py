@@ -132,23 +132,41 @@ def link_graph(
     """The communication graph, each edge labelled with the fraction of its estimates delivered
     (``summary.json``'s ``links``; "n/a" where its receiver counted nothing: it did not finish) and
     drawn redder the more it lost. The leader is above the followers' circle."""
+    delivered: dict[tuple[int, int], float | None] = {}
+    for src, dst in edges:
+        st = links.get(f"{src}->{dst}", {})
+        delivered[(src, dst)] = st["delivered"] / st["received"] if st.get("received") else None
+    return edge_graph(edges, delivered, lost, n_followers, path, "Estimates delivered per edge (L: leader)")
+
+
+def edge_graph(
+    edges: list[tuple[int, int]],
+    good: dict[tuple[int, int], float | None],
+    lost: list[int],
+    n_followers: int,
+    path: Path,
+    title: str,
+    worse_when_high: bool = False,
+) -> Path:
+    """The communication graph, each edge labelled with its value in ``good`` (a fraction: 1 drawn
+    green, 0 red, or the reverse with ``worse_when_high``; None: "n/a", grey). The leader is above
+    the followers' circle."""
     fig, ax = plt.subplots(figsize=(6.5, 7.5))
     pos: dict[int, tuple[float, float]] = {0: (0.0, 1.55)}
     for i in range(1, n_followers + 1):
         a = np.pi / 2 + np.pi / n_followers - 2 * np.pi * (i - 1) / n_followers
         pos[i] = (float(np.cos(a)), float(np.sin(a)) - 0.2)
     for src, dst in edges:
-        st = links.get(f"{src}->{dst}", {})
-        counted = bool(st.get("received"))
-        frac = st["delivered"] / st["received"] if counted else 1.0
-        colour = plt.get_cmap("RdYlGn")(frac) if counted else "grey"
+        frac = good.get((src, dst))
+        shade = None if frac is None else (1.0 - frac if worse_when_high else frac)
+        colour = plt.get_cmap("RdYlGn")(shade) if shade is not None else "grey"
         (x0, y0), (x1, y1) = pos[src], pos[dst]
         d = float(np.hypot(x1 - x0, y1 - y0))
         ux, uy = (x1 - x0) / d * 0.12, (y1 - y0) / d * 0.12
         arrow = {"arrowstyle": "-|>", "color": colour, "lw": 2.5}
         ax.annotate("", xy=(x1 - ux, y1 - uy), xytext=(x0 + ux, y0 + uy), arrowprops=arrow)
         box = {"fc": "white", "ec": colour, "lw": 1}
-        label = f"{frac:.0%}" if counted else "n/a"
+        label = f"{frac:.0%}" if frac is not None else "n/a"
         ax.text((x0 + x1) / 2, (y0 + y1) / 2, label, fontsize=9, ha="center", va="center", bbox=box)
     for node, (x, y) in pos.items():
         gone = node in lost
@@ -159,7 +177,7 @@ def link_graph(
     ax.set_ylim(-1.5, 1.85)
     ax.set_aspect("equal")
     ax.axis("off")
-    ax.set_title("Estimates delivered per edge (L: leader)")
+    ax.set_title(title)
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path

@@ -1,0 +1,206 @@
+"""``swarm-sitl falsify``: bad input in one line before anything flies, the cost and the plans a
+space writes, shrinking against a known boundary, the same front for a seed, and a minimal
+counterexample on a generated ring of six followers that a lockstep run of processes replays."""
+
+import json
+import subprocess
+import sys
+
+import pytest
+import yaml
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from swarm_sitl.campaigns.grid import point_data
+from swarm_sitl.config.generator import generate
+from swarm_sitl.config.load import load_config, parse_config, with_spec
+from swarm_sitl.falsify.evaluate import evaluate, requirement_config
+from swarm_sitl.falsify.search import assert_no_counterexample, falsify
+from swarm_sitl.falsify.shrink import RESOLUTION, shrink
+from swarm_sitl.falsify.space import cost, expand
+from tests.conftest import CONFIGS
+
+CLI = [sys.executable, "-m", "swarm_sitl"]
+PAPER = str(CONFIGS / "paper.yaml")
+
+
+def _cli(*args: object) -> subprocess.CompletedProcess:
+    return subprocess.run([*CLI, *map(str, args)], capture_output=True, text=True, timeout=300)
+
+
+@pytest.mark.integration
+@pytest.mark.parametrize(
+    ("space", "extra", "names"),
+    [
+        ("entries:\n  - {edges: each, jitter: [0, 1]}\n", [], "jitter is not a key"),
+        ("entries:\n  - {edges: [[0, 4]], loss: [0, 1]}\n", [], "edge [0, 4] is not an edge of the graph"),
+        ("entries:\n  - {edges: each, loss: [0.5, 0.5]}\n", [], "an empty range"),
+        ("entries:\n  - {edges: each, drop: true, window_s: [10, 90]}\n", [], "after the run"),
+        ("entries:\n  - {edges: each, loss: [0, 1]}\n", ["--budget", "0"], "--budget 0"),
+        ("entries:\n  - {edges: each, loss: [0, 1]}\n", ["--spec", "EMPTY"], "names no requirement"),
+        (
+            "entries:\n  - {edges: each, loss: [0, 1]}\n",
+            ["--bound", "0.005", "--requirement", "x"],
+            "--requirement x",
+        ),
+    ],
+)
+def test_bad_input_is_one_line_and_nothing_flies(tmp_path, space, extra, names):
+    (tmp_path / "space.yaml").write_text(space)
+    (tmp_path / "empty.yaml").write_text("[]\n")
+    extra = [str(tmp_path / "empty.yaml") if x == "EMPTY" else x for x in extra]
+    if "--spec" not in extra and "--bound" not in extra:
+        extra += ["--bound", "0.005"]
+    out = tmp_path / "out"
+    r = _cli("falsify", PAPER, "--space", tmp_path / "space.yaml", "--out", out, *extra)
+    assert r.returncode == 2, r.stderr
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and names in lines[0], r.stderr
+    assert not out.exists()  # before anything ran
+
+
+@pytest.mark.unit
+def test_a_space_over_every_edge_writes_the_plan_a_sweep_writes():
+    """``edges: all`` under one loss is the plan ``sweep --vary link.loss=p`` flies (the same
+    entries, so the same draws): a search and a campaign judge the same runs."""
+    cfg = load_config(PAPER)
+    plan = expand({"seed": 2, "plan": [{"edges": "all", "loss": 0.3}]}, cfg)
+    swept = point_data(cfg.data(), {"link.loss": 0.3}, 2)
+    assert plan["plan"] == swept["faults"]["plan"]
+    assert parse_config({**swept}, "t").faults.seed == plan["seed"]
+
+
+@pytest.mark.unit
+@given(
+    p=st.floats(0.01, 1.0),
+    start=st.floats(0.0, 30.0),
+    dur=st.floats(0.5, 10.0),
+    d=st.floats(0.0, 2.0),
+)
+def test_the_cost_of_a_plan_is_severity_times_duration_summed(p, start, dur, d):
+    cfg = load_config(PAPER)  # 40 s, staleness 0.5 s
+    plan = {
+        "seed": 0,
+        "plan": [
+            {"edge": [0, 1], "loss": p, "from_s": start, "until_s": start + dur},
+            {"edge": [1, 4], "drop": True, "from_s": start, "until_s": start + dur},
+            {"into": 4, "delay_s": d},
+        ],
+    }
+    run = cfg.duration_s
+    want = p * dur + dur + min(1.0, d / cfg.estimator.staleness_s) * run
+    assert cost(plan, cfg) == pytest.approx(want, rel=1e-12)
+    assert cost(plan, cfg, "edges") == 3  # 0 -> 1, 1 -> 4, and into 4: 1 -> 4 and 2 -> 4
+
+
+@pytest.mark.unit
+def test_the_edges_cost_counts_the_graph_edges_a_plan_touches():
+    cfg = load_config(PAPER)  # edges 0->1, 0->2, 0->3, 1->4, 2->4
+    one = {"seed": 0, "plan": [{"edge": [0, 1], "loss": 0.5}, {"edge": [0, 1], "drop": True}]}
+    assert cost(one, cfg, "edges") == 1
+    into = {"seed": 0, "plan": [{"edge": [0, 1], "loss": 0.5}, {"into": 4, "delay_s": 0.1}]}
+    assert cost(into, cfg, "edges") == 3
+
+
+ENTRIES = [[0, 1], [0, 2], [0, 3], [1, 4], [2, 4]]
+
+
+@pytest.mark.unit
+@settings(max_examples=40, deadline=None)
+@given(
+    losses=st.lists(st.floats(0.05, 1.0), min_size=5, max_size=5),
+    a=st.sampled_from(range(5)),
+    b=st.sampled_from(range(5)),
+    threshold=st.floats(0.1, 0.9),
+    seeds=st.lists(st.integers(0, 5), min_size=1, max_size=3, unique=True),
+)
+def test_shrinking_finds_the_known_minimal_plan(losses, a, b, threshold, seeds):
+    """A requirement broken exactly when edges A and B are both faulty and A loses at least
+    ``threshold``, by any seed: shrinking keeps A and B only, lowers A's loss to within 1/128 of
+    the threshold from above and B's to the bottom, and each entry left is needed."""
+    if a == b:
+        b = (a + 1) % 5
+    losses[a] = max(losses[a], threshold + 0.05)
+    plan = {"seed": seeds[0], "plan": [{"edge": e, "loss": p} for e, p in zip(ENTRIES, losses, strict=True)]}
+
+    def robustness(p: dict) -> float:
+        on = {tuple(f["edge"]): f["loss"] for f in p["plan"]}
+        if tuple(ENTRIES[a]) in on and tuple(ENTRIES[b]) in on:
+            return threshold - on[tuple(ENTRIES[a])]
+        return 1.0
+
+    flown: list[dict] = []
+
+    def check_many(plans: list[dict]) -> list[float]:
+        flown.extend(plans)
+        return [robustness(p) for p in plans]
+
+    found, r, spent = shrink(plan, check_many, lambda f: (0.0, 1.0), 0.01, seeds)
+    assert spent == len(flown)
+    kept = {tuple(f["edge"]): f["loss"] for f in found["plan"]}
+    assert set(kept) == {tuple(ENTRIES[a]), tuple(ENTRIES[b])}
+    assert r == robustness(found) and r < 0
+    assert threshold < kept[tuple(ENTRIES[a])] <= threshold + 1 / RESOLUTION + 1e-12
+    assert kept[tuple(ENTRIES[b])] <= 1 / RESOLUTION + 1e-12
+    for j in range(len(found["plan"])):  # minimal: without any one entry it holds
+        assert robustness({**found, "plan": found["plan"][:j] + found["plan"][j + 1 :]}) >= 0
+
+
+@pytest.mark.system
+def test_the_same_seed_writes_the_same_front_on_any_cores_and_on_dask(tmp_path):
+    (tmp_path / "space.yaml").write_text(
+        yaml.safe_dump({"seeds": [0, 1], "entries": [{"edges": "each", "loss": [0.5, 1.0]}]})
+    )
+    (tmp_path / "spec.yaml").write_text(
+        '- {name: estimate, formula: "always[2, end] (est_pos_err_m <= 1e-4)"}\n'
+    )
+    fronts = []
+    for jobs in (1, 2, 2):
+        out = tmp_path / f"j{jobs}-{len(fronts)}"
+        r = _cli(
+            "falsify", PAPER, "--space", tmp_path / "space.yaml", "--spec", tmp_path / "spec.yaml",
+            "--duration", "4", "--budget", "8", "--jobs", jobs, "--no-confirm", "--quiet", "--out", out,
+        )  # fmt: skip
+        assert r.returncode in (0, 3), r.stderr + r.stdout
+        assert "per minute" in r.stdout
+        fronts.append((out / "front.csv").read_bytes())
+        assert (out / "robustness_cost.png").stat().st_size > 0 and (out / "edges.png").is_file()
+    assert fronts[0] == fronts[1] == fronts[2]
+    from distributed import LocalCluster
+
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as c:
+        falsify(
+            PAPER, tmp_path / "dask", space=tmp_path / "space.yaml", spec=tmp_path / "spec.yaml",
+            duration_s=4.0, budget=8, confirm=False, scheduler=c.scheduler_address, say=lambda s: None,
+        )  # fmt: skip
+    assert (tmp_path / "dask" / "front.csv").read_bytes() == fronts[0]  # on a cluster: the same
+    rows = fronts[0].decode().splitlines()
+    assert len(rows) >= 3  # a header and plans that trade cost against robustness
+    assert any(",1," in r for r in rows[1:]) and any(",0," in r for r in rows[1:])  # some break it
+
+
+@pytest.mark.system
+def test_a_minimal_counterexample_on_a_ring_of_six_replays_as_processes(tmp_path):
+    """A generated ring of six followers (a cycle 1 -> ... -> 6 -> 1, the leader into 1) held to
+    5 cm from 9 s on, under the default space (loss, cuts and delays on every edge): a violating
+    plan of at most two entries within 200 evaluations; removing any of its entries makes the
+    requirement hold; its lockstep run as processes has the same robustness, bit for bit."""
+    config = tmp_path / "ring6.yaml"
+    config.write_text(generate(6, "ring", "grid", "helix", seed=0, duration_s=12.0))
+    spec = tmp_path / "spec.yaml"
+    spec.write_text('- {name: formation, formula: "always[9, end] (pos_err_m <= 0.05)"}\n')
+    found = falsify(config, tmp_path / "out", spec=spec, budget=12, seed=0, say=lambda s: None)
+    assert found.baseline >= 0  # it holds without a fault
+    assert found.plan is not None and found.evaluations <= 200
+    assert 1 <= len(found.plan["plan"]) <= 2 and found.robustness < 0
+    assert found.confirmed is True  # the lockstep run: the same robustness
+    cfg, name = requirement_config(with_spec(load_config(config), spec), None, None)
+    assert evaluate(cfg, name, found.plan) == found.robustness  # the file replays it in sim too
+    for j in range(len(found.plan["plan"])):
+        rest = {**found.plan, "plan": found.plan["plan"][:j] + found.plan["plan"][j + 1 :]}
+        assert evaluate(cfg, name, rest) >= 0, rest
+    written = yaml.safe_load(found.counterexample.read_text())
+    assert written == json.loads(json.dumps(found.plan))
+    # the helper a user's test calls fails with the counterexample's path
+    with pytest.raises(AssertionError, match=str(tmp_path / "helper" / "counterexamples")):
+        assert_no_counterexample(config, tmp_path / "helper", max_cost=1e9, spec=spec, budget=4)
