@@ -6,6 +6,7 @@ killed and restarted, the leader killed and restarted, a lost aircraft, a freeze
 overlap little, so each kind acts on the swarm; the test checks that they all do something.
 """
 
+import json
 import subprocess
 import sys
 import textwrap
@@ -18,10 +19,18 @@ from pymavlink.dialects.v20 import common as mav
 from swarm_sitl.config.load import load_config
 from swarm_sitl.faults.mavlink import sample_ms
 from swarm_sitl.faults.plan import LINK_HOW, FaultPlan
+from swarm_sitl.rundir.requirements import judge
 from swarm_sitl.running.sim import run_sim
+from swarm_sitl.specs.requirement import Requirement
 from tests.conftest import CONFIGS
 
 CLI = [sys.executable, "-m", "swarm_sitl"]
+SPEC = [
+    {"name": "no_failsafe", "formula": "always (failsafe <= 0)"},
+    {"name": "fresh", "over": "edges", "formula": "always[0.01, end] (age_s <= 0.2)"},
+    {"name": "delivered", "over": "edges into 4", "formula": "always[1, end] (delivered_frac >= 0.5)"},
+    {"name": "apart", "over": "pairs", "formula": "always (distance_m >= 0.5)"},
+]
 ARGS = ["--duration", "12", "--quiet", "--out"]
 
 LINK_MODEL = textwrap.dedent(
@@ -94,6 +103,7 @@ def test_a_lockstep_run_under_every_fault_kind_equals_sim_bit_for_bit(tmp_path):
     hows = {k for e in plan["plan"] for k in e if k in LINK_HOW}
     assert hows == set(LINK_HOW)  # every link how is in the plan (a new one must be added here)
     (tmp_path / "plan.yaml").write_text(yaml.safe_dump(plan))
+    (tmp_path / "spec.yaml").write_text(yaml.safe_dump(SPEC))
     out = tmp_path / "ls"
     r = subprocess.run(
         [
@@ -102,6 +112,8 @@ def test_a_lockstep_run_under_every_fault_kind_equals_sim_bit_for_bit(tmp_path):
             str(CONFIGS / "paper.yaml"),
             "--faults",
             str(tmp_path / "plan.yaml"),
+            "--spec",
+            str(tmp_path / "spec.yaml"),
             *ARGS,
             str(out),
         ],
@@ -109,9 +121,13 @@ def test_a_lockstep_run_under_every_fault_kind_equals_sim_bit_for_bit(tmp_path):
         text=True,
         timeout=300,
     )
-    assert r.returncode == 0, r.stderr + r.stdout
+    assert r.returncode == 3, r.stderr + r.stdout  # (the failsafe requirement fails: vehicle 3's)
     cfg = load_config(CONFIGS / "paper.yaml").model_copy(
-        update={"duration_s": 12.0, "faults": FaultPlan.model_validate(plan)}
+        update={
+            "duration_s": 12.0,
+            "faults": FaultPlan.model_validate(plan),
+            "spec": [Requirement.model_validate(q) for q in SPEC],
+        }
     )
     sim = run_sim(cfg)
     clean = run_sim(cfg.model_copy(update={"faults": FaultPlan()}))
@@ -124,6 +140,12 @@ def test_a_lockstep_run_under_every_fault_kind_equals_sim_bit_for_bit(tmp_path):
             assert np.array_equal(x, sim.followers[i][key], equal_nan=True), (i, key)
         # the plan acted on each follower: its run is not the clean one
         assert not np.array_equal(a["p_W"], clean.followers[i]["p_W"], equal_nan=True), i
+    # the requirements judge the same run the same, the failsafe (the vehicles' events) and the
+    # edges' ages included
+    lockstep_spec = json.loads((out / "summary.json").read_text())["spec"]
+    assert lockstep_spec == json.loads(json.dumps(judge(cfg, sim, sim.events)))
+    assert lockstep_spec["no_failsafe"]["members"]["3"] == -1.0  # vehicle 3's, 3.5 s to 4 s
+    assert [e["kind"] for e in sim.events if e["vehicle"] == 3][:2] == ["failsafe_enter", "failsafe_exit"]
     dt = cfg.control_dt_s
     f2, f3 = sim.followers[2], sim.followers[3]
     assert np.isnan(f2["t_s"][300:450]).all() and np.isfinite(f2["t_s"][:300]).all()  # killed at 3 s

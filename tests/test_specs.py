@@ -7,6 +7,7 @@ import json
 import math
 import subprocess
 import sys
+from typing import Any
 
 import numpy as np
 import pytest
@@ -181,6 +182,13 @@ def _paper(spec: list[dict], **more) -> dict:
         ),
         ({"name": "r5", "formula": "always[3, 3] (pos_err_m < 3)"}, "the interval [3, 3] is empty"),
         ({"name": "r6", "over": "everyone", "formula": "always (pos_err_m < 3)"}, "over: 'everyone' is not"),
+        ({"name": "r7", "over": "edge 3 -> 4", "formula": "always (age_s < 1)"}, "spec r7: no edge 3 -> 4"),
+        (
+            {"name": "r8", "over": "edges into 3", "formula": "always (pos_err_m < 1)"},
+            "no signal pos_err_m for",
+        ),
+        ({"name": "r9", "over": "edges out of 3", "formula": "always (age_s < 1)"}, "no edge out of 3"),
+        ({"name": "r10", "over": "edges", "formula": "always (distance_m < 1)"}, "no signal distance_m"),
     ],
 )
 def test_a_bad_requirement_is_one_line_naming_it(req, says):
@@ -198,6 +206,70 @@ def test_what_a_requirement_ranges_over_on_the_graph():
     assert parse_over("in-neighbours of 4").members(g, ids) == [1, 2]
     assert parse_over("in-neighbours of 1").members(g, ids) == []  # the leader is not a follower
     assert parse_over("pairs").members(g, ids) == [(1, 2), (1, 3), (1, 4), (2, 3), (2, 4), (3, 4)]
+    assert parse_over("edges").members(g, ids) == [(0, 1), (0, 2), (0, 3), (1, 4), (2, 4)]
+    assert parse_over("edges into 4").members(g, ids) == [(1, 4), (2, 4)]
+    assert parse_over("edges out of 0").members(g, ids) == [(0, 1), (0, 2), (0, 3)]
+    assert parse_over("edge 2->4").members(g, ids) == parse_over("edge 2 -> 4").members(g, ids) == [(2, 4)]
+
+
+def _edge_robustness(plan: dict, formula: str, over: str, duration_s: float = 8.0) -> tuple[dict, Any]:
+    from swarm_sitl.faults.plan import FaultPlan
+    from swarm_sitl.rundir.requirements import judge
+    from swarm_sitl.running.sim import run_sim
+    from swarm_sitl.specs.requirement import Requirement
+
+    cfg = load_config(CONFIGS / "paper.yaml").model_copy(
+        update={"duration_s": duration_s, "faults": FaultPlan.model_validate(plan)}
+    )
+    cfg = cfg.model_copy(update={"spec": [Requirement(name="r", over=over, formula=formula)]})
+    rec = run_sim(cfg)
+    return judge(cfg, rec, [])["r"], rec
+
+
+@pytest.mark.unit
+def test_an_edge_on_time_has_the_age_of_one_period_and_delivers_every_tick():
+    r, rec = _edge_robustness({"plan": []}, "always[0.01, end] (age_s <= 0.02)", "edges")
+    dt = 0.01
+    for i, a in rec.followers.items():
+        assert np.isnan(a["in_age_s"][0]).all()  # tick 0: nothing heard yet
+        assert np.allclose(a["in_age_s"][1:], dt, rtol=0, atol=1e-12), i
+    assert r["robustness"] == pytest.approx(0.01, abs=1e-12)  # 0.02 - dt on every edge
+    r2, _ = _edge_robustness({"plan": []}, "always (delivered_frac >= 1)", "edges")
+    assert r2["robustness"] == 0 and r2["holds"]
+
+
+@pytest.mark.unit
+@pytest.mark.parametrize("until_s", [5.5, 6.0, 7.25])
+def test_a_cut_edge_ages_one_period_a_tick_until_it_is_back(until_s):
+    """Edge 0 -> 1 cut from 5 s: the messages of ticks 500 .. U - 1 are lost (U = until / dt),
+    so at tick U the newest is tick 499's, U - 499 periods old: the oldest age, in closed form."""
+    plan = {"plan": [{"edge": [0, 1], "drop": True, "from_s": 5.0, "until_s": until_s}]}
+    r, rec = _edge_robustness(plan, "always[0.01, end] (age_s <= 2)", "edge 0 -> 1")
+    oldest = (round(until_s / 0.01) - 499) * 0.01
+    assert r["robustness"] == pytest.approx(2 - oldest, abs=1e-9)
+    age = rec.followers[1]["in_age_s"][:, 0]
+    assert np.nanmax(age) == pytest.approx(oldest, abs=1e-9)
+
+
+@pytest.mark.unit
+@pytest.mark.parametrize("seed", [0, 1, 2, 3])
+def test_the_delivered_fraction_counts_the_plans_losses_exactly(seed):
+    """With loss alone, tick k has a newer estimate than tick k - 1 had exactly when the message
+    of tick k - 1 was not lost: the fraction at the last tick is the plan's, message by message."""
+    from swarm_sitl.faults.plan import FaultPlan, edge_channel, fate
+    from swarm_sitl.rundir.requirements import edge_signals
+    from swarm_sitl.specs.requirement import Edge
+
+    plan = {"seed": seed, "plan": [{"edge": [1, 4], "loss": 0.3}]}
+    _, rec = _edge_robustness(plan, "always (age_s <= 100)", "edges", duration_s=4.0)
+    cfg = load_config(CONFIGS / "paper.yaml").model_copy(
+        update={"duration_s": 4.0, "faults": FaultPlan.model_validate(plan)}
+    )
+    rules = cfg.faults.on_edge(1, 4, cfg.graph_edges())
+    n = cfg.n_control_steps
+    lost = [fate(seed, rules, edge_channel(1, 4), s, s * 0.01, 4.0, 0.01).lost for s in range(n)]
+    frac = edge_signals(rec, cfg, Edge(1, 4))["delivered_frac"]
+    assert frac[-1] == pytest.approx(1 - sum(lost) / n, abs=1e-12)
 
 
 @pytest.mark.unit

@@ -336,7 +336,7 @@ class SwarmConfig(_Strict):
             )
         for req in self.spec:
             try:
-                req.check_against(ids, self.duration_s)
+                req.check_against(ids, self.duration_s, self.graph_edges())
             except SpecError as e:
                 raise ValueError(str(e)) from None
         if len({r.name for r in self.spec}) != len(self.spec):

@@ -55,7 +55,7 @@ def requirement_config(cfg: SwarmConfig, name: str | None, bound_m: float | None
 
 def robustness_of(cfg: SwarmConfig, rec: Recording, name: str) -> float:
     """The requirement's robustness for the run ``rec`` (-inf where it has none)."""
-    r = judge(cfg, rec, [])[name]["robustness"]
+    r = judge(cfg, rec, rec.events)[name]["robustness"]
     return -math.inf if r is None else float(r)
 
 

@@ -384,6 +384,7 @@ def _loop(
                 q,
                 *command_parts(step.command),
                 step.record,
+                inbox_of.ages,
             )
         if k % r.status_every == 0 or k == n or k == io.first:
             bus.publish_status(Status(i, k, t, sample_t, p))

@@ -141,7 +141,8 @@ def cmd_controller(cfg: SwarmConfig, args: argparse.Namespace) -> int:
             if out is not None:
                 path = controller_rows_path(out, i, args.incarnation)
                 path.parent.mkdir(parents=True, exist_ok=True)
-                rows = RowLog(path, controller_columns(cfg.law_class().record_fields))
+                n_in = len(cfg.build_graph().in_neighbours(i))
+                rows = RowLog(path, controller_columns(cfg.law_class().record_fields, n_in))
             events = EventLog(
                 controller_events_path(out, i, args.incarnation) if out else None, f"controller_{i}"
             )

@@ -10,7 +10,10 @@ With every estimate on time this is exactly what a tick used before there were f
 in-neighbours' estimates of tick ``k - 1``.
 """
 
+import math
 from collections.abc import Callable
+
+import numpy as np
 
 from sim_vehicles.runtime.event_log import EventLog
 from swarm_sitl.bus.codec import Message
@@ -27,13 +30,16 @@ class NeighbourInbox:
         self._live: dict[int, bool] = dict.fromkeys(self.sources, False)
         self.stale_ticks = dict.fromkeys(self.sources, 0)  #: ticks each was left out, once heard
         self.max_age_s = dict.fromkeys(self.sources, 0.0)  #: oldest estimate used [s]
+        #: per in-neighbour (``sources``' order), the age of the newest estimate it has at the last
+        #: tick gathered, used or not [s]; NaN until it has one (``recording``'s ``in_age_s``)
+        self.ages = np.full(len(self.sources), math.nan)
 
     def gather(self, t_s: float, newest: Callable[[int], Message | None]) -> dict[int, Received]:
         """The law's inbox at tick ``t_s`` (``laws.contract.Received``: each in-neighbour's newest
         usable message, with its age); ``newest(src)``: the newest message the bus has from it."""
         out: dict[int, Received] = {}
         last = self._last
-        for s in self.sources:
+        for j, s in enumerate(self.sources):
             m = newest(s)
             prev = last.get(s)
             if m is None or (prev is not None and prev.step > m.step):
@@ -43,6 +49,7 @@ class NeighbourInbox:
             else:
                 last[s] = m
             age = t_s - m.t_s
+            self.ages[j] = age
             if age <= self.staleness_s:
                 out[s] = Received(m.values, m.t_s, age)
                 if age > self.max_age_s[s]:

@@ -34,10 +34,12 @@ __all__ = ["SAMPLE_COLUMNS", "TRUTH_COLUMNS", "controller_columns"]
 SAMPLE_COLUMNS = [f"sample_{n}" for n in ("px", "py", "pz", "vx", "vy", "vz", "qw", "qx", "qy", "qz")]
 
 
-def controller_columns(record_fields: Mapping[str, int]) -> list[str]:
+def controller_columns(record_fields: Mapping[str, int], n_in: int = 0) -> list[str]:
     """A controller's row per tick (``procs/controller_<i>.rows``): the tick and its instants [s],
-    the vehicle sample it used, the command (``recording.COMMAND_FIELDS``) and the law's record
-    (its ``record_fields``), a field of width w as ``name.0`` .. ``name.<w-1>``."""
+    the vehicle sample it used, the command (``recording.COMMAND_FIELDS``), the law's record
+    (its ``record_fields``), a field of width w as ``name.0`` .. ``name.<w-1>``, and the age of
+    the newest estimate it had from each of its ``n_in`` in-neighbours (``in_age_s.j``, in the
+    graph's order; NaN before it had one)."""
 
     def named(fields: Mapping[str, int]) -> list[str]:
         return [f"{name}.{j}" for name, width in fields.items() for j in range(width)]
@@ -52,6 +54,7 @@ def controller_columns(record_fields: Mapping[str, int]) -> list[str]:
         *SAMPLE_COLUMNS,
         *named(COMMAND_FIELDS),
         *named(record_fields),
+        *(f"in_age_s.{j}" for j in range(n_in)),
     ]
 
 

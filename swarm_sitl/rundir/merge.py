@@ -61,17 +61,27 @@ def merge_run(cfg: SwarmConfig, run_dir: Path) -> Recording:
     dt = cfg.control_dt_s
     law = recorded_law(run_dir)  # what the run flew (never imported from a run directory)
     record_fields = law["record_fields"] if law is not None else cfg.law_class().record_fields
-    columns = controller_columns(record_fields)
-    at = {name: j for j, name in enumerate(columns)}
+    plain = controller_columns(record_fields)  # (a run recorded before ``in_age_s`` was)
+    at = {name: j for j, name in enumerate(plain)}
     sample = slice(at[SAMPLE_COLUMNS[0]], at[SAMPLE_COLUMNS[-1]] + 1)
     command = slice(sample.stop, sample.stop + COMMAND_WIDTH)
-    record = slice(command.stop, len(columns))
+    record = slice(command.stop, len(plain))
+    graph = cfg.build_graph()
     followers = {}
     offsets = {}
     for f in cfg.followers:
         i = f.id
-        series = FollowerSeries(n + 1, record_fields)
-        parts = [_rows(p, columns) for p in controller_incarnations(run_dir, i, ".rows")]
+        n_in = len(graph.in_neighbours(i))
+        columns = controller_columns(record_fields, n_in)
+        ages = slice(len(plain), len(columns))
+        series = FollowerSeries(n + 1, record_fields, n_in)
+        parts = []
+        for p in controller_incarnations(run_dir, i, ".rows"):
+            rows = _rows(p, columns)
+            if not len(rows):  # an older run's rows: no ages (NaN)
+                old = _rows(p, plain)
+                rows = np.hstack([old, np.full((len(old), n_in), np.nan)])
+            parts.append(rows)
         width = len(columns)
         ctrl = np.concatenate(parts) if parts else np.empty((0, width))
         truth = _rows(vehicle_truth_path(run_dir, i), TRUTH_COLUMNS)
@@ -94,6 +104,7 @@ def merge_run(cfg: SwarmConfig, run_dir: Path) -> Recording:
             series.record_vehicle(k, row[at["t_s"]], state, row[at["sample_t_s"]])
             series.command[k] = row[command]
             series.record[k] = row[record]
+            series.in_age_s[k] = row[ages]
         followers[i] = series.arrays()
         offsets[i] = np.asarray(f.offset_m, dtype=float)
     t_s = np.arange(n + 1) * dt

@@ -27,7 +27,7 @@ def write_outputs(cfg: SwarmConfig, rec: Recording, run_dir: Path, processes: bo
     summary = summarize(rec, gains, masses, cfg.gravity_mps2, cfg.run.settle_s, cfg.vehicle.max_thrust_N)
     config_text = keep(cfg, run_dir)  # the plug-ins copied in, config.yaml naming the copies
     summary["provenance"] = provenance(cfg, manifest_of(run_dir))
-    events: list = []
+    events: list = list(rec.events)  # sim's (its vehicles' failsafe)
     if processes:
         events = run_events(cfg, run_dir)
         write_events(run_dir / "events.jsonl", events)

@@ -18,6 +18,9 @@ staggered real-time run; vectors world ENU unless noted), for any law:
     thrust_N                    commanded thrust [N]
     q_c, omega_c, omegadot_c    command attitude, rate [rad/s; body], rate derivative [rad/s^2]
     pos_err_m, vel_err_mps      p - p_r - delta_i, v - v_r (p, v at sample_t_s, so is the reference)
+    in_age_s                    [s] (N, in-degree): per in-neighbour (the graph's order of them,
+                                ``Graph.in_neighbours(i)``), the age of the newest estimate the
+                                tick had from it, used or past staleness; NaN before the first
 
 then the law's own ``record_fields``, in its order. The paper's law records
 
@@ -37,8 +40,9 @@ import io
 import json
 import zipfile
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -71,9 +75,11 @@ class FollowerSeries:
     """Preallocated rows for one follower; ``arrays()`` splits them into the named series.
     ``record_fields``: the law's (name -> width)."""
 
-    def __init__(self, n_rows: int, record_fields: Mapping[str, int]):
+    def __init__(self, n_rows: int, record_fields: Mapping[str, int], n_in: int = 0):
+        """``n_in``: the follower's in-neighbours (``in_age_s``' columns)."""
         self.n = n_rows
         self.record_fields = dict(record_fields)
+        self.in_age_s = np.full((n_rows, n_in), np.nan)
         self.t_s = np.full(n_rows, np.nan)
         self.vehicle = np.full((n_rows, STATE_SIZE), np.nan)
         self.command = np.full((n_rows, COMMAND_WIDTH), np.nan)
@@ -85,8 +91,13 @@ class FollowerSeries:
         self.sample_t_s[k] = t_s if sample_t_s is None else sample_t_s
         self.vehicle[k] = state
 
-    def record_controller(self, k: int, command: AttitudeCommand, record: np.ndarray) -> None:
-        """The law's command and flat record (``layout`` of ``record_fields``) at tick ``k``."""
+    def record_controller(
+        self, k: int, command: AttitudeCommand, record: np.ndarray, in_age_s: np.ndarray | None = None
+    ) -> None:
+        """The law's command and flat record (``layout`` of ``record_fields``) at tick ``k``, and
+        the ages of its in-neighbours' newest estimates."""
+        if in_age_s is not None:
+            self.in_age_s[k] = in_age_s
         np.concatenate(command_parts(command), out=self.command[k])
         self.record[k] = record
 
@@ -99,6 +110,7 @@ class FollowerSeries:
             "v_W": x[:, VEL],
             "q_WB": x[:, QUAT],
             "omega_B": x[:, RATE],
+            "in_age_s": self.in_age_s,
         }
         for name, at in layout(COMMAND_FIELDS).items():
             out[name] = c[:, at.start] if name == "thrust_N" else c[:, at]
@@ -114,6 +126,9 @@ class Recording:
     leader: dict[str, np.ndarray]
     followers: dict[int, dict[str, np.ndarray]]
     offsets: dict[int, np.ndarray]
+    #: what ``sim`` saw happen (its vehicles' ``failsafe_enter``/``_exit``: ``t_s``, ``kind`` and
+    #: fields, as ``events.jsonl`` has them); a run of processes has its events in its directory
+    events: list[dict[str, Any]] = field(default_factory=list)
 
     def with_errors(self, trajectory: Trajectory | None = None) -> "Recording":
         """Add the error series (idempotent). Where a follower's samples are not at the leader's

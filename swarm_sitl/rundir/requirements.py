@@ -4,7 +4,8 @@ and each requirement's robustness, per member and for the run, in ``summary.json
 The signals are sampled at the control ticks (``t_s``): a follower's ``FOLLOWER_SIGNALS`` from its
 arrays (``failsafe`` from the run's ``failsafe_enter`` and ``failsafe_exit`` events: 1 from the
 tick at or after the one, until the tick before the other), a pair's ``distance_m`` from the two
-vehicles' positions at each tick. A member with samples missing (a follower that was lost, a run
+vehicles' positions at each tick, an edge's ``EDGE_SIGNALS`` from its receiver's ``in_age_s``
+(``edge_signals``). A member with samples missing (a follower that was lost, a run
 that ended early) has a robustness of NaN there, and NaN fails: a requirement is not held by what
 was not recorded.
 """
@@ -16,6 +17,7 @@ import numpy as np
 
 from swarm_sitl.config.schema import SwarmConfig
 from swarm_sitl.rundir.recording import Recording
+from swarm_sitl.specs.requirement import Edge
 from swarm_sitl.specs.robustness import robustness
 
 
@@ -57,6 +59,27 @@ def follower_signals(
     return out
 
 
+def edge_signals(rec: Recording, cfg: SwarmConfig, edge: Edge) -> dict[str, np.ndarray]:
+    """What ``edge.dst`` saw of ``edge.src``'s estimates at its ticks: ``age_s`` (the newest's age),
+    ``delivered_frac`` (of its ticks so far after its first, the fraction at which a newer estimate
+    than the tick before's had come; 1 at its first; NaN where it recorded no tick)."""
+    a = rec.followers[edge.dst]
+    sources = [int(s) for s, _ in cfg.build_graph().in_neighbours(edge.dst)]
+    age = a["in_age_s"][:, sources.index(edge.src)]
+    t = a["t_s"]
+    made = t - age  # when the newest estimate was made [s]
+    new = np.zeros(len(t), dtype=bool)
+    # (t - age loses the last bit: one estimate's time from two ticks differs by an ulp, not 1 ns;
+    # NaN compares False)
+    new[1:] = made[1:] > np.where(np.isnan(made[:-1]), -np.inf, made[:-1]) + 1e-9
+    ticked = np.isfinite(t)
+    heard = np.cumsum(new & ticked)
+    looked = np.cumsum(ticked) - 1  # ticks after the first one it recorded
+    with np.errstate(invalid="ignore", divide="ignore"):
+        frac = np.where(looked > 0, heard / np.maximum(looked, 1), 1.0)
+    return {"age_s": age, "delivered_frac": np.where(ticked, frac, np.nan)}
+
+
 def judge(cfg: SwarmConfig, rec: Recording, events: list[dict[str, Any]]) -> dict[str, Any]:
     """``summary.json``'s ``spec``: per requirement, its robustness for the run (the least of its
     members'), whether it holds, and each member's."""
@@ -69,7 +92,9 @@ def judge(cfg: SwarmConfig, rec: Recording, events: list[dict[str, Any]]) -> dic
         tree = req.tree
         per: dict[str, float] = {}
         for m in req.target.members(graph, followers):
-            if isinstance(m, tuple):
+            if isinstance(m, Edge):
+                per[f"{m.src}->{m.dst}"] = float(robustness(tree, edge_signals(rec, cfg, m), dt)[0])
+            elif isinstance(m, tuple):
                 a, b = m
                 d = np.linalg.norm(rec.followers[a]["p_W"] - rec.followers[b]["p_W"], axis=1)
                 r = float(robustness(tree, {"distance_m": d}, dt)[0])

@@ -84,10 +84,10 @@ def run_sim(
     laws = {i: build_law(cfg, i, *reported_vehicle_params(cfg)) for i in ids}
     specs = {i: cfg.vehicle_spec(i) for i in ids}  # each vehicle as its process builds it
     aps = {i: build_vehicle(specs[i], i) for i in ids}
-    series = {i: FollowerSeries(n + 1, laws[i].law.record_fields) for i in ids}
+    sources = {i: graph.in_neighbours(i) for i in ids}
+    series = {i: FollowerSeries(n + 1, laws[i].law.record_fields, len(sources[i])) for i in ids}
     # a fault plan: the followers as lockstep runs them under it (``sim_plan``)
     planned = PlannedSwarm(cfg, series, sample_through_wire) if cfg.faults.plan else None
-    sources = {i: graph.in_neighbours(i) for i in ids}
     max_thrust = cfg.vehicle.max_thrust_N
     n_att = cfg.rates.attitude_steps_per_control
     dt = cfg.control_dt_s
@@ -98,8 +98,9 @@ def run_sim(
         t_s = np.arange(n + 1) * dt
         offsets = {i: np.asarray(cfg.follower(i).offset_m, dtype=float) for i in ids}
         trajectory = cfg.trajectory()
+        events = sorted(planned.events, key=lambda e: e["t_s"]) if planned is not None else []
         return Recording(
-            leader_series(trajectory, t_s), {i: s.arrays() for i, s in series.items()}, offsets
+            leader_series(trajectory, t_s), {i: s.arrays() for i, s in series.items()}, offsets, events
         ).with_errors(trajectory)  # (a tick that carries an older sample: the reference at its time)
 
     def heard(i: int) -> list[tuple[int, Message]]:
@@ -142,7 +143,8 @@ def run_sim(
                     step = laws[i].step(t, sample_through_wire(t, x), inboxes[i])
                 except LawError as e:
                     raise SimFailedError(e, recording()) from e
-                series[i].record_controller(k, step.command, step.record)
+                ages = np.array([t - latest[s].t_s if s in latest else np.nan for s, _ in sources[i]])
+                series[i].record_controller(k, step.command, step.record, ages)
                 new[i] = Message(i, k, t, step.message)
                 if k < n:
                     ap.set_command(command_roundtrip(step.command, max_thrust))

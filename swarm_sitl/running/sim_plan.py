@@ -27,6 +27,7 @@ over the same plant, stepped as its endpoint steps it.
 """
 
 from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 
@@ -67,17 +68,38 @@ class _Table(EstimateTable):
         return step in self.counted
 
 
-class _Vehicle:
-    """One vehicle as its process flies it in lockstep: armed and in offboard from the start."""
+class MemoryEvents(EventLog):
+    """Events kept in a list, as ``events.jsonl`` has them (no wall-clock stamps)."""
 
-    def __init__(self, spec: VehicleSpec, i: int, n_att: int, max_thrust_N: float):
+    def __init__(self, source: str, into: list[dict[str, Any]]):
+        super().__init__(None, source)
+        self.into = into
+
+    def add(self, t_s: float, kind: str, **fields: Any) -> None:
+        super().add(t_s, kind)
+        fields.pop("unix_s", None)
+        self.into.append({"t_s": round(t_s, 9), "kind": kind, "source": self.source, **fields})
+
+
+class _Vehicle:
+    """One vehicle as its process flies it in lockstep: armed and in offboard from the start;
+    ``events`` takes its failsafe's entries and exits."""
+
+    def __init__(
+        self, spec: VehicleSpec, i: int, n_att: int, max_thrust_N: float, events: list[dict[str, Any]]
+    ):
         self.ap = ap = build_vehicle(spec, i)
         self.n_att = n_att
         self.max_thrust_N = max_thrust_N
         self.sensors = sensor_model(spec, i)
         say: Callable[[int, str], None] = lambda severity, text: None  # noqa: E731  (no ground station)
         self.flight = FlightModes(
-            ap, i, spec.setpoint_timeout_s, ACTIONS[spec.failsafe_action], EventLog(None, f"vehicle_{i}"), say
+            ap,
+            i,
+            spec.setpoint_timeout_s,
+            ACTIONS[spec.failsafe_action],
+            MemoryEvents(f"vehicle_{i}", events),
+            say,
         )
         self.flight.arm(True, False)
         self.offboard()
@@ -152,9 +174,9 @@ class PlannedSwarm:
         self.clock = RunClock(True, dt)
         self.mass_max = reported_vehicle_params(cfg)
         n_att = cfg.rates.attitude_steps_per_control
-        self.vehicles = {
-            i: _Vehicle(cfg.vehicle_spec(i), i, n_att, cfg.vehicle.max_thrust_N) for i in self.ids
-        }
+        self.events: list[dict[str, Any]] = []  #: the vehicles' (``MemoryEvents``)
+        thrust = cfg.vehicle.max_thrust_N
+        self.vehicles = {i: _Vehicle(cfg.vehicle_spec(i), i, n_att, thrust, self.events) for i in self.ids}
         self.period_ms = round(dt * 1000)
         self.up_rules = {i: plan.on_mavlink(i, True) for i in self.ids}
         self.down_rules = {i: plan.on_mavlink(i, False) for i in self.ids}
@@ -258,7 +280,7 @@ class PlannedSwarm:
         msg = Message(i, k, t, step.message, (float(p[0]), float(p[1]), float(p[2])))
         if f.stage is not None:
             f.stage.published(msg)
-        self.series[i].record_controller(k, step.command, step.record)
+        self.series[i].record_controller(k, step.command, step.record, f.inbox.ages)
         if k < self.n:
             if self._lost(self.up_rules[i], i, True, ms):
                 v.step()  # a clock-only setpoint in its place
