@@ -3,6 +3,7 @@ space writes, shrinking against a known boundary, the same front for a seed, and
 counterexample on a generated ring of six followers that a lockstep run of processes replays."""
 
 import json
+import signal
 import subprocess
 import sys
 
@@ -21,6 +22,7 @@ from swarm_sitl.falsify.space import cost, expand
 from tests.conftest import CONFIGS
 
 CLI = [sys.executable, "-m", "swarm_sitl"]
+ESTIMATE_SPEC = '- {name: estimate, formula: "always[2, end] (est_pos_err_m <= 1e-4)"}\n'
 PAPER = str(CONFIGS / "paper.yaml")
 
 
@@ -35,6 +37,9 @@ def _cli(*args: object) -> subprocess.CompletedProcess:
         ("entries:\n  - {edges: each, jitter: [0, 1]}\n", [], "jitter is not a key"),
         ("entries:\n  - {edges: [[0, 4]], loss: [0, 1]}\n", [], "edge [0, 4] is not an edge of the graph"),
         ("entries:\n  - {edges: each, loss: [0.5, 0.5]}\n", [], "an empty range"),
+        ("entries:\n  - {links: [9], loss: [0, 1]}\n", [], "no follower 9"),
+        ("entries:\n  - {controllers: each, loss: [0, 1]}\n", [], "controllers fail by kill, not loss"),
+        ("entries:\n  - {links: each, delay_s: [0, 1]}\n", [], "links fail by loss or drop"),
         ("entries:\n  - {edges: each, drop: true, window_s: [10, 90]}\n", [], "after the run"),
         ("entries:\n  - {edges: each, loss: [0, 1]}\n", ["--budget", "0"], "--budget 0"),
         ("entries:\n  - {edges: each, loss: [0, 1]}\n", ["--spec", "EMPTY"], "names no requirement"),
@@ -100,6 +105,46 @@ def test_the_edges_cost_counts_the_graph_edges_a_plan_touches():
     assert cost(one, cfg, "edges") == 1
     into = {"seed": 0, "plan": [{"edge": [0, 1], "loss": 0.5}, {"into": 4, "delay_s": 0.1}]}
     assert cost(into, cfg, "edges") == 3
+
+
+class _Fixed:
+    """A trial that answers each suggestion from a table (the low end where it has none)."""
+
+    def __init__(self, values: dict):
+        self.values = values
+
+    def suggest_float(self, name: str, low: float, high: float) -> float:
+        v = self.values.get(name, self.values.get(name.rsplit(".", 1)[-1], low))
+        assert low <= v <= high, (name, v)
+        return v
+
+    def suggest_categorical(self, name: str, choices: list) -> object:
+        return choices[-1]
+
+
+@pytest.mark.unit
+def test_links_and_controllers_in_a_space_write_the_plan_entries_lockstep_takes():
+    from swarm_sitl.falsify.space import Space, items, plan_of
+    from swarm_sitl.faults.plan import FaultPlan
+
+    cfg = load_config(PAPER)
+    space = Space.model_validate(
+        {
+            "entries": [
+                {"links": [3], "direction": "up", "loss": [0.1, 0.6], "window_s": [10, 20]},
+                {"controllers": [2], "kill": True, "restart_after_s": [0.5, 3], "window_s": [22, 30]},
+            ]
+        }
+    )
+    at = {"p": 0.4, "from": 12.0, "dur": 2.0, "down": 1.5, "1.kill.controller2.from": 25.0}
+    plan = plan_of(_Fixed(at), space, items(space, cfg), cfg)
+    assert plan["plan"] == [
+        {"mavlink": 3, "direction": "up", "loss": 0.4, "from_s": 12.0, "until_s": 14.0},
+        {"controller": 2, "kill": True, "restart_after_s": 1.5, "from_s": 25.0},
+    ]
+    FaultPlan.model_validate(plan).check_lockstep()  # a plan lockstep (and so sim) flies
+    assert cost(plan, cfg) == pytest.approx(0.4 * 2.0 + 1.5)  # a controller down: 1 x its downtime
+    assert cost(plan, cfg, "edges") == 2  # one link, one controller
 
 
 ENTRIES = [[0, 1], [0, 2], [0, 3], [1, 4], [2, 4]]
@@ -204,3 +249,47 @@ def test_a_minimal_counterexample_on_a_ring_of_six_replays_as_processes(tmp_path
     # the helper a user's test calls fails with the counterexample's path
     with pytest.raises(AssertionError, match=str(tmp_path / "helper" / "counterexamples")):
         assert_no_counterexample(config, tmp_path / "helper", max_cost=1e9, spec=spec, budget=4)
+
+
+def _estimate_space(tmp_path):
+    (tmp_path / "space.yaml").write_text(
+        yaml.safe_dump({"seeds": [0, 1], "entries": [{"edges": "each", "loss": [0.5, 1.0]}]})
+    )
+    (tmp_path / "spec.yaml").write_text(
+        '- {name: estimate, formula: "always[2, end] (est_pos_err_m <= 1e-4)"}\n'
+    )
+    return tmp_path / "space.yaml", tmp_path / "spec.yaml"
+
+
+@pytest.mark.system
+def test_a_search_resumes_its_study_and_ctrl_c_keeps_what_was_found(tmp_path):
+    import optuna
+
+    space, spec = _estimate_space(tmp_path)
+    out = tmp_path / "out"
+    args = {"space": space, "spec": spec, "duration_s": 4.0, "confirm": False, "say": lambda s: None}
+    falsify(PAPER, out, budget=4, **args)
+    again = falsify(PAPER, out, budget=8, **args)  # the same directory: four more, not eight
+    study = optuna.load_study(study_name="falsify", storage=f"sqlite:///{out / 'study.db'}")
+    assert len(study.trials) == 8
+    assert again.evaluations >= 1 + 4  # the baseline and the four new (and any shrinking)
+    # Ctrl-C after the first batch: exit 130, and what the study holds is written
+    stop = tmp_path / "stopped"
+    argv = [*CLI, "falsify", PAPER, "--space", space, "--spec", spec, "--duration", 4, "--budget", 400]
+    p = subprocess.Popen(
+        [*map(str, argv), "--no-confirm", "--out", str(stop)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    assert p.stdout is not None
+    for line in p.stdout:
+        if line.startswith("falsify: 4/400"):
+            break
+    p.send_signal(signal.SIGINT)
+    rest, err = p.communicate(timeout=120)
+    assert p.returncode == 130, err
+    assert "interrupted" in rest
+    kept = (stop / "evaluations.csv").read_text().splitlines()
+    assert len(kept) >= 1 + 4  # the header and at least the first batch
+    assert (stop / "report.md").is_file() and (stop / "front.csv").is_file()

@@ -26,7 +26,7 @@ def cmd_falsify(args: argparse.Namespace) -> int:
         )
     except FalsifyError as e:
         raise CliError(str(e)) from None
-    say = (lambda line: None) if args.quiet else print
+    say = (lambda line: None) if args.quiet else (lambda line: print(line, flush=True))
     try:
         f = falsify(
             args.config,

@@ -115,7 +115,8 @@ def chart(path: Path, rows: list[dict[str, Any]], found: Found) -> None:
 
 
 def edge_shares(rows: list[dict[str, Any]], cfg: SwarmConfig) -> dict[tuple[int, int], float | None]:
-    """Per graph edge, the share of the violating plans that touch it (None: none violated)."""
+    """Per graph edge, the share of the violating plans that touch it (None: none violated; a
+    plan's MAVLink and controller entries touch no edge)."""
     bad = [expand(r["plan"], cfg) for r in rows if r["robustness"] < 0]
     edges = cfg.graph_edges()
     if not bad:
@@ -124,7 +125,10 @@ def edge_shares(rows: list[dict[str, Any]], cfg: SwarmConfig) -> dict[tuple[int,
     for plan in bad:
         on: set[tuple[int, int]] = set()
         for f in plan["plan"]:
-            on |= {e for e in edges if e[1] == f["into"]} if "into" in f else {(f["edge"][0], f["edge"][1])}
+            if "into" in f:
+                on |= {e for e in edges if e[1] == f["into"]}
+            elif "edge" in f:
+                on.add((f["edge"][0], f["edge"][1]))
         touched.append(on)
     return {e: sum(e in t for t in touched) / len(touched) for e in edges}
 

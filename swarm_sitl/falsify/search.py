@@ -167,8 +167,8 @@ def falsify(
 
                 def ranges(f: dict[str, Any]) -> tuple[float, float] | None:
                     for e in sp.entries:
-                        if e.how in f and e.how != "drop":
-                            return e.loss if e.loss is not None else e.delay_s
+                        if e.how in f and e.severity_range is not None:
+                            return e.severity_range
                     return None
 
                 held = [r["plan"] for r in rows if r["robustness"] >= 0]

@@ -3,7 +3,7 @@ shortened, each step kept only while the plan still violates.
 
 1. Drop each entry in turn (plan order); keep it dropped if the rest still violates. What is left
    is minimal by entries: removing any one of them makes the requirement hold.
-2. Lower each loss or delay by bisection, to ``1/128`` of its space's range: from below, the
+2. Lower each loss, delay or downtime by bisection, to ``1/128`` of its space's range: from below, the
    highest value at which the same plan was seen to hold under every seed (``held``: the search's
    evaluations), else the range's low end. Each probe flies the plan under the seeds the space
    allows, its own first, ``width`` at a time (``check_many``), until one violates: the least
@@ -24,7 +24,11 @@ RESOLUTION = 128  #: a severity is lowered to this fraction of its range
 
 
 def _key(f: dict[str, Any]) -> str | None:
-    return "loss" if "loss" in f else ("delay_s" if "delay_s" in f else None)
+    """The severity of a plan entry shrinking lowers: a loss, a delay, a downtime (None: a cut)."""
+    for key in ("loss", "delay_s", "restart_after_s"):
+        if key in f:
+            return key
+    return None
 
 
 def _without(plan: Plan, j: int, key: str) -> str:
