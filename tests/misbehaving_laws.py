@@ -113,3 +113,21 @@ class MixedLoads(Hover):
         {2: Hoards, 3: Slow, 4: Chatty}.get(self.id, Hover).misbehave(self._as_2(), t)
 
     _as_2 = MixedExits._as_2
+
+
+class HeldWhenDeaf(Hover):
+    """Held in compiled code (its guard's signal blocked, then asleep) from the first tick at which
+    it hears nobody after 0.2 s: a law a fault plan that cuts its in-edges makes hang for good."""
+
+    def misbehave(self, t):
+        pass
+
+    def step(self, t, sample, inbox):
+        if t >= 0.2 and not inbox:
+            import signal as _signal
+
+            from swarm_sitl.nodes.law_guard import _SIGNAL
+
+            _signal.pthread_sigmask(_signal.SIG_BLOCK, [_SIGNAL])
+            time.sleep(60)
+        return super().step(t, sample, inbox)

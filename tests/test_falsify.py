@@ -293,3 +293,34 @@ def test_a_search_resumes_its_study_and_ctrl_c_keeps_what_was_found(tmp_path):
     kept = (stop / "evaluations.csv").read_text().splitlines()
     assert len(kept) >= 1 + 4  # the header and at least the first batch
     assert (stop / "report.md").is_file() and (stop / "front.csv").is_file()
+
+
+@pytest.mark.system
+def test_a_law_that_ends_its_worker_is_a_violation_and_the_pool_goes_on(tmp_path):
+    """A user's law held in compiled code when it hears nobody (``HeldWhenDeaf``): a cut of the
+    edge 0 -> 1 longer than the staleness ends its worker process (its guard's hard stop). In a
+    batch, each such plan is found (flown again one at a time), counted as a violation, and the
+    pool is made again for the next plans."""
+    from swarm_sitl.falsify.workers import NO_ROBUSTNESS, Local
+    from tests.test_misbehaving_laws import LAWS_FILE
+
+    data = yaml.safe_load((CONFIGS / "paper.yaml").read_text())
+    data["duration_s"] = 1.5
+    data["law"] = {"entry": f"{LAWS_FILE}:HeldWhenDeaf"}
+    data["run"] = {**data.get("run", {}), "tick_timeout_s": 0.2}
+    data["spec"] = [{"name": "up", "formula": "always (altitude_m >= -1000)"}]
+    config = tmp_path / "held.yaml"
+    config.write_text(yaml.safe_dump(data))
+    cfg, name = requirement_config(load_config(config), None, None)
+
+    def cut(until_s: float) -> dict:
+        return {"seed": 0, "plan": [{"edge": [0, 1], "drop": True, "from_s": 0.3, "until_s": until_s}]}
+
+    ev = Local(2, cfg, name)
+    try:
+        # 0.3 s cut: heard within the staleness; 1 s: deaf from 0.81 s on, held for good
+        got = ev.map([cut(1.3), cut(0.6), cut(1.3)])
+        assert got[0] == got[2] == NO_ROBUSTNESS and got[1] == 997.0 and ev.ended == 2
+        assert ev.map([cut(0.6), cut(0.5)]) == [997.0, 997.0]  # the pool made again flies on
+    finally:
+        ev.close()

@@ -6,6 +6,7 @@ for a seed on any number of cores and on a cluster.
 """
 
 import concurrent.futures
+import concurrent.futures.process
 import math
 import multiprocessing
 from typing import Any
@@ -46,13 +47,41 @@ class Local:
     process's state but the config and requirement goes with them)."""
 
     def __init__(self, jobs: int, cfg: SwarmConfig, name: str):
+        self.jobs, self.cfg, self.name = jobs, cfg, name
+        self.ended = 0  #: evaluations that ended their worker (a law held in compiled code)
+        self.pool = self._pool()
+
+    def _pool(self) -> concurrent.futures.ProcessPoolExecutor:
         ctx = multiprocessing.get_context("spawn")
-        self.pool = concurrent.futures.ProcessPoolExecutor(
-            jobs, mp_context=ctx, initializer=_init, initargs=(cfg, name)
+        return concurrent.futures.ProcessPoolExecutor(
+            self.jobs, mp_context=ctx, initializer=_init, initargs=(self.cfg, self.name)
         )
 
+    def _renew(self) -> None:
+        """A new pool in place of a broken one."""
+        self.pool.shutdown(cancel_futures=True)
+        self.pool = self._pool()
+
     def map(self, plans: list[dict[str, Any]]) -> list[float]:
-        return list(self.pool.map(_fly, plans))
+        """Their robustness. A plan whose run ended its worker process (a user's law held in
+        compiled code past its guard, ``nodes.law_guard``: the process ends) is a violation
+        (``NO_ROBUSTNESS``), found by flying the batch again one plan at a time in a new pool."""
+        try:
+            return list(self.pool.map(_fly, plans))
+        except concurrent.futures.process.BrokenProcessPool:
+            self._renew()
+            if len(plans) == 1:  # the one that ended it
+                self.ended += 1
+                return [NO_ROBUSTNESS]
+        out = []
+        for plan in plans:
+            try:
+                out.append(self.pool.submit(_fly, plan).result())
+            except concurrent.futures.process.BrokenProcessPool:
+                self.ended += 1
+                out.append(NO_ROBUSTNESS)
+                self._renew()
+        return out
 
     def close(self) -> None:
         self.pool.shutdown(cancel_futures=True)
