@@ -234,7 +234,7 @@ def test_a_minimal_counterexample_on_a_ring_of_six_replays_as_processes(tmp_path
     config.write_text(generate(6, "ring", "grid", "helix", seed=0, duration_s=12.0))
     spec = tmp_path / "spec.yaml"
     spec.write_text('- {name: formation, formula: "always[9, end] (pos_err_m <= 0.05)"}\n')
-    found = falsify(config, tmp_path / "out", spec=spec, budget=12, seed=0, say=lambda s: None)
+    found = falsify(config, tmp_path / "out", spec=spec, budget=8, seed=0, say=lambda s: None)
     assert found.baseline >= 0  # it holds without a fault
     assert found.plan is not None and found.evaluations <= 200
     assert 1 <= len(found.plan["plan"]) <= 2 and found.robustness < 0
@@ -248,7 +248,7 @@ def test_a_minimal_counterexample_on_a_ring_of_six_replays_as_processes(tmp_path
     assert written == json.loads(json.dumps(found.plan))
     # the helper a user's test calls fails with the counterexample's path
     with pytest.raises(AssertionError, match=str(tmp_path / "helper" / "counterexamples")):
-        assert_no_counterexample(config, tmp_path / "helper", max_cost=1e9, spec=spec, budget=4)
+        assert_no_counterexample(config, tmp_path / "helper", max_cost=1e9, spec=spec, budget=2)
 
 
 def _estimate_space(tmp_path):
