@@ -155,7 +155,9 @@ def test_bench_scale_writes_its_table_with_consistent_figures(tmp_path, capsys):
     assert 0 < r["empty_cpu_per_sim_s"] < r["cpu_per_sim_s"] and r["empty_x"] > 0  # no work: cheaper
     bare = r["empty_cpu_per_sim_s"] + r["sim_cpu_per_sim_s"]
     assert r["over_empty_sim"] == pytest.approx(r["cpu_per_sim_s"] / bare, rel=1e-3)
-    assert 0 < r["ctrl_main_s"] <= r["ctrl_zenoh_s"] <= r["ctrl_ready_s"]  # in the order they happen
+    # in the order they happen; a process's age has the kernel's 10 ms resolution, so a forked
+    # controller can reach its main within one of its ticks: 0.0
+    assert 0 <= r["ctrl_main_s"] <= r["ctrl_zenoh_s"] <= r["ctrl_ready_s"] and r["ctrl_ready_s"] > 0
     assert (tmp_path / "scale.png").stat().st_size > 10_000
     (rt,) = list(csv.DictReader((tmp_path / "realtime.csv").read_text().splitlines()))
     assert int(rt["followers"]) == 2 and 0.0 <= float(rt["late_share"]) <= 1.0
