@@ -85,7 +85,7 @@ def test_lockstep_run_equals_sim_and_is_repeatable(tmp_path, sim20):
     assert not processes_mentioning(str(tmp_path))
 
 
-def test_realtime_run_reaches_the_formation(tmp_path):
+def test_realtime_run_reaches_the_formation(tmp_path, paper_cfg):
     out = tmp_path / "rt"
     r = _cli("run", CONFIGS / "paper.yaml", "--realtime", "--duration", 14, "--out", out, "--quiet")
     assert r.returncode == 0, r.stderr + r.stdout
@@ -116,6 +116,16 @@ def test_realtime_run_reaches_the_formation(tmp_path):
             logs,
         )
         assert np.isfinite(p[ok]).all()
+        # each in-edge's newest estimate was made at a tick of its sender: t - age is one of the
+        # sender's instants (its tick times its period, plus its phase), never after this tick
+        sources = [src for src, _ in paper_cfg.build_graph().in_neighbours(i)]
+        for j, src in enumerate(sources):
+            heard = ok & np.isfinite(a["in_age_s"][:, j])
+            assert heard.mean() > 0.5, (i, src)
+            made = t[heard] - a["in_age_s"][heard, j]
+            ticks = (made - (0.0 if src == 0 else (src - 1) / 4 * dt)) / dt
+            assert np.allclose(ticks, np.round(ticks), rtol=0, atol=1e-6), (i, src)
+            assert np.all(a["in_age_s"][heard, j] >= -1e-9), (i, src)
         assert summary["followers"][str(i)]["final_pos_err_m"] < 0.05, (i, summary["followers"][str(i)], logs)
         e = np.linalg.norm(a["pos_err_m"], axis=1)
         worst_after_10 = max(worst_after_10, float(np.nanmax(e[t >= 10.0])))
