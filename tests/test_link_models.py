@@ -7,6 +7,8 @@ import math
 import numpy as np
 import pytest
 import yaml
+from hypothesis import given
+from hypothesis import strategies as st
 
 from swarm_sitl.config.load import ConfigError, parse_config
 from swarm_sitl.faults import bursts
@@ -157,3 +159,21 @@ def test_a_lockstep_swarm_under_bursty_loss_counts_the_models_loss_and_bursts_an
     assert results[0].ok and results[0].max_formation_error_m(after_s=15) < 0.05
     for name in ["summary.json", "events.jsonl", *(f"follower_{i}.npz" for i in range(1, 5))]:
         assert (tmp_path / "a" / name).read_bytes() == (tmp_path / "b" / name).read_bytes(), name
+
+
+@pytest.mark.unit
+@given(
+    seed=st.integers(0, 2**63 - 1),
+    entry=st.integers(0, 200),
+    channel=st.integers(0, 2**34),
+    step=st.one_of(st.integers(0, 10**6), st.integers(0, 2**40)),
+    salt=st.integers(0, 16),
+)
+def test_a_draw_read_from_its_table_is_the_draw_hashed_alone(seed, entry, channel, step, salt):
+    """``uniform_at`` hashes a block of steps at once with numpy's uint64 arithmetic: the same
+    number, bit for bit, as ``uniform`` of the same keys in Python's integers, at the block's
+    edges too."""
+    from swarm_sitl.faults.draws import BLOCK, uniform, uniform_at
+
+    for s in (step, step - step % BLOCK, step - step % BLOCK + BLOCK - 1):
+        assert uniform_at(seed, entry, channel, s, salt) == uniform(seed, entry, channel, s, salt)

@@ -106,7 +106,7 @@ class InEdges:
             # in-neighbours before it has the swarm's clock): judged once it has it
             self._early.append(m)
             return
-        self._route(m)
+        self._route(m, st)
 
     def take_early(self) -> None:
         """Real time: judge what came before this node had a clock, once it has one."""
@@ -115,18 +115,20 @@ class InEdges:
             for m in early:
                 self._route(m)
 
-    def _route(self, m: Message) -> None:
+    def _route(self, m: Message, st: EdgeStats | None = None) -> None:
         if m.src in self._ranged and (
             m.step > self._own_step if self.clock.lockstep else self._own_newest is None
         ):
             self._undecided.append(m)  # decided when this node publishes that step (or its first)
             return
-        self._decide(m)
+        self._decide(m, st)
 
-    def _decide(self, m: Message) -> None:
+    def _decide(self, m: Message, st: EdgeStats | None = None) -> None:
+        """``st``: where ``m`` is counted (``_stats_of``), if the caller has it."""
         src = m.src
-        counted = self.table.counts(m.step)
-        st = self._stats_of(m)
+        if st is None:
+            st = self._stats_of(m)
+        counted = st is not self._uncounted
         clock = self.clock
         dt = clock.period_s
         at = m.t_s if clock.lockstep else clock.now_s()

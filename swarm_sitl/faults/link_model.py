@@ -33,7 +33,7 @@ from typing import Any, NamedTuple
 from pydantic import BaseModel, ConfigDict, PrivateAttr, ValidationError, ValidationInfo, model_validator
 
 from sim_vehicles.common.entry import EntryError, load_entry, one_line
-from swarm_sitl.faults.draws import uniform
+from swarm_sitl.faults.draws import uniform_at
 
 
 class Effect(NamedTuple):
@@ -68,7 +68,7 @@ class MessageOnLink:
 
     def uniform(self, salt: int) -> float:
         """A uniform draw in [0, 1) of (seed, entry, link, step, ``salt``)."""
-        return uniform(self.seed, self.entry, self.channel, self.step, salt)
+        return uniform_at(self.seed, self.entry, self.channel, self.step, salt)
 
 
 #: the validation context of a config read from a run directory (``config.load.load_recorded``):

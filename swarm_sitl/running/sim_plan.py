@@ -38,7 +38,7 @@ from sim_vehicles.models.build import build_vehicle, sensor_model
 from sim_vehicles.models.spec import VehicleSpec
 from sim_vehicles.plant.failsafe import ACTIONS
 from sim_vehicles.runtime.event_log import EventLog
-from sim_vehicles.vehicle.modes import FlightModes
+from sim_vehicles.vehicle.modes import MODE_OFFBOARD, FlightModes
 from swarm_sitl.bus.clock import RunClock
 from swarm_sitl.bus.codec import Message
 from swarm_sitl.bus.estimates import EstimateTable
@@ -120,12 +120,16 @@ class _Vehicle:
             f.check_failsafe()
 
     def setpoint(self, cmd: AttitudeCommand) -> None:
-        """A valid setpoint stamped with its time: taken, then one period."""
-        f = self.flight
-        f.offboard_signal_s = self.ap.time_s
+        """A valid setpoint stamped with its time: taken, then one period (in offboard, within
+        the setpoint timeout, that is one call of the plant: ``lockstep_tick``'s usual tick)."""
+        f, ap = self.flight, self.ap
+        f.offboard_signal_s = ap.time_s
         if f.take_setpoint():
-            self.ap.set_command(command_roundtrip(cmd, self.max_thrust_N))
-        self.step()
+            ap.set_command(command_roundtrip(cmd, self.max_thrust_N))
+        if f.mode == MODE_OFFBOARD and self.n_att * ap.dt_s <= f.setpoint_timeout_s:
+            ap.advance(self.n_att)  # (its own loop has nothing to do, its failsafe cannot begin)
+        else:
+            self.step()
 
     def reported(self, ms: int) -> np.ndarray:
         x = self.ap.state
@@ -208,7 +212,8 @@ class PlannedSwarm:
         return o is not None and down_at(o, k)
 
     def _restarts_at(self, node: int, k: int) -> bool:
-        return any(back == k for _, back in self.outages.get(node, []))
+        o = self.outages.get(node)
+        return o is not None and any(back == k for _, back in o)
 
     def _returns(self, node: int, k: int) -> bool:
         """Whether ``node``, down at ``k``, is started again later."""
