@@ -117,7 +117,9 @@ def test_realtime_run_reaches_the_formation(tmp_path, paper_cfg):
         )
         assert np.isfinite(p[ok]).all()
         # each in-edge's newest estimate was made at a tick of its sender: t - age is one of the
-        # sender's instants (its tick times its period, plus its phase), never after this tick
+        # sender's instants (its tick times its period, plus its phase), at most a period after
+        # this tick's (a tick that starts late reads what came meanwhile; one a period late is
+        # skipped)
         sources = [src for src, _ in paper_cfg.build_graph().in_neighbours(i)]
         for j, src in enumerate(sources):
             heard = ok & np.isfinite(a["in_age_s"][:, j])
@@ -125,7 +127,7 @@ def test_realtime_run_reaches_the_formation(tmp_path, paper_cfg):
             made = t[heard] - a["in_age_s"][heard, j]
             ticks = (made - (0.0 if src == 0 else (src - 1) / 4 * dt)) / dt
             assert np.allclose(ticks, np.round(ticks), rtol=0, atol=1e-6), (i, src)
-            assert np.all(a["in_age_s"][heard, j] >= -1e-9), (i, src)
+            assert np.all(a["in_age_s"][heard, j] >= -dt - 1e-9), (i, src)
         assert summary["followers"][str(i)]["final_pos_err_m"] < 0.05, (i, summary["followers"][str(i)], logs)
         e = np.linalg.norm(a["pos_err_m"], axis=1)
         worst_after_10 = max(worst_after_10, float(np.nanmax(e[t >= 10.0])))

@@ -184,8 +184,8 @@ class PlannedSwarm:
         self.period_ms = round(dt * 1000)
         self.up_rules = {i: plan.on_mavlink(i, True) for i in self.ids}
         self.down_rules = {i: plan.on_mavlink(i, False) for i in self.ids}
-        #: the nodes whose in-edges a plan entry acts on (the others file what comes as it comes)
         self.guard: LawGuard | None = None  #: a user's law's guard, given to every incarnation
+        #: the nodes whose in-edges a plan entry acts on (the others file what comes as it comes)
         self.faulty = {i for i in self.ids if any(plan.on_edge(s, i, self.edges) for s in self.sources[i])}
         self.followers: dict[int, _Follower | None] = {i: self._incarnation(i, 0) for i in self.ids}
 
@@ -246,8 +246,9 @@ class PlannedSwarm:
             v = self.vehicles[i]
             if self.down(i, k):
                 self.followers[i] = None
-                if self._returns(i, k):  # its vehicle flies on its own through the gap
-                    v.step()
+                if self._returns(i, k):  # its vehicle flies on its own through the gap, and
+                    v.step()  # sends its sample each period (its sensors' latency keeps them)
+                    v.reported(round((k + 1) * self.dt * 1000))
                 continue
             f = self.followers[i]
             if f is None or self._restarts_at(i, k):
@@ -268,13 +269,14 @@ class PlannedSwarm:
 
     def _follower_tick(self, i: int, k: int, t: float, f: _Follower, v: _Vehicle) -> Message:
         ms = round(t * 1000)
+        reported = v.reported(ms)  # (sent whether or not the plan loses it: sensors with latency keep it)
         # (an incarnation's first sample is the answer to its request, start-up traffic: never lost)
         if k > f.first and self._lost(self.down_rules[i], i, False, ms) and f.sample is not None:
             # the newest it has, carried, at its time_boot_ms
             sample, truth = f.sample
             sample = sample._replace(t_s=round(sample.t_s * 1000) / 1000)
         else:
-            sample, truth = self.sample(t, v.reported(ms)), v.ap.state.copy()
+            sample, truth = self.sample(t, reported), v.ap.state.copy()
             f.sample = (sample, truth)
         self.series[i].record_vehicle(k, t, truth, sample.t_s)
         if f.stage is not None:
