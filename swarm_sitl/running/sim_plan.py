@@ -198,6 +198,7 @@ class PlannedSwarm:
         stage = None
         if i in self.faulty:
             stage = InEdges(table, self.plan, i, self.edges, self.clock, self.cfg.duration_s, self.outages)
+            stage.in_order = True  # (``tick`` admits tick k's messages after every node's tick k)
         inbox = NeighbourInbox(i, self.sources[i], self.cfg.estimator.staleness_s, EventLog(None, f"c{i}"))
         return _Follower(law, table, stage, inbox, first)
 
