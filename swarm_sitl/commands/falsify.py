@@ -60,7 +60,7 @@ def cmd_falsify(args: argparse.Namespace) -> int:
         return 3
     if f.plan is None:
         if f.interrupted:
-            return 130
+            return 128 + f.signum
         print(f"  no plan in the space breaks {f.requirement} within {args.budget} evaluations")
         return 0
     print(
@@ -70,7 +70,7 @@ def cmd_falsify(args: argparse.Namespace) -> int:
     )
     for entry in f.plan["plan"]:
         print(f"    {entry}")
-    return 130 if f.interrupted else 3
+    return 128 + f.signum if f.interrupted else 3
 
 
 def add_falsify(sub: Any) -> None:

@@ -31,7 +31,8 @@ class Found:
     confirmed: bool | None = None  #: its lockstep run gave the same robustness (None: not run)
     front: list[dict[str, Any]] = field(default_factory=list)
     per_minute: float = math.nan
-    interrupted: bool = False  #: Ctrl-C: what was found up to it
+    interrupted: bool = False  #: Ctrl-C or SIGTERM: what was found up to it
+    signum: int = 0  #: the signal that stopped it
     baseline: float = math.nan  #: the requirement's robustness without a fault
 
 

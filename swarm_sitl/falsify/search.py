@@ -19,6 +19,8 @@ of the violating plans), ``report.md``.
 
 import math
 import multiprocessing
+import signal
+import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -46,6 +48,30 @@ from swarm_sitl.falsify.workers import Dask, Local
 
 class FalsifyError(ValueError):
     """Bad input, found before anything is flown: one line."""
+
+
+class _InterruptedError(Exception):
+    """The search was asked to stop (``_Stop``)."""
+
+
+class _Stop:
+    """Ctrl-C (SIGINT) or SIGTERM during a search, noted: the search stops before its next batch
+    and writes what it found. (A KeyboardInterrupt raised wherever the signal lands can be
+    swallowed there: in a library's garbage-collection callback, a search once went on.)"""
+
+    def __init__(self) -> None:
+        self.signum = 0
+        self._saved: dict[int, Any] = {}
+        if threading.current_thread() is threading.main_thread():
+            for sig in (signal.SIGINT, signal.SIGTERM):
+                self._saved[sig] = signal.signal(sig, self._note)
+
+    def _note(self, signum: int, frame: Any) -> None:
+        self.signum = signum
+
+    def close(self) -> None:
+        for sig, handler in self._saved.items():
+            signal.signal(sig, handler)
 
 
 def _rows(study: Any) -> list[dict[str, Any]]:
@@ -142,10 +168,17 @@ def falsify(
     found = Found(name, 0)
     rows: list[dict[str, Any]] = []
     ev: Local | Dask = Local(jobs, cfg, name) if scheduler is None else Dask(scheduler, cfg, name)
+    stop = _Stop()
+
+    def fly_all(plans: list[dict[str, Any]]) -> list[float]:
+        if stop.signum:
+            raise _InterruptedError
+        return ev.map(plans)
+
     try:
         try:
             # the requirement must hold without a fault, or there is nothing to search for
-            found.baseline = ev.map([{"seed": sp.seeds[0], "plan": []}])[0]
+            found.baseline = fly_all([{"seed": sp.seeds[0], "plan": []}])[0]
             flown += 1
             if found.baseline < 0:
                 say(f"falsify: {name} fails without any fault (robustness {found.baseline:.4g})")
@@ -154,7 +187,7 @@ def falsify(
             while done < budget:
                 trials = [study.ask() for _ in range(min(batch, budget - done))]
                 plans = [plan_of(t, sp, its, cfg) for t in trials]
-                robs = ev.map(plans)
+                robs = fly_all(plans)
                 for t, plan, r in zip(trials, plans, robs, strict=True):
                     t.set_user_attr("plan", plan)
                     study.tell(t, [cost(expand(plan, cfg), cfg, cost_how), r])
@@ -173,16 +206,20 @@ def falsify(
 
                 held = [r["plan"] for r in rows if r["robustness"] >= 0]
                 plan, r, spent = shrink(
-                    violating[0]["plan"], ev.map, ranges, cfg.control_dt_s, sp.seeds, held, width=jobs
+                    violating[0]["plan"], fly_all, ranges, cfg.control_dt_s, sp.seeds, held, width=jobs
                 )
                 flown += spent
                 rows.append({"cost": cost(expand(plan, cfg), cfg, cost_how), "robustness": r, "plan": plan})
                 found.plan, found.robustness, found.cost = expand(plan, cfg), r, rows[-1]["cost"]
-        except KeyboardInterrupt:
+            if stop.signum:
+                raise _InterruptedError
+        except (KeyboardInterrupt, _InterruptedError):
             say("falsify: interrupted; what was found is kept")
             found.interrupted = True
+            found.signum = stop.signum or signal.SIGINT
             rows = _rows(study)
     finally:
+        stop.close()
         ev.close()
     wall = time.monotonic() - t0
     found.evaluations = flown
@@ -194,7 +231,7 @@ def falsify(
         path = out / "counterexamples" / f"{name}.yaml"
         path.write_text(yaml.safe_dump(found.plan, sort_keys=False))
         found.counterexample = path
-        if confirm:
+        if confirm and not found.interrupted:
             found.confirmed = confirm_in_lockstep(cfg, name, path, out / "confirm" / name, found.robustness)
     chart(out / "robustness_cost.png", rows, found)
     edge_picture(out / "edges.png", rows, cfg)
@@ -213,6 +250,7 @@ def assert_no_counterexample(
     budget: int = 40,
     seed: int = 0,
     duration_s: float | None = None,
+    jobs: int | None = None,
 ) -> Found:
     """For a test: search ``space`` and fail (``AssertionError``) if a plan of cost at most
     ``max_cost`` breaks the requirement, naming the counterexample's file (a plan
@@ -227,6 +265,7 @@ def assert_no_counterexample(
         budget=budget,
         seed=seed,
         duration_s=duration_s,
+        jobs=jobs,
         confirm=False,
         say=lambda line: None,
     )

@@ -9,6 +9,7 @@ import concurrent.futures
 import concurrent.futures.process
 import math
 import multiprocessing
+import signal
 from typing import Any
 
 from swarm_sitl.config.schema import SwarmConfig
@@ -33,6 +34,9 @@ _WORKER: tuple[SwarmConfig, str] | None = None
 
 
 def _init(cfg: SwarmConfig, name: str) -> None:
+    """A worker's start: Ctrl-C at a terminal reaches every process of the group, and the search
+    (its parent) is the one that stops; a worker finishes the plan it flies."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     global _WORKER
     _WORKER = (cfg, name)
 
