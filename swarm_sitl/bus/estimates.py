@@ -6,7 +6,27 @@ zenoh bus (``node_bus.ZenohNodeBus``) is one; ``sim`` keeps one per follower, so
 table by the same rules.
 """
 
+from typing import Protocol
+
 from swarm_sitl.bus.codec import Message
+
+
+class Estimates(Protocol):
+    """What a tick reads estimates from: an ``EstimateTable``, or a node's bus."""
+
+    def estimate(self, src: int, step: int) -> Message | None: ...
+    def latest(self, src: int) -> Message | None: ...
+
+
+def newest_for_tick(estimates: Estimates, src: int, k: int) -> Message | None:
+    """Lockstep: what tick ``k`` uses from ``src``: its estimate of tick ``k - 1``, or (a fault
+    plan hid or held it) the newest it may use then, none of tick ``k`` or later."""
+    m = estimates.estimate(src, k - 1)
+    if m is None:
+        m = estimates.latest(src)
+        if m is not None and m.step >= k:
+            return None
+    return m
 
 
 class EstimateTable:

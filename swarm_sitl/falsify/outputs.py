@@ -14,7 +14,7 @@ import yaml
 
 from swarm_sitl.config.schema import SwarmConfig
 from swarm_sitl.falsify.evaluate import robustness_of
-from swarm_sitl.falsify.space import expand
+from swarm_sitl.falsify.space import edges_of, expand
 from swarm_sitl.falsify.workers import NO_ROBUSTNESS
 
 
@@ -122,15 +122,7 @@ def edge_shares(rows: list[dict[str, Any]], cfg: SwarmConfig) -> dict[tuple[int,
     edges = cfg.graph_edges()
     if not bad:
         return dict.fromkeys(edges)
-    touched = []
-    for plan in bad:
-        on: set[tuple[int, int]] = set()
-        for f in plan["plan"]:
-            if "into" in f:
-                on |= {e for e in edges if e[1] == f["into"]}
-            elif "edge" in f:
-                on.add((f["edge"][0], f["edge"][1]))
-        touched.append(on)
+    touched = [{e for f in plan["plan"] for e in edges_of(f, cfg)} for plan in bad]
     return {e: sum(e in t for t in touched) / len(touched) for e in edges}
 
 

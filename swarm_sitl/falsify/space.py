@@ -36,6 +36,7 @@ from typing import Annotated, Any, Literal, Protocol
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from swarm_sitl.config.schema import SwarmConfig
+from swarm_sitl.faults.plan import FaultSpec
 
 COSTS = ("severity", "edges")
 Edge = tuple[Annotated[int, Field(ge=0)], Annotated[int, Field(ge=1)]]
@@ -249,18 +250,22 @@ def expand(plan: dict[str, Any], cfg: SwarmConfig) -> dict[str, Any]:
     return {"seed": plan["seed"], "plan": out}
 
 
+def edges_of(entry: dict[str, Any], cfg: SwarmConfig) -> list[tuple[int, int]]:
+    """The graph edges a fault plan's entry acts on (``FaultSpec.edges``; none for a MAVLink
+    link or a process)."""
+    return FaultSpec.model_validate(entry).edges(cfg.graph_edges())
+
+
 def cost(plan: dict[str, Any], cfg: SwarmConfig, how: str = "severity") -> float:
     """A fault plan's cost (module docstring)."""
     if how == "edges":
         touched: set[tuple[int, int]] = set()
         others: set[tuple[str, int]] = set()
         for f in plan["plan"]:
-            if "into" in f:
-                touched |= {(a, b) for a, b in cfg.graph_edges() if b == f["into"]}
-            elif "edge" in f:
-                touched.add((f["edge"][0], f["edge"][1]))
-            else:
+            if "mavlink" in f or "controller" in f:
                 others.add(("mavlink", f["mavlink"]) if "mavlink" in f else ("controller", f["controller"]))
+            else:
+                touched |= set(edges_of(f, cfg))
         return float(len(touched) + len(others))
     total = 0.0
     for f in plan["plan"]:

@@ -45,6 +45,7 @@ from swarm_sitl.bus.clock import (
     wall_epoch_to_monotonic,
 )
 from swarm_sitl.bus.codec import Message, Status
+from swarm_sitl.bus.estimates import newest_for_tick
 from swarm_sitl.bus.node_bus import NodeBus
 from swarm_sitl.config.schema import SwarmConfig
 from swarm_sitl.laws.contract import VehicleSample
@@ -191,12 +192,7 @@ class _Inputs:
     def newest_lockstep(self, src: int) -> Message | None:
         """The in-neighbour's estimate of tick ``k - 1``, or (a fault plan hid or held it) the
         newest it may use now."""
-        m = self.bus.estimate(src, self.k - 1)
-        if m is None:
-            m = self.bus.latest(src)
-            if m is not None and m.step >= self.k:
-                return None
-        return m
+        return newest_for_tick(self.bus, src, self.k)
 
     def wait_lockstep(self, k: int, timeout_s: float) -> None:
         self.k, self.t_ms = k, round(k * self.dt * 1000)

@@ -81,18 +81,23 @@ def run_sim(
     ids = [f.id for f in cfg.followers]
     graph = cfg.build_graph()
     leader = build_leader(cfg)
-    laws = {i: build_law(cfg, i, *reported_vehicle_params(cfg)) for i in ids}
-    specs = {i: cfg.vehicle_spec(i) for i in ids}  # each vehicle as its process builds it
-    aps = {i: build_vehicle(specs[i], i) for i in ids}
     sources = {i: graph.in_neighbours(i) for i in ids}
-    series = {i: FollowerSeries(n + 1, laws[i].law.record_fields, len(sources[i])) for i in ids}
-    # a fault plan: the followers as lockstep runs them under it (``sim_plan``)
-    planned = PlannedSwarm(cfg, series, sample_through_wire) if cfg.faults.plan else None
+    # a fault plan: the followers, their laws and vehicles as lockstep runs them under it
+    # (``sim_plan``); without one, those of this loop
+    planned = PlannedSwarm(cfg, n, sample_through_wire) if cfg.faults.plan else None
+    laws = {} if planned else {i: build_law(cfg, i, *reported_vehicle_params(cfg)) for i in ids}
+    specs = {} if planned else {i: cfg.vehicle_spec(i) for i in ids}  # each vehicle as its process builds it
+    aps = {i: build_vehicle(specs[i], i) for i in specs}
+    series = (
+        planned.series
+        if planned
+        else {i: FollowerSeries(n + 1, laws[i].law.record_fields, len(sources[i])) for i in ids}
+    )
     max_thrust = cfg.vehicle.max_thrust_N
     n_att = cfg.rates.attitude_steps_per_control
     dt = cfg.control_dt_s
     latest: dict[int, Message] = {}
-    sensors = {i: sensor_model(specs[i], i) for i in ids}  # (None: the true state is sampled)
+    sensors = {i: sensor_model(specs[i], i) for i in specs}  # (None: the true state is sampled)
 
     def recording() -> Recording:
         t_s = np.arange(n + 1) * dt
@@ -108,7 +113,9 @@ def run_sim(
 
     guard = None
     if not cfg.law.is_paper:
-        _load_kernels(specs[ids[0]], ids[0], n_att, max_thrust)  # the guard counts the law's memory
+        _load_kernels(
+            cfg.vehicle_spec(ids[0]), ids[0], n_att, max_thrust
+        )  # the guard counts the law's memory
         guard = LawGuard(
             cfg.run.tick_timeout_s,
             cfg.law.max_memory_mb,

@@ -41,7 +41,7 @@ from sim_vehicles.runtime.event_log import EventLog
 from sim_vehicles.vehicle.modes import MODE_OFFBOARD, FlightModes
 from swarm_sitl.bus.clock import RunClock
 from swarm_sitl.bus.codec import Message
-from swarm_sitl.bus.estimates import EstimateTable
+from swarm_sitl.bus.estimates import EstimateTable, newest_for_tick
 from swarm_sitl.config.schema import SwarmConfig
 from swarm_sitl.faults.in_edges import InEdges
 from swarm_sitl.faults.plan import down_at, fate, mavlink_channel
@@ -146,27 +146,18 @@ class _Follower:
         #: the newest sample it has (a tick whose own the plan lost carries it), with its true state
         self.sample: tuple[VehicleSample, np.ndarray] | None = None
 
-    def newest(self, src: int, k: int) -> Message | None:
-        """``controller._Inputs.newest_lockstep`` at tick ``k``."""
-        m = self.table.estimate(src, k - 1)
-        if m is None:
-            m = self.table.latest(src)
-            if m is not None and m.step >= k:
-                return None
-        return m
-
 
 class PlannedSwarm:
     """The followers, their vehicles and what the plan does to them, tick by tick."""
 
-    def __init__(self, cfg: SwarmConfig, series: dict[int, FollowerSeries], sample: Sampler):
+    def __init__(self, cfg: SwarmConfig, n: int, sample: Sampler):
+        """``n``: the run's last tick; ``series``: what it records, rows 0..n."""
         cfg.faults.check_lockstep()
         self.cfg = cfg
         self.plan = plan = cfg.faults
-        self.series = series
         self.sample = sample
         self.dt = dt = cfg.control_dt_s
-        self.n = cfg.n_control_steps
+        self.n = n
         self.ids = [f.id for f in cfg.followers]
         graph = cfg.build_graph()
         self.edges = cfg.graph_edges()
@@ -188,6 +179,11 @@ class PlannedSwarm:
         #: the nodes whose in-edges a plan entry acts on (the others file what comes as it comes)
         self.faulty = {i for i in self.ids if any(plan.on_edge(s, i, self.edges) for s in self.sources[i])}
         self.followers: dict[int, _Follower | None] = {i: self._incarnation(i, 0) for i in self.ids}
+        self.series = {
+            i: FollowerSeries(n + 1, f.law.law.record_fields, len(self.sources[i]))
+            for i, f in self.followers.items()
+            if f is not None
+        }
 
     # -- incarnations ------------------------------------------------------------------------------
     def _incarnation(self, i: int, first: int) -> _Follower:
@@ -282,7 +278,7 @@ class PlannedSwarm:
         self.series[i].record_vehicle(k, t, truth, sample.t_s)
         if f.stage is not None:
             f.stage.release()
-        inbox = f.inbox.gather(t, lambda s: f.newest(s, k)) if k > f.first else {}
+        inbox = f.inbox.gather(t, lambda s: newest_for_tick(f.table, s, k)) if k > f.first else {}
         step = f.law.step(t, sample, inbox)
         p = sample.p_W
         msg = Message(i, k, t, step.message, (float(p[0]), float(p[1]), float(p[2])))
