@@ -194,9 +194,9 @@ def test_every_message_received_is_delivered_or_counted_under_a_named_reason(
     _lockstep_ticks(bus, inner, clock, n)
     e = bus.stats[1]
     assert e.received == n == _accounted(e)
-    held = sorted(m.step for due, _, m, copy in bus.faults._pending if not copy)
+    held = sorted(m.step for _, m, copy in bus.faults.held() if not copy)
     assert e.held == len(held)
-    assert all(m.step >= n - 2 - math.ceil(delay_s / DT - 1e-9) for _, _, m, _ in bus.faults._pending)
+    assert all(m.step >= n - 2 - math.ceil(delay_s / DT - 1e-9) for _, m, _ in bus.faults.held())
 
 
 def test_in_real_time_estimates_heard_before_the_start_signal_are_judged_once_it_has_come():
@@ -712,10 +712,10 @@ def test_in_real_time_the_window_is_read_at_arrival_and_a_duplicate_follows_one_
     assert bus.stats[1].duplicated == 0 and bus.stats[1].delayed == 0 and bus.stats[1].delays_s == []
     assert inner.estimate(1, 50) is not None  # handed on at its arrival
     # its copy a period later
-    assert [(due, copy) for due, _, _, copy in bus.faults._pending] == [(pytest.approx(10.0 + DT), True)]
+    assert [(due, copy) for due, _, copy in bus.faults.held()] == [(pytest.approx(10.0 + DT), True)]
     clock.t = 10.0 + DT
     bus.poll()
-    assert not bus.faults._pending and bus.stats[1].delivered == 2 and bus.stats[1].duplicated == 1
+    assert not bus.faults.held() and bus.stats[1].delivered == 2 and bus.stats[1].duplicated == 1
 
 
 def test_a_corruption_of_a_byte_that_is_0xff_still_changes_it():

@@ -25,9 +25,10 @@ so the run is the same in every process and every time (``RadioQueue``).
 from collections.abc import Callable
 from typing import Annotated
 
+import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from swarm_sitl.faults.link_model import Effect, MessageOnLink
+from swarm_sitl.faults.link_model import Effect, Effects, MessageOnLink, StepsOnLink
 
 KEEP_STEPS = 1024  #: how many of the newest steps' departures a queue keeps (messages come in order)
 
@@ -118,3 +119,6 @@ class Budget:
 
     def fate(self, p: Bandwidth, m: MessageOnLink) -> Effect | None:
         return None
+
+    def fates(self, p: Bandwidth, ms: StepsOnLink) -> Effects:
+        return ms.where(np.zeros(len(ms.steps), dtype=bool), Effect())

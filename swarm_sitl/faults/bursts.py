@@ -19,10 +19,11 @@ keeps each chain's states as far as it was asked and extends it on demand).
 
 from typing import Annotated
 
+import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from swarm_sitl.faults.draws import uniform
-from swarm_sitl.faults.link_model import Effect, MessageOnLink
+from swarm_sitl.faults.link_model import Effect, Effects, MessageOnLink, StepsOnLink
 from swarm_sitl.faults.loss import DRAW, LOST
 
 _STATE = 5  #: salt of the state-transition draws (``plan``'s loss draw is salt 1)
@@ -65,8 +66,8 @@ class GilbertElliott(BaseModel):
 _CHAINS: dict[tuple[int, int, int, float, float], bytearray] = {}
 
 
-def state_at(model: GilbertElliott, seed: int, entry: int, channel: int, step: int) -> bool:
-    """Whether the chain of (seed, entry, channel) is in the bad state at ``step`` (>= 0)."""
+def _chain(model: GilbertElliott, seed: int, entry: int, channel: int, step: int) -> bytearray:
+    """The states of the chain of (seed, entry, channel) up to ``step`` at least (>= 0)."""
     key = (seed, entry, channel, model.p, model.r)
     states = _CHAINS.get(key)
     if states is None:
@@ -76,7 +77,12 @@ def state_at(model: GilbertElliott, seed: int, entry: int, channel: int, step: i
         u = uniform(seed, entry, channel, k, _STATE)
         bad = u >= model.r if bad else u < model.p
         states.append(bad)
-    return bool(states[step])
+    return states
+
+
+def state_at(model: GilbertElliott, seed: int, entry: int, channel: int, step: int) -> bool:
+    """Whether the chain of (seed, entry, channel) is in the bad state at ``step`` (>= 0)."""
+    return bool(_chain(model, seed, entry, channel, step)[step])
 
 
 class Bursty:
@@ -88,3 +94,11 @@ class Bursty:
     def fate(self, p: GilbertElliott, m: MessageOnLink) -> Effect | None:
         bad = state_at(p, m.seed, m.entry, m.channel, m.chain)
         return LOST if m.uniform(DRAW) < (p.loss_bad if bad else p.loss_good) else None
+
+    def fates(self, p: GilbertElliott, ms: StepsOnLink) -> Effects:
+        chains = ms.chains
+        lo, hi = int(chains[0]), int(chains[-1])
+        states = _chain(p, ms.seed, ms.entry, ms.channel, hi)
+        # (a copy of the states asked for: a view left alive would stop the chain growing)
+        bad = np.frombuffer(states, dtype=np.uint8, count=hi + 1 - lo, offset=lo)[chains - lo] != 0
+        return ms.where(ms.uniform(DRAW) < np.where(bad, p.loss_bad, p.loss_good), LOST)

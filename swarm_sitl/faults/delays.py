@@ -4,9 +4,10 @@ with a probability, so it comes after the next one). The contract: ``link_model`
 
 from typing import Annotated
 
+import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from swarm_sitl.faults.link_model import Effect, MessageOnLink
+from swarm_sitl.faults.link_model import Effect, Effects, MessageOnLink, StepsOnLink
 from swarm_sitl.faults.loss import DRAW
 
 JITTER = 2  #: the salt of a message's jitter draw
@@ -23,6 +24,10 @@ class Delay:
     def fate(self, p: Params, m: MessageOnLink) -> Effect:
         return Effect(delay_s=p.delay_s + p.jitter_s * m.uniform(JITTER))
 
+    def fates(self, p: Params, ms: StepsOnLink) -> Effects:
+        none = np.zeros(len(ms.steps), dtype=bool)
+        return Effects(none, none, p.delay_s + p.jitter_s * ms.uniform(JITTER), none)
+
 
 class Stall:
     """Every message held until ``until_s`` (the entry's end), then released at once."""
@@ -34,6 +39,10 @@ class Stall:
     def fate(self, p: Params, m: MessageOnLink) -> Effect:
         return Effect(delay_s=p.until_s - m.t_s)
 
+    def fates(self, p: Params, ms: StepsOnLink) -> Effects:
+        none = np.zeros(len(ms.steps), dtype=bool)
+        return Effects(none, none, p.until_s - ms.t_s, none)
+
 
 class Reorder:
     """Each message, with probability ``p``, held one period: it comes after the next one."""
@@ -44,3 +53,6 @@ class Reorder:
 
     def fate(self, p: Params, m: MessageOnLink) -> Effect | None:
         return Effect(delay_s=m.period_s) if m.uniform(DRAW) < p.p else None
+
+    def fates(self, p: Params, ms: StepsOnLink) -> Effects:
+        return ms.where(ms.uniform(DRAW) < p.p, Effect(delay_s=ms.period_s))

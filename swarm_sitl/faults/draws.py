@@ -40,10 +40,15 @@ def _mix_all(x: np.ndarray) -> np.ndarray:
 
 
 def _table(seed: int, entry: int, channel: int, salt: int, block: int) -> np.ndarray:
+    return uniforms(seed, entry, channel, np.arange(block * BLOCK, (block + 1) * BLOCK), salt)
+
+
+def uniforms(seed: int, entry: int, channel: int, steps: np.ndarray, salt: int) -> np.ndarray:
+    """``uniform(seed, entry, channel, s, salt)`` of each step ``s`` of ``steps`` (non-negative
+    integers), hashed at once."""
     h = _mix(_mix(_mix(seed) ^ entry) ^ channel)
-    steps = np.arange(block * BLOCK, (block + 1) * BLOCK, dtype=np.uint64)
     with np.errstate(over="ignore"):
-        x = _mix_all(_mix_all(np.uint64(h) ^ steps) ^ np.uint64(salt))
+        x = _mix_all(_mix_all(np.uint64(h) ^ steps.astype(np.uint64)) ^ np.uint64(salt))
     return (x >> np.uint64(11)).astype(np.float64) / float(1 << 53)
 
 
@@ -58,4 +63,4 @@ def uniform_at(seed: int, entry: int, channel: int, step: int, salt: int) -> flo
     return float(t[step % BLOCK])
 
 
-__all__ = ["_mix", "uniform", "uniform_at"]
+__all__ = ["_mix", "uniform", "uniform_at", "uniforms"]

@@ -34,7 +34,8 @@ from swarm_sitl.bus.estimates import EstimateTable
 from swarm_sitl.faults.bandwidth import RadioQueue
 from swarm_sitl.faults.counts import EdgeStats, counts_names
 from swarm_sitl.faults.draws import uniform
-from swarm_sitl.faults.plan import FaultPlan, FaultSpec, down_at, fate
+from swarm_sitl.faults.fate_table import FateTable, batched
+from swarm_sitl.faults.plan import ON_TIME, FaultPlan, FaultSpec, down_at, fate
 from swarm_sitl.faults.plan import edge_channel as channel_of
 from swarm_sitl.faults.radio_range import distance_m
 
@@ -66,6 +67,12 @@ class InEdges:
             s: plan.on_edge(s, node, graph_edges) for s in sources
         }
         self.stats = {s: EdgeStats() for s in sources}
+        #: lockstep: the fates of each in-edge whose models all draw many at once, a block at a time
+        self._fates = {
+            s: FateTable(plan.seed, rules, channel_of(s, node), end_s, clock.period_s)
+            for s, rules in self.rules.items()
+            if clock.lockstep and batched(rules)
+        }
         self._graph_edges = graph_edges
         #: in-neighbours whose messages a link model needs the distance of (``range``'s, ...)
         self._ranged = {s for s, rules in self.rules.items() if any(f.needs_distance for _, f in rules)}
@@ -83,13 +90,15 @@ class InEdges:
         self._early: list[Message] = []
         self._uncounted = EdgeStats()  #: what steps the table does not count are counted in
         self.arrived: dict[int, int] = {}  #: per in-neighbour, the newest step that has come
-        #: heap of (due, order, message, whether it is a duplicate's second copy)
-        self._pending: list[tuple[float, int, Message, bool]] = []
+        #: heap of (due, order, message, whether it is a duplicate's second copy, its stats)
+        self._pending: list[tuple[float, int, Message, bool, EdgeStats]] = []
         self._order = 0
-        #: every message of step s is admitted once this node has done its tick s, and nothing
-        #: reads the table before its tick s + 1 (``sim``): one on time is filed at once, not held
-        #: (the same table at every tick as holding it until then)
+        #: every message of step s is admitted once this node has done its tick s, nothing reads
+        #: the table before its tick s + 1, and the node releases at every tick (``sim``): one on
+        #: time is filed at once, not held (the same table at every tick as holding it until
+        #: then), and what is held waits in ``_due`` by the tick it is due at (no heap)
         self.in_order = False
+        self._due: dict[float, list[tuple[Message, bool, EdgeStats]]] = {}
 
     def _stats_of(self, m: Message) -> EdgeStats:
         """Where ``m`` is counted: its edge's stats, or (a step the table does not count,
@@ -99,33 +108,35 @@ class InEdges:
     def admit(self, m: Message) -> None:
         """``m`` has come (decoded, from one of this node's in-neighbours or not)."""
         src = m.src
-        if src not in self.stats:  # not one of our in-edges (the wrapped bus subscribes to no other)
+        st = self.stats.get(src)
+        if st is None:  # not one of our in-edges (the wrapped bus subscribes to no other)
             return
-        st = self._stats_of(m)
+        if not self.table.counts(m.step):
+            st = self._uncounted
         st.received += 1
         st.held += 1  # until it is delivered, lost or dropped
-        self.arrived[src] = max(self.arrived.get(src, -1), m.step)
-        if not self.clock.started():
+        if m.step > self.arrived.get(src, -1):
+            self.arrived[src] = m.step
+        clock = self.clock
+        if not clock.lockstep and not clock.started():
             # real time, before this node has the start signal (a restarted node hears its
             # in-neighbours before it has the swarm's clock): judged once it has it
             self._early.append(m)
             return
-        self._route(m, st)
+        if src in self._ranged and (m.step > self._own_step if clock.lockstep else self._own_newest is None):
+            self._undecided.append(m)  # decided when this node publishes that step (or its first)
+            return
+        self._decide(m, st)
 
     def take_early(self) -> None:
         """Real time: judge what came before this node had a clock, once it has one."""
         if self._early and self.clock.started():
             early, self._early = self._early, []
             for m in early:
-                self._route(m)
-
-    def _route(self, m: Message, st: EdgeStats | None = None) -> None:
-        if m.src in self._ranged and (
-            m.step > self._own_step if self.clock.lockstep else self._own_newest is None
-        ):
-            self._undecided.append(m)  # decided when this node publishes that step (or its first)
-            return
-        self._decide(m, st)
+                if m.src in self._ranged and self._own_newest is None:
+                    self._undecided.append(m)
+                else:
+                    self._decide(m)
 
     def _decide(self, m: Message, st: EdgeStats | None = None) -> None:
         """``st``: where ``m`` is counted (``_stats_of``), if the caller has it."""
@@ -156,15 +167,24 @@ class InEdges:
             assert own is not None  # (a message is decided once this node has published)
             d = distance_m(m.p_W, own)
             st.count_distance(d)
-        rules = self.rules[src]
-        f = fate(self.plan.seed, rules, channel_of(src, self.node), m.step, at, self.end_s, dt, distance_m=d)
-        st.count_fate(f.lost)
-        if f.out_of_range:
-            st.out_of_range += 1
+        table = self._fates.get(src)
+        if table is not None and at == m.step * dt:  # (a message stamped with its tick's time)
+            f = table.at(m.step)
+        else:
+            channel = channel_of(src, self.node)
+            f = fate(self.plan.seed, self.rules[src], channel, m.step, at, self.end_s, dt, distance_m=d)
+        if f.lost:
+            st.count_fate(True)
+            st.out_of_range += f.out_of_range
+            st.held -= 1
+            return
+        st.last_lost = False  # (``count_fate`` of one that is not lost)
         if f.retried:
             st.retried += 1
-        if f.lost:
+        if f is ON_TIME and left_s == 0.0 and self.in_order:  # on time (in order: filed at once)
+            st.delivered += 1
             st.held -= 1
+            self.table.file(m)
             return
         if f.corrupt:
             data = bytearray(encode_message(m))
@@ -197,9 +217,9 @@ class InEdges:
             st.held -= 1
             self.table.file(m)
         else:
-            self._push(due, m, False)
+            self._push(due, m, False, st)
         if f.duplicate:
-            self._push(due + again, m, True)
+            self._push(due + again, m, True, st)
 
     def _queue(self, m: Message) -> RadioQueue:
         """The sender's queue (``bandwidth``), made at its first message (which gives its size)."""
@@ -221,26 +241,41 @@ class InEdges:
             )
         return q
 
-    def _push(self, due: float, m: Message, copy: bool) -> None:
-        """Hold ``m`` until ``due`` (``clock.now()``'s unit); ``copy``: a duplicate's second copy."""
+    def _push(self, due: float, m: Message, copy: bool, st: EdgeStats) -> None:
+        """Hold ``m`` until ``due`` (``clock.now()``'s unit); ``copy``: a duplicate's second copy;
+        ``st``: where it is counted (``_stats_of``)."""
+        if self.in_order:  # (released at every tick: what is due at a tick, in the order it came)
+            self._due.setdefault(due, []).append((m, copy, st))
+            return
         self._order += 1
-        heapq.heappush(self._pending, (due, self._order, m, copy))
+        heapq.heappush(self._pending, (due, self._order, m, copy, st))
 
     def release(self) -> None:
         """File what is due now."""
+        if self.in_order:
+            for m, copy, st in self._due.pop(self.clock.tick, ()):
+                self._deliver(m, copy, st)
+            return
         pending = self._pending
         if not pending:
             return
         now = self.clock.now()
         while pending and pending[0][0] <= now:
-            _, _, m, copy = heapq.heappop(pending)
-            st = self._stats_of(m)
-            st.delivered += 1
-            if copy:
-                st.duplicated += 1
-            else:
-                st.held -= 1
-            self.table.file(m)
+            _, _, m, copy, st = heapq.heappop(pending)
+            self._deliver(m, copy, st)
+
+    def held(self) -> list[tuple[float, Message, bool]]:
+        """What the plan holds now: (when it is due, the message, whether a duplicate's copy)."""
+        out = [(due, m, copy) for due, _, m, copy, _ in self._pending]
+        return out + [(due, m, copy) for due, due_now in self._due.items() for m, copy, _ in due_now]
+
+    def _deliver(self, m: Message, copy: bool, st: EdgeStats) -> None:
+        st.delivered += 1
+        if copy:
+            st.duplicated += 1
+        else:
+            st.held -= 1
+        self.table.file(m)
 
     def published(self, msg: Message) -> None:
         """This node published ``msg``: where it is, for the distance of what waits for it."""

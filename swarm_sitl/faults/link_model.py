@@ -20,7 +20,13 @@ line naming the entry otherwise):
   (None). Random draws come from ``m.uniform(salt)``, a hash of (seed, entry, link, step, salt):
   the same plan and seed give every message the same fate in lockstep, in real time and twice;
 - ``needs_distance`` (optional, default False): whether ``m.distance_m`` is needed (the receiver
-  then waits for its own position of the message's step, as for ``range``).
+  then waits for its own position of the message's step, as for ``range``);
+- ``fates(params, ms) -> Effects`` (optional): the fates of many steps of one link at once
+  (``StepsOnLink``: arrays of steps and times; ``ms.uniform(salt)`` draws for each), equal to
+  ``fate`` step for step. A lockstep stage then reads each message's fate from a table drawn a
+  block of steps at a time (``fate_table``) rather than calling ``fate`` per message; every
+  built-in model but ``range`` (which needs each message's distance) has it, held to ``fate``
+  by ``tests/test_link_models.py``.
 
 A model acts in plan order with the others on the link (``plan.fate``: a loss ends a message's
 fate, delays add). It acts on the bus's edges (not on a vehicle's MAVLink link).
@@ -30,10 +36,11 @@ import math
 from dataclasses import dataclass
 from typing import Any, NamedTuple
 
+import numpy as np
 from pydantic import BaseModel, ConfigDict, PrivateAttr, ValidationError, ValidationInfo, model_validator
 
 from sim_vehicles.common.entry import EntryError, load_entry, one_line
-from swarm_sitl.faults.draws import uniform_at
+from swarm_sitl.faults.draws import uniform_at, uniforms
 
 
 class Effect(NamedTuple):
@@ -69,6 +76,47 @@ class MessageOnLink:
     def uniform(self, salt: int) -> float:
         """A uniform draw in [0, 1) of (seed, entry, link, step, ``salt``)."""
         return uniform_at(self.seed, self.entry, self.channel, self.step, salt)
+
+
+class Effects(NamedTuple):
+    """What a link model does to each of many messages (``fates``): arrays, one element per step."""
+
+    lost: np.ndarray  #: bool
+    corrupt: np.ndarray  #: bool
+    delay_s: np.ndarray  #: float [s]
+    duplicate: np.ndarray  #: bool
+
+
+@dataclass(frozen=True)
+class StepsOnLink:
+    """Many messages of one link, one per step of ``steps``, as a model's ``fates`` sees them
+    (``MessageOnLink``'s fields, the step and time as arrays; no distance)."""
+
+    seed: int
+    entry: int
+    channel: int
+    steps: np.ndarray  #: int64, ascending, >= 0
+    t_s: np.ndarray  #: each message's time [s]
+    period_s: float
+    #: each message's place in its stream (``MessageOnLink.chain``); None: its step
+    chain_steps: np.ndarray | None = None
+
+    @property
+    def chains(self) -> np.ndarray:
+        return self.steps if self.chain_steps is None else self.chain_steps
+
+    def uniform(self, salt: int) -> np.ndarray:
+        """``MessageOnLink.uniform(salt)`` of each step."""
+        return uniforms(self.seed, self.entry, self.channel, self.steps, salt)
+
+    def where(self, mask: np.ndarray, effect: Effect) -> Effects:
+        """``effect`` on the messages of ``mask``, none on the others."""
+        return Effects(
+            mask & effect.lost,
+            mask & effect.corrupt,
+            np.where(mask, effect.delay_s, 0.0),
+            mask & effect.duplicate,
+        )
 
 
 #: the validation context of a config read from a run directory (``config.load.load_recorded``):

@@ -3,9 +3,10 @@ probability, an independent draw per message). The contract: ``link_model``."""
 
 from typing import Annotated
 
+import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from swarm_sitl.faults.link_model import Effect, MessageOnLink
+from swarm_sitl.faults.link_model import Effect, Effects, MessageOnLink, StepsOnLink
 
 DRAW = 1  #: the salt of a message's draw (shared by the one-draw models: loss, corrupt, reorder, duplicate)
 LOST = Effect(lost=True)
@@ -20,6 +21,9 @@ class Drop:
     def fate(self, p: Params, m: MessageOnLink) -> Effect:
         return LOST
 
+    def fates(self, p: Params, ms: StepsOnLink) -> Effects:
+        return ms.where(np.ones(len(ms.steps), dtype=bool), LOST)
+
 
 class Chance:
     """A model that does ``EFFECT`` to each message with probability ``p`` (one draw of the
@@ -33,6 +37,9 @@ class Chance:
 
     def fate(self, p: Params, m: MessageOnLink) -> Effect | None:
         return self.EFFECT if m.uniform(DRAW) < p.p else None
+
+    def fates(self, p: Params, ms: StepsOnLink) -> Effects:
+        return ms.where(ms.uniform(DRAW) < p.p, self.EFFECT)
 
 
 class Loss(Chance):
