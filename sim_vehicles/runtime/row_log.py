@@ -29,8 +29,8 @@ class RowLog:
         self._f.write(MAGIC + json.dumps({"columns": self.columns}).encode() + b"\n")
         self._f.flush()
 
-    def append(self, *parts: "np.ndarray | tuple[float, ...]") -> None:
-        """One row: ``parts`` (1-D arrays, or tuples of floats) concatenated in column order."""
+    def append(self, *parts: "np.ndarray | tuple[float, ...] | list[float]") -> None:
+        """One row: ``parts`` (1-D arrays, or tuples or lists of floats) concatenated in column order."""
         try:
             np.concatenate(parts, out=self._buf[self._n])
         except ValueError:

@@ -13,8 +13,6 @@ in-neighbours' estimates of tick ``k - 1``.
 import math
 from collections.abc import Callable
 
-import numpy as np
-
 from sim_vehicles.runtime.event_log import EventLog
 from swarm_sitl.bus.codec import Message
 from swarm_sitl.laws.contract import Received
@@ -32,13 +30,13 @@ class NeighbourInbox:
         self.max_age_s = dict.fromkeys(self.sources, 0.0)  #: oldest estimate used [s]
         #: per in-neighbour (``sources``' order), the age of the newest estimate it has at the last
         #: tick gathered, used or not [s]; NaN until it has one (``recording``'s ``in_age_s``)
-        self.ages = np.full(len(self.sources), math.nan)
+        self.ages = [math.nan] * len(self.sources)
 
     def gather(self, t_s: float, newest: Callable[[int], Message | None]) -> dict[int, Received]:
         """The law's inbox at tick ``t_s`` (``laws.contract.Received``: each in-neighbour's newest
         usable message, with its age); ``newest(src)``: the newest message the bus has from it."""
         out: dict[int, Received] = {}
-        last = self._last
+        last, ages, live, max_age = self._last, self.ages, self._live, self.max_age_s
         for j, s in enumerate(self.sources):
             m = newest(s)
             prev = last.get(s)
@@ -49,12 +47,12 @@ class NeighbourInbox:
             else:
                 last[s] = m
             age = t_s - m.t_s
-            self.ages[j] = age
+            ages[j] = age
             if age <= self.staleness_s:
                 out[s] = Received(m.values, m.t_s, age)
-                if age > self.max_age_s[s]:
-                    self.max_age_s[s] = age
-                if not self._live[s]:
+                if age > max_age[s]:
+                    max_age[s] = age
+                if not live[s]:
                     self._live[s] = True
                     if self.stale_ticks[s]:
                         self.events.add(

@@ -92,7 +92,11 @@ class FollowerSeries:
         self.vehicle[k] = state
 
     def record_controller(
-        self, k: int, command: AttitudeCommand, record: np.ndarray, in_age_s: np.ndarray | None = None
+        self,
+        k: int,
+        command: AttitudeCommand,
+        record: np.ndarray,
+        in_age_s: np.ndarray | list[float] | None = None,
     ) -> None:
         """The law's command and flat record (``layout`` of ``record_fields``) at tick ``k``, and
         the ages of its in-neighbours' newest estimates."""

@@ -14,7 +14,8 @@ same run, bit for bit (``tests/test_sim_faults.py``):
   its failsafe after ``setpoint_timeout_s``); a sample it loses is a tick that carries the newest
   one before it, recorded with that sample's true state and time, as ``merge`` records it (an
   incarnation's first sample answers its request: start-up traffic, never lost). The fates are
-  keyed by ``time_boot_ms``, as ``faults.mavlink`` keys them in lockstep.
+  keyed by ``time_boot_ms``, as ``faults.mavlink`` keys them in lockstep (read from a
+  ``faults.fate_table.FateTable`` per way of a link when its models draw many at once).
 - **Processes**: a node killed at tick ``k`` publishes nothing from ``k`` on and records nothing
   (its controller dies before it publishes ``k``); its vehicle flies its failsafe through the gap
   in simulated time, period by period, and a restarted controller takes it up at its restart
@@ -23,7 +24,9 @@ same run, bit for bit (``tests/test_sim_faults.py``):
   nothing here.
 
 The vehicle is the vehicle process's own arming, modes and failsafe (``sim_vehicles.vehicle.modes``)
-over the same plant, stepped as its endpoint steps it.
+over the same plant, stepped as its endpoint steps it; under a plan with no MAVLink or process
+entry (nothing can take a setpoint away, so its modes have nothing to do) it is stepped as ``sim``
+steps it without a plan.
 """
 
 from collections.abc import Callable
@@ -43,6 +46,7 @@ from swarm_sitl.bus.clock import RunClock
 from swarm_sitl.bus.codec import Message
 from swarm_sitl.bus.estimates import EstimateTable, newest_for_tick
 from swarm_sitl.config.schema import SwarmConfig
+from swarm_sitl.faults.fate_table import FateTable, batched
 from swarm_sitl.faults.in_edges import InEdges
 from swarm_sitl.faults.plan import down_at, fate, mavlink_channel
 from swarm_sitl.laws.contract import VehicleSample
@@ -86,10 +90,19 @@ class _Vehicle:
     ``events`` takes its failsafe's entries and exits."""
 
     def __init__(
-        self, spec: VehicleSpec, i: int, n_att: int, max_thrust_N: float, events: list[dict[str, Any]]
+        self,
+        spec: VehicleSpec,
+        i: int,
+        n_att: int,
+        max_thrust_N: float,
+        events: list[dict[str, Any]],
+        steady: bool,
     ):
         self.ap = ap = build_vehicle(spec, i)
         self.n_att = n_att
+        #: whether the plan can never take a setpoint away (no MAVLink or process entry): in
+        #: offboard with a setpoint every period, its modes have nothing to do, and are skipped
+        self.steady = steady
         self.max_thrust_N = max_thrust_N
         self.sensors = sensor_model(spec, i)
         say: Callable[[int, str], None] = lambda severity, text: None  # noqa: E731  (no ground station)
@@ -123,6 +136,10 @@ class _Vehicle:
         """A valid setpoint stamped with its time: taken, then one period (in offboard, within
         the setpoint timeout, that is one call of the plant: ``lockstep_tick``'s usual tick)."""
         f, ap = self.flight, self.ap
+        if self.steady:
+            ap.set_command(command_roundtrip(cmd, self.max_thrust_N))
+            ap.advance(self.n_att)
+            return
         f.offboard_signal_s = ap.time_s
         if f.take_setpoint():
             ap.set_command(command_roundtrip(cmd, self.max_thrust_N))
@@ -171,10 +188,20 @@ class PlannedSwarm:
         n_att = cfg.rates.attitude_steps_per_control
         self.events: list[dict[str, Any]] = []  #: the vehicles' (``MemoryEvents``)
         thrust = cfg.vehicle.max_thrust_N
-        self.vehicles = {i: _Vehicle(cfg.vehicle_spec(i), i, n_att, thrust, self.events) for i in self.ids}
+        steady = not any(f.is_process or f.mavlink is not None for f in plan.plan)
+        self.vehicles = {
+            i: _Vehicle(cfg.vehicle_spec(i), i, n_att, thrust, self.events, steady) for i in self.ids
+        }
         self.period_ms = round(dt * 1000)
         self.up_rules = {i: plan.on_mavlink(i, True) for i in self.ids}
         self.down_rules = {i: plan.on_mavlink(i, False) for i in self.ids}
+        #: the fates of each way of each vehicle's link a plan entry acts on, a block at a time
+        self.mavlink_fates = {
+            (i, up): FateTable(plan.seed, rules, mavlink_channel(i, up), cfg.duration_s, dt, stamp_ms=True)
+            for up, by_vehicle in ((True, self.up_rules), (False, self.down_rules))
+            for i, rules in by_vehicle.items()
+            if rules and batched(rules)
+        }
         self.guard: LawGuard | None = None  #: a user's law's guard, given to every incarnation
         #: the nodes whose in-edges a plan entry acts on (the others file what comes as it comes)
         self.faulty = {i for i in self.ids if any(plan.on_edge(s, i, self.edges) for s in self.sources[i])}
@@ -216,20 +243,23 @@ class PlannedSwarm:
         """Whether ``node``, down at ``k``, is started again later."""
         return any(first <= k and back is not None and k < back for first, back in self.outages.get(node, []))
 
-    def _lost(self, rules: list, vehicle: int, uplink: bool, ms: int) -> bool:
-        """``faults.mavlink``'s lockstep fate of the datagram of ``ms`` (lost or corrupted)."""
-        if not rules:
-            return False
-        f = fate(
-            self.plan.seed,
-            rules,
-            mavlink_channel(vehicle, uplink),
-            ms,
-            ms / 1000,
-            self.cfg.duration_s,
-            self.dt,
-            ms // self.period_ms,
-        )
+    def _lost(self, rules: list, vehicle: int, uplink: bool, k: int, ms: int) -> bool:
+        """``faults.mavlink``'s lockstep fate of the datagram of tick ``k``, stamped ``ms`` (lost
+        or corrupted)."""
+        table = self.mavlink_fates.get((vehicle, uplink))
+        if table is not None:
+            f = table.at(k)
+        else:
+            f = fate(
+                self.plan.seed,
+                rules,
+                mavlink_channel(vehicle, uplink),
+                ms,
+                ms / 1000,
+                self.cfg.duration_s,
+                self.dt,
+                ms // self.period_ms,
+            )
         return f.lost or f.corrupt
 
     # -- one tick ----------------------------------------------------------------------------------
@@ -239,16 +269,17 @@ class PlannedSwarm:
         self.clock.tick = k
         t = k * self.dt
         out: dict[int, Message] = {}
+        outages = self.outages
         for i in self.ids:
             v = self.vehicles[i]
-            if self.down(i, k):
+            if i in outages and self.down(i, k):
                 self.followers[i] = None
                 if self._returns(i, k):  # its vehicle flies on its own through the gap, and
                     v.step()  # sends its sample each period (its sensors' latency keeps them)
                     v.reported(round((k + 1) * self.dt * 1000))
                 continue
             f = self.followers[i]
-            if f is None or self._restarts_at(i, k):
+            if f is None or (i in outages and self._restarts_at(i, k)):
                 f = self.followers[i] = self._incarnation(i, k)
                 v.offboard()
             m = self._follower_tick(i, k, t, f, v)
@@ -256,7 +287,7 @@ class PlannedSwarm:
         for src, m in ([(0, leader)] if leader is not None else []) + list(out.items()):
             for d in self.outs.get(src, []):
                 g = self.followers.get(d)
-                if g is None or self.down(d, k):
+                if g is None or (d in outages and self.down(d, k)):
                     continue
                 if g.stage is not None:
                     g.stage.admit(m)
@@ -268,25 +299,28 @@ class PlannedSwarm:
         ms = round(t * 1000)
         reported = v.reported(ms)  # (sent whether or not the plan loses it: sensors with latency keep it)
         # (an incarnation's first sample is the answer to its request, start-up traffic: never lost)
-        if k > f.first and self._lost(self.down_rules[i], i, False, ms) and f.sample is not None:
+        down = self.down_rules[i]
+        if down and k > f.first and self._lost(down, i, False, k, ms) and f.sample is not None:
             # the newest it has, carried, at its time_boot_ms
             sample, truth = f.sample
             sample = sample._replace(t_s=round(sample.t_s * 1000) / 1000)
         else:
-            sample, truth = self.sample(t, reported), v.ap.state.copy()
-            f.sample = (sample, truth)
+            sample, truth = self.sample(t, reported), v.ap.state
+            if down:  # (kept for the ticks whose sample the plan loses)
+                f.sample = (sample, truth.copy())
         self.series[i].record_vehicle(k, t, truth, sample.t_s)
         if f.stage is not None:
             f.stage.release()
         inbox = f.inbox.gather(t, lambda s: newest_for_tick(f.table, s, k)) if k > f.first else {}
         step = f.law.step(t, sample, inbox)
-        p = sample.p_W
-        msg = Message(i, k, t, step.message, (float(p[0]), float(p[1]), float(p[2])))
+        x, y, z = sample.p_W.tolist()
+        msg = Message(i, k, t, step.message, (x, y, z))
         if f.stage is not None:
             f.stage.published(msg)
         self.series[i].record_controller(k, step.command, step.record, f.inbox.ages)
         if k < self.n:
-            if self._lost(self.up_rules[i], i, True, ms):
+            up = self.up_rules[i]
+            if up and self._lost(up, i, True, k, ms):
                 v.step()  # a clock-only setpoint in its place
             else:
                 v.setpoint(step.command)
