@@ -10,7 +10,7 @@ import argparse
 import sys
 from collections.abc import Sequence
 
-from swarm_sitl.commands import bench, campaign, falsify, runs, tools
+from swarm_sitl.commands import bench, campaign, falsify, runs, tools, view
 from swarm_sitl.commands.common import EXIT_USAGE, CliError, end_on_signals, interrupted_exit
 from swarm_sitl.config.load import ConfigError
 from swarm_sitl.laws.graph import GraphError
@@ -43,6 +43,7 @@ def build_parser() -> argparse.ArgumentParser:
     tools.add_plot(sub)
     tools.add_export(sub)
     tools.add_merge(sub)
+    view.add_view(sub)
     campaign.add_sweep(sub)
     falsify.add_falsify(sub)
     bench.add_bench(sub)

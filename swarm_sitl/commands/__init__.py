@@ -3,5 +3,6 @@ parser that defines them: ``runs`` (sim, run, vehicles, controllers), ``tools`` 
 router, plot, export), ``bench``, ``campaign`` (sweep); ``common`` has what they share.
 ``controller`` and ``leader`` are the node processes' own (``nodes.arguments``).
 
-May import: sim_vehicles, laws, bus, faults, config, rundir, link, nodes, running, bench, campaigns, falsify.
+May import: sim_vehicles, laws, bus, faults, config, rundir, link, nodes, running, bench, campaigns,
+falsify, view.
 """

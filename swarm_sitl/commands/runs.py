@@ -29,6 +29,7 @@ from swarm_sitl.commands.common import (
     run_dir_of,
     summary_lines,
 )
+from swarm_sitl.commands.view import DEFAULT_PORT, port_number, serve
 from swarm_sitl.config.load import with_duration, with_faults, with_seed, with_spec
 from swarm_sitl.config.schema import SwarmConfig
 from swarm_sitl.rundir.layout import expected_run_bytes
@@ -36,6 +37,7 @@ from swarm_sitl.rundir.metrics import bound_failures, describe_inputs
 from swarm_sitl.rundir.outputs import write_outputs
 from swarm_sitl.rundir.rejoins import rejoin_lines
 from swarm_sitl.rundir.whole_files import WriteError
+from swarm_sitl.view.live import LiveFeed
 
 
 def _write_sim(cfg: SwarmConfig, rec: Any, run_dir: Path) -> dict:
@@ -164,18 +166,27 @@ def _run_and_record(
     kind: str,
     base_port: int = 0,
     external: tuple[int, ...] = (),
+    view: tuple[str, int] | None = None,
 ) -> int:
+    """``view``: the address and port of the run's live page (``run --view``), or None."""
     from swarm_sitl.running.run import RunRequest, record_run  # the run machinery: 0.12 s (module doc)
 
     warn_if_short_of_disk(cfg, run_dir)
     clock = "lockstep" if lockstep else "real time"
+    feed = server = None
+    if view is not None:
+        feed = LiveFeed(cfg, run_dir, lockstep)
+        server = serve(feed, *view, "live view")
     progress = _RunProgress(cfg, f"{kind} {cfg.name} ({clock})", quiet)
     try:
         out = record_run(
-            RunRequest(cfg, run_dir, lockstep, mavlink, base_port, external, progress, progress.note)
+            RunRequest(cfg, run_dir, lockstep, mavlink, base_port, external, progress, progress.note, feed)
         )
     finally:
         progress.close()
+        if server is not None:
+            server.close()
+            print(f"the run is over; to watch it again: swarm-sitl view {run_dir}", file=sys.stderr)
     if out.lost_outputs is not None:
         print(f"swarm-sitl: error: {out.lost_outputs}", file=sys.stderr)
         return EXIT_FAILED
@@ -250,7 +261,10 @@ def cmd_run(args: argparse.Namespace) -> int:
     check_base_port(cfg, args.base_port)
     external = check_external(cfg, args.external, args.realtime)
     run_dir = run_dir_of(args.out, cfg, "run")
-    return _run_and_record(cfg, run_dir, not args.realtime, args.quiet, None, "run", args.base_port, external)
+    view = None if args.view is None else (args.view_host, args.view)
+    return _run_and_record(
+        cfg, run_dir, not args.realtime, args.quiet, None, "run", args.base_port, external, view
+    )
 
 
 def check_external(cfg: SwarmConfig, ids: list[int], realtime: bool) -> tuple[int, ...]:
@@ -384,6 +398,15 @@ def add_run(sub: Any) -> None:
         help="follower whose controller you run yourself (another language, another tool): the run "
         "spawns its vehicle, writes RUN_DIR/external.json and waits for it (docs/bus.md); --realtime",
     )
+    r.add_argument(
+        "--view",
+        type=port_number,
+        nargs="?",
+        const=DEFAULT_PORT,
+        metavar="PORT",
+        help=f"watch it in the browser: a page on 127.0.0.1:PORT (default {DEFAULT_PORT}; 0: a free one)",
+    )
+    r.add_argument("--view-host", default="127.0.0.1", help="the page's address (default: loopback only)")
     add_base_port(r)
     add_run_outputs(r, "run")
     r.set_defaults(func=cmd_run)

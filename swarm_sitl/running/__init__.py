@@ -5,5 +5,5 @@ simulated vehicles; ``hub``: the supervisor's zenoh session and view of the bus;
 children forked from one warmed-up process; ``children``: a child's command line and environment;
 ``router_watch``: a client-mode run's zenoh router, lost and back).
 
-May import: sim_vehicles, laws, bus, faults, config, rundir, link, nodes.
+May import: sim_vehicles, laws, bus, faults, config, rundir, link, nodes, view.
 """

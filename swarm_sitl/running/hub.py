@@ -76,6 +76,11 @@ class RunMonitor:
                 else:
                     self.dropped += 1
 
+    def latest(self) -> dict[int, Status]:
+        """Each follower's newest status."""
+        self._read_status()
+        return dict(self.status)
+
     def errors_m(self) -> dict[int, float]:
         """Each follower's |p - p_r - delta| at its latest status."""
         self._read_status()

@@ -48,6 +48,9 @@ from swarm_sitl.running.router_watch import RouterWatch
 from swarm_sitl.running.sim import run_sim
 from swarm_sitl.running.supervisor import SUPERVISE_EVERY_S, RunFailedError, Supervisor
 from swarm_sitl.running.vehicles import port_lines, signing_key_file, start_vehicles
+from swarm_sitl.view.live import LiveFeed
+
+VIEW_EVERY_S = 0.05  #: how often the page's live feed is given the bus's statuses (20 Hz) [s]
 
 
 def compile_kernels(cfg: SwarmConfig) -> None:
@@ -141,6 +144,8 @@ class RunRequest:
     on_progress: Callable[[int, dict[int, float]], None] | None = None
     #: called with lines to show: our vehicles' ports, what an external controller must do
     on_vehicles: Callable[[list[str]], None] | None = None
+    #: the page's live feed (``run --view``), given what the supervisor reads as the run goes
+    view: LiveFeed | None = None
 
 
 def run_swarm(request: RunRequest) -> RunResult:
@@ -240,6 +245,9 @@ def run_swarm(request: RunRequest) -> RunResult:
         t_start = time.monotonic()
         next_start_put = 0.0
         next_progress = 0.0
+        next_view = 0.0
+        if request.view is not None:
+            request.view.started(epoch)
         watch = None
         if not lockstep:  # a controller that stops ticking, a run that does not end (ends)
             watch = ends.TickWatch(cfg, run_dir, time.monotonic() + (epoch - time.time()))
@@ -264,6 +272,11 @@ def run_swarm(request: RunRequest) -> RunResult:
             if on_progress is not None and now >= next_progress:
                 on_progress(monitor.min_step(), monitor.errors_m())
                 next_progress = now + 0.25
+            if request.view is not None and now >= next_view:
+                request.view.update(
+                    monitor.latest(), faults.down | faults.lost if faults is not None else set()
+                )
+                next_view = now + VIEW_EVERY_S
             time.sleep(SUPERVISE_EVERY_S)
         run_wall = time.monotonic() - t_start
         if on_progress is not None:
@@ -273,6 +286,8 @@ def run_swarm(request: RunRequest) -> RunResult:
             raise RunFailedError("; ".join(sup.lost) + flew_on)
         return RunResult(run_wall, startup, endpoints)
     finally:
+        if request.view is not None:
+            request.view.finish()
         if lost is not None:
             lost.close()
         if faults is not None:

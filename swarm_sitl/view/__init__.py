@@ -1,0 +1,11 @@
+"""The swarm in a browser: a live run's page (``run --view``) and a finished run's (``view``).
+
+- ``layout``: the communication graph laid out by hops from the leader, no label on another's;
+- ``replay``: a run directory as the page's document (frames of the formation, its errors, each
+  edge's age, each follower's state; the plan's windows, the events), and its source for the
+  server;
+- ``server``: the page and its assets from the installed package, and the document, over HTTP on
+  loopback, one thread per request: a browser never holds up a run.
+
+May import: sim_vehicles.common, laws, bus, faults, config, rundir.
+"""

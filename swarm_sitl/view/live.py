@@ -1,0 +1,211 @@
+"""A running swarm's document, grown as it flies: ``LiveFeed``.
+
+The run's supervisor hands the feed what it already reads (``running.run``): each follower's
+newest status (its tick, the time of the sample it used, where it is: the status keys), which
+nodes are down, and, every half second, the new lines of the processes' event files. The feed
+makes at most ``replay.FRAME_HZ`` frames a second of simulated time from them, in the document
+``replay`` defines (so the page draws a live run as a finished one), and keeps the newest
+``MAX_FRAMES`` (a bounded queue that drops the oldest: a run of hours costs the feed no more than
+ten minutes of frames). The server's threads read it under a lock held only to copy; nothing here
+ever waits for a browser.
+
+Live, an edge's age is that of its sender's newest status at its receiver's tick (how long the
+sender has been silent on the bus: what the run publishes; the age of the estimate the receiver
+holds is recorded, and shown by ``view`` afterwards); the leader publishes no status, so its edges
+are coloured by the plan alone until the run is over.
+"""
+
+import json
+import math
+import threading
+import time
+from collections import deque
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from swarm_sitl.bus.codec import Status
+from swarm_sitl.config.schema import SwarmConfig
+from swarm_sitl.rundir.events import plan_events
+from swarm_sitl.rundir.layout import procs_dir
+from swarm_sitl.view.replay import DOWN, FAILSAFE, FRAME_HZ, _event_line, _num, static_part
+
+MAX_FRAMES = int(600 * FRAME_HZ)  #: frames kept (ten minutes of simulated time)
+EVENTS_EVERY_S = 0.5  #: how often the processes' event files are read [s]
+
+
+class LiveFeed:
+    """The document of the run of ``cfg`` writing to ``run_dir``, as it goes."""
+
+    def __init__(self, cfg: SwarmConfig, run_dir: Path, lockstep: bool):
+        self.cfg, self.run_dir = cfg, run_dir
+        self._trajectory = cfg.trajectory()
+        self._offsets = {f.id: np.asarray(f.offset_m, dtype=float) for f in cfg.followers}
+        self._edges = [(s, d) for s, d in cfg.graph_edges() if s != 0]
+        self._static = {**static_part(cfg, None), "live": True, "lockstep": lockstep}
+        self._lock = threading.Lock()
+        self._frames: deque[dict[str, Any]] = deque(maxlen=MAX_FRAMES)
+        self._dropped = 0  #: frames dropped from the front (the first kept is frame ``_dropped``)
+        self._events: list[dict[str, Any]] = []
+        self._plan_events = sorted(plan_events(cfg), key=lambda e: e["t_s"])
+        self._offsets_read: dict[Path, int] = {}
+        self._failsafe: set[int] = set()
+        self._next_events = 0.0
+        self._epoch_unix_s: float | None = None
+        self._wall0: float | None = None
+        self._last_t = -math.inf
+        self.rtf: float | None = None
+        self.done = False
+        self.paused = False
+
+    # -- fed by the supervisor -------------------------------------------------------------------
+    def started(self, epoch_unix_s: float) -> None:
+        """The run's start signal went out (its epoch: vehicles stamp their events with it)."""
+        self._epoch_unix_s = epoch_unix_s
+        self._wall0 = time.monotonic()
+
+    def update(self, statuses: dict[int, Status], down: set[int]) -> None:
+        """The newest status of each follower, and the nodes down now: a frame if one is due."""
+        if not statuses:
+            return
+        t = min(s.t_s for i, s in statuses.items() if i not in down) if set(statuses) - down else None
+        if t is None or t < self._last_t + 1.0 / FRAME_HZ - 1e-9:
+            self._read_events()
+            return
+        self._last_t = t
+        p_r = self._trajectory.derivatives(t)[0]
+        followers: dict[str, Any] = {}
+        for i, off in self._offsets.items():
+            s = statuses.get(i)
+            state = (DOWN if i in down or s is None else 0) | (FAILSAFE if i in self._failsafe else 0)
+            if s is None or i in down:
+                followers[str(i)] = ([None, None, None], None, state)
+                continue
+            ref = self._trajectory.derivatives(s.sample_t_s)[0]
+            err = float(np.linalg.norm(s.p_W - ref - off))
+            followers[str(i)] = ([_num(v) for v in s.p_W.tolist()], _num(err, 4), state)
+        ages = {}
+        for src, dst in self._edges:
+            a, b = statuses.get(src), statuses.get(dst)
+            ages[f"{src}->{dst}"] = None if a is None or b is None or src in down else _num(b.t_s - a.t_s, 3)
+        frame = {
+            "t_s": _num(t, 4),
+            "leader": [_num(v) for v in p_r.tolist()],
+            "followers": followers,
+            "ages": ages,
+        }
+        with self._lock:
+            if len(self._frames) == MAX_FRAMES:
+                self._dropped += 1
+            self._frames.append(frame)
+            if self._wall0 is not None and time.monotonic() > self._wall0:
+                self.rtf = t / (time.monotonic() - self._wall0)
+        self._read_events()
+
+    def _read_events(self) -> None:
+        now = time.monotonic()
+        if now < self._next_events:
+            return
+        self._next_events = now + EVENTS_EVERY_S
+        new: list[dict[str, Any]] = []
+        while self._plan_events and self._plan_events[0]["t_s"] <= self._last_t:
+            new.append(self._plan_events.pop(0))
+        for path in sorted(procs_dir(self.run_dir).glob("*.events")):
+            new += self._tail(path)
+        for e in new:
+            v = e.get("vehicle")
+            if e["kind"] == "failsafe_enter" and isinstance(v, int):
+                self._failsafe.add(v)
+            elif e["kind"] == "failsafe_exit" and isinstance(v, int):
+                self._failsafe.discard(v)
+        if new:
+            with self._lock:
+                self._events += [_event_line(e) for e in sorted(new, key=lambda e: e["t_s"])]
+
+    def _tail(self, path: Path) -> list[dict[str, Any]]:
+        """The complete lines ``path`` has had since it was last read (a vehicle's events are
+        stamped with the UNIX time: put on the run's clock)."""
+        at = self._offsets_read.get(path, 0)
+        try:
+            with path.open("rb") as f:
+                f.seek(at)
+                chunk = f.read()
+        except OSError:
+            return []
+        end = chunk.rfind(b"\n") + 1
+        self._offsets_read[path] = at + end
+        out = []
+        for line in chunk[:end].splitlines():
+            try:
+                e = json.loads(line)
+            except ValueError:
+                continue
+            if not isinstance(e, dict) or "kind" not in e:
+                continue
+            unix_s = e.pop("unix_s", None)
+            if isinstance(unix_s, int | float) and self._epoch_unix_s is not None:
+                e["t_s"] = round(unix_s - self._epoch_unix_s, 6)
+            if isinstance(e.get("t_s"), int | float):
+                out.append(e)
+        return out
+
+    def finish(self) -> None:
+        self._next_events = 0.0
+        self._read_events()
+        self.done = True
+
+    # -- read by the server ----------------------------------------------------------------------
+    def document(self) -> bytes:
+        with self._lock:
+            frames, first, events = list(self._frames), self._dropped, list(self._events)
+        return json.dumps(
+            {
+                **self._static,
+                "frame0": first,
+                "frames": _columns(frames, self.cfg),
+                "events": events,
+                "done": self.done,
+            },
+            separators=(",", ":"),
+        ).encode()
+
+    def frames_since(self, frame: int, event: int) -> bytes:
+        with self._lock:
+            skip = max(0, frame - self._dropped)
+            frames, events = list(self._frames)[skip:], self._events[event:]
+        return json.dumps(
+            {
+                "frames": _columns(frames, self.cfg),
+                "events": events,
+                "done": self.done,
+                "rtf": self.rtf,
+                "paused": self.paused,
+            },
+            separators=(",", ":"),
+        ).encode()
+
+    def control(self, pause: str | None, step: int) -> str:
+        return "pausing and stepping a run from the page is not there yet"
+
+
+def _columns(frames: list[dict[str, Any]], cfg: SwarmConfig) -> dict[str, Any]:
+    """Frames as the document has them: a list per quantity."""
+    followers = {
+        str(f.id): {
+            "p": [fr["followers"][str(f.id)][0] for fr in frames],
+            "err": [fr["followers"][str(f.id)][1] for fr in frames],
+            "state": [fr["followers"][str(f.id)][2] for fr in frames],
+        }
+        for f in cfg.followers
+    }
+    ages: dict[str, list[Any]] = {}
+    for fr in frames:
+        for k, a in fr["ages"].items():
+            ages.setdefault(k, []).append(a)
+    return {
+        "t_s": [fr["t_s"] for fr in frames],
+        "leader": [fr["leader"] for fr in frames],
+        "followers": followers,
+        "edge_age_s": ages,
+    }

@@ -1,0 +1,160 @@
+"""The page's pieces without a browser: the graph's layout (no node on another, up to 64
+followers, every generated graph), a run directory as the page's document (frames against the
+recorded arrays, the plan's windows, an older run without edge ages), the live feed (frames at
+most 20 a second of simulated time, the oldest dropped past its bound) and the server (its
+assets, its answers to bad requests, a port in use)."""
+
+import itertools
+import json
+import socket
+import urllib.error
+import urllib.request
+
+import numpy as np
+import pytest
+
+from swarm_sitl.bus.codec import Status
+from swarm_sitl.config.generator import GRAPH_BUILDERS
+from swarm_sitl.config.load import load_config, with_faults
+from swarm_sitl.rundir.load import RunDirError
+from swarm_sitl.rundir.outputs import write_outputs
+from swarm_sitl.running.sim import run_sim
+from swarm_sitl.view import live
+from swarm_sitl.view.layout import MARGIN_PX, NODE_PX, graph_layout, hops_from_leader
+from swarm_sitl.view.replay import DOWN, FRAME_HZ, GRAPH_PX, ReplaySource, replay_document
+from swarm_sitl.view.server import ViewError, ViewServer
+from tests.conftest import CONFIGS
+
+
+@pytest.mark.unit
+@pytest.mark.parametrize("kind", sorted(GRAPH_BUILDERS))
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_no_node_of_a_generated_graph_covers_another_up_to_64_followers(kind, seed):
+    for n in (1, 4, 9, 16, 31, 32, 47, 64):
+        edges = GRAPH_BUILDERS[kind](n, np.random.default_rng(seed))
+        pos = graph_layout(n, edges, *GRAPH_PX)
+        assert sorted(pos) == list(range(n + 1))
+        for (a, pa), (b, pb) in itertools.combinations(pos.items(), 2):
+            assert max(abs(pa[0] - pb[0]), abs(pa[1] - pb[1])) >= NODE_PX, (kind, n, a, b, pa, pb)
+        for x, y in pos.values():
+            assert MARGIN_PX - 1e-9 <= x <= GRAPH_PX[0] - MARGIN_PX + 1e-9
+            assert MARGIN_PX - 1e-9 <= y <= GRAPH_PX[1] - MARGIN_PX + 1e-9
+
+
+@pytest.mark.unit
+def test_nodes_are_in_columns_by_hops_from_the_leader_when_they_fit():
+    edges = [(0, 1), (0, 2), (1, 3), (2, 3), (3, 4)]  # hops 0, 1, 1, 2, 3; 5 (no path) last
+    hops = hops_from_leader(5, edges)
+    assert hops == {0: 0, 1: 1, 2: 1, 3: 2, 4: 3, 5: None}
+    pos = graph_layout(5, edges, *GRAPH_PX)
+    xs = [pos[i][0] for i in range(6)]
+    assert xs[0] < xs[1] == xs[2] < xs[3] < xs[4] < xs[5]
+
+
+@pytest.fixture(scope="module")
+def cut_run(tmp_path_factory):
+    """``sim`` of the paper's swarm, 5 s, edge 1->4 cut from 1 s to 2 s, written as ``run`` does."""
+    d = tmp_path_factory.mktemp("run")
+    plan = d / "plan.yaml"
+    plan.write_text(
+        json.dumps({"seed": 1, "plan": [{"edge": [1, 4], "drop": True, "from_s": 1, "until_s": 2}]})
+    )
+    cfg = with_faults(load_config(CONFIGS / "paper.yaml").model_copy(update={"duration_s": 5.0}), str(plan))
+    rec = run_sim(cfg)
+    out = d / "run"
+    out.mkdir()
+    write_outputs(cfg, rec, out)
+    return cfg, rec, out
+
+
+@pytest.mark.integration
+def test_a_run_directory_is_the_pages_document_at_20_frames_a_second(cut_run):
+    cfg, rec, out = cut_run
+    doc = replay_document(out)
+    t = np.array(doc["frames"]["t_s"])
+    assert t[0] == 0.0 and t[-1] == pytest.approx(cfg.duration_s)
+    assert np.all(np.diff(t) >= 1 / FRAME_HZ - 1e-9) and len(t) == int(cfg.duration_s * FRAME_HZ) + 1
+    k = np.rint(t / cfg.control_dt_s).astype(int)
+    for i, a in rec.followers.items():
+        f = doc["frames"]["followers"][str(i)]
+        np.testing.assert_allclose(np.array(f["p"], dtype=float), a["p_W"][k], atol=5e-4)  # (mm)
+        np.testing.assert_allclose(f["err"], np.linalg.norm(a["pos_err_m"][k], axis=1), atol=5e-5)
+        assert not any(s & DOWN for s in f["state"])
+    edge = next(e for e in doc["edges"] if (e["src"], e["dst"]) == (1, 4))
+    assert [(w["from_s"], w["until_s"]) for w in edge["faults"]] == [(1.0, 2.0)]
+    ages = np.array(doc["frames"]["edge_age_s"]["1->4"], dtype=float)
+    cut = (t >= 1.0 + 0.1) & (t < 2.0)  # the newest estimate of 1 it has ages while the edge is cut
+    assert np.all(np.diff(ages[cut]) > 0) and np.all(ages[(t > 0.1) & (t < 1.0)] <= 2 * cfg.control_dt_s)
+    assert json.loads(ReplaySource(doc).document()) == json.loads(json.dumps(doc))  # (strict JSON: no NaN)
+    kinds = [e["kind"] for e in doc["events"]]  # (sim writes no events.jsonl: the plan's windows)
+    assert kinds == ["fault_start", "fault_end"] and doc["events"][1]["t_s"] == 2.0
+
+
+@pytest.mark.integration
+def test_a_run_made_before_edge_ages_were_recorded_reads_without_them(cut_run, tmp_path):
+    _, _, out = cut_run
+    old = tmp_path / "old"
+    old.mkdir()
+    for p in out.iterdir():
+        if p.suffix == ".npz" and p.stem.startswith("follower_"):
+            arrays = dict(np.load(p))
+            arrays.pop("in_age_s")
+            np.savez(old / p.name, **arrays)
+        elif p.is_file():
+            (old / p.name).write_bytes(p.read_bytes())
+    doc = replay_document(old)
+    assert doc["frames"]["edge_age_s"] == {} and len(doc["frames"]["t_s"]) > 0
+
+
+@pytest.mark.unit
+def test_a_directory_that_is_not_a_run_is_one_line(tmp_path):
+    with pytest.raises(RunDirError, match=r"not a run directory \(no config\.yaml\)"):
+        replay_document(tmp_path)
+    with pytest.raises(RunDirError, match="no such directory"):
+        replay_document(tmp_path / "nothing")
+
+
+@pytest.mark.unit
+def test_the_live_feed_makes_at_most_20_frames_a_simulated_second_and_drops_the_oldest(monkeypatch, tmp_path):
+    cfg = load_config(CONFIGS / "paper.yaml")
+    monkeypatch.setattr(live, "MAX_FRAMES", 50)
+    feed = live.LiveFeed(cfg, tmp_path, True)
+    monkeypatch.setattr(feed, "_frames", live.deque(maxlen=50))
+    p_r = cfg.trajectory().derivatives(0.0)[0]
+    for k in range(0, 1000, 3):  # statuses every 3 ticks, followers 1..4
+        t = k * cfg.control_dt_s
+        st = {
+            f.id: Status(f.id, k, t, t, cfg.trajectory().derivatives(t)[0] + np.asarray(f.offset_m))
+            for f in cfg.followers
+        }
+        feed.update(st, down={3} if 300 <= k < 400 else set())
+    doc = json.loads(feed.document())
+    t = np.array(doc["frames"]["t_s"])
+    assert len(t) == 50 and doc["frame0"] > 0  # the oldest dropped
+    assert np.all(np.diff(t) >= 1 / FRAME_HZ - 1e-9)
+    assert max(doc["frames"]["followers"]["1"]["err"]) < 1e-9  # each at its place: no error
+    more = json.loads(feed.frames_since(doc["frame0"] + 45, 0))
+    assert more["frames"]["t_s"] == doc["frames"]["t_s"][45:]
+    assert p_r.shape == (3,)
+
+
+@pytest.mark.unit
+def test_the_server_serves_the_page_from_the_package_and_answers_bad_requests_in_one_line(cut_run):
+    _, _, out = cut_run
+    server = ViewServer(ReplaySource(replay_document(out))).start()
+    try:
+        get = lambda path: urllib.request.urlopen(server.url + path, timeout=5)  # noqa: E731
+        assert b"<canvas" in get("").read() and b"function" in get("view.js").read()
+        assert json.loads(get("document.json").read())["followers"] == [1, 2, 3, 4]
+        for path, code in (("nowhere", 404), ("frames.json?from=-1", 400), ("frames.json?from=x", 400)):
+            with pytest.raises(urllib.error.HTTPError) as e:
+                get(path)
+            assert e.value.code == code and len(e.value.read().decode().strip().splitlines()) == 1
+        with socket.create_connection(server.httpd.server_address[:2], timeout=5) as s:  # garbage
+            s.sendall(b"\x00\xffnot http at all\r\n\r\n")
+            assert b"Error response" in s.recv(200)  # (the standard library's answer)
+        assert get("document.json").status == 200  # still serving
+        with pytest.raises(ViewError, match="is in use"):
+            ViewServer(ReplaySource({}), port=server.httpd.server_address[1])
+    finally:
+        server.close()

@@ -1,0 +1,247 @@
+"""The page in a real browser: Debian's ``chromium``, headless, driven by Selenium through
+``chromium-driver`` (the system's: Selenium downloads nothing).
+
+Where ``chromium`` is missing the first test installs it with ``apt-get`` (as root, as on a fresh
+Debian machine or CI runner: about 20 s); where that cannot be done the tests skip saying why.
+
+A finished run (``sim`` of the paper's swarm with edge 1->4 cut by the plan from 2 s to 4 s) is
+served by ``swarm-sitl view``: the page shows every follower; moving the slider moves the time
+shown; the cut edge is in its fault colour inside its window and not outside it; the error plot
+is drawn up to the time shown. Each test keeps a screenshot beside its run.
+"""
+
+import os
+import re
+import shutil
+import signal
+import subprocess
+import time
+from importlib import resources
+from pathlib import Path
+
+import pytest
+import yaml
+
+from swarm_sitl.running.children import child_env, module_argv
+from tests.conftest import CONFIGS
+
+pytestmark = pytest.mark.system
+CUT = {"edge": [1, 4], "drop": True, "from_s": 2.0, "until_s": 4.0}
+PACKAGES = ["chromium", "chromium-driver"]
+
+
+def _browser_paths() -> tuple[str, str] | None:
+    chromium = shutil.which("chromium") or shutil.which("chromium-browser")
+    driver = shutil.which("chromedriver") or "/usr/lib/chromium/chromedriver"
+    return (chromium, driver) if chromium and Path(driver).exists() else None
+
+
+def _install() -> str | None:
+    """Debian's chromium and its driver installed if they are missing; why not, if they cannot be."""
+    if _browser_paths() is not None:
+        return None
+    if shutil.which("apt-get") is None or os.geteuid() != 0:
+        return f"no chromium here, and no apt-get as root to install it ({' '.join(PACKAGES)})"
+    env = {**os.environ, "DEBIAN_FRONTEND": "noninteractive"}
+    install = ["apt-get", "install", "-y", "-q", "--no-install-recommends", *PACKAGES]
+    for steps in ([install], [["apt-get", "update", "-q"], install]):  # (an empty package list: update)
+        try:
+            if all(
+                subprocess.run(c, capture_output=True, env=env, timeout=600).returncode == 0 for c in steps
+            ):
+                break
+        except subprocess.TimeoutExpired:
+            return "apt-get install chromium took over 10 minutes"
+    return None if _browser_paths() is not None else f"apt-get could not install {' '.join(PACKAGES)}"
+
+
+@pytest.fixture(scope="session")
+def browser_paths() -> tuple[str, str]:
+    why = _install()
+    if why:
+        pytest.skip(why)
+    try:
+        import selenium  # noqa: F401
+    except ImportError:
+        pytest.skip("selenium is not installed (the test extra has it)")
+    paths = _browser_paths()
+    assert paths is not None
+    return paths
+
+
+@pytest.fixture(scope="module")
+def run_dir(tmp_path_factory) -> Path:
+    d = tmp_path_factory.mktemp("view")
+    plan = d / "cut.yaml"
+    plan.write_text(yaml.safe_dump({"seed": 1, "plan": [CUT]}))
+    out = d / "run"
+    argv = [*module_argv("swarm_sitl"), "sim", str(CONFIGS / "paper.yaml"), "--duration", "6"]
+    subprocess.run([*argv, "--faults", str(plan), "--out", str(out), "--quiet"], check=True, env=child_env())
+    return out
+
+
+@pytest.fixture
+def browser(browser_paths):
+    from selenium import webdriver
+    from selenium.webdriver.chrome.service import Service
+
+    chromium, driver_path = browser_paths
+    options = webdriver.ChromeOptions()
+    options.binary_location = chromium
+    for arg in ("--headless=new", "--no-sandbox", "--disable-gpu", "--window-size=1400,1000"):
+        options.add_argument(arg)
+    driver = webdriver.Chrome(service=Service(executable_path=driver_path), options=options)
+    driver.set_page_load_timeout(30)
+    yield driver
+    driver.quit()
+
+
+def _serve(run: Path) -> tuple[subprocess.Popen, str]:
+    """``swarm-sitl view RUN --port 0`` and the page's address it prints."""
+    proc = subprocess.Popen(
+        [*module_argv("swarm_sitl"), "view", str(run), "--port", "0"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=child_env(),
+    )
+    line = proc.stdout.readline() if proc.stdout else ""
+    m = re.search(r"http://127\.0\.0\.1:\d+/", line)
+    if not m:
+        proc.kill()
+        raise AssertionError(f"view printed {line!r}; stderr: {proc.stderr.read() if proc.stderr else ''}")
+    return proc, m.group(0)
+
+
+def _wait(cond, what: str, timeout_s: float = 20.0):
+    end = time.monotonic() + timeout_s
+    while time.monotonic() < end:
+        v = cond()
+        if v:
+            return v
+        time.sleep(0.1)
+    raise AssertionError(f"the page did not {what} within {timeout_s:g} s")
+
+
+def _go_to(driver, t_s: float) -> float:
+    """Move the slider to the frame at ``t_s`` (as a user's drag does: an input event); the time
+    the page then shows."""
+    driver.execute_script(
+        """const s = document.getElementById('slider');
+           const T = arguments[1];
+           let k = 0; while (k < T.length - 1 && T[k] < arguments[0]) k++;
+           s.value = k; s.dispatchEvent(new Event('input'));""",
+        t_s,
+        driver.execute_script("return doc.frames.t_s"),
+    )
+    text = driver.find_element("id", "time").text
+    return float(re.search(r"t = ([0-9.]+) s", text).group(1))
+
+
+def _edge_state(driver, edge: str) -> str:
+    return driver.execute_script(f"return document.querySelector('tr[data-edge=\"{edge}\"]').dataset.state")
+
+
+def _err_pixels(driver) -> int:
+    """Coloured pixels of the error plot (its curves; the frame and labels are grey)."""
+    return driver.execute_script(
+        """const c = document.getElementById('err');
+           const d = c.getContext('2d').getImageData(0, 0, c.width, c.height).data;
+           let n = 0;
+           for (let k = 0; k < d.length; k += 4) { const r = d[k], g = d[k+1], b = d[k+2];
+             if (d[k+3] > 0 && Math.max(r, g, b) - Math.min(r, g, b) > 60) n++; }
+           return n;"""
+    )
+
+
+def test_a_finished_run_in_the_browser_shows_every_follower_its_cut_edge_and_moves_with_the_slider(
+    run_dir, browser
+):
+    proc, url = _serve(run_dir)
+    try:
+        browser.get(url)
+        followers = _wait(
+            lambda: browser.find_elements("css selector", "#followers li.follower"), "list the followers"
+        )
+        assert sorted(int(li.get_attribute("data-id")) for li in followers) == [1, 2, 3, 4]
+        assert browser.execute_script("return doc.frames.t_s.length") >= 6 * 20  # 20 frames a second
+
+        at_start = _go_to(browser, 0.0)
+        pixels_at_start = _err_pixels(browser)
+        assert at_start == 0.0 and _edge_state(browser, "1->4") != "fault"
+        inside = _go_to(browser, 3.0)
+        assert 2.0 <= inside < 4.0
+        assert _edge_state(browser, "1->4") == "fault"
+        assert _edge_state(browser, "0->1") != "fault"  # (only the plan's edge)
+        browser.save_screenshot(str(run_dir / "view_cut_edge.png"))
+        after = _go_to(browser, 5.0)
+        assert after >= 4.0 and _edge_state(browser, "1->4") != "fault"
+        assert _err_pixels(browser) > pixels_at_start  # the error plot is drawn up to the time shown
+        assert "fault_start" in browser.find_element("id", "events").text
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        proc.wait(10)
+
+
+def test_the_page_says_so_when_the_run_cannot_be_loaded(browser, tmp_path):
+    """A page whose run does not answer (no server behind it: the page's own files, opened from
+    disk) says that it cannot load the run, in one line."""
+    page = tmp_path / "index.html"
+    static = Path(str(resources.files("swarm_sitl.view"))) / "static"
+    page.write_text((static / "index.html").read_text().replace('src="/view.js"', f'src="{static}/view.js"'))
+    browser.get(page.as_uri())
+    message = _wait(lambda: browser.find_element("id", "message").text, "say why it shows nothing")
+    assert message.startswith("cannot load the run")
+
+
+def test_a_live_run_in_the_browser_grows_its_error_plot_and_colours_its_cut_edge_for_its_window(
+    tmp_path, browser
+):
+    """``run --realtime --view 0``: the page, opened before the run's first frame, follows the run:
+    every follower listed, the error plot drawn further as frames come, edge 1->4 in its fault
+    colour while the plan cuts it (2 s to 4 s) and not after, and it says when the run is over."""
+    plan = tmp_path / "cut.yaml"
+    plan.write_text(yaml.safe_dump({"seed": 1, "plan": [CUT]}))
+    argv = [*module_argv("swarm_sitl"), "run", str(CONFIGS / "paper.yaml"), "--realtime", "--duration", "7"]
+    proc = subprocess.Popen(
+        [*argv, "--faults", str(plan), "--view", "0", "--out", str(tmp_path / "run"), "--quiet"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        env=child_env(),
+    )
+    try:
+        line = proc.stdout.readline() if proc.stdout else ""
+        m = re.search(r"http://127\.0\.0\.1:\d+/", line)
+        assert m, f"run --view printed {line!r}"
+        browser.get(m.group(0))
+        _wait(lambda: browser.find_elements("css selector", "#followers li.follower"), "list the followers")
+        seen: list[tuple[float, str, int, int]] = []  # (time shown, 1->4's state, plot pixels, frames)
+        end = time.monotonic() + 60
+        while time.monotonic() < end and "ended" not in browser.find_element("id", "message").text:
+            text = browser.find_element("id", "time").text
+            shown = re.search(r"t = ([0-9.]+) s", text)
+            if shown:
+                frames = browser.execute_script("return doc.frames.t_s.length")
+                seen.append(
+                    (float(shown.group(1)), _edge_state(browser, "1->4"), _err_pixels(browser), frames)
+                )
+                if 2.5 < seen[-1][0] < 3.5:
+                    browser.save_screenshot(str(tmp_path / "view_live_cut_edge.png"))
+            time.sleep(0.2)
+        assert proc.wait(60) == 0
+        assert seen and seen[-1][0] >= 6.0, seen[-3:]
+        assert any(s == "fault" for t, s, _, _ in seen if 2.2 <= t < 3.9)
+        assert all(s != "fault" for t, s, _, _ in seen if t < 1.9 or t >= 4.2)
+        # the error plot grew: drawn at every look once the run is under way, over ever more frames
+        assert all(px > 0 for t, _, px, _ in seen if t >= 0.5)
+        frames = [n for *_, n in seen]
+        assert frames == sorted(frames) and frames[-1] >= 6 * 10 > frames[0]
+        ids = {
+            int(li.get_attribute("data-id")) for li in browser.find_elements("css selector", "#followers li")
+        }
+        assert ids == {1, 2, 3, 4}
+    finally:
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGTERM)
+            proc.wait(30)
