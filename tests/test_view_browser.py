@@ -138,6 +138,10 @@ def _go_to(driver, t_s: float) -> float:
     return float(re.search(r"t = ([0-9.]+) s", text).group(1))
 
 
+def _shown(driver) -> float:
+    return float(re.search(r"t = ([0-9.]+) s", driver.find_element("id", "time").text).group(1))
+
+
 def _edge_state(driver, edge: str) -> str:
     return driver.execute_script(f"return document.querySelector('tr[data-edge=\"{edge}\"]').dataset.state")
 
@@ -178,6 +182,16 @@ def test_a_finished_run_in_the_browser_shows_every_follower_its_cut_edge_and_mov
         assert after >= 4.0 and _edge_state(browser, "1->4") != "fault"
         assert _err_pixels(browser) > pixels_at_start  # the error plot is drawn up to the time shown
         assert "fault_start" in browser.find_element("id", "events").text
+        # play at 4x from 1 s: the time shown runs on, about 4 s a second, until pause
+        browser.execute_script("document.getElementById('speed').value = '4'")
+        _go_to(browser, 1.0)
+        browser.find_element("id", "play").click()
+        time.sleep(0.5)
+        browser.find_element("id", "play").click()
+        played = _shown(browser)
+        assert 1.5 < played < 5.5, played  # (0.5 s of wall at 4x: 2 s on; a slow browser, less)
+        time.sleep(0.3)
+        assert _shown(browser) == played  # paused
     finally:
         proc.send_signal(signal.SIGTERM)
         proc.wait(10)

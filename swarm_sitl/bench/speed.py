@@ -215,13 +215,19 @@ def compare_trees(cfg_path: str, other: Path, pairs: int) -> int:
     print(f"lockstep run of {cfg_path}, {pairs} pairs alternated:")
     for what, col in (("run phase wall, as each CLI prints it", 0), ("CPU of every process", 1)):
         new, old = [x[col] for x in got[here]], [x[col] for x in got[other]]
-        ratios = [a / b for a, b in zip(new, old, strict=True)]
-        print(
-            f"  {what}: this checkout best {min(new):.2f} s, median {statistics.median(new):.2f} s; "
-            f"{other} best {min(old):.2f} s, median {statistics.median(old):.2f} s"
-        )
-        print(
-            f"    this / other: median of pair ratios {statistics.median(ratios):.3f}, ratio of bests "
-            f"{min(new) / min(old):.3f} (pairs: {', '.join(f'{x:.3f}' for x in ratios)})"
-        )
+        print_pairs(what, ("this checkout", new), (str(other), old), "this / other")
     return 0
+
+
+def print_pairs(what: str, a: tuple[str, list[float]], b: tuple[str, list[float]], ratio: str) -> None:
+    """Two series of alternated runs (``(name, seconds)``), their bests, medians and ratios."""
+    (na, xa), (nb, xb) = a, b
+    ratios = [x / y for x, y in zip(xa, xb, strict=True)]
+    print(
+        f"  {what}: {na} best {min(xa):.2f} s, median {statistics.median(xa):.2f} s; "
+        f"{nb} best {min(xb):.2f} s, median {statistics.median(xb):.2f} s"
+    )
+    print(
+        f"    {ratio}: median of pair ratios {statistics.median(ratios):.3f}, ratio of bests "
+        f"{min(xa) / min(xb):.3f} (pairs: {', '.join(f'{x:.3f}' for x in ratios)})"
+    )

@@ -71,6 +71,10 @@ def cmd_bench(args: argparse.Namespace) -> int:
             if not Path(args.sim_plan).is_file():
                 raise CliError(f"--sim-plan {args.sim_plan}: no such file")
             return run_plan_cost(args.config, args.sim_plan, args.repeats)
+        if args.view:
+            from swarm_sitl.bench.view_cost import view_cost
+
+            return view_cost(args.config, args.repeats)
         if args.against:
             from swarm_sitl.bench.speed import compare_trees
 
@@ -94,6 +98,12 @@ def add_bench(sub: Any) -> None:
         "--against",
         metavar="DIR",
         help="only compare the lockstep run with another source tree's, alternated --repeats times",
+    )
+    b.add_argument(
+        "--view",
+        action="store_true",
+        help="instead: the lockstep run without and with a page open on it (run --view), alternated "
+        "--repeats times",
     )
     b.add_argument(
         "--sim-plan",

@@ -186,7 +186,11 @@ def _run_and_record(
         progress.close()
         if server is not None:
             server.close()
-            print(f"the run is over; to watch it again: swarm-sitl view {run_dir}", file=sys.stderr)
+            print(
+                f"live view: {server.requests} requests answered; the run is over, to watch it again: "
+                f"swarm-sitl view {run_dir}",
+                file=sys.stderr,
+            )
     if out.lost_outputs is not None:
         print(f"swarm-sitl: error: {out.lost_outputs}", file=sys.stderr)
         return EXIT_FAILED

@@ -51,6 +51,7 @@ def _asset(name: str) -> bytes:
 
 class _Handler(BaseHTTPRequestHandler):
     source: DocumentSource
+    served: list[int]  #: requests answered so far (one element: shared by the server's threads)
     timeout = REQUEST_TIMEOUT_S
     server_version = "swarm-sitl-view"
 
@@ -75,6 +76,7 @@ class _Handler(BaseHTTPRequestHandler):
         return int(raw)
 
     def do_GET(self) -> None:
+        self.served[0] += 1
         url = urlsplit(self.path)
         if url.path in ASSETS:
             name, kind = ASSETS[url.path]
@@ -93,6 +95,7 @@ class _Handler(BaseHTTPRequestHandler):
             self._send(HTTPStatus.NOT_FOUND, f"no {url.path[:80]} here\n".encode())
 
     def do_POST(self) -> None:
+        self.served[0] += 1
         url = urlsplit(self.path)
         if url.path != "/control":
             self._send(HTTPStatus.NOT_FOUND, f"no {url.path[:80]} here\n".encode())
@@ -111,7 +114,8 @@ class ViewServer:
     """The page of ``source`` on ``host:port`` (0: a free port), served from a thread of its own."""
 
     def __init__(self, source: DocumentSource, host: str = "127.0.0.1", port: int = 0):
-        handler = type("Handler", (_Handler,), {"source": source})
+        self._served = [0]
+        handler = type("Handler", (_Handler,), {"source": source, "served": self._served})
         try:
             self.httpd = ThreadingHTTPServer((host, port), handler)
         except OSError as e:
@@ -127,6 +131,11 @@ class ViewServer:
     def url(self) -> str:
         host, port = self.httpd.server_address[:2]
         return f"http://{host!s}:{port}/"
+
+    @property
+    def requests(self) -> int:
+        """The requests answered so far."""
+        return self._served[0]
 
     def start(self) -> "ViewServer":
         self._thread.start()

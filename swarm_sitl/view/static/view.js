@@ -4,6 +4,7 @@
 
 const DOWN = 1, FAILSAFE = 2;             // a follower's state bits (replay.py)
 const TRAIL_S = 2.0;                      // a follower's trail on the maps [s]
+const POLL_MS = 200;                      // live: how often the page asks for new frames [ms]
 const COLOURS = { ok: "#2a2", old: "#e90", stale: "#c33", fault: "#c0c", none: "#bbb" };
 
 let doc = null;          // the document
@@ -82,12 +83,20 @@ async function poll() {
   frameCount();
   if (following && nFrames()) cur = nFrames() - 1;
   show();
-  if (!more.done) setTimeout(poll, 100);
+  if (!more.done) setTimeout(poll, POLL_MS);
 }
 
 // -- drawing ------------------------------------------------------------------------------------
+const boxes = {};        // each map's box, and the frame count it was made for
 function bounds(axes) {
-  // the box around the leader's path and every follower's positions (equal scale on both axes)
+  // the box around the leader's path and every follower's positions (equal scale on both axes),
+  // made again only when frames have come
+  const key = axes.join(""), n = nFrames();
+  if (!boxes[key] || boxes[key].n !== n) boxes[key] = { n, box: box(axes) };
+  return boxes[key].box;
+}
+
+function box(axes) {
   let lo = [Infinity, Infinity], hi = [-Infinity, -Infinity];
   const take = (p) => {
     if (!p || p[0] === null) return;
@@ -233,17 +242,17 @@ function show() {
 }
 
 // -- controls -----------------------------------------------------------------------------------
+// play: one step per animation frame, and none asked for while paused (an idle page costs nothing)
 function tick(now) {
-  if (playing && doc) {
-    if (lastWall !== null) {
-      simAtWall += ((now - lastWall) / 1000) * Number(el("speed").value);
-      const T = doc.frames.t_s;
-      while (cur < T.length - 1 && T[cur + 1] <= simAtWall) cur++;
-      if (cur >= T.length - 1 && !doc.live) playing = false, el("play").textContent = "play";
-      show();
-    }
-    lastWall = now;
+  if (!playing || !doc) return;
+  if (lastWall !== null) {
+    simAtWall += ((now - lastWall) / 1000) * Number(el("speed").value);
+    const T = doc.frames.t_s;
+    while (cur < T.length - 1 && T[cur + 1] <= simAtWall) cur++;
+    if (cur >= T.length - 1 && !doc.live) playing = false, el("play").textContent = "play";
+    show();
   }
+  lastWall = now;
   requestAnimationFrame(tick);
 }
 
@@ -252,6 +261,7 @@ el("play").onclick = () => {
   if (playing && cur >= nFrames() - 1 && !doc.live) cur = 0;
   simAtWall = doc.frames.t_s[cur] || 0;
   el("play").textContent = playing ? "pause" : "play";
+  if (playing) requestAnimationFrame(tick);
 };
 el("slider").oninput = () => { cur = Number(el("slider").value); following = false; simAtWall = doc.frames.t_s[cur] || 0; show(); };
 el("follow").onclick = () => { following = true; playing = false; cur = nFrames() - 1; show(); };
@@ -261,5 +271,4 @@ async function control(what) {
 el("pause-run").onclick = () => control("pause=toggle");
 el("step-run").onclick = () => control("step=1");
 document.addEventListener("keydown", (e) => { if (e.key === " " && e.target === document.body) { e.preventDefault(); el("play").click(); } });
-requestAnimationFrame(tick);
 start();
