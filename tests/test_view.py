@@ -158,3 +158,42 @@ def test_the_server_serves_the_page_from_the_package_and_answers_bad_requests_in
             ViewServer(ReplaySource({}), port=server.httpd.server_address[1])
     finally:
         server.close()
+
+
+@pytest.mark.integration
+def test_thousands_of_requests_leave_a_live_feed_and_its_server_answering(tmp_path):
+    """Eight clients send 1600 requests, good and bad, while the supervisor's side feeds frames:
+    every request is answered (200, 400 or 404), every frame the feed was given is there, and the
+    server answers after."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    cfg = load_config(CONFIGS / "paper.yaml")
+    feed = live.LiveFeed(cfg, tmp_path, True)
+    server = ViewServer(feed).start()
+    paths = ["document.json", "frames.json?from=0&events=0", "frames.json?from=zz", "x" * 3000, "view.js"]
+
+    def client(c: int) -> list[int]:
+        codes = []
+        for k in range(200):
+            try:
+                with urllib.request.urlopen(server.url + paths[(c + k) % len(paths)], timeout=10) as r:
+                    r.read()
+                    codes.append(r.status)
+            except urllib.error.HTTPError as e:
+                codes.append(e.code)
+        return codes
+
+    try:
+        with ThreadPoolExecutor(8) as pool:
+            answers = [pool.submit(client, c) for c in range(8)]
+            n = 200
+            for k in range(n):  # the supervisor's side, meanwhile: a frame per status
+                t = k / FRAME_HZ
+                feed.update({f.id: Status(f.id, k, t, t, np.zeros(3)) for f in cfg.followers}, set())
+            codes = [code for a in answers for code in a.result()]
+        assert len(codes) == 1600 and set(codes) <= {200, 400, 404, 414}
+        assert len(json.loads(feed.document())["frames"]["t_s"]) == n
+        with urllib.request.urlopen(server.url + "document.json", timeout=5) as r:
+            assert r.status == 200
+    finally:
+        server.close()
