@@ -1,7 +1,8 @@
 """Speed figures, measured and printed (``swarm-sitl bench``), never asserted by a timed test:
 ``speed`` (the paper run against ``sim``, real time, another source tree alternated), ``scale``
-(how the cost grows with the swarm), ``empty_swarm`` (the process structure with no work in it)
-and ``cost_split`` (where a process's CPU goes, by activity).
+(how the cost grows with the swarm), ``empty_swarm`` (the process structure with no work in it),
+``cost_split`` (where a process's CPU goes, by activity), ``plan_cost`` (``sim`` without and with a
+fault plan) and ``view_cost`` (a run without and with a page open on it).
 
 May import: sim_vehicles, laws, bus, faults, config, rundir, link, nodes, running.
 """

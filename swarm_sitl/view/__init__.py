@@ -4,6 +4,7 @@
 - ``replay``: a run directory as the page's document (frames of the formation, its errors, each
   edge's age, each follower's state; the plan's windows, the events), and its source for the
   server;
+- ``live``: a running swarm's document, fed by its supervisor with what it already reads;
 - ``server``: the page and its assets from the installed package, and the document, over HTTP on
   loopback, one thread per request: a browser never holds up a run.
 
