@@ -104,6 +104,32 @@ def test_memory_past_the_bound_stops_the_step_or_the_next_one():
         guard.close()
 
 
+def test_the_step_that_took_the_memory_past_its_bound_is_the_one_stopped(monkeypatch):
+    """Several laws in one process (``sim``): the step whose own allocation took the memory past
+    the bound is stopped when it returns, whenever the watchdog would have looked (here: never),
+    and a step that grew it less is not."""
+    import swarm_sitl.nodes.law_guard as law_guard
+
+    monkeypatch.setattr(law_guard, "WATCH_EVERY_S", 3600.0)  # (the watchdog does not look)
+    guard = _guard(5.0, memory_mb=40.0)
+    held = []
+    try:
+
+        def hoard(mb: float):
+            def step():
+                held.append(np.ones(int(mb * 1e6 / 8)))  # touched: resident
+                guard.after_step()  # (as the host calls it when the step returned)
+
+            return step
+
+        assert _stepping(guard, hoard(8.0)) is None  # 8 MB of 40: on
+        e = _stepping(guard, hoard(48.0))  # 56 MB: past, in this step
+        assert isinstance(e, LawStopped) and "past law.max_memory_mb 40" in str(e)
+    finally:
+        held.clear()
+        guard.close()
+
+
 def test_output_past_its_limit_is_dropped_and_counted():
     target = io.StringIO()
     out = BoundedOutput(target, 100, "law.max_output_mb")

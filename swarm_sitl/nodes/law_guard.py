@@ -10,8 +10,11 @@ controller): ``LawGuard``, around each step of a ``law_host.HostedLaw``.
   what it can: a controller flushes its rows, ``sim`` writes its run directory) and ends the
   process with code 1 (a controller's supervisor names it from its log).
 - **Memory**: the process's resident memory may grow by ``law.max_memory_mb`` over what it was
-  when the guard started (the law built, its first ticks warmed up); past it, the same stop, at
-  once if the law is stepping, else at its next step.
+  when the guard started (the law built, its first ticks warmed up); past it, the same stop: at
+  the end of the step that took it there (``after_step``: the process's peak, one system call,
+  read after every step, so in ``sim``, where several laws share the process, the follower
+  named is the one whose step grew it), or by the watchdog while a step that never returns grows
+  it.
 - **An exit**: ``sys.exit`` raises ``SystemExit``, which the host catches like any error;
   ``os._exit``, which would end the process on the spot, is replaced while a step runs (in the
   thread that steps) by a raise of ``LawExit``, so the one line names the call and its code.
@@ -24,6 +27,7 @@ import ctypes
 import io
 import math
 import os
+import resource
 import signal
 import sys
 import threading
@@ -144,6 +148,19 @@ class LawGuard:
         if self._output is not None:
             sys.stdout = sys.stderr = self._output
         self._since = time.monotonic()
+
+    def after_step(self) -> None:
+        """The step returned: ``LawStopped`` if it took the memory past its bound. The peak
+        resident memory bounds the resident memory, so /proc is read only once the peak is past."""
+        if self.max_memory_bytes is None or self._baseline is None:
+            return
+        peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024  # (Linux: in kB)
+        if peak - self._baseline <= self.max_memory_bytes:
+            return
+        memory = self._memory_line()
+        if memory is not None:
+            self._over = memory
+            raise LawStopped(memory)
 
     def leave(self) -> None:
         """The step is over (returned or raised)."""

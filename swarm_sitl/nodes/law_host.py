@@ -73,6 +73,8 @@ class HostedLaw:
             if guard is not None:
                 guard.enter(self.name, self.id, t)
             out = self._step(t, sample, inbox)
+            if guard is not None:
+                guard.after_step()  # (the step that took the memory past its bound is the one named)
         except LawStopped as e:
             raise self._fail(t, str(e) or (guard.stop_reason if guard else "stopped")) from None
         except LawExit as e:
