@@ -120,22 +120,27 @@ def test_the_live_feed_makes_at_most_20_frames_a_simulated_second_and_drops_the_
     monkeypatch.setattr(live, "MAX_FRAMES", 50)
     feed = live.LiveFeed(cfg, tmp_path, True)
     monkeypatch.setattr(feed, "_frames", live.deque(maxlen=50))
-    p_r = cfg.trajectory().derivatives(0.0)[0]
-    for k in range(0, 1000, 3):  # statuses every 3 ticks, followers 1..4
+    errors = {f.id: 0.01 * f.id for f in cfg.followers}  # (the monitor's, passed on as they are)
+    for k in range(0, 1000, 3):  # statuses every 3 ticks, followers 1..4; 3 down from 8.5 s to 9 s
         t = k * cfg.control_dt_s
-        st = {
-            f.id: Status(f.id, k, t, t, cfg.trajectory().derivatives(t)[0] + np.asarray(f.offset_m))
-            for f in cfg.followers
-        }
-        feed.update(st, down={3} if 300 <= k < 400 else set())
+        st = {f.id: Status(f.id, k, t, t, np.asarray(f.offset_m, dtype=float)) for f in cfg.followers}
+        feed.update(st, errors, down={3} if 850 <= k < 900 else set())
     doc = json.loads(feed.document())
     t = np.array(doc["frames"]["t_s"])
     assert len(t) == 50 and doc["frame0"] > 0  # the oldest dropped
     assert np.all(np.diff(t) >= 1 / FRAME_HZ - 1e-9)
-    assert max(doc["frames"]["followers"]["1"]["err"]) < 1e-9  # each at its place: no error
+    three, one = doc["frames"]["followers"]["3"], doc["frames"]["followers"]["1"]
+    down = (t >= 8.5) & (t < 9.0)
+    assert down.any() and (~down).any()
+    assert all(
+        s & DOWN and e is None for s, e, d in zip(three["state"], three["err"], down, strict=True) if d
+    )
+    assert all(
+        s == 0 and e == 0.03 for s, e, d in zip(three["state"], three["err"], down, strict=True) if not d
+    )
+    assert set(one["err"]) == {0.01} and set(one["state"]) == {0}
     more = json.loads(feed.frames_since(doc["frame0"] + 45, 0))
     assert more["frames"]["t_s"] == doc["frames"]["t_s"][45:]
-    assert p_r.shape == (3,)
 
 
 @pytest.mark.unit
@@ -189,7 +194,7 @@ def test_thousands_of_requests_leave_a_live_feed_and_its_server_answering(tmp_pa
             n = 200
             for k in range(n):  # the supervisor's side, meanwhile: a frame per status
                 t = k / FRAME_HZ
-                feed.update({f.id: Status(f.id, k, t, t, np.zeros(3)) for f in cfg.followers}, set())
+                feed.update({f.id: Status(f.id, k, t, t, np.zeros(3)) for f in cfg.followers}, {}, set())
             codes = [code for a in answers for code in a.result()]
         assert len(codes) == 1040 and set(codes) <= {200, 400, 404, 414}
         assert len(json.loads(feed.document())["frames"]["t_s"]) == n

@@ -53,7 +53,7 @@ class NeighbourInbox:
                 if age > max_age[s]:
                     max_age[s] = age
                 if not live[s]:
-                    self._live[s] = True
+                    live[s] = True
                     if self.stale_ticks[s]:
                         self.events.add(
                             t_s, "neighbour_regained", follower=self.follower, neighbour=s, age_s=age

@@ -39,11 +39,15 @@ def plan_events(cfg: SwarmConfig) -> list[dict[str, Any]]:
 
 def read_events(path: Path) -> list[dict[str, Any]]:
     """The complete lines of an event file (a line cut short by a kill is left out)."""
-    out: list[dict[str, Any]] = []
     try:
-        text = path.read_text()
+        return parse_events(path.read_text())
     except OSError:
-        return out
+        return []
+
+
+def parse_events(text: str) -> list[dict[str, Any]]:
+    """The events of complete lines of an event file's text: each a mapping with a time and a kind."""
+    out: list[dict[str, Any]] = []
     for line in text.splitlines():
         try:
             e = json.loads(line)
@@ -63,13 +67,18 @@ def merge_events(
     lockstep run's events are the same twice."""
     events = plan_events(cfg)
     for p in sorted(files):
-        for e in read_events(p):
-            unix_s = e.pop("unix_s", None)
-            if epoch_unix_s is not None and isinstance(unix_s, int | float):
-                e["t_s"] = round(unix_s - epoch_unix_s, 6)
-            events.append(e)
+        events += [on_run_clock(e, epoch_unix_s) for e in read_events(p)]
     events.sort(key=lambda e: (e["t_s"], e.get("source") != "plan", str(e.get("source")), e["kind"]))
     return events
+
+
+def on_run_clock(e: dict[str, Any], epoch_unix_s: float | None) -> dict[str, Any]:
+    """``e`` without its UNIX time (``unix_s``, a vehicle's), which puts it on the run's clock
+    (``t_s`` from ``epoch_unix_s``, a real-time run's start) where that is given."""
+    unix_s = e.pop("unix_s", None)
+    if epoch_unix_s is not None and isinstance(unix_s, int | float):
+        e["t_s"] = round(unix_s - epoch_unix_s, 6)
+    return e
 
 
 def write_events(path: Path, events: list[dict[str, Any]]) -> None:

@@ -273,9 +273,8 @@ def run_swarm(request: RunRequest) -> RunResult:
                 on_progress(monitor.min_step(), monitor.errors_m())
                 next_progress = now + 0.25
             if request.view is not None and now >= next_view:
-                request.view.update(
-                    monitor.latest(), faults.down | faults.lost if faults is not None else set()
-                )
+                down = faults.down | faults.lost if faults is not None else set()
+                request.view.update(monitor.latest(), monitor.errors_m(), down)
                 next_view = now + VIEW_EVERY_S
             time.sleep(SUPERVISE_EVERY_S)
         run_wall = time.monotonic() - t_start

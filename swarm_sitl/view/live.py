@@ -23,11 +23,9 @@ from collections import deque
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from swarm_sitl.bus.codec import Status
 from swarm_sitl.config.schema import SwarmConfig
-from swarm_sitl.rundir.events import plan_events
+from swarm_sitl.rundir.events import on_run_clock, parse_events, plan_events
 from swarm_sitl.rundir.layout import procs_dir
 from swarm_sitl.view.replay import DOWN, FAILSAFE, FRAME_HZ, _event_line, _num, static_part
 
@@ -41,7 +39,7 @@ class LiveFeed:
     def __init__(self, cfg: SwarmConfig, run_dir: Path, lockstep: bool):
         self.cfg, self.run_dir = cfg, run_dir
         self._trajectory = cfg.trajectory()
-        self._offsets = {f.id: np.asarray(f.offset_m, dtype=float) for f in cfg.followers}
+        self._ids = [f.id for f in cfg.followers]
         self._edges = [(s, d) for s, d in cfg.graph_edges() if s != 0]
         self._static = {**static_part(cfg, None), "live": True, "lockstep": lockstep}
         self._lock = threading.Lock()
@@ -65,8 +63,9 @@ class LiveFeed:
         self._epoch_unix_s = epoch_unix_s
         self._wall0 = time.monotonic()
 
-    def update(self, statuses: dict[int, Status], down: set[int]) -> None:
-        """The newest status of each follower, and the nodes down now: a frame if one is due."""
+    def update(self, statuses: dict[int, Status], errors_m: dict[int, float], down: set[int]) -> None:
+        """The newest status of each follower, its formation error at it (``RunMonitor.errors_m``),
+        and the nodes down now: a frame if one is due."""
         if not statuses:
             return
         t = min(s.t_s for i, s in statuses.items() if i not in down) if set(statuses) - down else None
@@ -76,14 +75,13 @@ class LiveFeed:
         self._last_t = t
         p_r = self._trajectory.derivatives(t)[0]
         followers: dict[str, Any] = {}
-        for i, off in self._offsets.items():
+        for i in self._ids:
             s = statuses.get(i)
             state = (DOWN if i in down or s is None else 0) | (FAILSAFE if i in self._failsafe else 0)
             if s is None or i in down:
                 followers[str(i)] = ([None, None, None], None, state)
                 continue
-            ref = self._trajectory.derivatives(s.sample_t_s)[0]
-            err = float(np.linalg.norm(s.p_W - ref - off))
+            err = errors_m.get(i, math.nan)
             followers[str(i)] = ([_num(v) for v in s.p_W.tolist()], _num(err, 4), state)
         ages = {}
         for src, dst in self._edges:
@@ -135,20 +133,8 @@ class LiveFeed:
             return []
         end = chunk.rfind(b"\n") + 1
         self._offsets_read[path] = at + end
-        out = []
-        for line in chunk[:end].splitlines():
-            try:
-                e = json.loads(line)
-            except ValueError:
-                continue
-            if not isinstance(e, dict) or "kind" not in e:
-                continue
-            unix_s = e.pop("unix_s", None)
-            if isinstance(unix_s, int | float) and self._epoch_unix_s is not None:
-                e["t_s"] = round(unix_s - self._epoch_unix_s, 6)
-            if isinstance(e.get("t_s"), int | float):
-                out.append(e)
-        return out
+        text = chunk[:end].decode(errors="replace")
+        return [on_run_clock(e, self._epoch_unix_s) for e in parse_events(text)]
 
     def finish(self) -> None:
         self._next_events = 0.0
