@@ -182,14 +182,25 @@ def test_a_finished_run_in_the_browser_shows_every_follower_its_cut_edge_and_mov
         assert after >= 4.0 and _edge_state(browser, "1->4") != "fault"
         assert _err_pixels(browser) > pixels_at_start  # the error plot is drawn up to the time shown
         assert "fault_start" in browser.find_element("id", "events").text
-        # play at 4x from 1 s: the time shown runs on, about 4 s a second, until pause
-        browser.execute_script("document.getElementById('speed').value = '4'")
-        _go_to(browser, 1.0)
+        # play at 2x from the start: the simulated time shown runs at twice the page's clock (the
+        # animation frames' timestamps), whatever the load, and stands still once paused
+        browser.execute_script("document.getElementById('speed').value = '2'")
+        _go_to(browser, 0.0)
         browser.find_element("id", "play").click()
-        time.sleep(0.5)
+        state = "return [lastWall, simAtWall, playing, doc.frames.t_s[cur]]"
+        wall_a, sim_a, playing_a, shown_a = _wait(
+            lambda: (s := browser.execute_script(state))[0] is not None and s, "take a step of play"
+        )
+        time.sleep(0.4)
+        wall_b, sim_b, playing_b, shown_b = browser.execute_script(state)
         browser.find_element("id", "play").click()
         played = _shown(browser)
-        assert 1.5 < played < 5.5, played  # (0.5 s of wall at 4x: 2 s on; a slow browser, less)
+        assert playing_a and playing_b and wall_b > wall_a  # (6 s of run at 2x: 3 s of wall to the end)
+        assert sim_b - sim_a == pytest.approx(2 * (wall_b - wall_a) / 1000, rel=1e-9)
+        frame_s = 1 / 20
+        for sim, shown in ((sim_a, shown_a), (sim_b, shown_b)):  # the frame at or just before it
+            assert sim - frame_s - 1e-9 <= shown <= sim + 1e-9, (sim, shown)
+        assert played >= shown_b > shown_a
         time.sleep(0.3)
         assert _shown(browser) == played  # paused
     finally:

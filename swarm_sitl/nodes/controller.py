@@ -81,7 +81,9 @@ class NodeReport(NamedTuple):
     max_late_s: float
     resends: int
     dropped_payloads: int
-    old_samples: int = 0  #: ticks whose vehicle sample was older than a control period
+    #: ticks on an old vehicle sample: none new since the tick before (the one before used again,
+    #: as when a sample is lost), or one older than a control period
+    old_samples: int = 0
     max_sample_age_s: float = 0.0
     stale_estimates: int = 0  #: (tick, in-neighbour) pairs left out: its estimate past staleness
 
@@ -322,6 +324,7 @@ def _loop(
     max_late = 0.0
     old_samples = 0
     max_age = 0.0
+    used_boot_s = math.nan  # real time: the sample the tick before flew on
     k = io.first
     if lockstep:  # a tick's first read of its link waits in recvfrom for the vehicle's answer
         link.block_reads(SAMPLE_WAIT_S)
@@ -353,9 +356,12 @@ def _loop(
             boot_s, p, v, q = link.sample()
             sample_t = min(boot_s + io.offset_s, t)
             age = t - sample_t
-            if age > dt:
+            # (a lost sample's successor is about a period old, and whether its age reads above or
+            # below dt turns on time_boot_ms's millisecond: the sample used again is what tells)
+            if age > dt or boot_s == used_boot_s:
                 old_samples += 1
                 max_age = max(max_age, age)
+            used_boot_s = boot_s
         try:
             step = law.step(t, VehicleSample(sample_t, p, v, q), inbox)
         except LawError as e:

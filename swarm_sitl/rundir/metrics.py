@@ -126,8 +126,9 @@ def describe_inputs(report: dict) -> str:
     parts = []
     if report.get("old_samples"):
         parts.append(
-            f"{report['old_samples']} vehicle samples older than a control period "
-            f"(max {report['max_sample_age_s']:.3f} s)"
+            f"{report['old_samples']} ticks on an old vehicle sample "
+            f"(none new since the tick before, or older than a control period; max age "
+            f"{report['max_sample_age_s']:.3f} s)"
         )
     if report.get("stale_estimates"):
         parts.append(f"{report['stale_estimates']} neighbour estimates past staleness")
