@@ -29,7 +29,7 @@ def _swarm(graph: str, kills: bool):
 
 def _expected(cfg, node: int, watch: bool) -> dict[str, set[str]]:
     """What node ``node`` may do, from the edge list: publish its out-edges (and a follower its own
-    status), subscribe to its in-edges and start; the leader follows its out-neighbours' status;
+    status), subscribe to its in-edges, start and hold; the leader follows its out-neighbours' status;
     with kills in the plan every node follows its out-neighbours' status and liveliness."""
     s = cfg.name
     edges = [(e.src, e.dst) for e in cfg.build_graph().edges]
@@ -38,7 +38,8 @@ def _expected(cfg, node: int, watch: bool) -> dict[str, set[str]]:
     watched = outs if (watch or node == 0) else []
     alive_of = set(ins) | (set(outs) if watch else set())
     puts = {zk.edge(s, node, d) for d in outs} | ({zk.status(s, node)} if node > 0 else set())
-    subs = {zk.edge(s, a, node) for a in ins} | {zk.status(s, f) for f in watched} | {zk.start(s)}
+    subs = {zk.edge(s, a, node) for a in ins} | {zk.status(s, f) for f in watched}
+    subs |= {zk.start(s), zk.hold(s)}
     alive = {zk.alive(s, a) for a in alive_of}
     out = {
         "put": puts,

@@ -8,6 +8,7 @@ import time
 import pytest
 
 from swarm_sitl.bus.clock import StallError
+from swarm_sitl.bus.codec import HOLD_NONE
 from swarm_sitl.config.load import load_config
 from tests.conftest import CONFIGS
 
@@ -27,6 +28,9 @@ class _Bus:
         return -1
 
     def poll(self) -> None: ...
+    def hold_tick(self) -> int:
+        return HOLD_NONE
+
     def start_epoch(self) -> float:
         return time.time()
 

@@ -144,6 +144,44 @@ def test_the_live_feed_makes_at_most_20_frames_a_simulated_second_and_drops_the_
 
 
 @pytest.mark.unit
+def test_a_live_feed_hands_pause_and_step_to_a_lockstep_runs_hold_and_a_frame_to_each_step(tmp_path):
+    cfg = load_config(CONFIGS / "paper.yaml")
+    dt = cfg.control_dt_s
+
+    def statuses(k: int) -> dict[int, Status]:
+        return {f.id: Status(f.id, k, k * dt, k * dt, np.zeros(3)) for f in cfg.followers}
+
+    assert live.LiveFeed(cfg, tmp_path, False).control("toggle", 0) == (
+        409,
+        "a real-time run flies on the wall clock: pause and step are for a lockstep run",
+    )
+    feed = live.LiveFeed(cfg, tmp_path, True)
+    hold = feed.hold
+    assert hold is not None
+    assert feed.control("toggle", 0) == (200, "pausing the run")  # (asked before the run acts on it)
+    hold.act(statuses(100), set(), 0.0)  # the run's session is not open yet: nothing put
+    puts: list[int] = []
+    hold.put = puts.append
+    feed.update(statuses(100), {}, set())
+    for now in (0.0, 0.1, 0.45):  # (every follower there for longer than SETTLE_S; no put again)
+        hold.act(statuses(100), set(), now)
+    feed.update(statuses(100), {}, set())
+    more = json.loads(feed.frames_since(0, 0))
+    assert more["paused"] and more["held_s"] == 1.0 and puts == [100]
+    for j in (1, 2):  # a step of one tick is a frame of its own (flying: one each 1 / FRAME_HZ)
+        assert feed.control(None, 1)[0] == 200
+        hold.act(statuses(99 + j), set(), 1.0 + j)
+        feed.update(statuses(100 + j), {}, set())
+    assert json.loads(feed.frames_since(0, 0))["frames"]["t_s"] == [1.0, 1.01, 1.02] and puts == [
+        100,
+        101,
+        102,
+    ]
+    feed.finish()
+    assert feed.control("toggle", 0) == (409, "the run is over")
+
+
+@pytest.mark.unit
 def test_the_server_serves_the_page_from_the_package_and_answers_bad_requests_in_one_line(cut_run):
     _, _, out = cut_run
     server = ViewServer(ReplaySource(replay_document(out))).start()
@@ -154,6 +192,11 @@ def test_the_server_serves_the_page_from_the_package_and_answers_bad_requests_in
         for path, code in (("nowhere", 404), ("frames.json?from=-1", 400), ("frames.json?from=x", 400)):
             with pytest.raises(urllib.error.HTTPError) as e:
                 get(path)
+            assert e.value.code == code and len(e.value.read().decode().strip().splitlines()) == 1
+        post = lambda q: urllib.request.Request(server.url + "control?" + q, method="POST")  # noqa: E731
+        for q, code in (("pause=toggle", 409), ("step=1", 409), ("step=-1", 400), ("nothing=1", 409)):
+            with pytest.raises(urllib.error.HTTPError) as e:
+                urllib.request.urlopen(post(q), timeout=5)  # a finished run is not paused
             assert e.value.code == code and len(e.value.read().decode().strip().splitlines()) == 1
         with socket.create_connection(server.httpd.server_address[:2], timeout=5) as s:  # garbage
             s.sendall(b"\x00\xffnot http at all\r\n\r\n")

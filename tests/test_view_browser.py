@@ -19,6 +19,7 @@ import time
 from importlib import resources
 from pathlib import Path
 
+import numpy as np
 import pytest
 import yaml
 
@@ -96,12 +97,12 @@ def browser(browser_paths):
     driver.quit()
 
 
-def _serve(run: Path) -> tuple[subprocess.Popen, str]:
-    """``swarm-sitl view RUN --port 0`` and the page's address it prints."""
+def _page_process(*args: str) -> tuple[subprocess.Popen, str]:
+    """``swarm-sitl ARGS`` (``view`` or ``run --view 0``) and the page's address it prints first."""
     proc = subprocess.Popen(
-        [*module_argv("swarm_sitl"), "view", str(run), "--port", "0"],
+        [*module_argv("swarm_sitl"), *args],
         stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
         text=True,
         env=child_env(),
     )
@@ -109,8 +110,13 @@ def _serve(run: Path) -> tuple[subprocess.Popen, str]:
     m = re.search(r"http://127\.0\.0\.1:\d+/", line)
     if not m:
         proc.kill()
-        raise AssertionError(f"view printed {line!r}; stderr: {proc.stderr.read() if proc.stderr else ''}")
+        raise AssertionError(f"{args[0]} printed {line!r}")
     return proc, m.group(0)
+
+
+def _serve(run: Path) -> tuple[subprocess.Popen, str]:
+    """``swarm-sitl view RUN --port 0``."""
+    return _page_process("view", str(run), "--port", "0")
 
 
 def _wait(cond, what: str, timeout_s: float = 20.0):
@@ -136,6 +142,11 @@ def _go_to(driver, t_s: float) -> float:
     )
     text = driver.find_element("id", "time").text
     return float(re.search(r"t = ([0-9.]+) s", text).group(1))
+
+
+def _run_live(config: Path, out: Path, *extra: object) -> tuple[subprocess.Popen, str]:
+    """``swarm-sitl run CONFIG --view 0 ...``."""
+    return _page_process("run", str(config), *map(str, extra), "--view", "0", "--out", str(out), "--quiet")
 
 
 def _shown(driver) -> float:
@@ -227,19 +238,11 @@ def test_a_live_run_in_the_browser_grows_its_error_plot_and_colours_its_cut_edge
     colour while the plan cuts it (2 s to 4 s) and not after, and it says when the run is over."""
     plan = tmp_path / "cut.yaml"
     plan.write_text(yaml.safe_dump({"seed": 1, "plan": [CUT]}))
-    argv = [*module_argv("swarm_sitl"), "run", str(CONFIGS / "paper.yaml"), "--realtime", "--duration", "5.5"]
-    proc = subprocess.Popen(
-        [*argv, "--faults", str(plan), "--view", "0", "--out", str(tmp_path / "run"), "--quiet"],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.STDOUT,
-        text=True,
-        env=child_env(),
+    proc, url = _run_live(
+        CONFIGS / "paper.yaml", tmp_path / "run", "--realtime", "--duration", "5.5", "--faults", plan
     )
     try:
-        line = proc.stdout.readline() if proc.stdout else ""
-        m = re.search(r"http://127\.0\.0\.1:\d+/", line)
-        assert m, f"run --view printed {line!r}"
-        browser.get(m.group(0))
+        browser.get(url)
         _wait(lambda: browser.find_elements("css selector", "#followers li.follower"), "list the followers")
         seen: list[tuple[float, str, int, int]] = []  # (time shown, 1->4's state, plot pixels, frames)
         end = time.monotonic() + 60
@@ -270,3 +273,58 @@ def test_a_live_run_in_the_browser_grows_its_error_plot_and_colours_its_cut_edge
         if proc.poll() is None:
             proc.send_signal(signal.SIGTERM)
             proc.wait(30)
+
+
+def test_a_lockstep_run_paused_stepped_and_resumed_from_its_page_equals_sim_bit_for_bit(tmp_path, browser):
+    """``run --view 0`` in lockstep: "pause run", clicked as soon as the page offers it (the run
+    starting up or just started), holds every follower at one tick (the page says which), longer
+    than the run's stall timeout, with no frame coming and no process giving up; each "step"
+    moves the swarm one tick on (the time shown by one control period); resumed, the run ends as
+    ``sim`` of the same swarm does, bit for bit. (A pause in mid-flight: tests/test_hold.py and
+    test_view.py hold the supervisor's side to it.)"""
+    cfg = yaml.safe_load((CONFIGS / "paper.yaml").read_text())
+    cfg["run"] = {**cfg.get("run", {}), "stall_timeout_s": 2.0, "tick_timeout_s": 1.0}
+    path = tmp_path / "paper.yaml"
+    path.write_text(yaml.safe_dump(cfg))
+    duration = "10"
+    proc, url = _run_live(path, tmp_path / "run", "--duration", duration)
+    try:
+        browser.get(url)
+        _wait(lambda: browser.find_element("id", "pause-run").is_displayed(), "offer to pause the run")
+        browser.find_element("id", "pause-run").click()
+        state = lambda: browser.find_element("id", "pause-run").get_attribute("data-state")  # noqa: E731
+        _wait(lambda: state() == "held", "hold the run")
+        held = _shown(browser)
+        assert f"held at t = {held:.2f} s" in browser.find_element("id", "message").text
+        assert 0 <= held < float(duration)
+        frames = browser.execute_script("return doc.frames.t_s.length")
+        time.sleep(cfg["run"]["stall_timeout_s"] + 0.5)  # (held past it: no process gives up)
+        assert proc.poll() is None and state() == "held"
+        assert browser.execute_script("return doc.frames.t_s.length") == frames and _shown(browser) == held
+        for j in (1, 2, 3):
+            browser.find_element("id", "step-run").click()
+            want = round(held + j * 0.01, 2)
+            _wait(lambda: _shown(browser) == want and state() == "held", f"step to {want} s")  # noqa: B023
+        browser.find_element("id", "pause-run").click()
+        assert proc.wait(120) == 0
+        _wait(lambda: "ended" in browser.find_element("id", "message").text, "say the run has ended")
+    finally:
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGTERM)
+            proc.wait(30)
+    sim = tmp_path / "sim"
+    argv = [
+        *module_argv("swarm_sitl"),
+        "sim",
+        str(path),
+        "--duration",
+        duration,
+        "--out",
+        str(sim),
+        "--quiet",
+    ]
+    subprocess.run(argv, check=True, env=child_env())
+    for i in range(1, 5):
+        a, b = np.load(tmp_path / "run" / f"follower_{i}.npz"), np.load(sim / f"follower_{i}.npz")
+        for key in ("p_W", "v_W", "q_WB", "omega_B", "thrust_N", "p_hat", "v_hat", "u"):
+            assert np.array_equal(a[key], b[key]), (i, key)

@@ -7,12 +7,12 @@ and every node is a client of it. The router authenticates each session by user 
 access control (default deny) lets node ``i`` (user ``node_<i>``; 0 is the leader):
 
 - put on its out-edges ``edge/<i>/<d>`` and on its ``status/<i>``; declare its ``alive/<i>``;
-- subscribe to its in-edges ``edge/<s>/<i>``, to ``start``, and to the status and liveliness of the
-  nodes it watches (the leader paces itself on its out-neighbours; a fault plan's watchers);
+- subscribe to its in-edges ``edge/<s>/<i>``, to ``start`` and ``hold``, and to the status and
+  liveliness of the nodes it watches (the leader paces itself on its out-neighbours; a fault plan's watchers);
 
 and nothing else: a put on another node's edge or on ``start``, a subscription to another node's
 in-edge or to a wildcard, is dropped by zenoh itself. Only the supervisor's own session, inside
-the router, publishes ``start``. ``NodeKeys`` is also what the
+the router, publishes ``start`` and ``hold``. ``NodeKeys`` is also what the
 node's bus declares (``node_bus``), so the rules and the bus cannot disagree.
 """
 
@@ -83,7 +83,8 @@ def _rules(swarm: str, k: NodeKeys) -> dict[str, list[str]]:
     if k.node > 0:
         puts.append(zenoh_keys.status(swarm, k.node))
     subs = [zenoh_keys.edge(swarm, s, k.node) for s in k.in_sources]
-    subs += [zenoh_keys.status(swarm, f) for f in k.watch_status] + [zenoh_keys.start(swarm)]
+    subs += [zenoh_keys.status(swarm, f) for f in k.watch_status]
+    subs += [zenoh_keys.start(swarm), zenoh_keys.hold(swarm)]
     alive = [zenoh_keys.alive(swarm, n) for n in dict.fromkeys([*k.in_sources, *k.watch_alive])]
     rules = {
         "put": puts,

@@ -18,6 +18,9 @@ END_LINGER_S = 0.25
 #: real time: how far ahead of a node's clock another's message may be [s] (their clocks are one
 #: host's, or NTP-synchronised hosts'); one further ahead is refused (``node_bus``)
 HORIZON_LEAD_S = 0.5
+#: lockstep, held: longest block between two looks at the hold (its put wakes a bus's descriptor
+#: at once; the leader has none to block on) [s]
+HELD_BLOCK_S = 0.02
 
 
 class RunClock:
@@ -107,12 +110,14 @@ def wait_until(
     on_idle: Callable[[], None] | None = None,
     idle_every_s: float = 0.05,
     block_s: Callable[[], float] | None = None,
+    held: Callable[[], bool] | None = None,
 ) -> None:
     """Read inputs until ``ready()``; ``on_idle()`` every ``idle_every_s``; ``StallError`` after
     ``timeout_s`` with ``describe()`` saying what is missing. Between reads it blocks on ``fds``
     for ``block_s()`` (default ``POLL_S``, for inputs without a descriptor): longer when every input
     has one, since its data wakes the select anyway and each needless wake-up costs a loaded
-    machine."""
+    machine. While ``held()`` (lockstep: the supervisor holds the run) the timeout does not run:
+    a node past the hold may wait on one held before it until its user lets the run go."""
     start = time.monotonic()
     next_idle = start + idle_every_s
     while True:
@@ -120,9 +125,31 @@ def wait_until(
         if ready():
             return
         now = time.monotonic()
+        if held is not None and held():
+            start = now
         if now - start > timeout_s:
             raise StallError(f"{describe()} (waited {now - start:.1f} s)")
         if on_idle is not None and now >= next_idle:
             on_idle()
             next_idle = now + idle_every_s
         _block(fds, POLL_S if block_s is None else block_s())
+
+
+def wait_while_held(
+    hold: Callable[[], int],
+    done_tick: int,
+    read: Callable[[], None],
+    fds: Sequence[int],
+    on_idle: Callable[[], None] | None = None,
+) -> None:
+    """Lockstep: a node that has finished ``done_tick`` waits while the supervisor's hold
+    (``hold()``, ``NodeBus.hold_tick``) is at or below it: a page's pause, or the tick a single
+    step runs to. Every node finishes the tick it is on, so the ticks its out-neighbours are on
+    get their inputs and none of them waits on a held node. No stall timeout: a held run waits
+    as long as its user does (the supervisor's end ends it: ``lifeline``). ``on_idle()`` between
+    looks (a controller's heartbeat to its vehicle)."""
+    while done_tick >= hold():
+        if on_idle is not None:
+            on_idle()
+        _block(fds, HELD_BLOCK_S)
+        read()

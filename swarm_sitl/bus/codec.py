@@ -9,6 +9,8 @@
   ``sim``; the CRC-32 of the bytes before it, so a corrupted message is dropped, not flown
 - status: ``u8 version, u16 follower, u32 step, f64 t_s, f64 sample_t_s, 3 x f64 p_W``
 - start: ``u8 version, f64 epoch_unix_s`` (real time: tick 0 happens at this instant)
+- hold: ``u8 version, i64 tick`` (lockstep: a node that has finished a tick at or past it waits
+  for a later one; ``HOLD_NONE``: no hold, -1: every node stops after the tick it is on)
 
 ``docs/bus.md`` has them byte by byte, with the keys. ``decode_*`` raise ``PayloadError`` (one
 line) for anything else; receivers drop and count it.
@@ -28,6 +30,8 @@ _HEAD = struct.Struct("<BHId3dH")  #: a message's version, src, step, t_s, p_W a
 _CRC = 4
 _STATUS = struct.Struct("<BHIdd3d")
 _START = struct.Struct("<Bd")
+_HOLD = struct.Struct("<Bq")
+HOLD_NONE = 2**62  #: the hold that holds nothing (every tick of any run is below it)
 
 
 class PayloadError(ValueError):
@@ -131,3 +135,14 @@ def encode_start(epoch_unix_s: float) -> bytes:
 
 def decode_start(data: bytes) -> float:
     return float(_check(data, _START, "start", 1)[1])
+
+
+def encode_hold(tick: int) -> bytes:
+    return _HOLD.pack(VERSION, tick)
+
+
+def decode_hold(data: bytes) -> int:
+    tick = int(_check(data, _HOLD, "hold", 2)[1])
+    if tick < -1:
+        raise PayloadError(f"hold payload has tick {tick}, below -1")
+    return tick

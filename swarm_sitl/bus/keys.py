@@ -5,6 +5,7 @@
     swarm/<name>/edge/<src>/<dst>     estimate of node src for node dst (src 0: the leader's reference)
     swarm/<name>/status/<i>           follower i's progress and position, every ``run.status_every`` ticks
     swarm/<name>/start                the supervisor's start signal (the real-time epoch)
+    swarm/<name>/hold                 lockstep: the last tick a node may finish before it waits
     swarm/<name>/alive/<node>         liveliness token of node 0 (leader) or follower i, once ready
 
 A controller publishes on each of its out-edges and subscribes to each of its in-edges, by its
@@ -22,6 +23,10 @@ def status(swarm: str, follower: int) -> str:
 
 def start(swarm: str) -> str:
     return f"swarm/{swarm}/start"
+
+
+def hold(swarm: str) -> str:
+    return f"swarm/{swarm}/hold"
 
 
 def alive(swarm: str, node: int) -> str:

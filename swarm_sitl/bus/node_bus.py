@@ -38,9 +38,11 @@ from sim_vehicles.runtime.counter_file import CounterFile
 from swarm_sitl.bus import keys as zenoh_keys
 from swarm_sitl.bus.access import NodeKeys
 from swarm_sitl.bus.codec import (
+    HOLD_NONE,
     Message,
     PayloadError,
     Status,
+    decode_hold,
     decode_message,
     decode_start,
     decode_status,
@@ -73,7 +75,7 @@ QUEUE_FULL_WAIT_S = 0.0005  #: how often a callback held by a full queue looks a
 DRAIN_POLL_S = 0.01  #: how often ``drain`` looks whether its receivers have gone [s]
 
 # what a queued sample came on
-_ESTIMATE, _STATUS, _ALIVE, _START = range(4)
+_ESTIMATE, _STATUS, _ALIVE, _START, _HOLD = range(5)
 
 
 class NodeBus(Protocol):
@@ -105,6 +107,11 @@ class NodeBus(Protocol):
     def forget_before(self, step: int) -> None: ...
     def progress(self, follower: int) -> int: ...
     def start_epoch(self) -> float | None: ...
+    def hold_tick(self) -> int:
+        """Lockstep: the supervisor's hold (``codec.HOLD_NONE`` while there is none): a node that
+        has finished a tick at or past it waits (``clock.wait_while_held``)."""
+        ...
+
     def lost(self) -> set[int]: ...
     def set_ready(self) -> None: ...
     def drain(self, timeout_s: float) -> bool: ...
@@ -154,6 +161,7 @@ class ZenohNodeBus(EstimateTable):
         #: in real time also no further ahead of this node's clock than ``HORIZON_LEAD_S``)
         self.horizon: Callable[[], int] = lambda: 2**32
         self._epoch: float | None = None
+        self._hold = HOLD_NONE
         self._token: Any = None
         #: where each decoded estimate goes: ``file`` (a fault wrapper puts its stage here)
         self.deliver: Callable[[Message], None] = self.file
@@ -190,7 +198,10 @@ class ZenohNodeBus(EstimateTable):
         self._status_subs = [
             (f, session.declare_subscriber(zenoh_keys.status(swarm, f), on(_STATUS, f))) for f in watch_status
         ]
-        self._start_sub = [session.declare_subscriber(zenoh_keys.start(swarm), on(_START, 0))]
+        self._start_sub = [
+            session.declare_subscriber(zenoh_keys.start(swarm), on(_START, 0)),
+            session.declare_subscriber(zenoh_keys.hold(swarm), on(_HOLD, 0)),
+        ]
 
     def _queued(self, what: int, n: int, sample: Any) -> None:
         """On zenoh's thread: queue the sample and wake the loop (nothing else, to hold the GIL
@@ -256,10 +267,14 @@ class ZenohNodeBus(EstimateTable):
                 else:
                     self._lost.discard(n)
                     self._puts[n] = self._puts.get(n, 0) + 1
-            else:
+            elif what == _START:
                 epoch = self._decoded(decode_start, sample)
                 if epoch is not None and self._epoch is None:
                     self._epoch = epoch
+            else:
+                hold = self._decoded(decode_hold, sample)
+                if hold is not None:
+                    self._hold = hold
 
     def _decoded(self, decode: Callable[[bytes], T], sample: Any) -> T | None:
         """The sample's payload decoded, or None if it is malformed (dropped and counted)."""
@@ -324,6 +339,9 @@ class ZenohNodeBus(EstimateTable):
 
     def start_epoch(self) -> float | None:
         return self._epoch
+
+    def hold_tick(self) -> int:
+        return self._hold
 
     def lost(self) -> set[int]:
         return set(self._lost)

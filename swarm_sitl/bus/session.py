@@ -15,7 +15,7 @@ import zenoh
 from pydantic import BaseModel, ConfigDict
 
 from swarm_sitl.bus import keys as zenoh_keys
-from swarm_sitl.bus.codec import encode_start
+from swarm_sitl.bus.codec import encode_hold, encode_start
 
 
 class ZenohSpec(BaseModel):
@@ -131,3 +131,8 @@ def error_line(e: Exception) -> str:
 
 def publish_start(session: zenoh.Session, swarm: str, epoch_unix_s: float) -> None:
     session.put(zenoh_keys.start(swarm), encode_start(epoch_unix_s))
+
+
+def publish_hold(session: zenoh.Session, swarm: str, tick: int) -> None:
+    """Lockstep: the last tick a node may finish before it waits (``bus.hold``)."""
+    session.put(zenoh_keys.hold(swarm), encode_hold(tick))

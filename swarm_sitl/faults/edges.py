@@ -199,6 +199,9 @@ class FaultyBus:
     def start_epoch(self) -> float | None:
         return self.inner.start_epoch()
 
+    def hold_tick(self) -> int:
+        return self.inner.hold_tick()
+
     def lost(self) -> set[int]:
         """Nodes whose liveliness is gone, but for those the plan restarts: their absence is
         planned, and the stall timeout still bounds the wait for them."""

@@ -42,9 +42,10 @@ from swarm_sitl.bus.clock import (
     linger_after_last_tick,
     sleep_until,
     wait_until,
+    wait_while_held,
     wall_epoch_to_monotonic,
 )
-from swarm_sitl.bus.codec import Message, Status
+from swarm_sitl.bus.codec import HOLD_NONE, Message, Status
 from swarm_sitl.bus.estimates import newest_for_tick
 from swarm_sitl.bus.node_bus import NodeBus
 from swarm_sitl.config.schema import SwarmConfig
@@ -120,8 +121,8 @@ def wait_for_start(bus: NodeBus, link: VehicleLink | None, timeout_s: float, who
 class _Inputs:
     """What one tick waits for, and reading it: the vehicle link and the bus."""
 
-    def __init__(self, who: str, link: VehicleLink, bus: NodeBus, sources: list[int], dt: float):
-        self.who, self.link, self.bus, self.sources, self.dt = who, link, bus, sources, dt
+    def __init__(self, who: str, node: int, link: VehicleLink, bus: NodeBus, sources: list[int], dt: float):
+        self.who, self.node, self.link, self.bus, self.sources, self.dt = who, node, link, bus, sources, dt
         # lockstep: either input wakes the wait
         self.fds = [link.fileno(), bus.fileno()]
         # real time: the bus is read at the tick only, and so is a link with kernel arrival stamps
@@ -140,6 +141,10 @@ class _Inputs:
         self.t_ms = 0
         self.need: list[int] = []
         self._lost_since = math.inf
+        #: lockstep: the tick last finished, its instant [s], its sample's [s] and position [m]
+        #: (what a node held mid-tick says: ``idle``), and the tick last said so
+        self.done: tuple[int, float, float, np.ndarray] | None = None
+        self._said = -1
 
     def read(self) -> None:
         self.bus.poll()
@@ -173,6 +178,12 @@ class _Inputs:
         return f"{self.who} at tick {k}: no {', '.join(what)}{tail}"
 
     def idle(self) -> None:
+        done = self.done
+        if done is not None and done[0] > self.bus.hold_tick() and self._said != done[0]:
+            # it finished a tick past the hold before it heard of it, and this tick's inputs may
+            # be held: it says where it is, and the supervisor brings the hold up to it
+            self._said = done[0]
+            self.bus.publish_status(Status(self.node, *done))
         if (
             self.last_cmd is not None
             and not self.link.sample_settled(self.t_ms)
@@ -207,8 +218,19 @@ class _Inputs:
             self.bus.poll()
         if not self.ready():
             wait_until(
-                self.ready, self.read, self.fds, timeout_s, self.missing, self.idle, block_s=lambda: IDLE_S
+                self.ready,
+                self.read,
+                self.fds,
+                timeout_s,
+                self.missing,
+                self.idle,
+                block_s=lambda: IDLE_S,
+                held=self.held,
             )
+
+    def held(self) -> bool:
+        """Lockstep: whether the supervisor holds the run (a page's pause)."""
+        return self.bus.hold_tick() != HOLD_NONE
 
     def send(self, cmd: AttitudeCommand, time_boot_ms: int) -> None:
         self.last_cmd = cmd
@@ -252,7 +274,7 @@ def run_controller(
     link.connect(r.start_timeout_s)
     law = build_law(cfg, i, link.params["MASS_KG"], link.params["MAX_THRUST_N"])
     sources = [s for s, _ in cfg.build_graph().in_neighbours(i)]
-    io = _Inputs(who, link, bus, sources, dt)
+    io = _Inputs(who, i, link, bus, sources, dt)
     inbox_of = NeighbourInbox(i, sources, cfg.estimator.staleness_s, events)
     _warm_up(cfg, i, link, sources)
     settle_heap()
@@ -388,8 +410,14 @@ def _loop(
                 step.record,
                 inbox_of.ages,
             )
-        if k % r.status_every == 0 or k == n or k == io.first:
+        # lockstep: a node held after this tick says where it stopped (a page shows each step)
+        held = lockstep and k >= bus.hold_tick()
+        if held or k % r.status_every == 0 or k == n or k == io.first:
             bus.publish_status(Status(i, k, t, sample_t, p))
+        if lockstep:
+            io.done = (k, t, sample_t, p)
+            if held and k < n:
+                wait_while_held(bus.hold_tick, k, io.read, io.fds, link.send_heartbeat_if_due)
         if k % FORGET_EVERY == 0:
             bus.forget_before(k - 1)
         k += 1

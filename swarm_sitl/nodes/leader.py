@@ -2,7 +2,8 @@
 
 Real time: tick ``k`` at ``epoch + t_k`` on the wall clock. Lockstep: as fast as its out-neighbours
 allow, at most ``run.lockstep_window`` ticks ahead of the slowest of them (their status messages
-say where they are), so a follower never has an unbounded backlog.
+say where they are), so a follower never has an unbounded backlog; and no further than the
+supervisor's hold (``clock.wait_while_held``: a page's pause), which it obeys as a follower does.
 """
 
 import time
@@ -14,9 +15,10 @@ from swarm_sitl.bus.clock import (
     linger_after_last_tick,
     sleep_until,
     wait_until,
+    wait_while_held,
     wall_epoch_to_monotonic,
 )
-from swarm_sitl.bus.codec import Message
+from swarm_sitl.bus.codec import HOLD_NONE, Message
 from swarm_sitl.bus.node_bus import NodeBus
 from swarm_sitl.config.schema import SwarmConfig
 from swarm_sitl.nodes.assembly import build_leader
@@ -58,6 +60,9 @@ def run_leader(
         floor = resume_tick - 1 if resume_tick else -1
         return all(max(bus.progress(j), floor) >= step[0] - r.lockstep_window for j in out_neighbours)
 
+    def held() -> bool:  # the tick before this one is at or past the hold
+        return step[0] - 1 >= bus.hold_tick()
+
     def behind() -> str:
         at = [bus.progress(j) for j in out_neighbours]
         return f"leader at tick {step[0]}: followers {out_neighbours} report no progress (at ticks {at})"
@@ -67,7 +72,19 @@ def run_leader(
     for k in range(first, n + 1):
         step[0] = clock.tick = k
         if lockstep:
-            wait_until(ahead_ok, bus.poll, [], r.stall_timeout_s, behind, block_s=lambda: LEADER_POLL_S)
+            while True:  # the window, and the hold (followers held stop reporting progress)
+                wait_until(
+                    lambda: ahead_ok() or held(),
+                    bus.poll,
+                    [],
+                    r.stall_timeout_s,
+                    behind,
+                    block_s=lambda: LEADER_POLL_S,
+                    held=lambda: bus.hold_tick() != HOLD_NONE,
+                )
+                if not held():
+                    break
+                wait_while_held(bus.hold_tick, k - 1, bus.poll, [])
         else:
             sleep_until(epoch_mono + k * dt, [], bus.poll)
             if time.monotonic() - epoch_mono - k * dt > dt:

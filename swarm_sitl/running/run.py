@@ -22,7 +22,7 @@ from sim_vehicles.runtime.lifeline import settle_heap
 from sim_vehicles.runtime.secret_file import write_secret
 from swarm_sitl.bus import access as zenoh_access
 from swarm_sitl.bus import keys as zenoh_keys
-from swarm_sitl.bus.session import publish_start
+from swarm_sitl.bus.session import publish_hold, publish_start
 from swarm_sitl.config.load import ConfigError
 from swarm_sitl.config.schema import SwarmConfig
 from swarm_sitl.faults.processes import LostAircraftError, ProcessFaults
@@ -189,6 +189,9 @@ def run_swarm(request: RunRequest) -> RunResult:
         sup.close()
         raise
     monitor = RunMonitor(session, cfg)
+    hold = request.view.hold if request.view is not None and lockstep else None
+    if hold is not None:  # the page's pause and step
+        hold.put = lambda tick: publish_hold(session, cfg.name, tick)
     router = None
     if cfg.zenoh.mode == "client":
         router = RouterWatch(
@@ -274,7 +277,10 @@ def run_swarm(request: RunRequest) -> RunResult:
                 next_progress = now + 0.25
             if request.view is not None and now >= next_view:
                 down = faults.down | faults.lost if faults is not None else set()
-                request.view.update(monitor.latest(), monitor.errors_m(), down)
+                statuses = monitor.latest()
+                if hold is not None:
+                    hold.act(statuses, down, now)
+                request.view.update(statuses, monitor.errors_m(), down)
                 next_view = now + VIEW_EVERY_S
             time.sleep(SUPERVISE_EVERY_S)
         run_wall = time.monotonic() - t_start

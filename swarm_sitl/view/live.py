@@ -24,6 +24,7 @@ from pathlib import Path
 from typing import Any
 
 from swarm_sitl.bus.codec import Status
+from swarm_sitl.bus.hold import LockstepHold
 from swarm_sitl.config.schema import SwarmConfig
 from swarm_sitl.rundir.events import on_run_clock, parse_events, plan_events
 from swarm_sitl.rundir.layout import procs_dir
@@ -55,7 +56,8 @@ class LiveFeed:
         self._last_t = -math.inf
         self.rtf: float | None = None
         self.done = False
-        self.paused = False
+        #: a lockstep run's pause and step (the run puts it on the bus; None in real time)
+        self.hold = LockstepHold(cfg.n_control_steps) if lockstep else None
 
     # -- fed by the supervisor -------------------------------------------------------------------
     def started(self, epoch_unix_s: float) -> None:
@@ -69,7 +71,8 @@ class LiveFeed:
         if not statuses:
             return
         t = min(s.t_s for i, s in statuses.items() if i not in down) if set(statuses) - down else None
-        if t is None or t < self._last_t + 1.0 / FRAME_HZ - 1e-9:
+        stepped = self.hold is not None and self.hold.paused and t is not None and t > self._last_t
+        if t is None or (t < self._last_t + 1.0 / FRAME_HZ - 1e-9 and not stepped):
             self._read_events()
             return
         self._last_t = t
@@ -157,6 +160,7 @@ class LiveFeed:
         ).encode()
 
     def frames_since(self, frame: int, event: int) -> bytes:
+        held = None if self.hold is None else self.hold.held_at
         with self._lock:
             skip = max(0, frame - self._dropped)
             frames, events = list(self._frames)[skip:], self._events[event:]
@@ -166,13 +170,19 @@ class LiveFeed:
                 "events": events,
                 "done": self.done,
                 "rtf": self.rtf,
-                "paused": self.paused,
+                "paused": self.hold is not None and self.hold.paused,
+                "held_s": None if held is None else round(held * self.cfg.control_dt_s, 9),
             },
             separators=(",", ":"),
         ).encode()
 
-    def control(self, pause: str | None, step: int) -> str:
-        return "pausing and stepping a run from the page is not there yet"
+    def control(self, pause: str | None, step: int) -> tuple[int, str]:
+        """The page's pause or step: an HTTP status and one line."""
+        if self.done:
+            return 409, "the run is over"
+        if self.hold is None:
+            return 409, "a real-time run flies on the wall clock: pause and step are for a lockstep run"
+        return self.hold.control(pause, step)
 
 
 def _columns(frames: list[dict[str, Any]], cfg: SwarmConfig) -> dict[str, Any]:

@@ -185,8 +185,8 @@ class ReplaySource:
     def frames_since(self, frame: int, event: int) -> bytes:
         return self.NOTHING_MORE
 
-    def control(self, pause: str | None, step: int) -> str:
-        return "a finished run: nothing to pause or step"
+    def control(self, pause: str | None, step: int) -> tuple[int, str]:
+        return 409, "a finished run: its page plays and pauses itself (pause and step are for a lockstep run)"
 
 
 def _in_order(events: list[dict[str, Any]]) -> list[dict[str, Any]]:

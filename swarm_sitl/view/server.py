@@ -42,7 +42,9 @@ class DocumentSource(Protocol):
 
     def document(self) -> bytes: ...
     def frames_since(self, frame: int, event: int) -> bytes: ...
-    def control(self, pause: str | None, step: int) -> str: ...
+    def control(self, pause: str | None, step: int) -> tuple[int, str]:
+        """A page's pause or step: an HTTP status and one line."""
+        ...
 
 
 def _asset(name: str) -> bytes:
@@ -107,7 +109,8 @@ class _Handler(BaseHTTPRequestHandler):
             self._send(HTTPStatus.BAD_REQUEST, f"{e}\n".encode())
             return
         pause = query.get("pause", [None])[0]
-        self._send(HTTPStatus.OK, (self.source.control(pause, step) + "\n").encode())
+        status, line = self.source.control(pause, step)
+        self._send(status, (line + "\n").encode())
 
 
 class ViewServer:

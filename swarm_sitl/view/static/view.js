@@ -78,12 +78,23 @@ async function poll() {
   doc.events.push(...more.events);
   doc.done = more.done;
   el("rtf").textContent = more.rtf ? `${more.rtf.toFixed(1)}x real time` : "";
-  el("pause-run").textContent = more.paused ? "resume run" : "pause run";
-  say(more.done ? "the run has ended" : more.paused ? "the run is paused" : "");
+  showHold(more);
   frameCount();
   if (following && nFrames()) cur = nFrames() - 1;
   show();
   if (!more.done) setTimeout(poll, POLL_MS);
+}
+
+// live, lockstep: the run paused (held at one tick once every follower is there) or flying
+function showHold(more) {
+  const held = more.paused && more.held_s !== null && !more.done;
+  el("pause-run").textContent = more.paused ? "resume run" : "pause run";
+  el("pause-run").disabled = more.done;
+  el("step-run").disabled = !held;
+  el("pause-run").dataset.state = more.done ? "over" : held ? "held" : more.paused ? "pausing" : "flying";
+  if (more.done) say("the run has ended");
+  else if (held) say(`the run is held at t = ${more.held_s.toFixed(2)} s`);
+  else say(more.paused ? "pausing the run..." : "");
 }
 
 // -- drawing ------------------------------------------------------------------------------------
@@ -266,7 +277,10 @@ el("play").onclick = () => {
 el("slider").oninput = () => { cur = Number(el("slider").value); following = false; simAtWall = doc.frames.t_s[cur] || 0; show(); };
 el("follow").onclick = () => { following = true; playing = false; cur = nFrames() - 1; show(); };
 async function control(what) {
-  try { await fetch(`/control?${what}`, { method: "POST" }); } catch (e) { say(`the run did not answer: ${e.message}`); }
+  try {
+    const r = await fetch(`/control?${what}`, { method: "POST" });
+    if (!r.ok) say(await r.text());
+  } catch (e) { say(`the run did not answer: ${e.message}`); }
 }
 el("pause-run").onclick = () => control("pause=toggle");
 el("step-run").onclick = () => control("step=1");
