@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from swarm_sitl.bus.clock import StallError
-from swarm_sitl.bus.codec import Message
+from swarm_sitl.bus.codec import HOLD_NONE, Message
 from swarm_sitl.laws.command_attitude import SingularCommandError
 from swarm_sitl.laws.contract import Received, VehicleSample
 from swarm_sitl.nodes import controller as controller_node
@@ -36,6 +36,9 @@ class _Bus:
     def fileno(self) -> int:
         return -1
 
+    def hold_tick(self) -> int:
+        return HOLD_NONE
+
 
 class _Link:
     stamps_arrivals = True
@@ -49,7 +52,7 @@ class _Link:
 
 
 def _waiting_at_tick_10(bus: _Bus) -> _Inputs:
-    io = _Inputs("follower 4", _Link(), bus, [1, 2], 0.01)  # type: ignore[arg-type]
+    io = _Inputs("follower 4", 4, _Link(), bus, [1, 2], 0.01)  # type: ignore[arg-type]
     io.k, io.t_ms, io.need = 10, 100, [1, 2]
     return io
 
