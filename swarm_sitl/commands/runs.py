@@ -29,7 +29,7 @@ from swarm_sitl.commands.common import (
     run_dir_of,
     summary_lines,
 )
-from swarm_sitl.commands.view import DEFAULT_PORT, port_number, serve
+from swarm_sitl.commands.view import DEFAULT_PORT, port_number, serve, stream_to_foxglove
 from swarm_sitl.config.load import with_duration, with_faults, with_seed, with_spec
 from swarm_sitl.config.schema import SwarmConfig
 from swarm_sitl.rundir.layout import expected_run_bytes
@@ -37,6 +37,7 @@ from swarm_sitl.rundir.metrics import bound_failures, describe_inputs
 from swarm_sitl.rundir.outputs import write_outputs
 from swarm_sitl.rundir.rejoins import rejoin_lines
 from swarm_sitl.rundir.whole_files import WriteError
+from swarm_sitl.view.foxglove_live import DEFAULT_PORT as FOXGLOVE_PORT
 from swarm_sitl.view.live import LiveFeed
 
 
@@ -167,16 +168,27 @@ def _run_and_record(
     base_port: int = 0,
     external: tuple[int, ...] = (),
     view: tuple[str, int] | None = None,
+    foxglove: tuple[str, int] | None = None,
 ) -> int:
-    """``view``: the address and port of the run's live page (``run --view``), or None."""
+    """``view``: the address and port of the run's live page (``run --view``), or None;
+    ``foxglove``: those of its Foxglove WebSocket server (``run --foxglove``), or None."""
     from swarm_sitl.running.run import RunRequest, record_run  # the run machinery: 0.12 s (module doc)
 
     warn_if_short_of_disk(cfg, run_dir)
     clock = "lockstep" if lockstep else "real time"
-    feed = server = None
-    if view is not None:
+    feed = server = stream = None
+    if view is not None or foxglove is not None:
         feed = LiveFeed(cfg, run_dir, lockstep)
-        server = serve(feed, *view, "live view")
+    if foxglove is not None and feed is not None:
+        stream = stream_to_foxglove(cfg, *foxglove)
+        feed.sinks.append(stream)
+    if view is not None and feed is not None:
+        try:
+            server = serve(feed, *view, "live view")
+        except CliError:
+            if stream is not None:
+                stream.close()
+            raise
     progress = _RunProgress(cfg, f"{kind} {cfg.name} ({clock})", quiet)
     try:
         out = record_run(
@@ -184,6 +196,13 @@ def _run_and_record(
         )
     finally:
         progress.close()
+        if stream is not None and feed is not None:
+            stream.close()
+            failed = "; ".join(feed.sink_errors)
+            print(
+                f"foxglove: {stream.logged} messages logged" + (f"; it stopped: {failed}" if failed else ""),
+                file=sys.stderr,
+            )
         if server is not None:
             server.close()
             print(
@@ -266,8 +285,9 @@ def cmd_run(args: argparse.Namespace) -> int:
     external = check_external(cfg, args.external, args.realtime)
     run_dir = run_dir_of(args.out, cfg, "run")
     view = None if args.view is None else (args.view_host, args.view)
+    foxglove = None if args.foxglove is None else (args.view_host, args.foxglove)
     return _run_and_record(
-        cfg, run_dir, not args.realtime, args.quiet, None, "run", args.base_port, external, view
+        cfg, run_dir, not args.realtime, args.quiet, None, "run", args.base_port, external, view, foxglove
     )
 
 
@@ -410,7 +430,20 @@ def add_run(sub: Any) -> None:
         metavar="PORT",
         help=f"watch it in the browser: a page on 127.0.0.1:PORT (default {DEFAULT_PORT}; 0: a free one)",
     )
-    r.add_argument("--view-host", default="127.0.0.1", help="the page's address (default: loopback only)")
+    r.add_argument(
+        "--foxglove",
+        type=port_number,
+        nargs="?",
+        const=FOXGLOVE_PORT,
+        metavar="PORT",
+        help="stream it to Foxglove: its WebSocket protocol on 127.0.0.1:PORT (default "
+        f"{FOXGLOVE_PORT}; 0: a free one), the page's frames on the MCAP export's topics",
+    )
+    r.add_argument(
+        "--view-host",
+        default="127.0.0.1",
+        help="the page's and the Foxglove stream's address (default: loopback only)",
+    )
     add_base_port(r)
     add_run_outputs(r, "run")
     r.set_defaults(func=cmd_run)

@@ -1,5 +1,6 @@
 """``swarm-sitl view RUN_DIR``: a finished run in the browser (``view``), with a time slider, play,
 pause and speed. Any run directory, made before the view or after: it reads what every run writes.
+And what ``run --view`` and ``run --foxglove`` start: the page's server, the Foxglove stream.
 """
 
 import argparse
@@ -8,6 +9,8 @@ import threading
 from typing import Any
 
 from swarm_sitl.commands.common import CliError
+from swarm_sitl.config.schema import SwarmConfig
+from swarm_sitl.view.foxglove_live import FoxgloveError, FoxgloveStream
 from swarm_sitl.view.replay import ReplaySource, replay_document
 from swarm_sitl.view.server import ViewError, ViewServer
 
@@ -29,6 +32,16 @@ def serve(source: Any, host: str, port: int, what: str) -> ViewServer:
         raise CliError(str(e)) from None
     print(f"{what}: {server.url}", flush=True)
     return server
+
+
+def stream_to_foxglove(cfg: SwarmConfig, host: str, port: int) -> FoxgloveStream:
+    """A Foxglove WebSocket server for the run of ``cfg`` from now on; prints where (one line)."""
+    try:
+        stream = FoxgloveStream(cfg, host, port)
+    except FoxgloveError as e:
+        raise CliError(str(e)) from None
+    print(f"foxglove: {stream.url} (Foxglove: open connection, Foxglove WebSocket)", flush=True)
+    return stream
 
 
 def cmd_view(args: argparse.Namespace) -> int:

@@ -74,12 +74,13 @@ REFERENCE_FIELDS = ["p_r", "v_r", "a_r"]
 EVENT = {"title": "swarm_sitl.Event", "type": "object", "properties": {"kind": {"type": "string"}}}
 
 
-def _ns(t_s: float) -> int:
+def timestamp_ns(t_s: float) -> int:
     return max(0, round(t_s * 1e9))
 
 
-def _pose(t_s: float, p: np.ndarray, q_wxyz: np.ndarray | None) -> dict[str, Any]:
-    ns = _ns(t_s)
+def pose_message(t_s: float, p: np.ndarray | list[float], q_wxyz: np.ndarray | None) -> dict[str, Any]:
+    """A ``foxglove.PoseInFrame`` in ``world`` (ENU) at ``t_s``; ``q_wxyz`` None: the identity."""
+    ns = timestamp_ns(t_s)
     w, x, y, z = (1.0, 0.0, 0.0, 0.0) if q_wxyz is None else (float(v) for v in q_wxyz)
     return {
         "timestamp": {"sec": ns // 1_000_000_000, "nsec": ns % 1_000_000_000},
@@ -123,21 +124,21 @@ def write_mcap(run_dir: str | Path, path: str | Path) -> dict[str, int]:
                 channels[topic] = w.register_channel(
                     topic=topic, message_encoding="json", schema_id=ids[kind]
                 )
-            ns = _ns(t_s)
+            ns = timestamp_ns(t_s)
             w.add_message(channels[topic], log_time=ns, data=json.dumps(message).encode(), publish_time=ns)
             counts[topic] = counts.get(topic, 0) + 1
 
         L = rec.leader
         for k in _finite_rows(L["t_s"]):
             t = float(L["t_s"][k])
-            put("/leader/pose", "pose", t, _pose(t, L["p_r"][k], None))
+            put("/leader/pose", "pose", t, pose_message(t, L["p_r"][k], None))
             put("/leader/reference", "reference", t, _row(t, L, REFERENCE_FIELDS, k))
         for i, a in sorted(rec.followers.items()):
             for k in _finite_rows(a["t_s"]):
                 t = float(a["t_s"][k])
                 if not np.all(np.isfinite(a["p_W"][k])):
                     continue
-                put(f"/follower_{i}/pose", "pose", t, _pose(t, a["p_W"][k], a["q_WB"][k]))
+                put(f"/follower_{i}/pose", "pose", t, pose_message(t, a["p_W"][k], a["q_WB"][k]))
                 put(f"/follower_{i}/state", "state", t, _row(t, a, FOLLOWER_FIELDS, k))
         for src, dst in cfg.graph_edges():
             for k in _finite_rows(L["t_s"] if src == 0 else rec.followers[src]["t_s"]):

@@ -1,4 +1,5 @@
-"""The swarm in a browser: a live run's page (``run --view``) and a finished run's (``view``).
+"""The swarm in a browser: a live run's page (``run --view``) and a finished run's (``view``);
+and in Foxglove, live (``run --foxglove``).
 
 - ``layout``: the communication graph laid out by hops from the leader, no label on another's;
 - ``replay``: a run directory as the page's document (frames of the formation, its errors, each
@@ -6,7 +7,9 @@
   server;
 - ``live``: a running swarm's document, fed by its supervisor with what it already reads;
 - ``server``: the page and its assets from the installed package, and the document, over HTTP on
-  loopback, one thread per request: a browser never holds up a run.
+  loopback, one thread per request: a browser never holds up a run;
+- ``foxglove_live``: the live feed's frames and events to Foxglove over its WebSocket protocol
+  (``run --foxglove``), on the MCAP export's topics.
 
 May import: sim_vehicles.common, laws, bus, faults, config, rundir.
 """

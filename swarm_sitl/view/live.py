@@ -20,8 +20,9 @@ import math
 import threading
 import time
 from collections import deque
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 from swarm_sitl.bus.codec import Status
 from swarm_sitl.bus.hold import LockstepHold
@@ -29,6 +30,14 @@ from swarm_sitl.config.schema import SwarmConfig
 from swarm_sitl.rundir.events import on_run_clock, parse_events, plan_events
 from swarm_sitl.rundir.layout import procs_dir
 from swarm_sitl.view.replay import DOWN, FAILSAFE, FRAME_HZ, _event_line, _num, static_part
+
+
+class Sink(Protocol):
+    """Where else the feed's frames and events go as they are made (``foxglove_live``)."""
+
+    def frame(self, frame: dict[str, Any]) -> None: ...
+    def events(self, events: list[dict[str, Any]]) -> None: ...
+
 
 MAX_FRAMES = int(600 * FRAME_HZ)  #: frames kept (ten minutes of simulated time)
 EVENTS_EVERY_S = 0.5  #: how often the processes' event files are read [s]
@@ -58,6 +67,9 @@ class LiveFeed:
         self.done = False
         #: a lockstep run's pause and step (the run puts it on the bus; None in real time)
         self.hold = LockstepHold(cfg.n_control_steps) if lockstep else None
+        #: where else each frame and event goes, as it is made (on the supervisor's thread)
+        self.sinks: list[Sink] = []
+        self.sink_errors: list[str] = []  #: a sink that failed, one line each (it gets no more)
 
     # -- fed by the supervisor -------------------------------------------------------------------
     def started(self, epoch_unix_s: float) -> None:
@@ -82,10 +94,11 @@ class LiveFeed:
             s = statuses.get(i)
             state = (DOWN if i in down or s is None else 0) | (FAILSAFE if i in self._failsafe else 0)
             if s is None or i in down:
-                followers[str(i)] = ([None, None, None], None, state)
+                followers[str(i)] = ([None, None, None], None, state, None)
                 continue
             err = errors_m.get(i, math.nan)
-            followers[str(i)] = ([_num(v) for v in s.p_W.tolist()], _num(err, 4), state)
+            # (its own tick's instant: in lockstep the followers' newest statuses are of other ticks)
+            followers[str(i)] = ([_num(v) for v in s.p_W.tolist()], _num(err, 4), state, s.t_s)
         ages = {}
         for src, dst in self._edges:
             a, b = statuses.get(src), statuses.get(dst)
@@ -102,6 +115,7 @@ class LiveFeed:
             self._frames.append(frame)
             if self._wall0 is not None and time.monotonic() > self._wall0:
                 self.rtf = t / (time.monotonic() - self._wall0)
+        self._to_sinks(lambda s: s.frame(frame))
         self._read_events()
 
     def _read_events(self) -> None:
@@ -121,8 +135,20 @@ class LiveFeed:
             elif e["kind"] == "failsafe_exit" and isinstance(v, int):
                 self._failsafe.discard(v)
         if new:
+            lines = [_event_line(e) for e in sorted(new, key=lambda e: e["t_s"])]
             with self._lock:
-                self._events += [_event_line(e) for e in sorted(new, key=lambda e: e["t_s"])]
+                self._events += lines
+            self._to_sinks(lambda s: s.events(lines))
+
+    def _to_sinks(self, give: Callable[[Sink], None]) -> None:
+        """``give(sink)`` for each sink; one that raises is dropped with its line kept (the run
+        flies on: a sink is never worth a run)."""
+        for sink in list(self.sinks):
+            try:
+                give(sink)
+            except Exception as e:
+                self.sinks.remove(sink)
+                self.sink_errors.append(f"{type(sink).__name__}: {type(e).__name__}: {e}")
 
     def _tail(self, path: Path) -> list[dict[str, Any]]:
         """The complete lines ``path`` has had since it was last read (a vehicle's events are
