@@ -47,15 +47,26 @@ class FateTable:
         self.seed, self.rules, self.channel = seed, rules, channel
         self.end_s, self.period_s, self.stamp_ms = end_s, period_s, stamp_ms
         self._blocks: dict[int, list[Fate]] = {}
+        #: the block last read and its first tick (none yet: no tick k >= 0 is within it)
+        self._first: int = -2 * BLOCK
+        self._block: list[Fate] = []
 
     def at(self, k: int) -> Fate:
         """The fate of tick ``k``'s message."""
-        b = k // BLOCK
+        j = k - self._first
+        if 0 <= j < BLOCK:
+            return self._block[j]
+        self._block = self._fates_of(k // BLOCK)
+        self._first = k // BLOCK * BLOCK
+        return self._block[k - self._first]
+
+    def _fates_of(self, b: int) -> list[Fate]:
+        """Block ``b``'s fates, drawn when first asked for."""
         block = self._blocks.get(b)
         if block is None:
             block = self._blocks[b] = self._draw(b)
             self._blocks.pop(b - 2, None)  # (ticks come in order, give or take a delay)
-        return block[k - b * BLOCK]
+        return block
 
     def _messages(self, ticks: np.ndarray, j: int) -> StepsOnLink:
         """Entry ``j``'s view of the messages of ``ticks``."""

@@ -44,7 +44,7 @@ from sim_vehicles.runtime.event_log import EventLog
 from sim_vehicles.vehicle.modes import MODE_OFFBOARD, FlightModes
 from swarm_sitl.bus.clock import RunClock
 from swarm_sitl.bus.codec import Message
-from swarm_sitl.bus.estimates import EstimateTable, newest_for_tick
+from swarm_sitl.bus.estimates import EstimateTable
 from swarm_sitl.config.schema import SwarmConfig
 from swarm_sitl.faults.fate_table import FateTable, batched
 from swarm_sitl.faults.in_edges import InEdges
@@ -311,7 +311,10 @@ class PlannedSwarm:
         self.series[i].record_vehicle(k, t, truth, sample.t_s)
         if f.stage is not None:
             f.stage.release()
-        inbox = f.inbox.gather(t, lambda s: newest_for_tick(f.table, s, k)) if k > f.first else {}
+        # what lockstep's tick uses (``newest_for_tick``) is the newest filed: the messages of
+        # tick k are admitted after every node's tick k (``tick``), so the table holds none of
+        # tick k or later, and the estimate of tick k - 1, when it has come, is the newest
+        inbox = f.inbox.gather(t, f.table.latest) if k > f.first else {}
         step = f.law.step(t, sample, inbox)
         x, y, z = sample.p_W.tolist()
         msg = Message(i, k, t, step.message, (x, y, z))
