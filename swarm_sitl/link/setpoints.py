@@ -36,8 +36,17 @@ class Setpoints:
         """``cmd`` as SET_ATTITUDE_TARGET stamped ``time_boot_ms``, thrust 0..1 of ``max_thrust_N``."""
         mav_ = self.transport.conn.mav
         q_c, omega = cmd.q_c, cmd.omega_c_B
-        if not (type(q_c) is np.ndarray and type(omega) is np.ndarray):
-            q_c, omega = np.asarray(q_c, dtype=float), np.asarray(omega, dtype=float)
+        # writable float arrays, as tick_frames.warm_up compiles the kernel for: a read-only one
+        # (AttitudeCommand's default rates, ZERO3) is another type to numba, compiled at the first
+        # setpoint in every controller (seconds on a fresh install: a real-time run's first ticks
+        # stalled past run.tick_timeout_s)
+        if not (
+            type(q_c) is np.ndarray
+            and type(omega) is np.ndarray
+            and q_c.flags.writeable
+            and omega.flags.writeable
+        ):
+            q_c, omega = np.array(q_c, dtype=float), np.array(omega, dtype=float)
         n = tick_frames.pack_setpoint(
             self._out,
             mav_.seq,
