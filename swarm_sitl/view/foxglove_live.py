@@ -99,6 +99,9 @@ class FoxgloveStream:
         self._edges = channel("/edges", EDGE_AGES)
         self._events = channel("/events", EVENT)
         self.logged = 0  #: messages logged (to every client subscribed to their channel)
+        #: per follower, the tick instant it was last logged at [s] (a frame can carry a follower
+        #: whose status has not moved since the frame before: not logged again)
+        self._logged_t: dict[int, float] = {}
 
     @property
     def port(self) -> int:
@@ -121,6 +124,9 @@ class FoxgloveStream:
         for key, (p, err, state, t_i) in frame["followers"].items():
             i = int(key)
             t_i = t if t_i is None else float(t_i)  # (down: at the frame's time)
+            if t_i <= self._logged_t.get(i, -math.inf):
+                continue
+            self._logged_t[i] = t_i
             if p[0] is not None:
                 self._log(self._poses[i], pose_message(t_i, p, None), timestamp_ns(t_i))
             formation = {
