@@ -91,6 +91,8 @@ class LockstepHold:
             return
         with self._lock:
             asked, self._asked = self._asked, []
+        live = [s.step for i, s in statuses.items() if i not in down]  # where each live follower is
+        furthest = max(live, default=STOP)
         hold = self.tick
         for what, ticks in asked:
             if what == "pause" and not self.paused:
@@ -98,10 +100,9 @@ class LockstepHold:
             elif what == "resume":
                 self.paused, hold = False, HOLD_NONE
             elif what == "step" and self.paused:
-                hold = max(hold, self._furthest(statuses, down)) + ticks
-        live = [s.step for i, s in statuses.items() if i not in down]
-        if self.paused and live:
-            hold = max(hold, max(live))  # (a follower that stopped past the hold: the others come)
+                hold = max(hold, furthest) + ticks
+        if self.paused:
+            hold = max(hold, furthest)  # (a follower that stopped past the hold: the others come)
         hold = min(hold, self.last_tick) if hold != HOLD_NONE else hold
         level = self.paused and bool(live) and all(k == hold for k in live) and hold == self.tick
         self._level_since = (now if self._level_since is None else self._level_since) if level else None
@@ -111,8 +112,3 @@ class LockstepHold:
             self.tick = hold
             self.put(hold)
             self._next_put = now + REPUT_EVERY_S
-
-    @staticmethod
-    def _furthest(statuses: dict[int, Status], down: set[int]) -> int:
-        live = [s.step for i, s in statuses.items() if i not in down]
-        return max(live) if live else STOP
