@@ -139,7 +139,7 @@ def test_real_time_rides_through_half_an_edge_and_a_fifth_of_a_mavlink_link_lost
     path = tmp_path / "loss.yaml"
     path.write_text(yaml.safe_dump(cfg))
     out = tmp_path / "rt"
-    dur = 16
+    dur = 10  # (below 0.1 m from about 3 s on: the formation is checked over its last 4 s)
     r, _ = _run(path, out, "--realtime", "--duration", dur)
     assert r.returncode == 0, r.stderr + r.stdout
     s = json.loads((out / "summary.json").read_text())
