@@ -131,7 +131,7 @@ class FoxgloveStream:
                 self._log(self._poses[i], pose_message(t_i, p, None), timestamp_ns(t_i))
             formation = {
                 "t_s": t_i,
-                "error_m": err if err is None or math.isfinite(err) else None,
+                "error_m": err,  # (the feed's: None where it is not finite, ``replay._num``)
                 "down": bool(state & DOWN),
                 "failsafe": bool(state & FAILSAFE),
             }
