@@ -12,6 +12,8 @@ import select
 import time
 from collections.abc import Callable, Sequence
 
+from swarm_sitl.bus.codec import HOLD_NONE
+
 POLL_S = 0.0005  #: longest block between two reads when an input has no file descriptor [s]
 #: real time: how long after the last tick's instant a node that is done keeps its zenoh session [s]
 END_LINGER_S = 0.25
@@ -110,14 +112,15 @@ def wait_until(
     on_idle: Callable[[], None] | None = None,
     idle_every_s: float = 0.05,
     block_s: Callable[[], float] | None = None,
-    held: Callable[[], bool] | None = None,
+    hold: Callable[[], int] | None = None,
 ) -> None:
     """Read inputs until ``ready()``; ``on_idle()`` every ``idle_every_s``; ``StallError`` after
     ``timeout_s`` with ``describe()`` saying what is missing. Between reads it blocks on ``fds``
     for ``block_s()`` (default ``POLL_S``, for inputs without a descriptor): longer when every input
     has one, since its data wakes the select anyway and each needless wake-up costs a loaded
-    machine. While ``held()`` (lockstep: the supervisor holds the run) the timeout does not run:
-    a node past the hold may wait on one held before it until its user lets the run go."""
+    machine. While ``hold()`` (lockstep: the supervisor's hold, ``NodeBus.hold_tick``) is out,
+    the timeout does not run: a node past the hold may wait on one held before it until its
+    user lets the run go."""
     start = time.monotonic()
     next_idle = start + idle_every_s
     while True:
@@ -125,7 +128,7 @@ def wait_until(
         if ready():
             return
         now = time.monotonic()
-        if held is not None and held():
+        if hold is not None and hold() != HOLD_NONE:
             start = now
         if now - start > timeout_s:
             raise StallError(f"{describe()} (waited {now - start:.1f} s)")

@@ -45,7 +45,7 @@ from swarm_sitl.bus.clock import (
     wait_while_held,
     wall_epoch_to_monotonic,
 )
-from swarm_sitl.bus.codec import HOLD_NONE, Message, Status
+from swarm_sitl.bus.codec import Message, Status
 from swarm_sitl.bus.estimates import newest_for_tick
 from swarm_sitl.bus.node_bus import NodeBus
 from swarm_sitl.config.schema import SwarmConfig
@@ -225,12 +225,8 @@ class _Inputs:
                 self.missing,
                 self.idle,
                 block_s=lambda: IDLE_S,
-                held=self.held,
+                hold=self.bus.hold_tick,
             )
-
-    def held(self) -> bool:
-        """Lockstep: whether the supervisor holds the run (a page's pause)."""
-        return self.bus.hold_tick() != HOLD_NONE
 
     def send(self, cmd: AttitudeCommand, time_boot_ms: int) -> None:
         self.last_cmd = cmd

@@ -18,7 +18,7 @@ from swarm_sitl.bus.clock import (
     wait_while_held,
     wall_epoch_to_monotonic,
 )
-from swarm_sitl.bus.codec import HOLD_NONE, Message
+from swarm_sitl.bus.codec import Message
 from swarm_sitl.bus.node_bus import NodeBus
 from swarm_sitl.config.schema import SwarmConfig
 from swarm_sitl.nodes.assembly import build_leader
@@ -80,7 +80,7 @@ def run_leader(
                     r.stall_timeout_s,
                     behind,
                     block_s=lambda: LEADER_POLL_S,
-                    held=lambda: bus.hold_tick() != HOLD_NONE,
+                    hold=bus.hold_tick,
                 )
                 if not held():
                     break
