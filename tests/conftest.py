@@ -69,6 +69,8 @@ LOCKSTEP_ONLY = {
     "test_quad_swarm.py",
     "test_vehicle_from_docs.py",
     "test_link_from_docs.py",
+    "test_view_foxglove.py",
+    "test_zenoh_attacks.py",
 }
 
 
