@@ -2,10 +2,14 @@
 followers, every generated graph), a run directory as the page's document (frames against the
 recorded arrays, the plan's windows, an older run without edge ages), the live feed (frames at
 most 20 a second of simulated time, the oldest dropped past its bound) and the server (its
-assets, its answers to bad requests, a port in use)."""
+assets, its answers to bad requests, a port in use, the Host names it answers and the page that
+may control a run)."""
 
+import http.client
 import itertools
 import json
+import random
+import re
 import socket
 import urllib.error
 import urllib.request
@@ -22,7 +26,7 @@ from swarm_sitl.running.sim import run_sim
 from swarm_sitl.view import live
 from swarm_sitl.view.layout import MARGIN_PX, NODE_PX, graph_layout, hops_from_leader
 from swarm_sitl.view.replay import DOWN, FRAME_HZ, GRAPH_PX, ReplaySource, replay_document
-from swarm_sitl.view.server import ViewError, ViewServer
+from swarm_sitl.view.server import TOKEN_HEADER, ViewError, ViewServer
 from tests.conftest import CONFIGS
 
 
@@ -193,7 +197,9 @@ def test_the_server_serves_the_page_from_the_package_and_answers_bad_requests_in
             with pytest.raises(urllib.error.HTTPError) as e:
                 get(path)
             assert e.value.code == code and len(e.value.read().decode().strip().splitlines()) == 1
-        post = lambda q: urllib.request.Request(server.url + "control?" + q, method="POST")  # noqa: E731
+        post = lambda q: urllib.request.Request(  # noqa: E731
+            server.url + "control?" + q, method="POST", headers={TOKEN_HEADER: server.token}
+        )
         for q, code in (("pause=toggle", 409), ("step=1", 409), ("step=-1", 400), ("nothing=1", 409)):
             with pytest.raises(urllib.error.HTTPError) as e:
                 urllib.request.urlopen(post(q), timeout=5)  # a finished run is not paused
@@ -204,6 +210,82 @@ def test_the_server_serves_the_page_from_the_package_and_answers_bad_requests_in
         assert get("document.json").status == 200  # still serving
         with pytest.raises(ViewError, match="is in use"):
             ViewServer(ReplaySource({}), port=server.httpd.server_address[1])
+    finally:
+        server.close()
+
+
+def _raw(server: ViewServer, method: str, path: str, headers: dict[str, str]) -> tuple[int, bytes]:
+    """One request with exactly ``headers`` (``Host`` among them, or none)."""
+    conn = http.client.HTTPConnection(*server.httpd.server_address[:2], timeout=5)
+    try:
+        conn.putrequest(method, path, skip_host=True, skip_accept_encoding=True)
+        for k, v in headers.items():
+            conn.putheader(k, v)
+        conn.endheaders()
+        r = conn.getresponse()
+        return r.status, r.read()
+    finally:
+        conn.close()
+
+
+@pytest.mark.unit
+def test_the_server_answers_only_its_own_names_and_takes_control_only_from_its_own_page(cut_run):
+    """DNS rebinding and cross-origin requests: a request whose Host is not one of the server's
+    names (its address, localhost, 127.0.0.1, [::1], each with its port) is 403 with one line,
+    whatever the path or method; a control request is taken only with the page's own Origin or
+    the token the page holds (a finished run answers 409 once taken), never with another origin,
+    another scheme or port, a wrong token or neither. Random names and origins, seeded."""
+    _, _, out = cut_run
+    server = ViewServer(ReplaySource(replay_document(out))).start()
+    port = server.httpd.server_address[1]
+    rng = random.Random(53)
+    own = [f"127.0.0.1:{port}", f"localhost:{port}", f"LocalHost:{port}", f"[::1]:{port}"]
+    words = ["evil", "attacker", "127.0.0.1", "localhost", "example", "rebind", "0", "com", "nip.io"]
+    foreign = [
+        f"attacker.example:{port}",
+        f"127.0.0.1:{port + 1}",
+        "127.0.0.1",
+        f"localhost.evil.com:{port}",
+        f"127.0.0.1.nip.io:{port}",
+        f"[::1]:{port + 1}",
+        f"127.0.0.2:{port}",
+        "",
+    ] + [f"{'.'.join(rng.choices(words, k=rng.randint(2, 4)))}:{port}" for _ in range(20)]
+    try:
+        page = _raw(server, "GET", "/", {"Host": own[0]})
+        assert page[0] == 200
+        token = re.search(rb'name="control-token" content="([^"]+)"', page[1])
+        assert token is not None and token.group(1).decode() == server.token
+        for host in own:
+            assert _raw(server, "GET", "/document.json", {"Host": host})[0] == 200
+        refused = 0
+        for host in foreign:
+            for method, path in (("GET", "/"), ("GET", "/document.json"), ("POST", "/control?pause=on")):
+                status, body = _raw(server, method, path, {"Host": host} if host else {})
+                assert status == 403 and len(body.decode().strip().splitlines()) == 1, (host, path)
+                refused += 1
+        good_origins = [f"http://{h}" for h in own]
+        bad_origins = [
+            "http://evil.example",
+            f"http://attacker.example:{port}",
+            f"https://127.0.0.1:{port}",
+            f"http://127.0.0.1:{port + 1}",
+            f"http://127.0.0.1:{port}/x",
+            "null",
+            "",
+        ]
+        for origin in good_origins:  # taken: a finished run cannot be held (409)
+            assert _raw(server, "POST", "/control?pause=on", {"Host": own[0], "Origin": origin})[0] == 409
+        assert (
+            _raw(server, "POST", "/control?pause=on", {"Host": own[1], TOKEN_HEADER: server.token})[0] == 409
+        )
+        for origin in bad_origins:
+            for extra in ({}, {TOKEN_HEADER: server.token[:-1] + "x"}, {TOKEN_HEADER: ""}):
+                headers = {"Host": own[0], **({"Origin": origin} if origin else {}), **extra}
+                status, body = _raw(server, "POST", "/control?pause=on", headers)
+                assert status == 403 and len(body.decode().strip().splitlines()) == 1, (origin, extra)
+                refused += 1
+        assert server.refused == refused
     finally:
         server.close()
 

@@ -7,15 +7,20 @@ Debian machine or CI runner: about 20 s); where that cannot be done the tests sk
 A finished run (``sim`` of the paper's swarm with edge 1->4 cut by the plan from 2 s to 4 s) is
 served by ``swarm-sitl view``: the page shows every follower; moving the slider moves the time
 shown; the cut edge is in its fault colour inside its window and not outside it; the error plot
-is drawn up to the time shown. Each test keeps a screenshot beside its run.
+is drawn up to the time shown. Each test keeps a screenshot beside its run. A live lockstep run
+held from its page is not moved by another web page: neither by requests naming another Host or
+Origin nor by a page of another origin in the same browser.
 """
 
+import http.client
 import os
 import re
 import shutil
 import signal
 import subprocess
+import threading
 import time
+from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from importlib import resources
 from pathlib import Path
 
@@ -147,6 +152,56 @@ def _go_to(driver, t_s: float) -> float:
 def _run_live(config: Path, out: Path, *extra: object) -> tuple[subprocess.Popen, str]:
     """``swarm-sitl run CONFIG --view 0 ...``."""
     return _page_process("run", str(config), *map(str, extra), "--view", "0", "--out", str(out), "--quiet")
+
+
+def _request(url: str, method: str, path: str, headers: dict[str, str]) -> int:
+    """The status of one request to the page's server with exactly ``headers``."""
+    host, port = re.match(r"http://([0-9.]+):(\d+)/", url).groups()  # type: ignore[union-attr]
+    conn = http.client.HTTPConnection(host, int(port), timeout=5)
+    try:
+        conn.putrequest(method, path, skip_host=True, skip_accept_encoding=True)
+        for k, v in headers.items():
+            conn.putheader(k, v)
+        conn.endheaders()
+        return conn.getresponse().status
+    finally:
+        conn.close()
+
+
+def _foreign_page_posts(driver, url: str, queries: list[str]) -> None:
+    """A page of another origin (another port of this machine), opened in a new tab of the same
+    browser, POSTs each of ``queries`` to the run's ``/control`` as any web page may: ``fetch`` in
+    ``no-cors`` mode (a "simple" request, which a browser sends cross-origin without asking)."""
+    calls = "".join(
+        f'await fetch("{url}control?{q}", {{method: "POST", mode: "no-cors"}}); ' for q in queries
+    )
+    done = "() => { document.title = 'sent'; }"
+    body = f"<!doctype html><title>foreign</title><script>(async () => {{ {calls} }})().then({done}, {done});"
+    body = (body + "</script>").encode()
+
+    class Page(BaseHTTPRequestHandler):
+        def do_GET(self) -> None:
+            self.send_response(200)
+            self.send_header("Content-Type", "text/html")
+            self.send_header("Content-Length", str(len(body)))
+            self.end_headers()
+            self.wfile.write(body)
+
+        def log_message(self, *args: object) -> None:
+            pass
+
+    server = ThreadingHTTPServer(("127.0.0.1", 0), Page)
+    threading.Thread(target=server.serve_forever, daemon=True).start()
+    view_tab = driver.current_window_handle
+    try:
+        driver.switch_to.new_window("tab")
+        driver.get(f"http://127.0.0.1:{server.server_address[1]}/")
+        _wait(lambda: driver.title == "sent", "send the foreign page's requests")
+        driver.close()
+    finally:
+        driver.switch_to.window(view_tab)
+        server.shutdown()
+        server.server_close()
 
 
 def _shown(driver) -> float:
@@ -305,6 +360,15 @@ def test_a_lockstep_run_paused_stepped_and_resumed_from_its_page_equals_sim_bit_
             browser.find_element("id", "step-run").click()
             want = round(held + j * 0.01, 2)
             _wait(lambda: _shown(browser) == want and state() == "held", f"step to {want} s")  # noqa: B023
+        # other web pages move nothing: a rebinding page's Host, another origin, another page
+        port = url.rstrip("/").rsplit(":", 1)[1]
+        evil = {"Origin": "http://evil.example", "Host": f"attacker.example:{port}"}
+        assert _request(url, "POST", "/control?pause=off", evil) == 403
+        assert _request(url, "GET", "/", {"Host": evil["Host"]}) == 403
+        assert _request(url, "POST", "/control?pause=off", {**evil, "Host": f"127.0.0.1:{port}"}) == 403
+        _foreign_page_posts(browser, url, ["pause=off", "step=1", "pause=toggle"])
+        time.sleep(0.5)  # (a step or a resume taken would have moved the run by now)
+        assert state() == "held" and _shown(browser) == want and proc.poll() is None
         browser.find_element("id", "pause-run").click()
         assert proc.wait(120) == 0
         _wait(lambda: "ended" in browser.find_element("id", "message").text, "say the run has ended")

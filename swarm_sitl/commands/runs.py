@@ -205,9 +205,10 @@ def _run_and_record(
             )
         if server is not None:
             server.close()
+            refused = f" ({server.refused} refused: another Host or page)" if server.refused else ""
             print(
-                f"live view: {server.requests} requests answered; the run is over, to watch it again: "
-                f"swarm-sitl view {run_dir}",
+                f"live view: {server.requests} requests answered{refused}; the run is over, to watch it "
+                f"again: swarm-sitl view {run_dir}",
                 file=sys.stderr,
             )
     if out.lost_outputs is not None:

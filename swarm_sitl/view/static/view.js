@@ -278,7 +278,9 @@ el("slider").oninput = () => { cur = Number(el("slider").value); following = fal
 el("follow").onclick = () => { following = true; playing = false; cur = nFrames() - 1; show(); };
 async function control(what) {
   try {
-    const r = await fetch(`/control?${what}`, { method: "POST" });
+    // the server's token (server.py): a control request must come from this page
+    const token = document.querySelector('meta[name="control-token"]').content;
+    const r = await fetch(`/control?${what}`, { method: "POST", headers: { "X-Swarm-Sitl-Token": token } });
     if (!r.ok) say(await r.text());
   } catch (e) { say(`the run did not answer: ${e.message}`); }
 }
