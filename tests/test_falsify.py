@@ -346,3 +346,99 @@ def test_a_law_that_ends_its_worker_is_a_violation_and_the_pool_goes_on(tmp_path
         assert ev.map([cut(0.6), cut(0.5)]) == [997.0, 997.0]  # the pool made again flies on
     finally:
         ev.close()
+
+
+#: a user's link model in a file: every message lost outside the first ``on_fraction`` of each
+#: period; ``fails``: "raise" raises at 0.5 s, "die" ends the process there (after a line)
+DUTY_LINK = """
+import os
+import sys
+
+from pydantic import BaseModel, Field
+
+from swarm_sitl.faults.link_model import Effect
+
+
+class DutyCycleOutage:
+    class Params(BaseModel):
+        period_s: float = Field(gt=0)
+        on_fraction: float = Field(ge=0, le=1)
+        fails: str = "no"
+
+    def fate(self, p, m):
+        if p.fails != "no" and m.t_s >= 0.5:
+            if p.fails == "die":
+                print("duty link: the outage table is gone", file=sys.stderr, flush=True)
+                os._exit(7)
+            raise RuntimeError("the outage table is gone")
+        return None if (m.t_s % p.period_s) < p.on_fraction * p.period_s else Effect(lost=True)
+"""
+
+
+def _duty_config(tmp_path, fails: str = "no", on_fraction: float = 0.0) -> tuple:
+    """The paper's swarm for 3 s, its leader's edges under the user's duty-cycle model (a file
+    beside the config, named relative to it), judged by a requirement it can meet or not."""
+    (tmp_path / "duty_link.py").write_text(DUTY_LINK)
+    data = yaml.safe_load((CONFIGS / "paper.yaml").read_text())
+    data["duration_s"] = 3.0
+    params = {"period_s": 1.0, "on_fraction": on_fraction, "fails": fails}
+    data["faults"] = {
+        "plan": [{"leader_edges": True, "model": {"entry": "duty_link.py:DutyCycleOutage", "params": params}}]
+    }
+    data["spec"] = [{"name": "near", "formula": "always[2, end] (pos_err_m <= 2.0)"}]
+    path = tmp_path / "duty.yaml"
+    path.write_text(yaml.safe_dump(data))
+    (tmp_path / "space.yaml").write_text("entries:\n  - {edges: each, loss: [0.0, 1.0]}\n")
+    return path, tmp_path / "space.yaml"
+
+
+@pytest.mark.system
+def test_a_configs_own_file_link_model_is_shipped_to_workers_and_flown_under_every_plan(tmp_path):
+    """A config whose own ``faults:`` names a link model in a file (issue 46: its worker died
+    importing it and the search said "fails without any fault"): the file is shipped with the
+    config, the config's own plan flies under the searched plans, so the baseline is exactly the
+    robustness ``sim`` gives the config as written (not the fault-free one), and the
+    counterexample file holds the config's entries before the searched ones."""
+    from swarm_sitl.falsify.evaluate import robustness_of
+    from swarm_sitl.running.sim import run_sim
+
+    for on_fraction in (0.0, 1.0):  # every leader message lost; none
+        config, space = _duty_config(tmp_path, on_fraction=on_fraction)
+        cfg, name = requirement_config(load_config(config), None, None)
+        as_written = robustness_of(cfg, run_sim(cfg), name)
+        free = cfg.model_copy(update={"faults": type(cfg.faults)()})
+        out = tmp_path / f"out{on_fraction:g}"
+        found = falsify(
+            config, out, space=space, budget=4, jobs=1, batch=2, confirm=False, say=lambda s: None
+        )
+        assert found.baseline == pytest.approx(as_written, rel=0, abs=0), (found.baseline, as_written)
+        if on_fraction == 0.0:  # the own plan breaks the requirement: nothing to search for
+            assert as_written < 0 <= robustness_of(free, run_sim(free), name)
+            assert "own plan alone" in (out / "report.md").read_text()
+        else:
+            assert found.evaluations >= 4 and found.baseline >= 0
+            if found.plan is not None:
+                assert found.plan["plan"][0]["model"]["entry"].endswith("duty_link.py:DutyCycleOutage")
+
+
+@pytest.mark.system
+@pytest.mark.parametrize(
+    ("fails", "said"),
+    [("raise", "RuntimeError: the outage table is gone"), ("die", "duty link: the outage table is gone")],
+)
+def test_a_worker_that_fails_is_an_error_naming_the_plan_the_worker_and_its_last_line(tmp_path, fails, said):
+    """A plan a worker cannot fly (its flight raised; its process died with a line on stderr) ends
+    ``falsify`` with exit 1 and one line naming the plan, the worker and what it last said;
+    ``report.md`` gives no verdict on the swarm."""
+    config, space = _duty_config(tmp_path, fails=fails)
+    out = tmp_path / "out"
+    r = _cli(
+        "falsify", config, "--space", space, "--out", out, "--jobs", "1", "--budget", "2", "--no-confirm"
+    )
+    assert r.returncode == 1, (r.stdout, r.stderr)
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and said in lines[0] and "worker" in lines[0] and '"plan"' in lines[0], lines
+    if fails == "die":
+        assert "exit code 7" in lines[0]
+    report = (out / "report.md").read_text()
+    assert "Nothing is said of the swarm" in report and "robustness" not in report

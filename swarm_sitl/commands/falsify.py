@@ -1,6 +1,7 @@
 """``swarm-sitl falsify``: the cheapest fault plan that breaks a requirement (``falsify``)."""
 
 import argparse
+import sys
 from typing import Any
 
 from swarm_sitl.commands.common import CliError, interrupted_exit
@@ -9,6 +10,7 @@ from swarm_sitl.commands.common import CliError, interrupted_exit
 def cmd_falsify(args: argparse.Namespace) -> int:
     from swarm_sitl.campaigns.runner import SchedulerError
     from swarm_sitl.falsify.search import FalsifyError, falsify, load_inputs
+    from swarm_sitl.falsify.workers import WorkerError
 
     for flag, n in (("--jobs", args.jobs), ("--batch", args.batch)):
         if n is not None and n < 1:
@@ -47,6 +49,9 @@ def cmd_falsify(args: argparse.Namespace) -> int:
         )
     except SchedulerError as e:
         raise CliError(str(e)) from None
+    except WorkerError as e:  # no verdict (report.md says so): exit 1, as a failed run
+        print(f"swarm-sitl: error: falsify stopped: {e}", file=sys.stderr)
+        return 1
     except KeyboardInterrupt as stop:  # (before the search had begun)
         return interrupted_exit(stop)[0]
     rate = f"{f.per_minute:.1f} per minute"
@@ -54,9 +59,8 @@ def cmd_falsify(args: argparse.Namespace) -> int:
     if f.interrupted:
         print("  interrupted: what was found is written")
     if f.baseline < 0:
-        print(
-            f"  {f.requirement} fails without any fault (robustness {f.baseline:.4g}): nothing to search for"
-        )
+        without = "with the config's own plan alone" if f.base_entries else "without any fault"
+        print(f"  {f.requirement} fails {without} (robustness {f.baseline:.4g}): nothing to search for")
         return 3
     if f.plan is None:
         if f.interrupted:

@@ -10,6 +10,7 @@ the robustness found here is the one a lockstep run under the same plan gives.
 """
 
 import math
+from collections.abc import Callable
 from typing import Any
 
 from swarm_sitl.config.schema import SwarmConfig
@@ -59,11 +60,17 @@ def robustness_of(cfg: SwarmConfig, rec: Recording, name: str) -> float:
     return -math.inf if r is None else float(r)
 
 
-def evaluate(cfg: SwarmConfig, name: str, plan: dict[str, Any]) -> float:
-    """Fly ``plan`` (a ``faults:`` mapping) in ``sim``; the robustness of requirement ``name``."""
+def evaluate(
+    cfg: SwarmConfig,
+    name: str,
+    plan: dict[str, Any],
+    on_hard_stop: Callable[[str, Recording], None] | None = None,
+) -> float:
+    """Fly ``plan`` (a ``faults:`` mapping) in ``sim``; the robustness of requirement ``name``.
+    ``on_hard_stop``: told before a law held in compiled code ends the process (``run_sim``)."""
     flown = cfg.model_copy(update={"faults": FaultPlan.model_validate(plan)})
     try:
-        rec = run_sim(flown)
+        rec = run_sim(flown, on_hard_stop=on_hard_stop)
     except SimFailedError as e:  # the law failed: judged on what it recorded (NaN after: violated)
         rec = e.recording
     return robustness_of(flown, rec, name)

@@ -33,7 +33,8 @@ class Found:
     per_minute: float = math.nan
     interrupted: bool = False  #: Ctrl-C or SIGTERM: what was found up to it
     signum: int = 0  #: the signal that stopped it
-    baseline: float = math.nan  #: the requirement's robustness without a fault
+    baseline: float = math.nan  #: the requirement's robustness without a searched fault
+    base_entries: int = 0  #: the config's own plan's entries, flown under every searched plan
 
 
 def order(row: dict[str, Any]) -> tuple[float, float]:
@@ -134,12 +135,28 @@ def edge_picture(path: Path, rows: list[dict[str, Any]], cfg: SwarmConfig) -> No
     edge_graph(cfg.graph_edges(), edge_shares(rows, cfg), [], len(cfg.followers), path, title, True)
 
 
+def failed_report(path: Path, cfg: SwarmConfig, name: str, why: str) -> None:
+    """``report.md`` of a search a worker ended: what failed, and no verdict on the swarm."""
+    lines = [f"# falsify {cfg.name}: requirement {name}", ""]
+    lines.append("The search stopped: a worker could not fly a plan. Nothing is said of the swarm.")
+    lines.append("")
+    lines.append(f"    {why}")
+    path.write_text("\n".join(lines) + "\n")
+
+
 def report(path: Path, cfg: SwarmConfig, name: str, found: Found, wall_s: float) -> None:
     lines = [f"# falsify {cfg.name}: requirement {name}", ""]
     lines.append(f"{found.evaluations} evaluations in {wall_s:.0f} s ({found.per_minute:.1f} per minute).")
-    lines.append(f"Without a fault the requirement's robustness is {found.baseline:.4g}.")
+    base = len(cfg.faults.plan)
+    if base:
+        lines.append(
+            f"The config's own plan ({base} entries) is flown under every searched plan, and is in "
+            "the counterexample."
+        )
+    without = "the config's own plan alone" if base else "a fault"
+    lines.append(f"With {without} the requirement's robustness is {found.baseline:.4g}.")
     if found.baseline < 0:
-        lines.append("It fails without any fault: there is nothing to search for.")
+        lines.append(f"It fails with {without}: there is nothing to search for.")
     elif found.plan is None:
         lines.append("No plan in the space broke the requirement.")
     else:

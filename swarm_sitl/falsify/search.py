@@ -9,6 +9,10 @@ categorical nor the conditional parameters. Trials are asked for in batches of `
 in ``sim`` by ``jobs`` worker processes or on a Dask cluster (``workers``), and told in order:
 the study, and so ``front.csv``, is the same for a seed whatever the cores or how fast each run was.
 
+A config's own ``faults:`` is flown under every searched plan (``space.flown_plan``): the search
+looks for what breaks the requirement on top of it, and the counterexample file holds both. A
+worker that cannot fly a plan (``workers.WorkerError``) ends the search with no verdict.
+
 Then the cheapest violating plan is shrunk (``shrink``), written as a plan file
 (``counterexamples/NAME.yaml``, which ``swarm-sitl run CONFIG --faults`` replays) and confirmed as
 a lockstep run of processes: its robustness there must be the same, bit for bit. Outputs in
@@ -36,14 +40,25 @@ from swarm_sitl.falsify.outputs import (
     chart,
     confirm_in_lockstep,
     edge_picture,
+    failed_report,
     front,
     order,
     report,
     write_csv,
 )
 from swarm_sitl.falsify.shrink import shrink
-from swarm_sitl.falsify.space import COSTS, Space, SpaceEntry, cost, default_space, expand, items, plan_of
-from swarm_sitl.falsify.workers import Dask, Local
+from swarm_sitl.falsify.space import (
+    COSTS,
+    Space,
+    SpaceEntry,
+    cost,
+    default_space,
+    expand,
+    flown_plan,
+    items,
+    plan_of,
+)
+from swarm_sitl.falsify.workers import Dask, Local, WorkerError
 
 
 class FalsifyError(ValueError):
@@ -165,7 +180,7 @@ def falsify(
     jobs = jobs or min(batch, multiprocessing.cpu_count())
     t0 = time.monotonic()
     flown = 0
-    found = Found(name, 0)
+    found = Found(name, 0, base_entries=len(cfg.faults.plan))
     rows: list[dict[str, Any]] = []
     ev: Local | Dask = Local(jobs, cfg, name) if scheduler is None else Dask(scheduler, cfg, name)
     stop = _Stop()
@@ -177,11 +192,13 @@ def falsify(
 
     try:
         try:
-            # the requirement must hold without a fault, or there is nothing to search for
+            # the requirement must hold without a searched fault (the config's own plan flies
+            # under every plan: ``space.flown_plan``), or there is nothing to search for
             found.baseline = fly_all([{"seed": sp.seeds[0], "plan": []}])[0]
             flown += 1
             if found.baseline < 0:
-                say(f"falsify: {name} fails without any fault (robustness {found.baseline:.4g})")
+                without = "the config's own plan alone" if cfg.faults.plan else "any fault"
+                say(f"falsify: {name} fails with {without} (robustness {found.baseline:.4g})")
                 budget = 0
             done = len(study.get_trials(states=[optuna.trial.TrialState.COMPLETE]))
             while done < budget:
@@ -210,7 +227,7 @@ def falsify(
                 )
                 flown += spent
                 rows.append({"cost": cost(expand(plan, cfg), cfg, cost_how), "robustness": r, "plan": plan})
-                found.plan, found.robustness, found.cost = expand(plan, cfg), r, rows[-1]["cost"]
+                found.plan, found.robustness, found.cost = flown_plan(plan, cfg), r, rows[-1]["cost"]
             if stop.signum:
                 raise _InterruptedError
         except (KeyboardInterrupt, _InterruptedError):
@@ -218,6 +235,9 @@ def falsify(
             found.interrupted = True
             found.signum = stop.signum or signal.SIGINT
             rows = _rows(study)
+        except WorkerError as e:  # no verdict: the swarm was not what failed
+            failed_report(out / "report.md", cfg, name, str(e))
+            raise
     finally:
         stop.close()
         ev.close()

@@ -250,6 +250,19 @@ def expand(plan: dict[str, Any], cfg: SwarmConfig) -> dict[str, Any]:
     return {"seed": plan["seed"], "plan": out}
 
 
+def flown_plan(plan: dict[str, Any], cfg: SwarmConfig) -> dict[str, Any]:
+    """What a plan of items (``plan_of``) flies: the config's own ``faults:`` entries first (its
+    base plan, flown under every searched plan), then the searched ones (``expand``), all under
+    the searched seed. What a counterexample file holds: ``run --faults`` replays it whole."""
+    searched = expand(plan, cfg)
+    fields = FaultSpec.model_fields
+    base = [
+        {k: v for k, v in f.items() if v is not None and not (k in fields and v == fields[k].default)}
+        for f in cfg.data()["faults"]["plan"]
+    ]
+    return {"seed": searched["seed"], "plan": base + searched["plan"]}
+
+
 def edges_of(entry: dict[str, Any], cfg: SwarmConfig) -> list[tuple[int, int]]:
     """The graph edges a fault plan's entry acts on (``FaultSpec.edges``; none for a MAVLink
     link or a process)."""

@@ -3,108 +3,256 @@
 Each evaluator flies a batch of plans (of the space's items, ``space.plan_of``) in ``sim`` and
 returns their robustness in the order asked, whichever worker ran what, so the study is the same
 for a seed on any number of cores and on a cluster.
+
+**What a worker takes** (``Shipment``): the config as YAML text with each plug-in file it names
+(a law, a vehicle model, a link model) as bytes beside it (``rundir.plugins.pack``, as ``sweep``
+ships a campaign's runs), never a Python object: a plug-in's class lives in a module its worker
+imports from that file, wherever the worker is.
+
+**A worker that fails is an error, never a robustness** (``WorkerError``: one line naming the
+plan, the worker and its last line): a plan whose flight raised, a config the worker could not
+load, a worker process that died. The one exception is the law's own guard (``nodes.law_guard``):
+a user's law held in compiled code past ``run.tick_timeout_s`` ends its process on purpose, after
+saying so, and that plan is a violation (``NO_ROBUSTNESS``), as a law that raises under it is; the
+batch is flown again one plan at a time, each in a process of its own, to find which.
 """
 
 import concurrent.futures
 import concurrent.futures.process
+import hashlib
+import json
 import math
 import multiprocessing
+import os
 import signal
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
+import yaml
+
+from sim_vehicles.common.entry import one_line
 from swarm_sitl.config.schema import SwarmConfig
 from swarm_sitl.falsify.evaluate import evaluate
-from swarm_sitl.falsify.space import expand
+from swarm_sitl.falsify.space import flown_plan
 
 #: a robustness Optuna is told for a run with none (a follower lost): it takes no infinities
 NO_ROBUSTNESS = -1e9
+STOPPED = ".stopped"  #: beside a worker's log: its law's guard ended it (the guard's line)
 
 
-def fly(cfg: SwarmConfig, name: str, plan: dict[str, Any]) -> float:
-    """A plan of the space's items (``space.plan_of``) flown in ``sim``: its robustness, as the
-    study takes it (no infinities: ``NO_ROBUSTNESS`` where nothing was recorded, ``-NO_ROBUSTNESS``
-    at most where it holds vacuously)."""
-    r = evaluate(cfg, name, expand(plan, cfg))
+class WorkerError(RuntimeError):
+    """A worker could not fly a plan (it raised, or its process died): one line naming the plan,
+    the worker and the worker's last line. The search stops without a verdict."""
+
+
+@dataclass(frozen=True)
+class Shipment:
+    """What a worker flies plans of: the config (YAML, its plug-ins named ``plugins/...``), the
+    plug-ins' files, and the requirement's name."""
+
+    config_yaml: str
+    files: dict[str, bytes]
+    name: str
+
+    @classmethod
+    def of(cls, cfg: SwarmConfig, name: str) -> "Shipment":
+        from swarm_sitl.rundir.plugins import pack
+
+        data, files, _ = pack(cfg.data())
+        return cls(yaml.safe_dump(data, sort_keys=False), files, name)
+
+    @property
+    def digest(self) -> str:
+        """What it is: the config's text and each plug-in file's bytes."""
+        h = hashlib.sha256(self.config_yaml.encode())
+        for rel in sorted(self.files):
+            h.update(rel.encode() + b"\0" + self.files[rel])
+        return h.hexdigest()
+
+    def unpack(self) -> SwarmConfig:
+        """The config, its plug-ins written beside it in a directory of this process's (one per
+        shipment, kept for the process's life: a plug-in module stays importable)."""
+        from swarm_sitl.config.load import load_config
+
+        where = Path(tempfile.gettempdir()) / f"swarm-sitl-falsify-{os.getpid()}-{self.digest[:16]}"
+        for rel, body in self.files.items():
+            (where / rel).parent.mkdir(parents=True, exist_ok=True)
+            (where / rel).write_bytes(body)
+        where.mkdir(parents=True, exist_ok=True)
+        (where / "config.yaml").write_text(self.config_yaml)
+        return load_config(where / "config.yaml")
+
+
+def fly(cfg: SwarmConfig, name: str, plan: dict[str, Any], on_hard_stop: Any = None) -> float:
+    """A plan of the space's items (``space.plan_of``) flown in ``sim``, with the config's own
+    plan under it (``space.flown_plan``): its robustness, as the study takes it (no infinities:
+    ``NO_ROBUSTNESS`` where nothing was recorded, ``-NO_ROBUSTNESS`` at most where it holds
+    vacuously)."""
+    r = evaluate(cfg, name, flown_plan(plan, cfg), on_hard_stop)
     if math.isnan(r) or r == -math.inf:  # nothing recorded where the requirement looks: a violation
         return NO_ROBUSTNESS
     return min(r, -NO_ROBUSTNESS)
 
 
-_WORKER: tuple[SwarmConfig, str] | None = None
+def shown(plan: dict[str, Any]) -> str:
+    """A plan in one line, for an error."""
+    text = json.dumps(plan, sort_keys=True)
+    return text if len(text) <= 300 else text[:297] + "..."
 
 
-def _init(cfg: SwarmConfig, name: str) -> None:
-    """A worker's start: Ctrl-C at a terminal reaches every process of the group, and the search
-    (its parent) is the one that stops; a worker finishes the plan it flies."""
+# -- a worker process's side --------------------------------------------------------------------
+_WORKER: dict[str, Any] = {}
+
+
+def _init(ship: Shipment, log_dir: str) -> None:
+    """A worker's start: its stderr to its own log (the last line of a worker that dies is read
+    from there), its config unpacked. Ctrl-C at a terminal reaches every process of the group, and
+    the search (its parent) is the one that stops; a worker finishes the plan it flies. A config
+    it cannot load is kept to be said with the first plan (an initializer that raises would only
+    break the pool)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
-    global _WORKER
-    _WORKER = (cfg, name)
+    log = Path(log_dir) / f"worker_{os.getpid()}.log"
+    fd = os.open(log, os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o600)
+    os.dup2(fd, 2)
+    os.close(fd)
+    _WORKER.update(log=log, name=ship.name, cfg=None, error=None)
+    try:
+        _WORKER["cfg"] = ship.unpack()
+    except Exception as e:
+        _WORKER["error"] = f"its config did not load: {one_line(e)}"
 
 
-def _fly(plan: dict[str, Any]) -> float:
-    assert _WORKER is not None
-    return fly(_WORKER[0], _WORKER[1], plan)
+def _law_stopped(line: str, _recorded: Any) -> None:
+    """The law's guard is about to end this process: say why beside the log, for the parent."""
+    Path(str(_WORKER["log"]) + STOPPED).write_text(line + "\n")
+
+
+def _fly(plan: dict[str, Any]) -> tuple[float | None, str]:
+    """``(robustness, "")``, or ``(None, why)`` where the worker could not fly the plan."""
+    if _WORKER.get("error"):
+        return None, f"worker {os.getpid()}: {_WORKER['error']}"
+    try:
+        return fly(_WORKER["cfg"], _WORKER["name"], plan, _law_stopped), ""
+    except Exception as e:
+        return None, f"worker {os.getpid()}: {one_line(e)}"
+
+
+def _alone(ship: Shipment, log_dir: str, plan: dict[str, Any], conn: Any) -> None:
+    """One plan in a process of its own (``Local._fly_alone``): the answer down ``conn``."""
+    _init(ship, log_dir)
+    conn.send(_fly(plan))
+    conn.close()
+
+
+def _last_line(log: Path) -> str:
+    try:
+        lines = [x for x in log.read_text(errors="replace").splitlines() if x.strip()]
+    except OSError:
+        return "(no output)"
+    return lines[-1].strip()[:300] if lines else "(no output)"
 
 
 class Local:
     """Plans flown by ``jobs`` worker processes of this machine (spawned: nothing of this
-    process's state but the config and requirement goes with them)."""
+    process's state but the shipment goes with them)."""
 
     def __init__(self, jobs: int, cfg: SwarmConfig, name: str):
-        self.jobs, self.cfg, self.name = jobs, cfg, name
+        self.jobs = jobs
+        self.ship = Shipment.of(cfg, name)
+        self._logs = tempfile.TemporaryDirectory(prefix="swarm-sitl-falsify-")
+        self.log_dir = self._logs.name
         self.ended = 0  #: evaluations that ended their worker (a law held in compiled code)
         self.pool = self._pool()
 
     def _pool(self) -> concurrent.futures.ProcessPoolExecutor:
         ctx = multiprocessing.get_context("spawn")
         return concurrent.futures.ProcessPoolExecutor(
-            self.jobs, mp_context=ctx, initializer=_init, initargs=(self.cfg, self.name)
+            self.jobs, mp_context=ctx, initializer=_init, initargs=(self.ship, self.log_dir)
         )
 
-    def _renew(self) -> None:
-        """A new pool in place of a broken one."""
-        self.pool.shutdown(cancel_futures=True)
-        self.pool = self._pool()
-
     def map(self, plans: list[dict[str, Any]]) -> list[float]:
-        """Their robustness. A plan whose run ended its worker process (a user's law held in
-        compiled code past its guard, ``nodes.law_guard``: the process ends) is a violation
-        (``NO_ROBUSTNESS``), found by flying the batch again one plan at a time in a new pool."""
+        """Their robustness (``WorkerError`` for a plan a worker could not fly). A batch whose
+        pool broke (a worker process ended) is flown again one plan at a time, each alone."""
         try:
-            return list(self.pool.map(_fly, plans))
+            answers = list(self.pool.map(_fly, plans))
         except concurrent.futures.process.BrokenProcessPool:
-            self._renew()
-            if len(plans) == 1:  # the one that ended it
-                self.ended += 1
-                return [NO_ROBUSTNESS]
-        out = []
-        for plan in plans:
-            try:
-                out.append(self.pool.submit(_fly, plan).result())
-            except concurrent.futures.process.BrokenProcessPool:
-                self.ended += 1
-                out.append(NO_ROBUSTNESS)
-                self._renew()
-        return out
+            self.pool.shutdown(cancel_futures=True)
+            self.pool = self._pool()
+            return [self._fly_alone(plan) for plan in plans]
+        return [_robustness(plan, r, why) for plan, (r, why) in zip(plans, answers, strict=True)]
+
+    def _fly_alone(self, plan: dict[str, Any]) -> float:
+        """``plan`` in a process of its own: its robustness; ``NO_ROBUSTNESS`` if its law's guard
+        ended it; ``WorkerError`` naming the process and its last line if it died otherwise."""
+        ctx = multiprocessing.get_context("spawn")
+        recv, send = ctx.Pipe(duplex=False)
+        proc = ctx.Process(target=_alone, args=(self.ship, self.log_dir, plan, send), daemon=True)
+        proc.start()
+        send.close()
+        try:
+            answer = recv.recv()
+        except EOFError:  # it died before it answered
+            answer = None
+        finally:
+            recv.close()
+        proc.join()
+        if answer is not None:
+            return _robustness(plan, *answer)
+        log = Path(self.log_dir) / f"worker_{proc.pid}.log"
+        stopped = Path(str(log) + STOPPED)
+        if stopped.is_file():  # the law's guard ended it: the plan broke the law
+            self.ended += 1
+            return NO_ROBUSTNESS
+        raise WorkerError(
+            f"plan {shown(plan)}: worker {proc.pid} died (exit code {proc.exitcode}); "
+            f"its last line: {_last_line(log)}"
+        )
 
     def close(self) -> None:
         self.pool.shutdown(cancel_futures=True)
+        self._logs.cleanup()
+
+
+def _robustness(plan: dict[str, Any], r: float | None, why: str) -> float:
+    if r is None:
+        raise WorkerError(f"plan {shown(plan)}: {why}")
+    return r
+
+
+_SHIPPED: dict[str, SwarmConfig] = {}  #: a Dask worker's unpacked shipments, by digest
+
+
+def fly_shipped(ship: Shipment, plan: dict[str, Any]) -> tuple[float | None, str]:
+    """A Dask worker's task: ``plan`` flown on the shipment's config (unpacked once per worker
+    process); ``(None, why)`` where it could not be."""
+    try:
+        cfg = _SHIPPED.get(ship.digest)
+        if cfg is None:
+            cfg = _SHIPPED[ship.digest] = ship.unpack()
+        return fly(cfg, ship.name, plan), ""
+    except Exception as e:
+        return None, f"Dask worker pid {os.getpid()}: {one_line(e)}"
 
 
 class Dask:
     """Plans flown on a Dask cluster's workers, gathered in the order asked (the study is the same
-    whichever worker ran what). A plug-in's file (a law, a link model) must be at the same path on
-    the workers."""
+    whichever worker ran what). Plug-in files are shipped with the config (``Shipment``)."""
 
     def __init__(self, address: str, cfg: SwarmConfig, name: str):
         from swarm_sitl.campaigns.runner import connect
 
         self.client = connect(address)
-        self.cfg, self.name = cfg, name
+        self.ship = Shipment.of(cfg, name)
 
     def map(self, plans: list[dict[str, Any]]) -> list[float]:
-        futures = [self.client.submit(fly, self.cfg, self.name, p, pure=False) for p in plans]
-        return [float(x) for x in self.client.gather(futures)]
+        futures = [self.client.submit(fly_shipped, self.ship, p, pure=False) for p in plans]
+        try:
+            answers = self.client.gather(futures)
+        except Exception as e:  # a worker lost, a task killed: no robustness of ours
+            raise WorkerError(f"a Dask worker failed: {one_line(e)}") from None
+        return [_robustness(p, r, why) for p, (r, why) in zip(plans, answers, strict=True)]
 
     def close(self) -> None:
         self.client.close()
