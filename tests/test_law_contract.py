@@ -96,7 +96,7 @@ def _config(tmp_path: Path, entry: str, params: dict | None = None, **more) -> P
         ("{laws}:BadLength", None, "message_length must be an int from 1 to 4096, got 0"),
         ("{laws}:Shadows", None, "record field 'p_W' is one the bench records itself"),
         ("{laws}:WithParams", {"k": -1.0}, "params.k: Input should be greater than 0"),
-        ("{laws}:WithParams", {"kk": 1.0}, "params.kk: Extra inputs are not permitted"),
+        ("{laws}:WithParams", {"kk": 1.0}, "params: it has no parameter kk (it has k)"),
         ("swarm_sitl.laws.zou_meng:ZouMengLaw", {"k_p": 1.0}, "leave law.params empty"),
         ("just_a_name", None, "must be 'package.module:ClassName' or 'path/file.py:ClassName'"),
     ],

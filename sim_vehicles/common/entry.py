@@ -1,17 +1,22 @@
 """A plug-in named by an entry, imported: ``"package.module:Name"`` (imported as Python imports
 it: installed, or on ``PYTHONPATH``) or ``"path/to/file.py:Name"`` (loaded from that file).
 
-Both packages' plug-in points use it: a law (``swarm_sitl.config.law_entry``) and a vehicle model
-(``sim_vehicles.models.build``). A file is loaded once per process under a module name made of
+Both packages' plug-in points use it: a law (``swarm_sitl.config.law_entry``), a vehicle model
+(``sim_vehicles.models.build``) and a link model (``swarm_sitl.faults.link_model``), and each
+holds a plug-in's parameters to the names it declares (``declared_params``, ``undeclared_line``),
+whatever the plug-in's own code would accept. A file is loaded once per process under a module name made of
 its stem and a hash of its path, so two plug-ins in files of one name coexist; a file whose
 import fails is forgotten, so the fixed file loads in the same process. Each failure is an
 ``EntryError`` of one line naming the entry.
 """
 
+import dataclasses
 import hashlib
 import importlib
 import importlib.util
+import inspect
 import sys
+from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
@@ -82,3 +87,38 @@ def load_entry(entry: str, prefix: str) -> Any:
     if not hasattr(module, name):
         raise EntryError(f"entry {entry!r}: {where} has no {name!r}")
     return getattr(module, name)
+
+
+def declared_params(schema: Any) -> frozenset[str] | None:
+    """The parameter names a plug-in's ``Params`` declares: a pydantic model's fields and their
+    aliases, a dataclass's or NamedTuple's fields, or the keyword parameters of any other class
+    (None where it takes any keyword: ``**kwargs``)."""
+    fields = getattr(schema, "model_fields", None)
+    if isinstance(fields, dict):  # a pydantic model
+        names = set(fields)
+        for info in fields.values():
+            names |= {a for a in (info.alias, info.validation_alias) if isinstance(a, str)}
+        return frozenset(names)
+    if dataclasses.is_dataclass(schema):
+        return frozenset(f.name for f in dataclasses.fields(schema))
+    if hasattr(schema, "_fields"):  # a NamedTuple
+        return frozenset(schema._fields)
+    try:
+        parameters = inspect.signature(schema).parameters.values()
+    except (TypeError, ValueError):
+        return None
+    if any(p.kind is p.VAR_KEYWORD for p in parameters):
+        return None
+    return frozenset(p.name for p in parameters if p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY))
+
+
+def undeclared_line(given: Iterable[str], declared: frozenset[str] | None, what: str) -> str | None:
+    """One line naming the parameters of ``given`` that ``declared`` does not have (None: all
+    are declared, or the plug-in takes any): ``what`` names the plug-in."""
+    if declared is None:
+        return None
+    unknown = sorted(str(k) for k in given if k not in declared)
+    if not unknown:
+        return None
+    has = f"it has {', '.join(sorted(declared))}" if declared else "it declares none"
+    return f"{what} has no parameter {', '.join(unknown)} ({has})"

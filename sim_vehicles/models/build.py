@@ -16,15 +16,19 @@ endpoint and ``sim`` ask of a vehicle). ``MODELS`` names every model a spec may 
 A user's own model is an entry, ``"my_vehicle.py:MyVehicle"`` or ``"package.module:MyVehicle"``
 (``common.entry``; a config's relative file path is relative to the config): a class (or any
 callable) taking ``(spec, state0, dt_s)``, held to ``CONTRACT`` when it is built; its own
-parameters come in ``spec.params``. ``models/template.py`` is one, runnable, with the contract
+parameters come in ``spec.params``, and each must be one it declares: in its ``Params`` (a
+pydantic model or a dataclass, checked with their ranges before it is built) if it has one, else
+in the ``tunables`` it serves. A name it does not declare is refused here, whatever the model's
+own code does with it. ``models/template.py`` is one, runnable, with the contract
 in its docstring.
 """
 
 from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 
-from sim_vehicles.common.entry import EntryError, load_entry, one_line
+from sim_vehicles.common.entry import EntryError, declared_params, load_entry, one_line, undeclared_line
 from sim_vehicles.common.state import STATE_SIZE, make_state
 from sim_vehicles.models.spec import VehicleSpec, VehicleSpecError
 from sim_vehicles.plant.autopilot import Autopilot
@@ -106,6 +110,9 @@ def _user_model(spec: VehicleSpec, state0: np.ndarray, dt_s: float) -> VehicleMo
         raise VehicleSpecError(
             f"vehicle spec: model {spec.model!r} is a {type(factory).__name__}, not callable"
         )
+    schema = getattr(factory, "Params", None)
+    if schema is not None:  # declared: held to it before the model sees them
+        _check_params(spec, schema)
     try:
         vehicle = factory(spec, state0, dt_s)
     except VehicleSpecError:
@@ -119,6 +126,10 @@ def _user_model(spec: VehicleSpec, state0: np.ndarray, dt_s: float) -> VehicleMo
         raise VehicleSpecError(
             f"vehicle spec: model {spec.model!r} does not meet the vehicle contract: no {', '.join(missing)}"
         )
+    if schema is None:  # its parameters are the ones it serves (``tunables``)
+        unknown = undeclared_line(spec.params, frozenset(vehicle.tunables), f"model {spec.model!r}")
+        if unknown is not None:
+            raise VehicleSpecError(f"vehicle spec: params: {unknown}")
     state = np.asarray(vehicle.state)
     if state.shape != (STATE_SIZE,) or not np.all(np.isfinite(state)):
         raise VehicleSpecError(
@@ -126,6 +137,24 @@ def _user_model(spec: VehicleSpec, state0: np.ndarray, dt_s: float) -> VehicleMo
             f"got shape {state.shape}"
         )
     return vehicle
+
+
+def _check_params(spec: VehicleSpec, schema: Any) -> None:
+    """``spec.params`` held to a model's ``Params``: every name declared, every value in its range."""
+    unknown = undeclared_line(spec.params, declared_params(schema), f"model {spec.model!r}")
+    if unknown is not None:
+        raise VehicleSpecError(f"vehicle spec: params: {unknown}")
+    validate = getattr(schema, "model_validate", None)  # a pydantic model's; else a class of keywords
+    try:
+        validate(dict(spec.params)) if validate is not None else schema(**spec.params)
+    except (TypeError, ValueError) as e:
+        errors = getattr(e, "errors", None)  # a pydantic ValidationError: its first error, one line
+        if callable(errors):
+            err = errors()[0]
+            where = ".".join(str(p) for p in err["loc"])
+            msg = str(err["msg"]).removeprefix("Value error, ")
+            raise VehicleSpecError(f"vehicle spec: params: {where}: {msg} (model {spec.model!r})") from None
+        raise VehicleSpecError(f"vehicle spec: params: {one_line(e)} (model {spec.model!r})") from None
 
 
 def check(spec: VehicleSpec) -> None:

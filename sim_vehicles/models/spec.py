@@ -93,6 +93,9 @@ class VehicleSpec:
             v = getattr(self, name)
             if len(v) != n or not all(isinstance(x, int | float) and math.isfinite(x) for x in v):
                 raise bad(name, f"must be {n} finite numbers, got {v!r}")
+        for name, v in self.params.items():  # (a bool is not a number here: {X: true} is a mistake)
+            if isinstance(v, bool) or not (isinstance(v, int | float) and math.isfinite(v)):
+                raise bad(f"params: {name}", f"must be a finite number, got {v!r}")
         if abs(math.sqrt(sum(x * x for x in self.quaternion_wxyz)) - 1.0) > 1e-6:
             raise bad("quaternion_wxyz", f"must be a unit quaternion, got {self.quaternion_wxyz!r}")
         if self.failsafe_action not in ACTIONS:

@@ -9,7 +9,9 @@ built, and a run builds it once at load to check it):
 
 - it is built as ``Model(spec, state0, dt_s)``: ``spec`` the ``models.spec.VehicleSpec`` (mass,
   inertia, largest thrust, gravity, rate limits, drag, ``l_q``/``k_q``, and ``spec.params``: the
-  model's own parameters, by name, from the config's ``vehicle.params``), ``state0`` the 13-value
+  model's own parameters, by name, from the config's ``vehicle.params``: each one the model
+  declares, in its ``Params`` if it has one, else in its ``tunables``; ``models.build`` refuses
+  any other name before the model sees it), ``state0`` the 13-value
   rigid-body state (``common.state``: position, velocity [ENU], attitude [Hamilton, FLU -> ENU],
   body rates [FLU]), ``dt_s`` its step. Raise ``models.spec.VehicleSpecError`` (one line naming
   the parameter) for parameters it cannot take;
@@ -51,9 +53,6 @@ THRUST_TAU_RANGE_S = (0.0, 1.0)  #: the range of ``THRUST_TAU_S`` [s]
 
 class LaggyVtol:
     def __init__(self, spec: VehicleSpec, state0: np.ndarray, dt_s: float):
-        unknown = sorted(set(spec.params) - {"THRUST_TAU_S"})
-        if unknown:
-            raise VehicleSpecError(f"vehicle spec: params: LaggyVtol has no {', '.join(unknown)}")
         self.params = VehicleParams(
             spec.mass_kg,
             spec.inertia_kgm2,

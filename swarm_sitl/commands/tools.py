@@ -10,6 +10,7 @@ after the config schema every command needs (0.6 s), matplotlib costs 0.44 s (``
 
 import argparse
 import json
+import math
 import os
 import signal
 import sys
@@ -39,6 +40,11 @@ def cmd_check(args: argparse.Namespace) -> int:
 
     cfg = load(args.config)
     print("\n".join(seed_lines(cfg)))
+    disagree = link_model_lines(cfg)
+    for line in disagree:
+        print(line)
+    if disagree:
+        return 1
     if not cfg.law.is_paper:
         text, ok = render_law_check(cfg, args.config)
         print(text)
@@ -48,6 +54,36 @@ def cmd_check(args: argparse.Namespace) -> int:
     )
     print(render(report, args.config, cfg.estimator.bracket))
     return 0
+
+
+def _name_values(items: list[str], flag: str) -> dict[str, float]:
+    """``NAME=VALUE`` arguments as a mapping of numbers; ``CliError`` (one line) for a bad one."""
+    out: dict[str, float] = {}
+    for item in items:
+        name, sep, value = item.partition("=")
+        try:
+            number = float(value)
+        except ValueError:
+            number = math.nan
+        if not sep or not name.strip() or not math.isfinite(number):
+            raise CliError(f"{flag} {item!r}: give NAME=NUMBER")
+        out[name.strip()] = number
+    return out
+
+
+def link_model_lines(cfg: Any) -> list[str]:
+    """A line for each link model of the user's in the plan whose ``fates`` and ``fate`` disagree
+    (``faults.link_model.fates_disagreement``: the contract wants them equal, and lockstep reads
+    ``fates`` where real time asks ``fate``)."""
+    from swarm_sitl.faults.link_model import fates_disagreement
+
+    out = []
+    for j, f in enumerate(cfg.faults.plan):
+        if f.model is not None:
+            why = fates_disagreement(f.model.model, f.model.parsed_params, cfg.control_dt_s)
+            if why is not None:
+                out.append(f"faults.plan.{j}: link model {f.model.entry}: {why}")
+    return out
 
 
 def written_entry(entry: str, config_dir: Path) -> str:
@@ -65,6 +101,9 @@ def cmd_new(args: argparse.Namespace) -> int:
     try:
         law = args.law if args.law is None else written_entry(args.law, out.parent)
         vehicle = args.vehicle if args.vehicle is None else written_entry(args.vehicle, out.parent)
+        vehicle_params = _name_values(args.vehicle_param, "--vehicle-param")
+        if vehicle_params and vehicle is None:
+            raise CliError("--vehicle-param: name the model it is for (--vehicle MODEL)")
         text = generate(
             args.followers,
             args.graph,
@@ -75,9 +114,11 @@ def cmd_new(args: argparse.Namespace) -> int:
             law,
             out.parent,
             vehicle,
+            vehicle_params,
         )
     except (GeneratorError, LawEntryError) as e:
-        raise CliError(str(e)) from None
+        hint = " (give the model's parameters with --vehicle-param NAME=VALUE)" if "params" in str(e) else ""
+        raise CliError(f"{e}{hint}") from None
     if out.exists() and not args.force:
         raise CliError(f"{out} exists (--force to overwrite)")
     try:
@@ -194,6 +235,13 @@ def add_new(sub: Any) -> None:
         "--vehicle",
         metavar="MODEL",
         help="the vehicle model: paper_vtol (default), px4_quad_x or 'file.py:Class' (docs/vehicles.md)",
+    )
+    n.add_argument(
+        "--vehicle-param",
+        action="append",
+        default=[],
+        metavar="NAME=VALUE",
+        help="one of the model's parameters, written under vehicle.params (repeat for more)",
     )
     n.add_argument("-o", required=True, metavar="FILE", help="the config file to write")
     n.add_argument("--force", action="store_true", help="overwrite FILE if it exists")

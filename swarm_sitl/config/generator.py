@@ -164,6 +164,11 @@ def _choose_gains(cfg: SwarmConfig) -> tuple[dict[str, float], list[str]]:
     ]
 
 
+def _params(params: dict[str, float] | None) -> str:
+    """A flow mapping of a model's parameters (``{}``: none)."""
+    return "{" + ", ".join(f"{k}: {_num(float(v))}" for k, v in (params or {}).items()) + "}"
+
+
 def generate(
     followers: int,
     graph: str,
@@ -174,11 +179,13 @@ def generate(
     law: str | None = None,
     law_base: Path | None = None,
     vehicle: str | None = None,
+    vehicle_params: dict[str, float] | None = None,
 ) -> str:
     """The YAML text of a generated swarm (parsed with the schema before it is returned). ``law``:
     the followers' law entry as the file will hold it (a file entry relative to ``law_base``, the
     directory the config is written to); default the paper's. ``vehicle``: the vehicle model, a
-    registered one's name or an entry held as ``law`` is; default the paper's vehicle."""
+    registered one's name or an entry held as ``law`` is; default the paper's vehicle;
+    ``vehicle_params``: its parameters (``vehicle.params``), held to the model as any config's are."""
     if not 1 <= followers <= 254:
         raise GeneratorError(f"--followers must be 1..254 (MAVLink system ids), got {followers}")
     if not 0 < duration_s < math.inf:
@@ -230,7 +237,14 @@ def generate(
             "  setpoint_timeout_s: 0.5",
             "  l_q: 16.0                # the attitude loop (the paper's torque law)",
             "  k_q: 16.0",
-            *([f"  model: {json.dumps(vehicle)}  # docs/vehicles.md", "  params: {}"] if vehicle else []),
+            *(
+                [
+                    f"  model: {json.dumps(vehicle)}  # docs/vehicles.md",
+                    f"  params: {_params(vehicle_params)}",
+                ]
+                if vehicle
+                else []
+            ),
             "",
             "followers:",
             *(

@@ -16,6 +16,7 @@ from typing import Any
 from pydantic import BaseModel, ValidationError
 
 from sim_vehicles.common import entry as entry_import
+from sim_vehicles.common.entry import declared_params, undeclared_line
 from swarm_sitl.laws.contract import MAX_MESSAGE_LENGTH
 
 #: names every follower's recording has whatever the law: a law's record may not reuse them
@@ -97,8 +98,12 @@ def resolve(entry: str) -> type:
 
 def validate_params(cls: type, params: Mapping[str, Any], entry: str) -> Any:
     """``params`` through the law's ``Params`` (a pydantic model, or any class taking them as
-    keywords: a dataclass, a NamedTuple); the mapping itself if the law declares none."""
+    keywords: a dataclass, a NamedTuple); a law that declares none takes none. A name its
+    ``Params`` does not declare is refused here, whatever the model itself would accept."""
     schema = getattr(cls, "Params", None)
+    unknown = undeclared_line(params, frozenset() if schema is None else declared_params(schema), "it")
+    if unknown is not None:  # (whatever the law's own Params would let through)
+        raise LawEntryError(f"params: {unknown} (law {entry})")
     if schema is None:
         return dict(params)
     try:

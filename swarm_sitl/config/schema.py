@@ -396,7 +396,7 @@ class SwarmConfig(_Strict):
             setpoint_timeout_s=v.setpoint_timeout_s,
             failsafe_action=v.failsafe_action,
             model=v.model,
-            params=dict(v.params),
+            params={k: float(x) for k, x in v.params.items()},
             position_m=f.initial_position_m,
             velocity_mps=f.initial_velocity_mps,
             quaternion_wxyz=f.initial_quaternion_wxyz,

@@ -6,7 +6,7 @@ model, what it reports of its state, and the air it flies in (``schema.SwarmConf
 import dataclasses
 from typing import Annotated, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import BaseModel, ConfigDict, Field, StrictFloat, StrictInt, model_validator
 
 from sim_vehicles.models import spec as vehicle_spec
 from sim_vehicles.plant.params import MAX_RATE_DEFAULT_RPS
@@ -93,7 +93,7 @@ class VehicleSpec(_Strict):
     model: str = "paper_vtol"
     #: the model's own parameters by name, each in its range (``px4_quad_x``: Q_MAX_NM, L_ROLL_M,
     #: L_PITCH_M, T_TAU_S and PX4's MC_* gains; PX4 SIH's quadrotor and PX4's defaults otherwise)
-    params: dict[str, float] = {}
+    params: dict[str, StrictFloat | StrictInt] = {}
     #: ``paper_vtol``'s attitude loop, the paper's torque law: attitude-error gain (under ``gains``
     #: before; an old config is read with a notice)
     l_q: Positive = 16.0

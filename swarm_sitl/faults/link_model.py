@@ -12,7 +12,8 @@ the plan file that holds it). **The contract** of such a class, checked when the
 line naming the entry otherwise):
 
 - ``Params``: a pydantic model of its parameters, each with its range (``Field(gt=0, le=1)``);
-  the entry's ``params`` are validated by it at load;
+  the entry's ``params`` are validated by it at load, and a name it does not declare is refused
+  (one line) whether or not the model forbids extra keys;
 - ``fate(params, m) -> Effect | None``: a pure function of ``m`` (``MessageOnLink``: the plan's
   seed, the entry's index, the link's channel, the message's step and time, the control period,
   and the distance between its sender and receiver when it was sent) and the parameters: the
@@ -39,7 +40,7 @@ from typing import Any, NamedTuple
 import numpy as np
 from pydantic import BaseModel, ConfigDict, PrivateAttr, ValidationError, ValidationInfo, model_validator
 
-from sim_vehicles.common.entry import EntryError, load_entry, one_line
+from sim_vehicles.common.entry import EntryError, declared_params, load_entry, one_line, undeclared_line
 from swarm_sitl.faults.draws import uniform_at, uniforms
 
 
@@ -149,6 +150,9 @@ class ModelEntry(BaseModel):
         if recorded(info):  # a run's record: read, never imported
             return self
         cls = resolve_link_model(self.entry)
+        unknown = undeclared_line(self.params, declared_params(cls.Params), "it")
+        if unknown is not None:  # (whatever the model's own Params would let through)
+            raise ValueError(f"params: {unknown} (link model {self.entry})")
         try:
             self._params = cls.Params.model_validate(dict(self.params))
         except ValidationError as e:
@@ -192,3 +196,50 @@ def resolve_link_model(entry: str) -> Any:
     except Exception as e:
         raise LinkModelError(f"link model {entry!r}: building it raised {one_line(e)}") from None
     return cls
+
+
+#: ``fates_disagreement``: blocks of consecutive steps drawn, and each block's length
+CHECK_BLOCKS, CHECK_BLOCK_STEPS = 4, 512
+
+
+def _shown(lost: bool, corrupt: bool, delay_s: float, duplicate: bool) -> str:
+    if lost:
+        return "lost"
+    parts = [w for w, on in (("corrupt", corrupt), ("duplicated", duplicate)) if on]
+    return ", ".join(parts + ([f"{delay_s:g} s late"] if delay_s else [])) or "on time"
+
+
+def fates_disagreement(model: Any, params: Any, period_s: float, seed: int = 0) -> str | None:
+    """Where a model's ``fates`` gives a message another fate than its ``fate`` (the contract
+    wants them equal), on ``CHECK_BLOCKS`` blocks of consecutive steps drawn from ``seed`` (random
+    links, starts and plan seeds): one line naming the first such message, or what raised; None
+    where they agree or the model has no ``fates``."""
+    if not callable(getattr(model, "fates", None)):
+        return None
+    rng = np.random.default_rng(seed)
+    for _ in range(CHECK_BLOCKS):
+        plan_seed, channel = int(rng.integers(0, 2**63 - 1)), int(rng.integers(0, 2**31))
+        start = int(rng.integers(0, 100_000))
+        steps = np.arange(start, start + CHECK_BLOCK_STEPS, dtype=np.int64)
+        try:
+            many = model.fates(params, StepsOnLink(plan_seed, 0, channel, steps, steps * period_s, period_s))
+            lost, corrupt = np.asarray(many.lost, bool), np.asarray(many.corrupt, bool)
+            delay, dup = np.asarray(many.delay_s, float), np.asarray(many.duplicate, bool)
+        except Exception as e:
+            return f"fates() raised {one_line(e)}"
+        if not all(a.shape == steps.shape for a in (lost, corrupt, delay, dup)):
+            return f"fates() gave arrays of another length than the {len(steps)} steps asked for"
+        for k, step in enumerate(steps.tolist()):
+            m = MessageOnLink(plan_seed, 0, channel, step, step * period_s, period_s)
+            try:
+                one = model.fate(params, m) or Effect()
+            except Exception as e:
+                return f"fate() raised {one_line(e)} at step {step}"
+            a = (bool(one.lost), bool(one.corrupt), float(one.delay_s), bool(one.duplicate))
+            b = (bool(lost[k]), bool(corrupt[k]), float(delay[k]), bool(dup[k]))
+            if a[0] != b[0] or (not a[0] and a != b):
+                return (
+                    f"fates() and fate() disagree at step {step} (plan seed {plan_seed}, link {channel}): "
+                    f"fate() says {_shown(*a)}, fates() {_shown(*b)}"
+                )
+    return None
