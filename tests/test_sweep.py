@@ -12,11 +12,13 @@ import time
 
 import pytest
 import yaml
+from hypothesis import given
+from hypothesis import strategies as st
 
 from swarm_sitl.campaigns.breaking import breaking_point
 from swarm_sitl.campaigns.grid import SweepSpecError, grid, parse_values, parse_vary, point_data
 from swarm_sitl.campaigns.table import TableWriter, read_rows, row_key
-from swarm_sitl.config.load import ConfigError, parse_config
+from swarm_sitl.config.load import ConfigError, load_config, parse_config
 from tests.conftest import CONFIGS
 
 CLI = [sys.executable, "-m", "swarm_sitl"]
@@ -216,6 +218,28 @@ def test_an_interrupted_campaign_keeps_every_finished_row_and_the_same_command_f
     assert len(done) == 3 and all(r in done for r in kept)
 
 
+@pytest.mark.unit
+@given(
+    end=st.floats(1.0, 60.0),
+    settles=st.lists(st.floats(0.0, 90.0), min_size=1, max_size=4, unique=True),
+    base_settle=st.floats(0.0, 90.0),
+)
+def test_the_settle_check_reads_each_points_own_settle_s_and_duration(end, settles, base_settle):
+    """A campaign that varies ``run.settle_s`` (or ``duration_s``) is judged point by point: it is
+    refused exactly when some point settles at or after its run's end, whatever the base says."""
+    from swarm_sitl.campaigns.sweep import _check_points
+
+    data = load_config(CONFIGS / "paper.yaml").data()
+    data["duration_s"], data["run"]["settle_s"] = end, base_settle
+    points = [{"run.settle_s": s} for s in settles]
+    late = [s for s in settles if s >= end]
+    if late:
+        with pytest.raises(SweepSpecError, match=f"run.settle_s={late[0]:g}: the run ends at {end:g} s"):
+            _check_points(data, points, 0)
+    else:
+        _check_points(data, points, 0)
+
+
 @pytest.mark.system
 def test_bad_campaigns_are_one_line_before_anything_runs(tmp_path):
     cfg = _config(tmp_path)
@@ -223,7 +247,11 @@ def test_bad_campaigns_are_one_line_before_anything_runs(tmp_path):
         (["--vary", "gains.kp=1,2"], r"no setting 'gains\.kp'"),
         (["--vary", "link.loss=0.5:0.1:0.1"], r"the range '0.5:0.1:0.1' is empty"),
         (["--vary", "link.loss=0,1.5"], r"sweep link\.loss=1\.5: .*less than or equal to 1"),
-        (["--vary", "link.loss=0,0.5", "--duration", "1"], r"the runs end at 1 s, before run\.settle_s"),
+        (["--vary", "link.loss=0,0.5", "--duration", "1"], r"the run ends at 1 s, before run\.settle_s"),
+        (
+            ["--vary", "run.settle_s=0.5,1.5", "--duration", "1"],
+            r"sweep run\.settle_s=1\.5: the run ends at 1 s, before run\.settle_s \(1\.5 s\)",
+        ),
         (
             ["--vary", "link.loss=0,0.5", "--scheduler", "tcp://127.0.0.1:9", "--scheduler-timeout", "1"],
             r"cannot reach the Dask scheduler at tcp://127\.0\.0\.1:9",

@@ -100,12 +100,6 @@ def _base(
     if bound_m is not None:
         data["run"]["max_formation_error_m"] = float(bound_m)
     parse_config(data, "sweep")  # the base itself, before any point
-    end_s, settle_s = data["duration_s"], data["run"]["settle_s"]
-    if end_s <= settle_s:
-        raise SweepSpecError(
-            f"sweep: the runs end at {end_s:g} s, before run.settle_s ({settle_s:g} s) from which "
-            "the bound is judged; lengthen them (--duration) or settle sooner"
-        )
     if not data["run"].get("max_formation_error_m"):
         raise SweepSpecError(
             "sweep: a campaign needs a pass/fail bound: run.max_formation_error_m in the config, or --bound"
@@ -114,14 +108,23 @@ def _base(
 
 
 def _check_points(base: dict, points: list[dict[str, float]], seed: int) -> None:
-    """Every point's config is valid (each value in its range), before anything runs."""
+    """Every point's config is valid (each value in its range) and settles before its run ends
+    (``run.settle_s`` and ``duration_s`` as the point has them), before anything runs."""
     seen: set[tuple[str, float]] = set()
     for p in points:
+        data = point_data(base, p, seed)
+        end_s, settle_s = data["duration_s"], data["run"]["settle_s"]  # (either may be varied)
+        if end_s <= settle_s:
+            at = ", ".join(f"{k}={v:g}" for k, v in p.items())
+            raise SweepSpecError(
+                f"sweep {at}: the run ends at {end_s:g} s, before run.settle_s ({settle_s:g} s) from "
+                "which the bound is judged; lengthen it (--duration) or settle sooner"
+            )
         fresh = [(k, v) for k, v in p.items() if (k, v) not in seen]
         if not fresh:
             continue
         try:
-            parse_config(point_data(base, p, seed), "sweep")
+            parse_config(data, "sweep")
         except ConfigError as e:
             values = ", ".join(f"{k}={v:g}" for k, v in p.items())
             raise SweepSpecError(f"sweep {values}: {e}") from None
