@@ -274,7 +274,12 @@ def main(argv: list[str] | None = None) -> int:
         ep.close()
         if a.stats:
             boot = None if math.isnan(ep.boot_unix_s) else ep.boot_unix_s
-            stats = {**dataclasses.asdict(ep.stats), "boot_unix_s": boot, "process": process_figures()}
+            stats = {
+                **dataclasses.asdict(ep.stats),
+                "rx_unsigned": ep.unsigned_by_port(),
+                "boot_unix_s": boot,
+                "process": process_figures(),
+            }
             Path(a.stats).write_text(json.dumps(stats, indent=1) + "\n")
     return 0
 

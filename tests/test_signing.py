@@ -8,6 +8,7 @@ does not hold it.
 import hashlib
 import json
 import os
+import re
 import socket
 import subprocess
 import sys
@@ -15,14 +16,19 @@ import time
 
 os.environ.setdefault("MAVLINK20", "1")  # signing needs MAVLink 2 (pymavlink reads this at import)
 
+from pathlib import Path
+
 import numpy as np
 import pytest
+import yaml
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import common as mav
 
 import sim_vehicles.mavlink.signing as signing
 from sim_vehicles.mavlink.sha256 import sha256_into
 from sim_vehicles.mavlink.signing import Signer, Verifier, key_from_passphrase
+from swarm_sitl.running.children import child_env, module_argv
+from tests.conftest import CONFIGS
 
 KEY = key_from_passphrase("correct horse battery staple")
 
@@ -378,3 +384,66 @@ def test_a_stranger_without_the_key_cannot_command_a_signed_vehicle_or_take_its_
     proc.wait(timeout=10)
     stats = json.loads(stats_path.read_text())
     assert stats["rx_refused"] >= 3 * 5 and stats["handler_errors"] == 0, stats
+
+
+def _docs_script() -> str:
+    """The pymavlink script of ``docs/tools.md`` (*A pymavlink script on a signed run*), as written there."""
+    text = (Path(__file__).resolve().parents[1] / "docs" / "tools.md").read_text()
+    blocks = re.findall(r"```python\n(.*?)```", text, re.S)
+    script = [b for b in blocks if "setup_signing" in b]
+    assert len(script) == 1, "docs/tools.md shows one pymavlink script that signs"
+    return script[0]
+
+
+@pytest.mark.system
+def test_the_docs_pymavlink_script_sets_a_parameter_of_a_signed_run_and_each_unsigned_message_is_counted(
+    tmp_path,
+):
+    """A real-time signed run of the paper's swarm: the script of docs/tools.md, run as written,
+    sets a parameter of vehicle 1 through its ground-station port and reads the vehicle's answer;
+    an unsigned client sends vehicle 2's ground-station port a number of requests and gets no
+    answer, and the run's last lines and ``summary.json`` count exactly those, by port."""
+    script = tmp_path / "signed_param.py"
+    script.write_text(_docs_script())
+    cfg = yaml.safe_load((CONFIGS / "paper.yaml").read_text())
+    cfg["duration_s"] = 6.0
+    path = tmp_path / "paper.yaml"
+    path.write_text(yaml.safe_dump(cfg))
+    out = tmp_path / "run"
+    argv = [*module_argv("swarm_sitl"), "run", str(path), "--realtime", "--out", str(out)]
+    run = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=child_env())
+    try:
+        assert run.stdout is not None
+        gcs: dict[int, int] = {}
+        while len(gcs) < 2:
+            line = run.stdout.readline()
+            assert line, "run printed no ports"
+            m = re.search(r"vehicle (\d+): .*ground station udpout:127\.0\.0\.1:(\d+)", line)
+            if m:
+                gcs[int(m.group(1))] = int(m.group(2))
+        value = 150.0 + int(np.random.default_rng().integers(0, 50)) + 0.5  # [deg/s] (not one it had)
+        env = {k: v for k, v in child_env().items() if k != "MAVLINK20"}  # the script sets it itself
+        done = subprocess.run(
+            [sys.executable, str(script), str(out), str(gcs[1]), "MC_YAWRATE_MAX", f"{value:g}"],
+            capture_output=True,
+            text=True,
+            timeout=30,
+            env=env,
+        )
+        assert done.returncode == 0 and f"vehicle 1: MC_YAWRATE_MAX = {value:g}" in done.stdout, done
+        stranger = mavutil.mavlink_connection(f"udpout:127.0.0.1:{gcs[2]}", source_system=250)
+        sent = int(np.random.default_rng().integers(3, 12))
+        for _ in range(sent):
+            stranger.mav.param_request_read_send(2, 1, b"MC_YAWRATE_MAX", -1)
+            time.sleep(0.01)
+        assert stranger.recv_match(blocking=True, timeout=1.0) is None  # not one byte back
+        stdout, stderr = run.communicate(timeout=60)
+    finally:
+        if run.poll() is None:
+            run.kill()
+            run.wait()
+    assert run.returncode == 0, stderr
+    assert f"vehicle 2: {sent} unsigned messages refused on its ground-station port" in stdout, stdout
+    refused = json.loads((out / "summary.json").read_text())["vehicles"]
+    assert refused["2"]["rx_unsigned"] == {"controller": 0, "ground_station": sent}
+    assert "rx_unsigned" not in refused["1"]  # the script signed every message

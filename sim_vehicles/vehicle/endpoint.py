@@ -153,6 +153,13 @@ class VehicleEndpoint:
         )
         self.parameters = services.Parameters(self.autopilot, self.flight, self.stats)
 
+    def unsigned_by_port(self) -> dict[str, int]:
+        """Datagrams each port of a signed vehicle refused for want of a signature (or of the
+        run's key: a signature from another key is ``rx_bad``), by port: ``controller`` and
+        ``ground_station``; empty on an unsigned vehicle."""
+        ports = {"controller": self.port, "ground_station": self.gcs}
+        return {name: p.verifier.unsigned for name, p in ports.items() if p is not None and p.verifier}
+
     @property
     def armed(self) -> bool:
         return self.flight.armed

@@ -16,6 +16,7 @@ from pathlib import Path
 
 from swarm_sitl.config.load import load_config
 from swarm_sitl.config.schema import SwarmConfig
+from swarm_sitl.rundir.metrics import describe_inputs
 
 EXIT_FAILED = 1  #: a process of the run failed
 EXIT_USAGE = 2
@@ -119,6 +120,44 @@ def summary_lines(summary: dict) -> list[str]:
             + (f" (least: {least[0]})" if least is not None else "")
         )
     return lines
+
+
+def degraded_lines(summary: dict) -> list[str]:
+    """What the controllers reported of late, old or missing inputs, one line per follower."""
+    out = []
+
+    for i, rep in sorted(summary.get("inputs", {}).items(), key=lambda kv: int(kv[0])):
+        why = describe_inputs(rep)
+        if why:
+            out.append(f"  follower {i} degraded inputs: {why}")
+    for i in summary.get("lost", []):
+        out.append(f"  vehicle {i} lost (a fault plan's): its follower is recorded up to the loss")
+    for i, refused in sorted(summary.get("vehicles", {}).items(), key=lambda kv: int(kv[0])):
+        for port, n in sorted(refused.get("rx_unsigned", {}).items()):
+            if n:
+                out.append(
+                    f"  vehicle {i}: {n} unsigned messages refused on its {port.replace('_', '-')} port "
+                    "(a signed run: sign with RUN_DIR/mavlink_signing.key, docs/tools.md)"
+                )
+    for edge, st in sorted(summary.get("links", {}).items()):
+        if st.get("lost") or st.get("corrupt") or st.get("delayed") or st.get("duplicated"):
+            out.append(
+                f"  {edge if edge.startswith('mavlink') else 'edge ' + edge}: "
+                f"{st['delivered']} of {st['received']} delivered, {st['lost']} lost, "
+                f"{st['corrupt']} corrupt, {st['delayed']} delayed, {st['duplicated']} duplicated"
+                + (f", {st['held']} held at the end" if st.get("held") else "")
+                + _radio(st)
+            )
+    return out
+
+
+def _radio(st: dict) -> str:
+    """What the radio models did on an edge (``faults.radio_range``, ``faults.bandwidth``), if any."""
+    parts = [f"{st[k]} {k.replace('_', ' ')}" for k in ("out_of_range", "queue_full", "retried") if st.get(k)]
+    d = st.get("distance_m")
+    if d:
+        parts.append(f"{d['min']:.1f}..{d['max']:.1f} m apart")
+    return f" ({', '.join(parts)})" if parts else ""
 
 
 def held_to_bound(failures: list[str]) -> int:

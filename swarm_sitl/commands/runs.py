@@ -23,6 +23,7 @@ from swarm_sitl.commands.common import (
     add_base_port,
     add_run_outputs,
     check_base_port,
+    degraded_lines,
     held_to_bound,
     interrupted_exit,
     load,
@@ -33,7 +34,7 @@ from swarm_sitl.commands.view import DEFAULT_PORT, port_number, serve, stream_to
 from swarm_sitl.config.load import with_duration, with_faults, with_seed, with_spec
 from swarm_sitl.config.schema import SwarmConfig
 from swarm_sitl.rundir.layout import expected_run_bytes
-from swarm_sitl.rundir.metrics import bound_failures, describe_inputs
+from swarm_sitl.rundir.metrics import bound_failures
 from swarm_sitl.rundir.outputs import write_outputs
 from swarm_sitl.rundir.rejoins import rejoin_lines
 from swarm_sitl.rundir.whole_files import WriteError
@@ -58,6 +59,9 @@ def cmd_sim(args: argparse.Namespace) -> int:
     from swarm_sitl.running.sim import SimFailedError, run_sim  # the run machinery: 0.12 s (module doc)
 
     run_dir = run_dir_of(args.out, cfg, "sim")
+    compile_once(
+        cfg, (lambda line: None) if args.quiet else lambda line: print(line, file=sys.stderr, flush=True)
+    )
     n = cfg.n_control_steps
     t0 = time.monotonic()
     law_log = None
@@ -230,7 +234,7 @@ def _run_and_record(
         f"-> {run_dir}"
     )
     print("\n".join(summary_lines(out.summary)))
-    for line in _degraded_lines(out.summary):
+    for line in degraded_lines(out.summary):
         print(line)
     restarts, not_back = rejoin_lines(out.summary)
     for line in restarts:
@@ -239,37 +243,6 @@ def _run_and_record(
         for line in not_back:
             print(f"  {line}")
     return held_to_bound(out.bound_failures)
-
-
-def _degraded_lines(summary: dict) -> list[str]:
-    """What the controllers reported of late, old or missing inputs, one line per follower."""
-    out = []
-
-    for i, rep in sorted(summary.get("inputs", {}).items(), key=lambda kv: int(kv[0])):
-        why = describe_inputs(rep)
-        if why:
-            out.append(f"  follower {i} degraded inputs: {why}")
-    for i in summary.get("lost", []):
-        out.append(f"  vehicle {i} lost (a fault plan's): its follower is recorded up to the loss")
-    for edge, st in sorted(summary.get("links", {}).items()):
-        if st.get("lost") or st.get("corrupt") or st.get("delayed") or st.get("duplicated"):
-            out.append(
-                f"  {edge if edge.startswith('mavlink') else 'edge ' + edge}: "
-                f"{st['delivered']} of {st['received']} delivered, {st['lost']} lost, "
-                f"{st['corrupt']} corrupt, {st['delayed']} delayed, {st['duplicated']} duplicated"
-                + (f", {st['held']} held at the end" if st.get("held") else "")
-                + _radio(st)
-            )
-    return out
-
-
-def _radio(st: dict) -> str:
-    """What the radio models did on an edge (``faults.radio_range``, ``faults.bandwidth``), if any."""
-    parts = [f"{st[k]} {k.replace('_', ' ')}" for k in ("out_of_range", "queue_full", "retried") if st.get(k)]
-    d = st.get("distance_m")
-    if d:
-        parts.append(f"{d['min']:.1f}..{d['max']:.1f} m apart")
-    return f" ({', '.join(parts)})" if parts else ""
 
 
 def _with_fault_file(cfg: SwarmConfig, path: str | None) -> SwarmConfig:

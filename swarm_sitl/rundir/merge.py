@@ -230,6 +230,8 @@ def vehicle_refusals(cfg: SwarmConfig, run_dir: Path) -> dict[str, Any]:
         s = _stats(vehicle_stats_path(run_dir, f.id))
         if s:
             out[str(f.id)] = {k: s.get(k, 0) for k in VEHICLE_REFUSALS}
+            if any(s.get("rx_unsigned", {}).values()):  # by port: a tool that did not sign
+                out[str(f.id)]["rx_unsigned"] = s["rx_unsigned"]
             if s.get("last_handler_error"):
                 out[str(f.id)]["last_handler_error"] = s["last_handler_error"]
     return out
