@@ -56,6 +56,7 @@ def cmd_sim(args: argparse.Namespace) -> int:
         cfg.faults.check_lockstep()
     except ValueError as e:
         raise CliError(f"sim flies a plan as lockstep does: {e}") from None
+    from swarm_sitl.running.first_compile import compile_once
     from swarm_sitl.running.sim import SimFailedError, run_sim  # the run machinery: 0.12 s (module doc)
 
     run_dir = run_dir_of(args.out, cfg, "sim")
@@ -176,9 +177,11 @@ def _run_and_record(
 ) -> int:
     """``view``: the address and port of the run's live page (``run --view``), or None;
     ``foxglove``: those of its Foxglove WebSocket server (``run --foxglove``), or None."""
+    from swarm_sitl.running.first_compile import compile_once
     from swarm_sitl.running.run import RunRequest, record_run  # the run machinery: 0.12 s (module doc)
 
     warn_if_short_of_disk(cfg, run_dir)
+    compile_once(cfg, (lambda line: None) if quiet else lambda line: print(line, file=sys.stderr, flush=True))
     clock = "lockstep" if lockstep else "real time"
     feed = server = stream = None
     if view is not None or foxglove is not None:

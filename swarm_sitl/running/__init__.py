@@ -3,7 +3,8 @@ torn down all or nothing (``run``: the whole run; ``supervisor``: the children; 
 process that ended early or stopped ticking, named; ``vehicles``: the
 simulated vehicles; ``hub``: the supervisor's zenoh session and view of the bus; ``fork_server``:
 children forked from one warmed-up process; ``children``: a child's command line and environment;
-``router_watch``: a client-mode run's zenoh router, lost and back).
+``router_watch``: a client-mode run's zenoh router, lost and back; ``first_compile``: every
+compiled kernel of a fresh install, once, on two processes).
 
 May import: sim_vehicles, laws, bus, faults, config, rundir, link, nodes, view.
 """
