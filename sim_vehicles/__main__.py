@@ -34,6 +34,7 @@ from sim_vehicles.runtime.lifeline import (
     settle_heap,
 )
 from sim_vehicles.vehicle import lockstep_tick
+from sim_vehicles.vehicle.autopilots import PROFILES
 from sim_vehicles.vehicle.endpoint import VehicleEndpoint
 
 
@@ -95,6 +96,7 @@ SPEC_FLAGS = {
     "drag_ns2pm2": "drag_Ns2pm2",
     "attitude_hz": "attitude_hz",
     "model": "model",
+    "autopilot": "autopilot",
 }
 WIND_FLAGS = {
     "wind_mps": "mean_mps",
@@ -163,6 +165,9 @@ def main(argv: list[str] | None = None) -> int:
     )
     p.add_argument("--model", help="the vehicle model (default: paper_vtol)")
     p.add_argument(
+        "--autopilot", choices=("px4", "ardupilot"), help="speak as PX4 (default) or as ArduCopter"
+    )
+    p.add_argument(
         "--position", type=float, nargs=3, metavar=("E", "N", "U"), help="initial position [m; ENU]"
     )
     p.add_argument("--velocity", type=float, nargs=3, metavar=("E", "N", "U"), help="[m/s; ENU]")
@@ -190,7 +195,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument(
         "--failsafe-action",
         choices=sorted(ACTIONS),
-        help="what the vehicle flies when its setpoints stop (PX4's COM_OBL_ACT): hold position or land",
+        help="what the vehicle flies when its setpoints stop (PX4's COM_OBL_RC_ACT): hold position or land",
     )
     p.add_argument("--drag-ns2pm2", type=float, help="quadratic drag rho C_d A / 2 [N s^2/m^2]")
     p.add_argument("--wind-mps", type=float, nargs=3, help="mean wind [m/s; ENU]")
@@ -241,6 +246,7 @@ def main(argv: list[str] | None = None) -> int:
             gcs_bind=None if a.gcs_port is None else (a.host, a.gcs_port),
             gcs_remote=_host_port(a.gcs_remote) if a.gcs_remote else None,
             sensors=sensor_model(spec, a.id),
+            profile=PROFILES[spec.autopilot],
         )
     except (VehicleParamError, ValueError) as e:  # VehicleSpecError, a bad key file or address
         print(f"sim_vehicles: error: {e}", file=sys.stderr)

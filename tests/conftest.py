@@ -71,6 +71,7 @@ LOCKSTEP_ONLY = {
     "test_link_from_docs.py",
     "test_view_foxglove.py",
     "test_zenoh_attacks.py",
+    "test_arducopter_swarm.py",
 }
 
 

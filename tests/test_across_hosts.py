@@ -109,6 +109,9 @@ def test_a_swarm_over_two_hosts_converges_through_a_lossy_link(two_hosts, tmp_pa
     cfg["duration_s"] = DURATION_S
     cfg["zenoh"] = {"mode": "client", "connect": [f"tcp/{VEH_IP}:7447"]}
     cfg["signing"] = {"enabled": False}  # the key would have to be copied between the hosts
+    for f in cfg["followers"]:  # two PX4 and two ArduCopters: each controller speaks its vehicle's
+        if f["id"] in (2, 4):
+            f["autopilot"] = "ardupilot"
     path = tmp_path / "two_hosts.yaml"
     path.write_text(yaml.safe_dump(cfg))
     plan = tmp_path / "lossy_link.yaml"

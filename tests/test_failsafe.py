@@ -144,7 +144,7 @@ def test_a_vehicle_set_to_land_lands_and_one_set_to_hold_holds():
         ap, f, _said, events = _modes(action, 0.5)
         _step(ap, f, 600)  # 0.1 s into the failsafe
         at = np.array(events.seen[0][2]["p_W"])
-        assert f.mode == MODE_FAILSAFE and f.px4_mode() == mode
+        assert f.mode == MODE_FAILSAFE and f.reported_mode() == mode
         _step(ap, f, 5000)
         if action == ACTION_LAND:  # down at the landing speed, over the point of loss
             assert ap.state[VEL][2] == pytest.approx(-LAND_SPEED_MPS, abs=0.01)

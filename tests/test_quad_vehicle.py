@@ -96,7 +96,7 @@ def test_px4_gains_set_over_mavlink_change_the_step_response_as_the_closed_form_
     while (m := conn.recv_match(type="PARAM_VALUE", blocking=True, timeout=1.0)) is not None:
         names.add(m.param_id)
     assert {"MC_ROLL_P", "MC_ROLLRATE_P", "MC_ROLLRATE_I", "MC_ROLLRATE_K", "MC_YAW_WEIGHT"} <= names
-    assert {"MASS_KG", "MAX_THRUST_N", "MC_ROLLRATE_MAX"} <= names
+    assert {"MPC_THR_HOVER", "COM_OF_LOSS_T", "MC_ROLLRATE_MAX"} <= names
     conn.mav.command_long_send(1, 1, mav.MAV_CMD_COMPONENT_ARM_DISARM, 0, 1, 0, 0, 0, 0, 0, 0)
     _wait(conn, "COMMAND_ACK", command=mav.MAV_CMD_COMPONENT_ARM_DISARM)
     conn.mav.set_attitude_target_send(0, 1, 1, 0b1100_0111, [1.0, 0, 0, 0], 0, 0, 0, 0)  # a stream first

@@ -16,6 +16,7 @@ import yaml
 from pymavlink import mavutil
 
 from sim_vehicles.runtime.row_log import read_rows
+from swarm_sitl.config.load import parse_config
 from swarm_sitl.running.sim import run_sim
 from tests.conftest import CONFIGS, processes_mentioning
 
@@ -228,9 +229,17 @@ def _cmdline(pid: int) -> str:
 
 
 def test_own_vehicles_and_controllers_meet_over_given_endpoints(tmp_path, paper_cfg):
-    """``vehicles`` on one side, ``controllers --mavlink`` on the other, as a user would split them."""
+    """``vehicles`` on one side, ``controllers --mavlink`` on the other, as a user would split them,
+    two of the vehicles speaking as PX4 and two as ArduCopter: the controllers read only the
+    autopilots' own parameters and fly the swarm as ``sim`` does."""
+    data = yaml.safe_load((CONFIGS / "paper.yaml").read_text())
+    for f in data["followers"]:
+        if f["id"] in (2, 4):
+            f["autopilot"] = "ardupilot"
+    mixed = tmp_path / "mixed.yaml"
+    mixed.write_text(yaml.safe_dump(data))
     vehicles = subprocess.Popen(
-        [*CLI, "vehicles", str(CONFIGS / "paper.yaml"), "--lockstep", "--out", str(tmp_path / "veh")],
+        [*CLI, "vehicles", str(mixed), "--lockstep", "--out", str(tmp_path / "veh")],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
@@ -247,7 +256,7 @@ def test_own_vehicles_and_controllers_meet_over_given_endpoints(tmp_path, paper_
         out = tmp_path / "ctl"
         r = _cli(
             "controllers",
-            CONFIGS / "paper.yaml",
+            mixed,
             "--lockstep",
             "--duration",
             5,
@@ -262,7 +271,7 @@ def test_own_vehicles_and_controllers_meet_over_given_endpoints(tmp_path, paper_
         vehicles.send_signal(signal.SIGINT)
         vehicles.communicate(timeout=30)
     assert vehicles.returncode == 0
-    sim = run_sim(paper_cfg.model_copy(update={"duration_s": 5.0}))
+    sim = run_sim(parse_config({**data, "duration_s": 5.0}))
     for i in range(1, 5):
         a = np.load(out / f"follower_{i}.npz")
         # no truth from vehicles that are not ours: the run records the float32 samples it received

@@ -77,22 +77,28 @@ def vehicle_port(tmp_path):
     proc.wait(timeout=10)
 
 
+def _set_and_see(con: Console, name: str, value: float) -> None:
+    """``param set``, then ``param show`` until MAVProxy's table has what the vehicle answered."""
+    con.type(f"param set {name} {value:g}")
+    end = time.monotonic() + 10  # the vehicle's PARAM_VALUE answer updates MAVProxy's table
+    while True:
+        con.type(f"param show {name}")
+        if float(con.expect(rf"{name}\s+([0-9.]+)").group(1)) == value:
+            return
+        assert time.monotonic() < end, f"{name} never changed"
+        time.sleep(0.2)
+
+
 def test_mavproxy_shows_mode_and_position_reads_and_sets_a_parameter_and_arms(vehicle_port, tmp_path):
     con = Console([MAVPROXY, f"--master=udpout:127.0.0.1:{vehicle_port}", "--nowait"], tmp_path)
     try:
         con.expect(r"Detected vehicle 1:1")
         con.expect(r"Mode LOITER")  # PX4's Hold, by name, from the heartbeat
-        con.expect(r"Received 10 parameters")
-        con.type("param show MASS_KG")
-        assert float(con.expect(r"MASS_KG\s+([0-9.]+)").group(1)) == pytest.approx(0.85)
-        con.type("param set SP_TIMEOUT_S 2.0")
-        end = time.monotonic() + 10  # the vehicle's PARAM_VALUE answer updates MAVProxy's table
-        while True:
-            con.type("param show SP_TIMEOUT_S")
-            if float(con.expect(r"SP_TIMEOUT_S\s+([0-9.]+)").group(1)) == 2.0:
-                break
-            assert time.monotonic() < end, "the parameter never changed"
-            time.sleep(0.2)
+        con.expect(r"Received 6 parameters")  # PX4's names only (vehicle.autopilots.px4_params)
+        con.type("param show MPC_THR_HOVER")  # the hover thrust: m g / T_max of the paper's vehicle
+        hover = float(con.expect(r"MPC_THR_HOVER\s+([0-9.]+)").group(1))
+        assert hover == pytest.approx(0.85 * 9.81 / 25.0, rel=1e-5)
+        _set_and_see(con, "COM_OF_LOSS_T", 2.0)
         con.type("status GLOBAL_POSITION_INT")
         m = con.expect(r"GLOBAL_POSITION_INT \{.*lat : (\d+), lon : (\d+), .*relative_alt : (-?\d+)")
         assert int(m.group(1)) == 473977420 and int(m.group(2)) == 85455940  # home: PX4 SITL's
@@ -114,5 +120,49 @@ def test_mavproxy_shows_mode_and_position_reads_and_sets_a_parameter_and_arms(ve
         m = con.expect(r"HEARTBEAT \{type : 2, autopilot : 12, base_mode : (\d+), custom_mode : (\d+)")
         assert int(m.group(1)) & 128 and int(m.group(2)) == (4 << 16) | (3 << 24)  # armed, Hold
         assert not any("fence breach" in line for line in con.seen)
+    finally:
+        con.close()
+
+
+@pytest.fixture
+def arducopter_port(tmp_path):
+    pytest.importorskip("MAVProxy", reason="MAVProxy is not installed (pip install '.[test]')")
+    port = _free_udp_port()
+    proc = spawn_vehicle(1, port, "--autopilot", "ardupilot")
+    yield port
+    proc.terminate()
+    proc.wait(timeout=10)
+
+
+def test_mavproxy_flies_the_arducopter_profile_as_an_ardupilot_user_types_it(arducopter_port, tmp_path):
+    """MAVProxy, ArduPilot's own ground station, on a vehicle speaking as ArduCopter: it names the
+    mode from the heartbeat, lists ArduCopter's modes, ``mode GUIDED_NOGPS`` and ``arm throttle``
+    are accepted and show in the heartbeat, ``param show MOT_THST_HOVER`` is the vehicle's hover
+    thrust, and ``param set GUID_OPTIONS 8`` takes."""
+    con = Console([MAVPROXY, f"--master=udpout:127.0.0.1:{arducopter_port}", "--nowait"], tmp_path)
+    try:
+        con.expect(r"Detected vehicle 1:1")
+        con.expect(r"Mode STABILIZE")  # ArduCopter's boot mode, by name
+        con.expect(r"Received \d+ parameters")
+        con.type("mode")
+        modes = con.expect(r"Available modes:\s+(.*)").group(1)
+        assert {"STABILIZE", "GUIDED", "LAND", "GUIDED_NOGPS"} <= {m.strip() for m in modes.split(",")}
+        con.type("param show MOT_THST_HOVER")
+        hover = float(con.expect(r"MOT_THST_HOVER\s+([0-9.]+)").group(1))
+        assert hover == pytest.approx(0.85 * 9.81 / 25.0, rel=1e-5)
+        con.type("param show GUID_OPTIONS")
+        assert float(con.expect(r"GUID_OPTIONS\s+([0-9.]+)").group(1)) == 0  # as ArduCopter ships
+        _set_and_see(con, "GUID_OPTIONS", 8)
+        con.type("mode GUIDED_NOGPS")
+        con.expect(r"DO_SET_MODE: ACCEPTED")
+        con.expect(r"Mode GUIDED_NOGPS")
+        con.type("arm throttle")
+        con.expect(r"COMPONENT_ARM_DISARM: ACCEPTED")
+        con.expect(r"ARMED")
+        con.type("mode AUTO")  # a mode this vehicle does not have: refused as ArduCopter refuses it
+        con.expect(r"DO_SET_MODE: FAILED")
+        con.type("status HEARTBEAT")
+        m = con.expect(r"HEARTBEAT \{type : 2, autopilot : 3, base_mode : (\d+), custom_mode : (\d+)")
+        assert int(m.group(1)) & 128 and int(m.group(2)) == 20  # armed, GUIDED_NOGPS
     finally:
         con.close()

@@ -70,7 +70,9 @@ def test_pymavlink_client_arms_tilts_north_and_sees_it(vehicle):
         m = conn.recv_match(type="PARAM_VALUE", blocking=True, timeout=0.2)
         if m:
             params[m.param_id] = m.param_value
-    assert params["MASS_KG"] == pytest.approx(0.85) and params["MAX_THRUST_N"] == pytest.approx(25.0)
+    # PX4's own parameters only (no MASS_KG: no autopilot has it); the hover thrust is m g / T_max
+    assert params["MPC_THR_HOVER"] == pytest.approx(0.85 * 9.81 / 25.0, rel=2**-23)
+    assert params["COM_OF_LOSS_T"] == pytest.approx(0.5) and "MASS_KG" not in params
 
     conn.mav.command_long_send(3, 1, mavutil.mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 0, 1, 0, 0, 0, 0, 0, 0)
     assert _wait(conn, "COMMAND_ACK").result == mavutil.mavlink.MAV_RESULT_ACCEPTED
@@ -201,8 +203,8 @@ def test_offboard_refused_for_a_lost_setpoint_is_asked_again(vehicle):
 
     link.send_clock_only, link.downlink.handle = lossy_clock, handle
     try:
-        link.connect(10.0)
-        link.arm_offboard(10.0)
+        link.connect(10.0, 0.85, 9.81)
+        link.engage(10.0, lockstep=True)
     finally:
         link.close()
     assert answers[0] == mavutil.mavlink.MAV_RESULT_TEMPORARILY_REJECTED

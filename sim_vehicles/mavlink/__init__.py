@@ -1,6 +1,8 @@
 """The MAVLink wire, pure: ENU/FLU <-> NED/FRD (``enu_ned``), the fields of the messages the swarm
 uses (``wire_format``), their frames without message objects (``frames``, ``tick_frames``),
-MAVLink 2 signing (``signing``, ``sha256``) and PX4's conventions (``px4_profile``). No sockets.
+MAVLink 2 signing (``signing``, ``sha256``), PX4's and ArduCopter's conventions (``px4_profile``,
+``ardupilot_profile``, and ArduCopter's reading of a setpoint: ``ardupilot_guided``) and the one
+map between a thrust and the setpoint's thrust field (``thrust_map``). No sockets.
 
 May import: common.
 """

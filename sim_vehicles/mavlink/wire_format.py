@@ -185,9 +185,14 @@ def setpoint_of(m: Any, max_thrust_N: float) -> Setpoint:
     )
 
 
-def command_roundtrip(cmd: AttitudeCommand, max_thrust_N: float) -> AttitudeCommand:
-    """The command as the vehicle receives it over MAVLink."""
-    return decode_attitude_target(encode_attitude_target(cmd, max_thrust_N), max_thrust_N)
+def command_roundtrip(
+    cmd: AttitudeCommand, full_thrust_N: float, max_thrust_N: float | None = None
+) -> AttitudeCommand:
+    """The command as the vehicle receives it over MAVLink: its thrust sent as a fraction of
+    ``full_thrust_N`` (the controller's, ``thrust_map``), read back as one of the vehicle's
+    ``max_thrust_N`` (default: the same)."""
+    max_thrust = full_thrust_N if max_thrust_N is None else max_thrust_N
+    return decode_attitude_target(encode_attitude_target(cmd, full_thrust_N), max_thrust)
 
 
 def encode_attitude_quaternion(q_WB: np.ndarray, omega_B: np.ndarray) -> tuple[float, ...]:

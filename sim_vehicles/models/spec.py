@@ -21,6 +21,8 @@ from sim_vehicles.plant.params import MAX_RATE_DEFAULT_RPS, VehicleParamError
 
 #: the model of a spec that names none: the paper's rigid body with its torque law as autopilot
 DEFAULT_MODEL = "paper_vtol"
+#: the autopilots a vehicle speaks as (``vehicle.autopilots.PROFILES``' names)
+AUTOPILOTS = ("px4", "ardupilot")
 
 
 class VehicleSpecError(ValueError):
@@ -69,13 +71,15 @@ class VehicleSpec:
     k_q: float = 16.0  #: the paper's torque law: body-rate-error gain
     attitude_hz: float = 1000.0  #: the attitude loop's and the plant's step rate [Hz]
     setpoint_timeout_s: float = 0.5  #: failsafe after this long without a valid setpoint [s]
-    failsafe_action: str = "hold"  #: PX4's COM_OBL_ACT: ``hold`` position or ``land``
+    failsafe_action: str = "hold"  #: PX4's COM_OBL_RC_ACT: ``hold`` position or ``land``
     position_m: tuple[float, float, float] = (0.0, 0.0, 0.0)  #: initial [m; ENU]
     velocity_mps: tuple[float, float, float] = (0.0, 0.0, 0.0)  #: initial [m/s; ENU]
     quaternion_wxyz: tuple[float, float, float, float] = (1.0, 0.0, 0.0, 0.0)  #: initial, body to world
     wind: Gusts | None = None  #: None: still air
     sensors: SensorNoise | None = None  #: None: the true state is reported
     params: dict[str, float] = field(default_factory=dict)  #: a model's own parameters, by name
+    #: the autopilot it speaks as over MAVLink (``vehicle.autopilots``): ``px4`` or ``ardupilot``
+    autopilot: str = "px4"
 
     def __post_init__(self) -> None:
         def bad(name: str, why: str) -> VehicleSpecError:
@@ -98,6 +102,8 @@ class VehicleSpec:
                 raise bad(f"params: {name}", f"must be a finite number, got {v!r}")
         if abs(math.sqrt(sum(x * x for x in self.quaternion_wxyz)) - 1.0) > 1e-6:
             raise bad("quaternion_wxyz", f"must be a unit quaternion, got {self.quaternion_wxyz!r}")
+        if self.autopilot not in AUTOPILOTS:
+            raise bad("autopilot", f"must be one of {', '.join(AUTOPILOTS)}, got {self.autopilot!r}")
         if self.failsafe_action not in ACTIONS:
             raise bad(
                 "failsafe_action",

@@ -15,7 +15,7 @@ built, and a run builds it once at load to check it):
   rigid-body state (``common.state``: position, velocity [ENU], attitude [Hamilton, FLU -> ENU],
   body rates [FLU]), ``dt_s`` its step. Raise ``models.spec.VehicleSpecError`` (one line naming
   the parameter) for parameters it cannot take;
-- ``params``: a ``plant.params.VehicleParams`` (the vehicle serves MASS_KG and MAX_THRUST_N from
+- ``params``: a ``plant.params.VehicleParams`` (the vehicle serves its hover thrust from
   it; a controller's thrust 1.0 is ``max_thrust_N``);
 - ``state`` (13 values, readable and writable), ``step_index`` (steps flown), ``dt_s``, ``time_s``
   (``step_index * dt_s``: simulated time is counted, never summed);

@@ -4,7 +4,8 @@ fork server's warm-up (``sim_vehicles.models.build`` makes one from a spec).
 A model holds a command and advances its plant in fixed steps, time ``step_index * dt_s``:
 
 - ``params`` (``plant.params.VehicleParams``): mass, inertia, largest collective thrust (MAVLink's
-  thrust 1.0 maps to it), gravity, drag; served as MASS_KG, MAX_THRUST_N, ... over MAVLink;
+  thrust 1.0 maps to it), gravity, drag; its hover thrust ``m g / T_max`` served as the
+  autopilot's MPC_THR_HOVER or MOT_THST_HOVER (``vehicle.autopilots``);
 - ``state``: the rigid body's 13 values (``common.state``: ENU position and velocity, FLU -> ENU
   Hamilton attitude, FLU body rates), what telemetry, the truth log and the failsafe read; a model
   with more state (motor speeds, integrators) keeps it beside these;

@@ -11,7 +11,8 @@ two run loops (``loops``). PX4's conventions are in ``mavlink.px4_profile``.
   (``modes``: arming, modes and the setpoint-loss failsafe, as PX4 has them).
 - SET_ATTITUDE_TARGET honoured as PX4 does, on the controller's port only: target system and
   component checked, type_mask bits (1..4 ignore body rates, 64 ignore throttle, 128 ignore
-  attitude), NED/FRD converted at the wire (``wire_format``), thrust 0..1 of MAX_THRUST_N.
+  attitude), NED/FRD converted at the wire (``wire_format``), thrust 0..1 of its largest thrust
+  (``thrust_map``; an ArduCopter's reading: ``mavlink.ardupilot_guided``).
   Commanded body rates are clipped to MC_ROLLRATE_MAX, MC_PITCHRATE_MAX and MC_YAWRATE_MAX, so the
   plant's state stays finite.
 - Optionally the true state (float64, ENU/FLU) at every LOCAL_POSITION_NED instant sent to its
@@ -43,14 +44,19 @@ from pymavlink.dialects.v20 import common as mav
 
 from sim_vehicles.common.command import AttitudeCommand
 from sim_vehicles.common.state import TRUTH_COLUMNS
+from sim_vehicles.mavlink import ardupilot_profile as ap_profile
 from sim_vehicles.mavlink import decoder, frames, tick_frames
 from sim_vehicles.mavlink import px4_profile as px4
+from sim_vehicles.mavlink.ardupilot_guided import guided_command
+from sim_vehicles.mavlink.ardupilot_profile import GUIDED_MODES, ArduCopterState
+from sim_vehicles.mavlink.thrust_map import hover_fraction
 from sim_vehicles.mavlink.wire_format import (
     CMD_VALID,
     IGNORE_ALL,
     IGNORE_ATTITUDE,
     IGNORE_RATES,
     IGNORE_THROTTLE,
+    AttitudeTargetFields,
     Setpoint,
     command_of,
     setpoint_of,
@@ -61,7 +67,8 @@ from sim_vehicles.plant.sensors import SensorModel
 from sim_vehicles.runtime.event_log import EventLog
 from sim_vehicles.runtime.row_log import RowLog
 from sim_vehicles.vehicle import lockstep_tick, loops, services
-from sim_vehicles.vehicle.modes import MODE_OFFBOARD, FlightModes
+from sim_vehicles.vehicle.autopilots import ARDUCOPTER, PX4, Profile
+from sim_vehicles.vehicle.modes import MODE_HOLD, MODE_OFFBOARD, FlightModes
 from sim_vehicles.vehicle.port import ATTQ_ID, LPOS_ID, EndpointStats, Port, Tlog
 from sim_vehicles.vehicle.telemetry import GCS_RATES, Telemetry, TelemetryRates
 
@@ -76,12 +83,14 @@ class VehicleEndpoint:
     autopilot: VehicleModel
     system_id: int
     bind: tuple[str, int] = ("127.0.0.1", 0)
-    setpoint_timeout_s: float = 0.5  #: SP_TIMEOUT_S at start (``flight`` keeps the current one)
+    setpoint_timeout_s: float = (
+        0.5  #: COM_OF_LOSS_T or GUID_TIMEOUT at start (``flight`` keeps the current one)
+    )
     rates: TelemetryRates = field(default_factory=TelemetryRates)
     tlog_path: Path | None = None
     lockstep_period_s: float | None = None  #: None: real time; else simulated time per setpoint
     truth_path: Path | None = None  #: write the true state at every LOCAL_POSITION_NED instant
-    failsafe_action: int = ACTION_HOLD  #: ``failsafe.ACTION_*`` at start (parameter COM_OBL_ACT)
+    failsafe_action: int = ACTION_HOLD  #: ``failsafe.ACTION_*`` at start (parameter COM_OBL_RC_ACT)
     events_path: Path | None = None  #: write failsafe events here (``event_log``)
     signing_key: bytes | None = None  #: MAVLink 2 signing on this link (``mavlink.signing``)
     home: px4.Home = field(default_factory=px4.Home)  #: where the local frame's origin is on the earth
@@ -92,6 +101,8 @@ class VehicleEndpoint:
     gcs_remote: tuple[str, int] | None = None
     #: latency and noise of the state it reports (``plant.sensors``; None: the true state)
     sensors: SensorModel | None = None
+    #: the autopilot it speaks as (``autopilots``: PX4 or ArduCopter)
+    profile: Profile = PX4
 
     def __post_init__(self) -> None:
         self._lockstep_steps = 0
@@ -150,8 +161,12 @@ class VehicleEndpoint:
             self.failsafe_action,
             self.events,
             self._statustext,
+            self.profile,
         )
-        self.parameters = services.Parameters(self.autopilot, self.flight, self.stats)
+        p = self.autopilot.params
+        #: an ArduCopter's parameters its SET_ATTITUDE_TARGET reads (``mavlink.ardupilot_guided``)
+        self.ardupilot = ArduCopterState(hover_fraction(p.mass_kg, p.g_mps2, p.max_thrust_N))
+        self.parameters = services.Parameters(self, self.flight, self.stats)
 
     def unsigned_by_port(self) -> dict[str, int]:
         """Datagrams each port of a signed vehicle refused for want of a signature (or of the
@@ -259,7 +274,7 @@ class VehicleEndpoint:
         """Handle a datagram of plain frames: a setpoint alone in one compiled call, the rest
         through ``decoder``."""
         r = tick_frames.read_setpoint(data, _SETPOINT.spec, self.autopilot.params.max_thrust_N)
-        if r[0]:  # one SET_ATTITUDE_TARGET and nothing else: what a controller sends
+        if r[0] and self.profile is PX4:  # one SET_ATTITUDE_TARGET and nothing else: what a controller sends
             self.tlog.frame(data)
             self.stats.rx_messages += 1
             if port is not self.port:  # setpoints come on the controller's port only
@@ -314,7 +329,12 @@ class VehicleEndpoint:
         if t == "SET_ATTITUDE_TARGET" and port is not self.port:  # setpoints: the controller's port only
             self.stats.rx_refused += 1
         elif t == "SET_ATTITUDE_TARGET":
-            self._on_setpoint(setpoint_of(m, self.autopilot.params.max_thrust_N))
+            raw = AttitudeTargetFields(
+                tuple(m.q), (m.body_roll_rate, m.body_pitch_rate, m.body_yaw_rate), m.thrust
+            )
+            self._on_setpoint(setpoint_of(m, self.autopilot.params.max_thrust_N), raw)
+        elif t == "REQUEST_DATA_STREAM" and self.profile is ARDUCOPTER:
+            services.data_stream(port, m)
         elif t == "COMMAND_LONG":
             services.on_command(self, port, m)
         elif t == "PARAM_REQUEST_LIST":
@@ -332,14 +352,14 @@ class VehicleEndpoint:
         return x if self.sensors is None else self.sensors.reported(ms, x)
 
     # -- setpoints -------------------------------------------------------------------------------
-    def _on_setpoint(self, m: Setpoint) -> None:
+    def _on_setpoint(self, m: Setpoint, raw: AttitudeTargetFields | None = None) -> None:
         """A setpoint for this vehicle. In lockstep one stamped with its current time is applied
         (armed in offboard) and the vehicle advances exactly one period and streams its sample;
         one stamped earlier (a retransmission: its sample was lost) makes it send its current
         sample again and nothing else; one stamped later is refused and counted, except a
         *clock-only* setpoint (type_mask ``IGNORE_ALL``), which advances the vehicle to its stamp,
         period by period, under what it holds (its failsafe once setpoints have been missing for
-        SP_TIMEOUT_S of simulated time) and counts as no setpoint: how a controller that was down
+        the setpoint timeout of simulated time) and counts as no setpoint: how a controller that was down
         (a planned kill and restart) takes its vehicle up again at its restart tick."""
         ap = self.autopilot
         if self.lockstep_period_s is None or m.time_boot_ms <= self.time_boot_ms:
@@ -364,6 +384,9 @@ class VehicleEndpoint:
                 return
         cur = ap.command
         mask = m.type_mask
+        if self.profile is ARDUCOPTER:
+            self._on_guided_setpoint(m, raw)
+            return
         if not m.command[CMD_VALID]:  # not a rotation, or a non-finite rate or thrust
             self.stats.rx_bad += 1
             if self.lockstep_period_s is not None:
@@ -381,6 +404,26 @@ class VehicleEndpoint:
         self.stats.setpoints += 1
         if self.flight.take_setpoint():
             ap.set_command(cmd)
+        if self.lockstep_period_s is not None:
+            self.step(self._lockstep_steps)
+
+    def _on_guided_setpoint(self, m: Setpoint, raw: AttitudeTargetFields | None) -> None:
+        """An ArduCopter's setpoint (``mavlink.ardupilot_guided``): taken in its guided modes only;
+        refused, it keeps what it flies (GUIDED: a position hold where it is, as
+        ``mode_guided.init`` does)."""
+        ap, f = self.autopilot, self.flight
+        if raw is not None and f.number in GUIDED_MODES:
+            cmd, climb, _why = guided_command(
+                raw, m.type_mask, ap.command, ap.state, ap.params.max_thrust_N, self.ardupilot
+            )
+            if cmd is None:
+                self.stats.rx_invalid += 1
+                if f.number == ap_profile.GUIDED and f.mode != MODE_HOLD:
+                    f.set_mode(ap_profile.GUIDED)  # (its position hold, from where it is)
+            else:
+                self.stats.setpoints += 1
+                if f.take_setpoint(climb):
+                    ap.set_command(cmd)
         if self.lockstep_period_s is not None:
             self.step(self._lockstep_steps)
 
@@ -414,7 +457,9 @@ class VehicleEndpoint:
     def send_heartbeat(self, port: Port) -> None:
         base, custom, status = self.flight.heartbeat()
         port.send(
-            port.mav.heartbeat_encode(mav.MAV_TYPE_QUADROTOR, mav.MAV_AUTOPILOT_PX4, base, custom, status)
+            port.mav.heartbeat_encode(
+                mav.MAV_TYPE_QUADROTOR, self.profile.mav_autopilot, base, custom, status
+            )
         )
 
     def heartbeat_tick(self, now_wall_s: float) -> None:

@@ -2,21 +2,23 @@
 
 Each answers on the port the request came on, addressed to its sender as PX4 addresses it:
 
-- parameters (``Parameters``): MASS_KG, INERTIA_X/Y/Z, MAX_THRUST_N, SP_TIMEOUT_S, COM_OBL_ACT,
-  MC_ROLLRATE_MAX, MC_PITCHRATE_MAX, MC_YAWRATE_MAX [deg/s] and the model's own (``tunables``:
-  PX4's MC_* gains for ``px4_quad_x``) over the parameter protocol, all REAL32; PARAM_SET changes
-  those that may change in flight (``SETTABLE`` and the model's, within their ranges, as REAL32),
-  answered with PARAM_VALUE of what the vehicle keeps;
+- parameters (``Parameters``): the autopilot's own (``autopilots``: PX4's MPC_THR_HOVER,
+  COM_OF_LOSS_T, COM_OBL_RC_ACT, MC_*RATE_MAX, all REAL32; ArduCopter's SYSID_THISMAV,
+  GUID_OPTIONS, GUID_TIMEOUT, MOT_THST_HOVER, MOT_THST_EXPO, ATC_ANGLE_BOOST, ..., each in its own
+  type) and the model's own (``tunables``: PX4's MC_* gains for ``px4_quad_x``, under ArduPilot's
+  ATC_* names where it has them) over the parameter protocol; PARAM_SET of a writable one within
+  its range changes it, answered with PARAM_VALUE of what the vehicle keeps;
 - COMMAND_LONG (``Commands``), each answered with COMMAND_ACK: MAV_CMD_COMPONENT_ARM_DISARM (a
   disarm while armed is refused unless forced, param2 = 21196, as PX4 refuses one in flight),
-  MAV_CMD_DO_SET_MODE (PX4's base mode, main mode, sub mode: ``modes``),
+  MAV_CMD_DO_SET_MODE (PX4's base mode, main mode, sub mode; ArduCopter's mode number: ``modes``),
   MAV_CMD_SET_MESSAGE_INTERVAL (param1 message id, param2 interval [us]) and
   MAV_CMD_REQUEST_MESSAGE (param1 message id: sent once, now, after the ack) for its telemetry,
   MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES and MAV_CMD_GET_HOME_POSITION answered with their
   message. MAV_CMD_REQUEST_PROTOCOL_VERSION is answered UNSUPPORTED (PROTOCOL_VERSION is not in
   pymavlink's common dialect; tools then take MAVLink 2 from the frames themselves);
 - PING answered; FILE_TRANSFER_PROTOCOL answered with a NAK (no file system: a tool falls back at
-  once); MISSION_REQUEST_LIST answered with an empty mission.
+  once); MISSION_REQUEST_LIST answered with an empty mission; an ArduCopter's REQUEST_DATA_STREAM
+  (``data_stream``: the rate of a group of its streams, as MAVProxy asks for them).
 
 Values the vehicle refuses are counted (``rx_invalid``) and change nothing: a command whose
 parameters are not finite where it reads them (``COMMAND_PARAMS``; NaN in a parameter it does not
@@ -30,18 +32,10 @@ from typing import Any, Protocol
 
 from pymavlink.dialects.v20 import common as mav
 
-from sim_vehicles.mavlink import px4_profile as px4
-from sim_vehicles.plant.contract import VehicleModel
+from sim_vehicles.vehicle.autopilots import PARAMS_OF
 from sim_vehicles.vehicle.modes import FlightModes
 from sim_vehicles.vehicle.port import EndpointStats, Port
 
-RATE_MAX_PARAMS = ("MC_ROLLRATE_MAX", "MC_PITCHRATE_MAX", "MC_YAWRATE_MAX")  #: [deg/s], PX4's names
-#: parameters a PARAM_SET may change, and their ranges (the others are what the vehicle is)
-SETTABLE = {
-    "SP_TIMEOUT_S": (0.05, 60.0),
-    "COM_OBL_ACT": (0.0, 1.0),  # failsafe.ACTION_LAND, failsafe.ACTION_HOLD
-    **dict.fromkeys(RATE_MAX_PARAMS, (1.0, 1800.0)),  # [deg/s], as PX4 gives them
-}
 #: commands that ask for a message: the message each one sends after its COMMAND_ACK
 ASKS = {
     mav.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES: mav.MAVLINK_MSG_ID_AUTOPILOT_VERSION,
@@ -74,41 +68,26 @@ def ftp_nak(request: bytes) -> list[int]:
 
 
 class Parameters:
-    """The parameter protocol over a vehicle's parameters, in the order PARAM_REQUEST_LIST gives
-    them: what the vehicle is (``autopilot.params``) and what its ``flight`` may change."""
+    """The parameter protocol over a vehicle's parameters (``autopilots.PARAMS_OF``: its
+    autopilot's names and types), in the order PARAM_REQUEST_LIST gives them."""
 
-    def __init__(self, autopilot: VehicleModel, flight: FlightModes, stats: EndpointStats):
-        self.autopilot = autopilot
-        self.flight = flight
+    def __init__(self, vehicle: Any, flight: FlightModes, stats: EndpointStats):
+        self.profile = flight.profile
         self.stats = stats
-        p = autopilot.params
-        self.values: dict[str, float] = {
-            "MASS_KG": p.mass_kg,
-            "INERTIA_X": p.inertia_kgm2[0],
-            "INERTIA_Y": p.inertia_kgm2[1],
-            "INERTIA_Z": p.inertia_kgm2[2],
-            "MAX_THRUST_N": p.max_thrust_N,
-            "SP_TIMEOUT_S": flight.setpoint_timeout_s,
-            "COM_OBL_ACT": float(flight.failsafe_action),
-            **{n: math.degrees(w) for n, w in zip(RATE_MAX_PARAMS, p.max_rate_rps, strict=True)},
-            **autopilot.tunables,  # the model's own (PX4's gains, for px4_quad_x)
-        }
-
-    def _apply(self, name: str, value: float) -> None:
-        """A PARAM_SET into effect."""
-        if name == "SP_TIMEOUT_S":
-            self.flight.setpoint_timeout_s = value
-        elif name == "COM_OBL_ACT":
-            self.flight.failsafe_action = round(value)
-        elif name in RATE_MAX_PARAMS:
-            self.autopilot.max_rate_rps[RATE_MAX_PARAMS.index(name)] = math.radians(value)
+        self.defs = {d.name: d for d in PARAMS_OF[self.profile.name](vehicle, flight)}
+        self.values: dict[str, float] = {n: d.value for n, d in self.defs.items()}
+        self._index = {n: j for j, n in enumerate(self.defs)}
 
     def send(self, port: Port, name: str) -> None:
-        """PARAM_VALUE of ``name``."""
-        index = list(self.values).index(name)
+        """PARAM_VALUE of ``name``, in its MAVLink type (its value as a float, as both autopilots
+        with the PARAM_FLOAT capability send it)."""
         port.send(
             port.mav.param_value_encode(
-                name.encode(), float(self.values[name]), mav.MAV_PARAM_TYPE_REAL32, len(self.values), index
+                name.encode(),
+                float(self.values[name]),
+                self.defs[name].kind,
+                len(self.values),
+                self._index[name],
             )
         )
 
@@ -125,31 +104,30 @@ class Parameters:
             self.send(port, name)
 
     def set(self, port: Port, m: Any) -> None:
-        """Set a parameter that may change in flight (``SETTABLE``, or the model's own
-        ``tunables``, within its range, as a REAL32); anything else is refused and counted.
-        Answered with PARAM_VALUE of what the vehicle keeps, as PX4 does."""
+        """Set a parameter within its range; anything else (a name it does not have, a value out
+        of range or not finite, a read-only one; for PX4 any type but REAL32, which is every one's)
+        is refused and counted. Answered with PARAM_VALUE of what the vehicle keeps, as both do; an
+        integer parameter keeps the value rounded."""
         name = m.param_id
-        if name not in self.values:
+        d = self.defs.get(name)
+        if d is None:
             self.stats.rx_invalid += 1
             return
         value = float(m.param_value)
-        if m.param_type != mav.MAV_PARAM_TYPE_REAL32:  # every one is a float, as PARAM_VALUE says
+        wrong_type = self.profile.name == "px4" and m.param_type != mav.MAV_PARAM_TYPE_REAL32
+        if d.kind != mav.MAV_PARAM_TYPE_REAL32:
+            value = float(round(value)) if math.isfinite(value) else value
+        if wrong_type or not d.writable or not (d.low <= value <= d.high):
             self.stats.rx_invalid += 1
             self.send(port, name)
             return
-        if name in self.autopilot.tunables:  # the model's own: its range is the model's
-            if self.autopilot.set_param(name, value):
-                self.values[name] = self.autopilot.tunables[name]
-            else:
-                self.stats.rx_invalid += 1
-            self.send(port, name)
-            return
-        lo, hi = SETTABLE.get(name, (math.nan, math.nan))
-        if lo <= value <= hi:
-            self.values[name] = value
-            self._apply(name, value)
+        try:
+            if d.apply is not None:
+                d.apply(value)
+        except (ValueError, KeyError):  # the model's own range, or a value it has no meaning for
+            self.stats.rx_invalid += 1
         else:
-            self.stats.rx_invalid += 1
+            self.values[name] = value
         self.send(port, name)
 
 
@@ -192,8 +170,9 @@ def on_command(vehicle: Vehicle, port: Port, m: Any) -> None:
             stats.rx_invalid += 1
             result = mav.MAV_RESULT_DENIED  # PX4 refuses to disarm in flight unless forced
     elif cmd == mav.MAV_CMD_DO_SET_MODE:
-        result = vehicle.flight.set_mode(px4.requested_mode(p1, p2, params[2]))
-        if result == mav.MAV_RESULT_DENIED:  # a mode this vehicle does not have
+        flight = vehicle.flight
+        result = flight.set_mode(flight.profile.requested(p1, p2, params[2]))
+        if result == flight.profile.refused_mode:  # a mode this vehicle does not have
             stats.rx_invalid += 1
     elif cmd == mav.MAV_CMD_SET_MESSAGE_INTERVAL and p1 in port.streams.rate_hz:
         port.streams.set_interval(int(p1), p2)
@@ -228,3 +207,31 @@ def answer_request(port: Port, m: Any) -> bool:
     else:
         return False
     return True
+
+
+#: ArduPilot's stream groups (``GCS_MAVLink``'s ``ap_message`` groups) as this vehicle's streams
+DATA_STREAMS = {
+    mav.MAV_DATA_STREAM_RAW_SENSORS: (mav.MAVLINK_MSG_ID_HIGHRES_IMU,),
+    mav.MAV_DATA_STREAM_EXTENDED_STATUS: (mav.MAVLINK_MSG_ID_SYS_STATUS, mav.MAVLINK_MSG_ID_GPS_RAW_INT),
+    mav.MAV_DATA_STREAM_POSITION: (
+        mav.MAVLINK_MSG_ID_GLOBAL_POSITION_INT,
+        mav.MAVLINK_MSG_ID_LOCAL_POSITION_NED,
+    ),
+    mav.MAV_DATA_STREAM_EXTRA1: (mav.MAVLINK_MSG_ID_ATTITUDE,),
+    mav.MAV_DATA_STREAM_EXTRA3: (mav.MAVLINK_MSG_ID_HOME_POSITION,),
+}
+
+
+def data_stream(port: Port, m: Any) -> None:
+    """REQUEST_DATA_STREAM: a group of streams (all of them for MAV_DATA_STREAM_ALL) at
+    ``req_message_rate`` [Hz], or off (``start_stop`` 0), on the port it came on."""
+    groups = (
+        DATA_STREAMS.values()
+        if m.req_stream_id == mav.MAV_DATA_STREAM_ALL
+        else [DATA_STREAMS.get(m.req_stream_id, ())]
+    )
+    on = m.start_stop and m.req_message_rate > 0
+    for ids in groups:
+        for msg_id in ids:
+            if msg_id in port.streams.rate_hz:
+                port.streams.set_interval(msg_id, 1e6 / m.req_message_rate if on else -1.0)

@@ -27,6 +27,7 @@ from sim_vehicles.mavlink import px4_profile as px4
 from sim_vehicles.mavlink.enu_ned import enu_to_ned, flu_to_frd
 from sim_vehicles.mavlink.wire_format import encode_attitude, encode_attitude_quaternion
 from sim_vehicles.plant.contract import VehicleModel
+from sim_vehicles.vehicle.autopilots import Profile
 from sim_vehicles.vehicle.port import Port
 
 
@@ -84,6 +85,7 @@ class VehicleState(Protocol):
     armed: bool
     home: px4.Home
     system_id: int
+    profile: Profile  #: the autopilot it speaks as (``autopilots``)
 
     def reported_state(self, ms: int) -> np.ndarray:
         """The state a sample at ``time_boot_ms`` ``ms`` reports (``plant.sensors``)."""
@@ -206,8 +208,8 @@ class Telemetry:
     def autopilot_version(self, port: Port, ms: int) -> None:
         port.send(
             port.mav.autopilot_version_encode(
-                px4.CAPABILITIES,
-                px4.FLIGHT_SW_VERSION,
+                self.vehicle.profile.capabilities,
+                self.vehicle.profile.flight_sw_version,
                 0,
                 0,
                 0,

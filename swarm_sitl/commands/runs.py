@@ -321,8 +321,9 @@ def cmd_vehicles(args: argparse.Namespace) -> int:
     relays = None
     try:
         key_file = signing_key_file(cfg, run_dir, own_vehicles=False)
+        own = [f.id for f in cfg.followers if not f.mavlink]  # (a follower's ``mavlink:``: outside)
         endpoints, ground = start_vehicles(
-            sup, cfg, args.lockstep, args.base_port, key_file, args.host, relayed
+            sup, cfg, args.lockstep, args.base_port, key_file, args.host, relayed, own
         )
         if relayed:
             relays = start_relays(cfg, endpoints, args.base_port, args.host, relayed)
@@ -331,7 +332,7 @@ def cmd_vehicles(args: argparse.Namespace) -> int:
                 **{r.vehicle: f"udp:{r.address[0]}:{r.address[1]}" for r in relays.relays},
             }
         clock = f"lockstep, {cfg.control_dt_s:g} s per setpoint" if args.lockstep else "real time"
-        print(f"{cfg.n_followers} vehicles of {cfg.name} ({clock}); .tlogs in {run_dir / 'tlogs'}")
+        print(f"{len(own)} vehicles of {cfg.name} ({clock}); .tlogs in {run_dir / 'tlogs'}")
         print(f"  MAVLink 2 signing with {key_file}" if key_file else "  MAVLink 2 signing off")
         print("\n".join(port_lines(endpoints, ground)))
         if relayed:

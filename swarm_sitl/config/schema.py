@@ -122,6 +122,13 @@ class FollowerSpec(_Strict):
     initial_position_m: Vec3  #: [m; ENU]
     initial_velocity_mps: Vec3 = (0.0, 0.0, 0.0)  #: [m/s; ENU]
     initial_quaternion_wxyz: tuple[float, float, float, float] = (1.0, 0.0, 0.0, 0.0)  #: body to world, unit
+    #: the autopilot its vehicle speaks as, in place of ``vehicle.autopilot`` (a mixed swarm)
+    autopilot: Literal["px4", "ardupilot"] | None = None
+    #: a vehicle outside the run, started by you (a PX4 or ArduPilot SITL, a real one, ``swarm-sitl
+    #: vehicles``): the pymavlink connection string its controller connects to
+    #: (``udpin:0.0.0.0:14540``, ``tcp:127.0.0.1:5760``); the run starts no vehicle for it, and
+    #: reads what it recorded only from the controller (``docs/autopilots.md``)
+    mavlink: str | None = None
 
     @field_validator("initial_quaternion_wxyz")
     @classmethod
@@ -396,6 +403,7 @@ class SwarmConfig(_Strict):
             setpoint_timeout_s=v.setpoint_timeout_s,
             failsafe_action=v.failsafe_action,
             model=v.model,
+            autopilot=f.autopilot or v.autopilot,
             params={k: float(x) for k, x in v.params.items()},
             position_m=f.initial_position_m,
             velocity_mps=f.initial_velocity_mps,

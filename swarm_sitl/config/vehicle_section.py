@@ -77,7 +77,7 @@ class VehicleSpec(_Strict):
     #: the thrust a throttle of 1 gives; above the law's bound (``swarm-sitl check``) [N]
     max_thrust_N: Positive
     setpoint_timeout_s: Positive = 0.5  #: failsafe after this long without a valid setpoint
-    #: what the vehicle flies in failsafe (PX4's COM_OBL_ACT): a position hold at the point of
+    #: what the vehicle flies in failsafe (PX4's COM_OBL_RC_ACT): a position hold at the point of
     #: loss, or a landing (descending at 0.7 m/s holding its horizontal position)
     failsafe_action: Literal["hold", "land"] = "hold"
     #: commanded body rates are clipped to +- these (PX4's MC_ROLLRATE_MAX, MC_PITCHRATE_MAX,
@@ -91,6 +91,10 @@ class VehicleSpec(_Strict):
     #: ``px4_quad_x``, four rotors in X with motor lag, PX4's mixer and attitude and rate loops
     #: (``docs/vehicles.md``)
     model: str = "paper_vtol"
+    #: the autopilot every simulated vehicle speaks as over MAVLink: ``px4`` (PX4's modes,
+    #: OFFBOARD, its parameters) or ``ardupilot`` (ArduCopter's GUIDED_NOGPS, arming and
+    #: parameters); a follower's own ``autopilot`` takes its place (``docs/autopilots.md``)
+    autopilot: Literal["px4", "ardupilot"] = "px4"
     #: the model's own parameters by name, each in its range (``px4_quad_x``: Q_MAX_NM, L_ROLL_M,
     #: L_PITCH_M, T_TAU_S and PX4's MC_* gains; PX4 SIH's quadrotor and PX4's defaults otherwise)
     params: dict[str, StrictFloat | StrictInt] = {}

@@ -8,7 +8,10 @@
 - everything else goes the general way both ends of a vehicle link share
   (``sim_vehicles.mavlink.decoder``): the sample's two messages are read without pymavlink,
   HEARTBEAT, PARAM_VALUE and COMMAND_ACK are decoded, other messages (the telemetry a ground
-  station shows) only have their CRC checked, and garbage or a frame cut short is counted.
+  station shows) only have their CRC checked, and garbage or a frame cut short is counted;
+- the autopilot's last STATUSTEXT (what a refusal's line quotes), and whether the vehicle is
+  ``gone``: rebooted (its clock went back by more than ``REBOOT_MS``) or disarmed after it had
+  been armed.
 
 ``rx_bad`` counts what was dropped: bad CRCs, frames that do not decode, garbage.
 """
@@ -28,8 +31,16 @@ _ATTQ = frames.ATTITUDE_QUATERNION
 _SAMPLE_LAYOUTS = {_LPOS.msg_id: _LPOS, _ATTQ.msg_id: _ATTQ}
 #: what is decoded besides the sample; other messages are only checked and counted
 HANDLED = frozenset(
-    {mav.MAVLINK_MSG_ID_HEARTBEAT, mav.MAVLINK_MSG_ID_PARAM_VALUE, mav.MAVLINK_MSG_ID_COMMAND_ACK}
+    {
+        mav.MAVLINK_MSG_ID_HEARTBEAT,
+        mav.MAVLINK_MSG_ID_PARAM_VALUE,
+        mav.MAVLINK_MSG_ID_COMMAND_ACK,
+        mav.MAVLINK_MSG_ID_STATUSTEXT,
+    }
 )
+#: a sample this much older than the newest is the vehicle's clock starting again: it rebooted
+#: (a sample a fault plan held back is a few periods old) [ms]
+REBOOT_MS = 1000
 #: ``tick_frames.read_sample``'s table of the messages only checked and counted: CRC extra by id,
 #: -1 for those read (the sample, ``HANDLED``) and for ids the common set does not have
 _IGNORED = np.full(max(mav.mavlink_map) + 1, -1, dtype=np.int64)
@@ -48,6 +59,11 @@ class Downlink:
         self.whole = whole
         self.rx_bad = 0
         self.heartbeat: Any = None  #: the autopilot's latest HEARTBEAT
+        self.statustext = ""  #: the autopilot's latest STATUSTEXT
+        #: why the vehicle is no longer the one the controller engaged ("": it is): its clock
+        #: started again (a reboot), or it disarmed after it had been armed
+        self.gone = ""
+        self._armed = False
         self.params: dict[str, float] = {}  #: its parameters, as PARAM_VALUE gave them
         self.acks: dict[int, int] = {}  #: the latest COMMAND_ACK's result by command
         self._lpos: tuple = ()  #: LOCAL_POSITION_NED fields, declared order
@@ -95,6 +111,12 @@ class Downlink:
             self._sample_part(False, fields, arrival)
         elif t == "HEARTBEAT":
             self.heartbeat = m
+            armed = bool(m.base_mode & mav.MAV_MODE_FLAG_SAFETY_ARMED)
+            if self._armed and not armed and not self.gone:
+                self.gone = "it disarmed (its HEARTBEAT)"
+            self._armed = armed
+        elif t == "STATUSTEXT":
+            self.statustext = m.text
         elif t == "PARAM_VALUE":
             self.params[m.param_id] = float(m.param_value)
         elif t == "COMMAND_ACK":
@@ -112,6 +134,8 @@ class Downlink:
 
     def _set_sample(self, time_boot_ms: int, decoded: np.ndarray, arrival: float) -> None:
         if time_boot_ms < self.sample_ms:  # a sample a fault held back, older than the one we have
+            if time_boot_ms < self.sample_ms - REBOOT_MS and not self.gone:
+                self.gone = f"it rebooted (its time_boot_ms went from {self.sample_ms} to {time_boot_ms})"
             return
         self.sample_fields = decoded
         self.sample_ms = time_boot_ms

@@ -2,7 +2,8 @@
 
 - ``send``: SET_ATTITUDE_TARGET of a command, every field taken, stamped with the vehicle's
   ``time_boot_ms``; converted to NED/FRD and packed in one compiled call
-  (``tick_frames.pack_setpoint``), thrust as 0..1 of the MAX_THRUST_N the vehicle reported;
+  (``tick_frames.pack_setpoint``), thrust as 0..1 of the full thrust the link divides by
+  (``sim_vehicles.mavlink.thrust_map``);
 - ``clock_only``: a lockstep clock-only SET_ATTITUDE_TARGET (every field ignored): the vehicle
   moves its clock to the stamp on what it holds, and sends its sample there;
 - ``heartbeat_if_due``: the companion computer's HEARTBEAT, once a second;

@@ -2,7 +2,11 @@
 
 import numpy as np
 
-from sim_vehicles.mavlink.wire_format import f32
+from sim_vehicles.common.command import AttitudeCommand
+from sim_vehicles.mavlink.ardupilot_guided import guided_command
+from sim_vehicles.mavlink.ardupilot_profile import THRUST_AS_THRUST, ArduCopterState
+from sim_vehicles.mavlink.thrust_map import boost_compensated, full_thrust_N, hover_fraction
+from sim_vehicles.mavlink.wire_format import command_roundtrip, encode_attitude_target, f32
 from sim_vehicles.models.build import build_vehicle
 from sim_vehicles.plant.contract import VehicleModel
 from swarm_sitl.bus.codec import Message
@@ -87,10 +91,43 @@ def first_tick(
 
 
 def reported_vehicle_params(cfg: SwarmConfig) -> tuple[float, float]:
-    """``(mass_kg, max_thrust_N)`` as a controller reads them over the MAVLink parameter protocol
-    (float32): ``sim`` gives its laws these, as a controller process gets them."""
-    mass, max_thrust = f32(cfg.vehicle.mass_kg, cfg.vehicle.max_thrust_N)
-    return mass, max_thrust
+    """``(mass_kg, full_thrust_N)`` as a controller has them: the mass from the config, and the
+    thrust a field of 1.0 means from the hover thrust our vehicle serves (float32 over the
+    parameter protocol: ``thrust_map``). ``sim`` gives its laws these, as a controller process
+    gets them."""
+    v = cfg.vehicle
+    (hover,) = f32(hover_fraction(v.mass_kg, cfg.gravity_mps2, v.max_thrust_N))
+    return v.mass_kg, full_thrust_N(v.mass_kg, cfg.gravity_mps2, hover)
+
+
+class Uplink:
+    """Follower ``i``'s setpoints as its vehicle takes them, in ``sim``: the controller's side
+    (``link``: the thrust as a fraction of its full thrust, an ArduCopter's boost compensated)
+    and the vehicle's (PX4's reading of the wire's fields, or ArduCopter's ``guided_command``
+    with the ``GUID_OPTIONS`` bit 3 its controller sets): what a lockstep run carries, bit for
+    bit."""
+
+    def __init__(self, cfg: SwarmConfig, i: int):
+        spec = cfg.vehicle_spec(i)
+        _, self.full_thrust_N = reported_vehicle_params(cfg)
+        self.max_thrust_N = spec.max_thrust_N
+        self.ardupilot: ArduCopterState | None = None
+        if spec.autopilot == "ardupilot":
+            self.ardupilot = ArduCopterState(hover_fraction(spec.mass_kg, spec.g_mps2, spec.max_thrust_N))
+            self.ardupilot.set("GUID_OPTIONS", THRUST_AS_THRUST)
+
+    def __call__(self, cmd: AttitudeCommand, ap: VehicleModel) -> AttitudeCommand:
+        """What vehicle ``ap`` (in the state it is in now) holds for the controller's ``cmd``."""
+        kept = self.ardupilot
+        if kept is None:
+            return command_roundtrip(cmd, self.full_thrust_N, self.max_thrust_N)
+        if kept.angle_boost:
+            cmd = cmd._replace(thrust_N=boost_compensated(float(cmd.thrust_N), cmd.q_c))
+        fields = encode_attitude_target(cmd, self.full_thrust_N)
+        held, _, why = guided_command(fields, 0, ap.command, ap.state, ap.params.max_thrust_N, kept)
+        if held is None:
+            raise ValueError(f"an ArduCopter refuses this setpoint: {why}")
+        return held
 
 
 def build_autopilot(cfg: SwarmConfig, i: int) -> VehicleModel:

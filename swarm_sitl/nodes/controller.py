@@ -239,7 +239,7 @@ def _warm_up(cfg: SwarmConfig, i: int, link: VehicleLink, sources: list[int]) ->
     frame kernel: the compiled kernels load now, not in the first ticks."""
     tick_frames.warm_up()
     signing.warm_up()
-    scratch = build_law(cfg, i, link.params["MASS_KG"], link.params["MAX_THRUST_N"])
+    scratch = build_law(cfg, i, link.mass_kg, link.full_thrust_N)
     x = np.zeros(3)
     sample = VehicleSample(0.0, x, x, np.array([1.0, 0.0, 0.0, 0.0]))
     warm_up(scratch.law, sample, sources, scratch.message_length)
@@ -267,8 +267,8 @@ def run_controller(
     dt = cfg.control_dt_s
     clock = RunClock(lockstep, dt) if clock is None else clock
     events = EventLog(None, f"controller_{i}") if events is None else events
-    link.connect(r.start_timeout_s)
-    law = build_law(cfg, i, link.params["MASS_KG"], link.params["MAX_THRUST_N"])
+    link.connect(r.start_timeout_s, cfg.vehicle.mass_kg, cfg.gravity_mps2)
+    law = build_law(cfg, i, link.mass_kg, link.full_thrust_N)
     sources = [s for s, _ in cfg.build_graph().in_neighbours(i)]
     io = _Inputs(who, i, link, bus, sources, dt)
     inbox_of = NeighbourInbox(i, sources, cfg.estimator.staleness_s, events)
@@ -323,7 +323,7 @@ def _loop(
     if lockstep and resume_tick:
         link.advance_to(round(resume_tick * dt * 1000), r.start_timeout_s)
     if lockstep:
-        link.arm_offboard(r.start_timeout_s)
+        link.engage(r.start_timeout_s, lockstep)
         link.request_sample(r.start_timeout_s)
     io.epoch_mono = wall_epoch_to_monotonic(wait_for_start(bus, link, r.start_timeout_s, who))
     clock.epoch_mono = io.epoch_mono
@@ -335,9 +335,9 @@ def _loop(
         # plan's restart, or one started by hand), which flies its vehicle from there on
         io.first = join_tick(time.monotonic(), io.epoch_mono, phase, dt, ARM_LEAD_S)
         # offboard only just before the setpoints start: offboard without setpoints for
-        # SP_TIMEOUT_S is the vehicle's failsafe
+        # the setpoint timeout (COM_OF_LOSS_T) is the vehicle's failsafe
         sleep_until(io.epoch_mono + io.first * dt + phase - ARM_LEAD_S, io.tick_fds, io.read_link)
-        link.arm_offboard(r.start_timeout_s)
+        link.engage(r.start_timeout_s, lockstep)
     late = 0
     max_late = 0.0
     old_samples = 0
@@ -380,6 +380,7 @@ def _loop(
                 old_samples += 1
                 max_age = max(max_age, age)
             used_boot_s = boot_s
+        link.check_vehicle()  # (rebooted or disarmed: this controller ends, in one line)
         try:
             step = law.step(t, VehicleSample(sample_t, p, v, q), inbox)
         except LawError as e:

@@ -204,13 +204,16 @@ def run_swarm(request: RunRequest) -> RunResult:
         faults = ProcessFaults(cfg.faults, cfg.control_dt_s, cfg.run.stop_on_loss, sup, lockstep, events)
         sup.planned_exit = faults.planned_exit
     try:
-        key_file = signing_key_file(cfg, run_dir, own_vehicles=mavlink is None)
-        if mavlink is None:
-            endpoints, ground = start_vehicles(sup, cfg, lockstep, base_port, key_file)
+        # a follower whose vehicle is outside the run (its ``mavlink:``) is reached where it says
+        outside = {f.id: f.mavlink for f in cfg.followers if f.mavlink} if mavlink is None else dict(mavlink)
+        own = [f.id for f in cfg.followers if f.id not in outside]
+        key_file = signing_key_file(cfg, run_dir, own_vehicles=bool(own))
+        endpoints: dict[int, str] = {}
+        if own:
+            endpoints, ground = start_vehicles(sup, cfg, lockstep, base_port, key_file, only=own)
             if on_vehicles is not None:
                 on_vehicles(port_lines(endpoints, ground))
-        else:
-            endpoints = dict(mavlink)
+        endpoints.update(outside)
         signing = ["--signing-key-file", str(key_file)] if key_file is not None else []
         node_args = {"leader": ["leader"]}
         if external:
@@ -221,8 +224,10 @@ def run_swarm(request: RunRequest) -> RunResult:
             if f.id in external:
                 continue
             url = endpoints[f.id]
-            url = "udpout:" + url.removeprefix("udp:") if mavlink is None else url
-            node_args[f"controller_{f.id}"] = ["controller", "--id", str(f.id), "--mavlink", url, *signing]
+            url = "udpout:" + url.removeprefix("udp:") if f.id in own else url
+            # (a vehicle outside signs only if the config gives its key: signing.passphrase_file)
+            signs = signing if f.id in own or cfg.signing.passphrase_file is not None else []
+            node_args[f"controller_{f.id}"] = ["controller", "--id", str(f.id), "--mavlink", url, *signs]
 
         def argv(process: str, incarnation: int = 0, resume_tick: int = 0) -> list[str]:
             role, *extra = node_args[process]

@@ -32,7 +32,7 @@ from sim_vehicles.models.spec import VehicleSpec
 from swarm_sitl.bus.codec import Message
 from swarm_sitl.config.schema import SwarmConfig
 from swarm_sitl.laws.contract import Received, VehicleSample
-from swarm_sitl.nodes.assembly import build_law, build_leader, reported_vehicle_params
+from swarm_sitl.nodes.assembly import Uplink, build_law, build_leader, reported_vehicle_params
 from swarm_sitl.nodes.law_guard import LawGuard, max_output_bytes
 from swarm_sitl.nodes.law_host import LawError
 from swarm_sitl.rundir.recording import FollowerSeries, Recording, leader_series
@@ -94,6 +94,7 @@ def run_sim(
         else {i: FollowerSeries(n + 1, laws[i].law.record_fields, len(sources[i])) for i in ids}
     )
     max_thrust = cfg.vehicle.max_thrust_N
+    uplinks = {i: Uplink(cfg, i) for i in specs}  # each setpoint as its vehicle takes it
     n_att = cfg.rates.attitude_steps_per_control
     dt = cfg.control_dt_s
     latest: dict[int, Message] = {}
@@ -154,7 +155,7 @@ def run_sim(
                 series[i].record_controller(k, step.command, step.record, ages)
                 new[i] = Message(i, k, t, step.message)
                 if k < n:
-                    ap.set_command(command_roundtrip(step.command, max_thrust))
+                    ap.set_command(uplinks[i](step.command, ap))
                     ap.advance(n_att)
             latest = new
             if progress is not None:

@@ -35,12 +35,13 @@ from typing import Any
 import numpy as np
 
 from sim_vehicles.common.command import AttitudeCommand
+from sim_vehicles.mavlink import ardupilot_profile as ap_profile
 from sim_vehicles.mavlink import px4_profile as px4
-from sim_vehicles.mavlink.wire_format import command_roundtrip
 from sim_vehicles.models.build import build_vehicle, sensor_model
 from sim_vehicles.models.spec import VehicleSpec
 from sim_vehicles.plant.failsafe import ACTIONS
 from sim_vehicles.runtime.event_log import EventLog
+from sim_vehicles.vehicle.autopilots import PROFILES, PX4
 from sim_vehicles.vehicle.modes import MODE_OFFBOARD, FlightModes
 from swarm_sitl.bus.clock import RunClock
 from swarm_sitl.bus.codec import Message
@@ -50,7 +51,7 @@ from swarm_sitl.faults.fate_table import FateTable, batched
 from swarm_sitl.faults.in_edges import InEdges
 from swarm_sitl.faults.plan import down_at, fate, mavlink_channel
 from swarm_sitl.laws.contract import VehicleSample
-from swarm_sitl.nodes.assembly import build_law, reported_vehicle_params
+from swarm_sitl.nodes.assembly import Uplink, build_law, reported_vehicle_params
 from swarm_sitl.nodes.controller import FORGET_EVERY
 from swarm_sitl.nodes.law_guard import LawGuard
 from swarm_sitl.nodes.law_host import HostedLaw
@@ -94,7 +95,7 @@ class _Vehicle:
         spec: VehicleSpec,
         i: int,
         n_att: int,
-        max_thrust_N: float,
+        uplink: Uplink,
         events: list[dict[str, Any]],
         steady: bool,
     ):
@@ -103,7 +104,7 @@ class _Vehicle:
         #: whether the plan can never take a setpoint away (no MAVLink or process entry): in
         #: offboard with a setpoint every period, its modes have nothing to do, and are skipped
         self.steady = steady
-        self.max_thrust_N = max_thrust_N
+        self.uplink = uplink
         self.sensors = sensor_model(spec, i)
         say: Callable[[int, str], None] = lambda severity, text: None  # noqa: E731  (no ground station)
         self.flight = FlightModes(
@@ -113,14 +114,17 @@ class _Vehicle:
             ACTIONS[spec.failsafe_action],
             MemoryEvents(f"vehicle_{i}", events),
             say,
+            PROFILES[spec.autopilot],
         )
         self.flight.arm(True, False)
         self.offboard()
 
     def offboard(self) -> None:
-        """``link.handshake.arm_offboard``: a clock-only setpoint at its time, then OFFBOARD."""
-        self.flight.offboard_signal_s = self.ap.time_s
-        self.flight.set_mode(px4.OFFBOARD)
+        """``link.handshake.engage``: PX4's OFFBOARD after a clock-only setpoint at its time;
+        an ArduCopter's GUIDED_NOGPS."""
+        f = self.flight
+        f.offboard_signal_s = self.ap.time_s
+        f.set_mode(px4.OFFBOARD if f.profile is PX4 else ap_profile.GUIDED_NOGPS)
 
     def step(self) -> None:
         """One period on what it holds (the endpoint's ``step``: its own loop in its failsafe)."""
@@ -137,12 +141,12 @@ class _Vehicle:
         the setpoint timeout, that is one call of the plant: ``lockstep_tick``'s usual tick)."""
         f, ap = self.flight, self.ap
         if self.steady:
-            ap.set_command(command_roundtrip(cmd, self.max_thrust_N))
+            ap.set_command(self.uplink(cmd, ap))
             ap.advance(self.n_att)
             return
         f.offboard_signal_s = ap.time_s
         if f.take_setpoint():
-            ap.set_command(command_roundtrip(cmd, self.max_thrust_N))
+            ap.set_command(self.uplink(cmd, ap))
         if f.mode == MODE_OFFBOARD and self.n_att * ap.dt_s <= f.setpoint_timeout_s:
             ap.advance(self.n_att)  # (its own loop has nothing to do, its failsafe cannot begin)
         else:
@@ -187,10 +191,9 @@ class PlannedSwarm:
         self.mass_max = reported_vehicle_params(cfg)
         n_att = cfg.rates.attitude_steps_per_control
         self.events: list[dict[str, Any]] = []  #: the vehicles' (``MemoryEvents``)
-        thrust = cfg.vehicle.max_thrust_N
         steady = not any(f.is_process or f.mavlink is not None for f in plan.plan)
         self.vehicles = {
-            i: _Vehicle(cfg.vehicle_spec(i), i, n_att, thrust, self.events, steady) for i in self.ids
+            i: _Vehicle(cfg.vehicle_spec(i), i, n_att, Uplink(cfg, i), self.events, steady) for i in self.ids
         }
         self.period_ms = round(dt * 1000)
         self.up_rules = {i: plan.on_mavlink(i, True) for i in self.ids}

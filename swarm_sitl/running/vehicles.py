@@ -108,17 +108,21 @@ def start_vehicles(
     key_file: Path | None = None,
     host: str = "127.0.0.1",
     behind_relay: frozenset[int] = frozenset(),
+    only: list[int] | None = None,
 ) -> tuple[dict[int, str], dict[int, str]]:
     """Spawn one vehicle per follower bound to ``host``, signing with ``key_file``'s key if given,
     on the ports of ``base_port`` (``PX4_BASE_PORT``; 0: free ports); returns ``{id:
     "udp:host:port"}`` of their controller ports and of their ground-station ports once each is
     listening. A vehicle in ``behind_relay`` takes its controller on a free loopback port (a
-    ``vehicle_relay`` takes the one it would have had)."""
+    ``vehicle_relay`` takes the one it would have had). ``only``: these followers' vehicles (the
+    others are outside the run)."""
     run_dir = sup.run_dir
     (run_dir / "tlogs").mkdir(parents=True, exist_ok=True)
     procs_dir(run_dir).mkdir(parents=True, exist_ok=True)
     children = {}
     for f in cfg.followers:
+        if only is not None and f.id not in only:
+            continue
         port, gcs_port = (base_port + f.id, base_port + GCS_PORT_OFFSET + f.id) if base_port else (0, 0)
         if f.id in behind_relay:
             port = 0

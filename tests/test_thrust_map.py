@@ -1,0 +1,126 @@
+"""The one map between a thrust and SET_ATTITUDE_TARGET's thrust field (``sim_vehicles.mavlink.
+thrust_map``), and ArduCopter's reading of the field (``ardupilot_profile``), against closed forms
+over random airframes, thrusts and attitudes."""
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from sim_vehicles.common.command import AttitudeCommand
+from sim_vehicles.common.quaternion import rotation_matrix
+from sim_vehicles.mavlink.ardupilot_profile import (
+    AIRFRAME_EXPO,
+    check_setpoint,
+    climb_rate_of,
+    motor_thrust,
+)
+from sim_vehicles.mavlink.thrust_map import (
+    BOOST_MIN_COS,
+    boost_compensated,
+    boosted_throttle,
+    cos_tilt,
+    field_of_thrust,
+    full_thrust_N,
+    hover_fraction,
+)
+from sim_vehicles.mavlink.wire_format import command_roundtrip, f32
+
+F32_EPS = 2.0**-24  #: float32's relative rounding, half an ulp
+
+mass = st.floats(0.2, 20.0)
+gravity = st.floats(9.0, 10.0)
+margin = st.floats(1.2, 4.0)  #: full thrust over weight: a vehicle that can hover and climb
+
+
+@st.composite
+def unit_quaternions(draw: st.DrawFn) -> np.ndarray:
+    v = np.array(draw(st.lists(st.floats(-1.0, 1.0), min_size=4, max_size=4)))
+    n = np.linalg.norm(v)
+    return v / n if n > 1e-3 else np.array([1.0, 0.0, 0.0, 0.0])
+
+
+@pytest.mark.unit
+@given(m=mass, g=gravity, k=margin)
+def test_the_hover_field_hovers_and_the_field_scales_with_thrust(m, g, k):
+    """A vehicle of ``k`` times its weight in full thrust hovers at field ``1/k``; the field of a
+    thrust ``F`` is ``hover F / (m g)``, and the full thrust the controller divides by is the
+    vehicle's (to float64 rounding)."""
+    T = k * m * g
+    hover = hover_fraction(m, g, T)
+    assert hover == pytest.approx(1.0 / k, rel=1e-14)
+    full = full_thrust_N(m, g, hover)
+    assert full == pytest.approx(T, rel=1e-14)
+    assert field_of_thrust(m * g, full) == pytest.approx(hover, rel=1e-14)
+    for F in np.linspace(0.0, T, 7):
+        assert field_of_thrust(F, full) == pytest.approx(hover * F / (m * g), rel=1e-13, abs=1e-15)
+    assert field_of_thrust(2 * T, full) == 1.0 and field_of_thrust(-1.0, full) == 0.0
+
+
+@pytest.mark.unit
+@given(m=mass, g=gravity, k=margin, share=st.floats(0.0, 1.0), q=unit_quaternions())
+def test_a_thrust_reaches_a_px4_vehicle_through_its_reported_hover_to_float32(m, g, k, share, q):
+    """Controller side: the hover the vehicle serves, as float32; vehicle side: the field times
+    its full thrust. ``F`` comes back within the two float32 roundings (hover's, field's)."""
+    T = k * m * g
+    (hover,) = f32(hover_fraction(m, g, T))
+    F = share * T
+    got = command_roundtrip(AttitudeCommand(q, F), full_thrust_N(m, g, hover), T).thrust_N
+    assert got == pytest.approx(F, rel=3 * F32_EPS, abs=T * F32_EPS)
+
+
+@pytest.mark.unit
+@given(q=unit_quaternions())
+def test_cos_tilt_is_the_vertical_entry_of_the_rotation(q):
+    assert cos_tilt(q) == pytest.approx(float(rotation_matrix(q)[2, 2]), abs=1e-12)
+
+
+@pytest.mark.unit
+@given(F=st.floats(0.0, 0.8), q=unit_quaternions())
+def test_arducopters_angle_boost_undoes_the_compensation_at_the_commanded_tilt(F, q):
+    """The controller asks for ``F cos(tilt)``; ArduCopter divides by ``cos(tilt)`` (at most by
+    ``1/BOOST_MIN_COS``) and cuts the throttle as it turns over (``clamp(10 cos, 0, 1)``): at the
+    commanded tilt ``F`` comes back whenever the vehicle is upright within 84 degrees; past
+    upside down nothing."""
+    c = cos_tilt(q)
+    out = boosted_throttle(boost_compensated(F, q), c)
+    if c >= BOOST_MIN_COS:
+        assert out == pytest.approx(min(F, 1.0), rel=1e-12, abs=1e-15)
+    elif c <= 0.0:
+        assert out == 0.0
+    assert 0.0 <= out <= 1.0
+
+
+@pytest.mark.unit
+@given(t=st.floats(0.0, 1.0), e=st.floats(-1.0, 1.0))
+def test_the_thrust_curve_linearises_rotors_of_the_same_curve_and_bends_others(t, e):
+    """ArduCopter turns its throttle (thrust) into a motor command with MOT_THST_EXPO's curve; the
+    airframe's rotors give ``(1 - e') a + e' a^2``. Equal curves cancel (thrust is the throttle),
+    and with no curve at all the rotors' own curve is what comes out."""
+    assert motor_thrust(t, AIRFRAME_EXPO) == pytest.approx(t, abs=1e-12)
+    a = t  # MOT_THST_EXPO 0: the command is the throttle
+    assert motor_thrust(t, 0.0) == pytest.approx((1 - AIRFRAME_EXPO) * a + AIRFRAME_EXPO * a * a, abs=1e-15)
+    assert motor_thrust(t, e, airframe_expo=e) == pytest.approx(t, abs=1e-9)
+
+
+@pytest.mark.unit
+@given(t=st.floats(0.0, 1.0), up=st.floats(10.0, 1000.0), down=st.floats(10.0, 500.0))
+def test_a_thrust_read_as_a_climb_rate_holds_at_half_and_reaches_each_way_linearly(t, up, down):
+    v = climb_rate_of(t, up, down)
+    want = (t - 0.5) * 2 * up / 100 if t >= 0.5 else (t - 0.5) * 2 * down / 100
+    assert v == pytest.approx(want, abs=1e-12)
+    assert climb_rate_of(0.5, up, down) == 0.0
+
+
+@pytest.mark.unit
+@given(mask=st.integers(0, 255), q=st.lists(st.floats(-2.0, 2.0), min_size=4, max_size=4))
+def test_arducopter_refuses_exactly_what_its_handler_refuses(mask, q):
+    """``handle_message_set_attitude_target``: a throttle ignored, or (the attitude used) a
+    quaternion whose squared length is 1e-3 or more off 1, or body rates neither all used nor all
+    ignored."""
+    n2 = sum(v * v for v in q)
+    refused = bool(mask & 64) or (not mask & 128 and not abs(n2 - 1.0) < 1e-3) or (mask & 7 not in (0, 7))
+    assert (check_setpoint(mask, tuple(q)) is not None) == refused
+    assert math.isfinite(n2)
