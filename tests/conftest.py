@@ -109,17 +109,12 @@ def compiled_kernels(request: pytest.FixtureRequest) -> None:
     _COMPILED.append(True)
     if os.environ.get("NUMBA_DISABLE_JIT") == "1":
         return
-    # a vehicle's kernels in a second process while this one compiles the laws': two cores
-    vehicle = subprocess.Popen(
-        [sys.executable, "-c", "from swarm_sitl.running.fork_server import _warm_up; _warm_up(None)"]
-    )
-    import sim_vehicles.mavlink.signing as signing
+    # the wire's kernels in a second process while this one compiles the laws': two cores, as a
+    # first sim or run on a fresh install does (``running.first_compile``)
     from swarm_sitl.config.load import load_config
-    from swarm_sitl.running.sim import run_sim
+    from swarm_sitl.running.first_compile import compile_once
 
-    run_sim(load_config(CONFIGS / "paper.yaml"), n_steps=1)
-    signing.warm_up()
-    vehicle.wait()
+    compile_once(load_config(CONFIGS / "paper.yaml"), lambda line: None)
 
 
 @pytest.fixture(scope="session")

@@ -406,7 +406,7 @@ def test_the_docs_pymavlink_script_sets_a_parameter_of_a_signed_run_and_each_uns
     script = tmp_path / "signed_param.py"
     script.write_text(_docs_script())
     cfg = yaml.safe_load((CONFIGS / "paper.yaml").read_text())
-    cfg["duration_s"] = 6.0
+    cfg["duration_s"] = 4.0  # (the script needs about a second of it)
     path = tmp_path / "paper.yaml"
     path.write_text(yaml.safe_dump(cfg))
     out = tmp_path / "run"

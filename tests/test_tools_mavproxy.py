@@ -13,6 +13,7 @@ import subprocess
 import sys
 import threading
 import time
+from concurrent.futures import ThreadPoolExecutor
 
 import pytest
 
@@ -68,13 +69,15 @@ class Console:
 
 
 @pytest.fixture
-def vehicle_port(tmp_path):
+def vehicle_ports(tmp_path):
+    """A vehicle speaking as PX4 and one speaking as ArduCopter, each on its own port."""
     pytest.importorskip("MAVProxy", reason="MAVProxy is not installed (pip install '.[test]')")
-    port = _free_udp_port()
-    proc = spawn_vehicle(1, port)
-    yield port
-    proc.terminate()
-    proc.wait(timeout=10)
+    ports = {"px4": _free_udp_port(), "ardupilot": _free_udp_port()}
+    procs = [spawn_vehicle(1, ports[kind], "--autopilot", kind) for kind in ports]
+    yield ports
+    for proc in procs:
+        proc.terminate()
+        proc.wait(timeout=10)
 
 
 def _set_and_see(con: Console, name: str, value: float) -> None:
@@ -89,8 +92,10 @@ def _set_and_see(con: Console, name: str, value: float) -> None:
         time.sleep(0.2)
 
 
-def test_mavproxy_shows_mode_and_position_reads_and_sets_a_parameter_and_arms(vehicle_port, tmp_path):
-    con = Console([MAVPROXY, f"--master=udpout:127.0.0.1:{vehicle_port}", "--nowait"], tmp_path)
+def _px4_session(vehicle_port: int, cwd) -> None:
+    """MAVProxy on the PX4 profile: the mode from the heartbeat, PX4's parameters, position,
+    arming, OFFBOARD's rule and a mode it does not have."""
+    con = Console([MAVPROXY, f"--master=udpout:127.0.0.1:{vehicle_port}", "--nowait"], cwd)
     try:
         con.expect(r"Detected vehicle 1:1")
         con.expect(r"Mode LOITER")  # PX4's Hold, by name, from the heartbeat
@@ -124,22 +129,12 @@ def test_mavproxy_shows_mode_and_position_reads_and_sets_a_parameter_and_arms(ve
         con.close()
 
 
-@pytest.fixture
-def arducopter_port(tmp_path):
-    pytest.importorskip("MAVProxy", reason="MAVProxy is not installed (pip install '.[test]')")
-    port = _free_udp_port()
-    proc = spawn_vehicle(1, port, "--autopilot", "ardupilot")
-    yield port
-    proc.terminate()
-    proc.wait(timeout=10)
-
-
-def test_mavproxy_flies_the_arducopter_profile_as_an_ardupilot_user_types_it(arducopter_port, tmp_path):
+def _arducopter_session(arducopter_port: int, cwd) -> None:
     """MAVProxy, ArduPilot's own ground station, on a vehicle speaking as ArduCopter: it names the
     mode from the heartbeat, lists ArduCopter's modes, ``mode GUIDED_NOGPS`` and ``arm throttle``
     are accepted and show in the heartbeat, ``param show MOT_THST_HOVER`` is the vehicle's hover
     thrust, and ``param set GUID_OPTIONS 8`` takes."""
-    con = Console([MAVPROXY, f"--master=udpout:127.0.0.1:{arducopter_port}", "--nowait"], tmp_path)
+    con = Console([MAVPROXY, f"--master=udpout:127.0.0.1:{arducopter_port}", "--nowait"], cwd)
     try:
         con.expect(r"Detected vehicle 1:1")
         con.expect(r"Mode STABILIZE")  # ArduCopter's boot mode, by name
@@ -166,3 +161,16 @@ def test_mavproxy_flies_the_arducopter_profile_as_an_ardupilot_user_types_it(ard
         assert int(m.group(1)) & 128 and int(m.group(2)) == 20  # armed, GUIDED_NOGPS
     finally:
         con.close()
+
+
+def test_mavproxy_on_a_px4_and_on_an_arducopter_vehicle_as_their_users_type_it(vehicle_ports, tmp_path):
+    """The two sessions above at once, each MAVProxy in a directory of its own (each answer is
+    waited for in what its own MAVProxy prints)."""
+    sessions = {"px4": _px4_session, "ardupilot": _arducopter_session}
+    with ThreadPoolExecutor(2) as pool:
+        done = []
+        for kind, session in sessions.items():
+            (tmp_path / kind).mkdir()
+            done.append(pool.submit(session, vehicle_ports[kind], tmp_path / kind))
+        for d in done:
+            d.result()  # (a session's failure, raised here)
