@@ -103,34 +103,37 @@ def connect(link: Link, timeout_s: float) -> Dialect:
     return dialect
 
 
+def _param_value(link: Link, name: str, what: str, timeout_s: float, ask: Callable[[], None]) -> float:
+    """``ask()`` until a PARAM_VALUE of ``name`` comes (one that came before does not count)."""
+    link.params.pop(name, None)
+    wait(link, lambda: name in link.params, what, timeout_s, ask)
+    return link.params[name]
+
+
 def read_param(link: Link, name: str, timeout_s: float) -> float:
     """The autopilot's value of parameter ``name`` (PARAM_REQUEST_READ by name, asked again until
     its PARAM_VALUE comes)."""
-    link.params.pop(name, None)
-    wait(
+    return _param_value(
         link,
-        lambda: name in link.params,
+        name,
         f"PARAM_VALUE for {name} (the autopilot does not have it, or does not answer)",
         timeout_s,
         lambda: link.conn.mav.param_request_read_send(link.system_id, 1, name.encode(), -1),
     )
-    return link.params[name]
 
 
 def set_param(link: Link, name: str, value: float, kind: int, timeout_s: float) -> None:
     """PARAM_SET, until its PARAM_VALUE says ``value``; ``LinkError`` if it keeps another."""
-    link.params.pop(name, None)
-    wait(
+    kept = _param_value(
         link,
-        lambda: name in link.params,
+        name,
         f"PARAM_VALUE for {name} after PARAM_SET",
         timeout_s,
         lambda: link.conn.mav.param_set_send(link.system_id, 1, name.encode(), float(value), kind),
     )
-    if link.params[name] != float(value):
+    if kept != float(value):
         raise LinkError(
-            f"{_who(link)}: {link.url}: PARAM_SET {name} {value:g} refused: it keeps "
-            f"{link.params[name]:g}{_said(link)}"
+            f"{_who(link)}: {link.url}: PARAM_SET {name} {value:g} refused: it keeps {kept:g}{_said(link)}"
         )
 
 
