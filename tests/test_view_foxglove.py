@@ -55,14 +55,18 @@ class _Client:
         self.ws.send(json.dumps({"op": "subscribe", "subscriptions": subs}))
 
     def messages(self, until_s: float) -> list[tuple[str, int, dict]]:
-        """(topic, log time [ns], message) until nothing comes for ``until_s``."""
+        """(topic, log time [ns], message) until nothing comes for ``until_s`` or the server is gone."""
         out = []
         self.ws.settimeout(until_s)
         while True:
             try:
                 data = self.ws.recv()
-            except (websocket.WebSocketTimeoutException, websocket.WebSocketConnectionClosedException):
-                return out
+            except (
+                websocket.WebSocketTimeoutException,
+                websocket.WebSocketConnectionClosedException,
+                OSError,
+            ):
+                return out  # (a run that ends may close its server's socket without a close frame: a reset)
             if isinstance(data, bytes) and data[0] == 1:
                 _, sid, ns = MESSAGE_DATA.unpack_from(data)
                 out.append((self._topic_of[sid], ns, json.loads(data[MESSAGE_DATA.size :])))
