@@ -139,3 +139,44 @@ def test_a_quad_spec_with_a_gain_out_of_its_range_is_one_line_before_the_vehicle
     assert r.returncode == 2 and r.stderr.strip() == (
         "sim_vehicles: error: vehicle spec: params: MC_ROLL_P must be within 0..12, got 40"
     )
+
+
+def _offboard(conn) -> None:
+    conn.mav.heartbeat_send(mav.MAV_TYPE_ONBOARD_CONTROLLER, mav.MAV_AUTOPILOT_INVALID, 0, 0, 0)
+    _wait(conn, "HEARTBEAT")
+    conn.mav.command_long_send(1, 1, mav.MAV_CMD_COMPONENT_ARM_DISARM, 0, 1, 0, 0, 0, 0, 0, 0)
+    _wait(conn, "COMMAND_ACK", command=mav.MAV_CMD_COMPONENT_ARM_DISARM)
+    conn.mav.set_attitude_target_send(0, 1, 1, 0b1100_0111, [1.0, 0, 0, 0], 0, 0, 0, 0)  # a stream first
+    conn.mav.command_long_send(1, 1, mav.MAV_CMD_DO_SET_MODE, 0, 29, 6, 0, 0, 0, 0, 0)
+    assert _wait(conn, "COMMAND_ACK", command=mav.MAV_CMD_DO_SET_MODE).result == mav.MAV_RESULT_ACCEPTED
+
+
+def _hold(conn, t_ms: int, q_enu: np.ndarray, seconds: float) -> tuple[int, list[np.ndarray], list[float]]:
+    """Stream the attitude ``q_enu`` at hover thrust for ``seconds``; the attitudes (ENU/FLU) and
+    altitudes [m, up] the vehicle reports, one per period."""
+    q = q_enu_flu_to_ned_frd(q_enu)
+    thrust = SIH.mass_kg * SIH.g_mps2 / SIH.max_thrust_N
+    attitudes, heights = [], []
+    for _ in range(round(seconds * 1000 / PERIOD_MS)):
+        conn.mav.set_attitude_target_send(t_ms, 1, 1, 0, q.tolist(), 0, 0, 0, thrust)
+        t_ms += PERIOD_MS
+        p = _wait(conn, "LOCAL_POSITION_NED", time_boot_ms=t_ms)
+        a = _wait(conn, "ATTITUDE_QUATERNION", time_boot_ms=t_ms)
+        attitudes.append(q_ned_frd_to_enu_flu(np.array([a.q1, a.q2, a.q3, a.q4])))
+        heights.append(-p.z)
+    return t_ms, attitudes, heights
+
+
+def test_an_upside_down_setpoint_over_mavlink_leaves_the_vehicle_finite_and_flying(quad):
+    """(0, 1, 0, 0) from level: exactly upside down, a valid setpoint that once gave NaN. The
+    vehicle turns over at its rate limit, stays finite, and when asked for level again it rights
+    itself and flies on: its attitude back within 0.05 rad of level, every report finite."""
+    proc, conn = quad
+    _offboard(conn)
+    t_ms, flipped, h1 = _hold(conn, 0, np.array([0.0, 1.0, 0.0, 0.0]), 1.0)
+    t_ms, righted, h2 = _hold(conn, t_ms, np.array([1.0, 0.0, 0.0, 0.0]), 3.0)
+    assert np.all(np.isfinite(np.concatenate([*flipped, *righted, h1, h2])))
+    assert abs(flipped[-1][0]) < 0.2  # it did turn over: w = cos(angle / 2) near 0 at 180 deg
+    tilt = 2 * math.acos(min(1.0, abs(righted[-1][0])))  # angle from level (heading is level's)
+    assert tilt < 0.05
+    assert proc.poll() is None

@@ -11,7 +11,7 @@ endpoint and ``sim`` ask of a vehicle). ``MODELS`` names every model a spec may 
   are asked for, its torque law as autopilot (``plant.autopilot``); ``spec.params`` must be empty;
 - ``px4_quad_x``: four rotors in X with motor lag, PX4's mixer and attitude and rate loops
   (``plant.quad_x``); ``spec.params`` takes the airframe's ``quad_x.AIRFRAME`` keys and PX4's
-  gains (``px4_control.GAINS``), each in its range.
+  gains (``px4_control.GAINS``), each in its range (``plant.px4_params``, their one declaration).
 
 A user's own model is an entry, ``"my_vehicle.py:MyVehicle"`` or ``"package.module:MyVehicle"``
 (``common.entry``; a config's relative file path is relative to the config): a class (or any
@@ -31,17 +31,19 @@ import numpy as np
 from sim_vehicles.common.entry import EntryError, declared_params, load_entry, one_line, undeclared_line
 from sim_vehicles.common.state import STATE_SIZE, make_state
 from sim_vehicles.models.spec import VehicleSpec, VehicleSpecError
+from sim_vehicles.plant import px4_params
 from sim_vehicles.plant.autopilot import Autopilot
 from sim_vehicles.plant.contract import VehicleModel
 from sim_vehicles.plant.params import AttitudeGains, VehicleParams
-from sim_vehicles.plant.px4_control import GAINS, RANGES
-from sim_vehicles.plant.quad_x import AIRFRAME, AIRFRAME_RANGES, QuadX
+from sim_vehicles.plant.px4_control import GAINS
+from sim_vehicles.plant.quad_x import AIRFRAME, QuadX
 from sim_vehicles.plant.sensors import SensorModel
 from sim_vehicles.plant.wind import WIND_MODELS, WindModel
 
 
 def vehicle_params(spec: VehicleSpec) -> VehicleParams:
     """What the airframe is, as the plant and the endpoint's parameters take it."""
+    assert spec.max_rate_rps is not None  # (the spec holds the model's default once it is made)
     return VehicleParams(
         spec.mass_kg, spec.inertia_kgm2, spec.max_thrust_N, spec.g_mps2, spec.max_rate_rps, spec.drag_Ns2pm2
     )
@@ -59,18 +61,25 @@ def paper_vtol(spec: VehicleSpec, state0: np.ndarray, dt_s: float) -> VehicleMod
 
 def px4_quad_x(spec: VehicleSpec, state0: np.ndarray, dt_s: float) -> VehicleModel:
     """A rotor-level quadrotor in X under PX4's attitude and rate control (``plant.quad_x``),
-    its airframe and gains from ``spec.params`` (PX4 SIH's quadrotor and PX4's defaults)."""
-    ranges = {**AIRFRAME_RANGES, **RANGES}
+    its airframe and gains from ``spec.params`` (PX4 SIH's quadrotor and PX4 v1.15's defaults,
+    ``plant.px4_params``)."""
     for name, value in spec.params.items():
-        if name not in ranges:
+        p = px4_params.BY_NAME.get(name)
+        if name in px4_params.RATE_MAX:
             raise VehicleSpecError(
-                f"vehicle spec: params: px4_quad_x has no parameter {name!r} (it has {', '.join(ranges)})"
+                f"vehicle spec: params: {name} is the vehicle's max_rate_rps (roll, pitch, yaw "
+                "[rad/s]), not a param"
             )
-        lo, hi = ranges[name]
-        if not (isinstance(value, int | float) and lo <= value <= hi):
+        if p is None:
             raise VehicleSpecError(
-                f"vehicle spec: params: {name} must be within {lo:g}..{hi:g}, got {value!r}"
+                f"vehicle spec: params: px4_quad_x has no parameter {name!r} "
+                f"(it has {', '.join(n for n in px4_params.BY_NAME if n not in px4_params.RATE_MAX)})"
             )
+        if not p.accepts(value):
+            allowed = (
+                " or ".join(f"{c:g}" for c in p.choices) if p.choices else f"within {p.low:g}..{p.high:g}"
+            )
+            raise VehicleSpecError(f"vehicle spec: params: {name} must be {allowed}, got {value!r}")
     airframe = {k: float(v) for k, v in spec.params.items() if k in AIRFRAME}
     px4 = {k: float(v) for k, v in spec.params.items() if k in GAINS}
     return QuadX(vehicle_params(spec), state0, dt_s, airframe, px4)

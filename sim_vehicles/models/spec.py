@@ -16,6 +16,7 @@ import math
 from dataclasses import asdict, dataclass, field, fields
 from typing import Any
 
+from sim_vehicles.plant import px4_params
 from sim_vehicles.plant.failsafe import ACTIONS
 from sim_vehicles.plant.params import MAX_RATE_DEFAULT_RPS, VehicleParamError
 
@@ -54,6 +55,16 @@ class SensorNoise:
     position_bias_walk_m_per_sqrt_s: float = 0.0  #: the position's bias, a random walk [m/sqrt(s)]
 
 
+def default_max_rate_rps(model: str) -> tuple[float, float, float]:
+    """The body-rate limits of a spec that gives none [rad/s]: ``px4_quad_x``'s are PX4 v1.15's
+    MC_*RATE_MAX (220, 220, 200 deg/s, ``plant.px4_params``); every other model's PX4's largest
+    setting, 1800 deg/s (the paper's vehicle: above its scenario's largest command)."""
+    if model == "px4_quad_x":
+        r, p, y = px4_params.DEFAULT_MAX_RATE_RPS
+        return (r, p, y)
+    return (MAX_RATE_DEFAULT_RPS,) * 3
+
+
 @dataclass(frozen=True)
 class VehicleSpec:
     """One vehicle: its model and every parameter the model, its autopilot and its endpoint's
@@ -64,8 +75,9 @@ class VehicleSpec:
     inertia_kgm2: tuple[float, float, float] = (4.856e-2, 4.856e-2, 8.801e-2)  #: principal [kg m^2; FLU]
     max_thrust_N: float = 25.0  #: largest collective thrust; MAVLink thrust 1.0 maps to it [N]
     g_mps2: float = 9.81
-    #: commanded body rates are clipped to +- these (PX4's MC_*RATE_MAX) [rad/s; roll, pitch, yaw]
-    max_rate_rps: tuple[float, float, float] = (MAX_RATE_DEFAULT_RPS,) * 3
+    #: commanded body rates are clipped to +- these (PX4's MC_*RATE_MAX) [rad/s; roll, pitch, yaw];
+    #: None: the model's default (``default_max_rate_rps``), which the spec holds once it is made
+    max_rate_rps: tuple[float, float, float] | None = None
     drag_Ns2pm2: float = 0.0  #: quadratic drag rho C_d A / 2 [N s^2/m^2] (``plant.wind``)
     l_q: float = 16.0  #: the paper's torque law: attitude-error gain
     k_q: float = 16.0  #: the paper's torque law: body-rate-error gain
@@ -84,6 +96,11 @@ class VehicleSpec:
     def __post_init__(self) -> None:
         def bad(name: str, why: str) -> VehicleSpecError:
             return VehicleSpecError(f"vehicle spec: {name}: {why}")
+
+        if self.max_rate_rps is None:
+            object.__setattr__(self, "max_rate_rps", default_max_rate_rps(self.model))
+        elif isinstance(self.max_rate_rps, list):  # (JSON's list: the tuple the field is)
+            object.__setattr__(self, "max_rate_rps", tuple(self.max_rate_rps))
 
         for name in ("mass_kg", "max_thrust_N", "g_mps2", "attitude_hz", "setpoint_timeout_s", "l_q", "k_q"):
             v = getattr(self, name)

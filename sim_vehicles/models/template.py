@@ -43,8 +43,8 @@ import numpy as np
 
 from sim_vehicles.common.command import AttitudeCommand
 from sim_vehicles.common.state import QUAT, RATE
+from sim_vehicles.models.build import vehicle_params
 from sim_vehicles.models.spec import VehicleSpec, VehicleSpecError
-from sim_vehicles.plant.params import VehicleParams
 from sim_vehicles.plant.rigid_body import rk4_step
 from sim_vehicles.plant.torque_law import torque
 
@@ -53,14 +53,7 @@ THRUST_TAU_RANGE_S = (0.0, 1.0)  #: the range of ``THRUST_TAU_S`` [s]
 
 class LaggyVtol:
     def __init__(self, spec: VehicleSpec, state0: np.ndarray, dt_s: float):
-        self.params = VehicleParams(
-            spec.mass_kg,
-            spec.inertia_kgm2,
-            spec.max_thrust_N,
-            spec.g_mps2,
-            spec.max_rate_rps,
-            spec.drag_Ns2pm2,
-        )
+        self.params = vehicle_params(spec)  # the spec's mass, inertia, thrust, gravity, rate limits, drag
         self.dt_s = float(dt_s)
         self.step_index = 0
         self.state = np.array(state0, dtype=float)

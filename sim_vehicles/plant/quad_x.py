@@ -1,23 +1,27 @@
 """A rotor-level quadrotor in X under PX4's attitude and rate control: the ``px4_quad_x`` model.
 
-Per attitude step ``dt`` (1 ms by default), on the held command (attitude ``q_c``, body rates
-``omega_c`` as feed-forward, collective thrust ``T_c``):
+Per attitude step ``dt`` (1 ms by default), on the held command (attitude ``q_c``, the yaw rate
+about the world's vertical as feed-forward, the collective thrust), as PX4 v1.15 on its SIH
+quadrotor:
 
 1. the attitude controller turns ``q_c`` into a body-rate setpoint (``px4_control.rate_setpoint``);
 2. the rate controller turns it into a normalised torque (``px4_control.rate_control``; its D term
-   on the body's angular acceleration over the last step), scaled to N m by the largest torque of
-   each axis (``rotors.full_torque_Nm``);
-3. the allocation gives each rotor's actuator 0..1 for ``[T_c, torque]`` (``rotors.allocate``),
-   desaturating with attitude first, as PX4 does without air mode;
-4. the motors' speeds follow their setpoints with the lag ``tau`` over the step
-   (``rotors.motor_speeds``), and the rigid body (``rigid_body``) is integrated with RK4 under the
-   thrust and torque of those speeds (``rotors.rotor_wrench``), held over the step.
+   on the body's angular acceleration over the last step; its integral held where the allocation
+   left torque unallocated the step before), the yaw torque through PX4's low-pass
+   (``px4_control.yaw_lowpass``);
+3. PX4's allocation gives each rotor's actuator 0..1 for the normalised thrust and torque, on the
+   mix PX4 normalises from the effectiveness (``px4_allocation``), desaturating with attitude
+   first, as PX4 does without air mode;
+4. the motors follow their actuators with the lag ``T_TAU_S`` (``rotors.motor_step``: SIH's thrust
+   lag, or a rotor-speed lag), and the rigid body (``rigid_body``) is integrated with RK4 under
+   the thrust and torque they make (``rotors.rotor_wrench``), held over the step.
 
-State: the 13 values of the rigid body (``common.state``) and, after them, the rotors' normalised
-speeds (4), the rate controller's integrals (3) and the body rates of the step before (3), in one
-array of ``EXT_SIZE``. ``QuadX`` is the model as the vehicle endpoint flies it (the same face as
-``autopilot.Autopilot``); ``QuadX.tunables`` are its PX4 parameters, served over MAVLink and set
-with PARAM_SET (``vehicle.services``).
+State: the 13 values of the rigid body (``common.state``) and, after them, the motors' state (4),
+the rate controller's integrals (3), the body rates of the step before (3) and the low-passed yaw
+torque (1), in one array of ``EXT_SIZE``. ``QuadX`` is the model as the vehicle endpoint flies it
+(the same face as ``autopilot.Autopilot``); ``QuadX.tunables`` are its PX4 parameters, served over
+MAVLink and set with PARAM_SET (``vehicle.services``). Every parameter, its default and its range
+is declared once, in ``px4_params``.
 """
 
 import math
@@ -27,36 +31,41 @@ import numpy as np
 from sim_vehicles.common.command import AttitudeCommand
 from sim_vehicles.common.jit import kernel, kernel_array
 from sim_vehicles.common.state import POS, QUAT, RATE, STATE_SIZE
+from sim_vehicles.plant import px4_params
 from sim_vehicles.plant.params import VehicleParams
-from sim_vehicles.plant.px4_control import GAINS, RANGES, gain_vector, rate_control, rate_setpoint
+from sim_vehicles.plant.px4_allocation import allocate, normalized_mix
+from sim_vehicles.plant.px4_control import (
+    GAINS,
+    RANGES,
+    YAW_TQ_CUTOFF,
+    gain_vector,
+    rate_control,
+    rate_setpoint,
+    saturation,
+    yaw_lowpass,
+)
 from sim_vehicles.plant.rigid_body import rk4_step, rk4_step_in_air
-from sim_vehicles.plant.rotors import allocate, effectiveness, full_torque_Nm, motor_speeds, rotor_wrench
+from sim_vehicles.plant.rotors import SPEED_LAG, effectiveness, motor_step, rotor_wrench, thrust_fraction
 from sim_vehicles.plant.wind import WindModel
 
-SPEEDS = slice(STATE_SIZE, STATE_SIZE + 4)  #: the rotors' normalised speeds in the extended state
+MOTORS = slice(STATE_SIZE, STATE_SIZE + 4)  #: the motors' state in the extended state (``rotors``)
 INTEGRAL = slice(STATE_SIZE + 4, STATE_SIZE + 7)  #: the rate controller's integrals
 LAST_RATE = slice(STATE_SIZE + 7, STATE_SIZE + 10)  #: the body rates one step before [rad/s]
-EXT_SIZE = STATE_SIZE + 10
+YAW_TORQUE = STATE_SIZE + 10  #: the low-passed normalised yaw torque
+EXT_SIZE = STATE_SIZE + 11
 
-#: the airframe's own parameters and their defaults: PX4's SIH quadrotor X (``SIH_T_MAX``,
-#: ``SIH_Q_MAX``, ``SIH_L_ROLL``, ``SIH_L_PITCH``, ``SIH_T_TAU``); its mass, inertia and largest
-#: collective thrust (4 ``T_MAX``) are the spec's
-AIRFRAME = {"Q_MAX_NM": 0.1, "L_ROLL_M": 0.2, "L_PITCH_M": 0.2, "T_TAU_S": 0.05}
-#: each airframe parameter's range (``spec.params`` is held to it when the model is built)
-AIRFRAME_RANGES = {
-    "Q_MAX_NM": (1e-6, 10.0),
-    "L_ROLL_M": (0.01, 5.0),
-    "L_PITCH_M": (0.01, 5.0),
-    "T_TAU_S": (0.0, 1.0),
-}
+#: the airframe's own parameters and their defaults: PX4's SIH quadrotor X (``SIH_Q_MAX``,
+#: ``SIH_L_ROLL``, ``SIH_L_PITCH``, ``SIH_T_TAU``) and the motor model (``px4_params``); its mass,
+#: inertia and largest collective thrust (4 ``SIH_T_MAX``) are the spec's
+AIRFRAME = px4_params.AIRFRAME
 
 
 @kernel
 def advance_quad_kernel(
     xe,
     q_c,
-    omega_c,
-    thrust_N,
+    yaw_rate_ff,
+    thrust,
     mass_kg,
     inertia_kgm2,
     g_mps2,
@@ -65,44 +74,43 @@ def advance_quad_kernel(
     drag_Ns2pm2,
     wind_W,
     gains,
-    M,
+    mix,
     E,
-    torque_unit,
+    scale,
     t_max_N,
     q_max_Nm,
     l_roll_m,
     l_pitch_m,
     decay,
-    missed,
+    motor_model,
+    unallocated,
     n_steps,
 ):
-    """``n_steps`` steps of the quadrotor under one held command (module docstring); ``missed``
-    (3, changed in place) carries what the allocation could not give from step to step."""
+    """``n_steps`` steps of the quadrotor under one held command (module docstring); ``thrust`` is
+    PX4's normalised one (0..1); ``unallocated`` (3, changed in place) carries the torque the
+    allocation could not give from step to step."""
     xe = xe.copy()
-    c = np.empty(4)
-    c[0] = min(max(thrust_N, 0.0), 4.0 * t_max_N)
+    cutoff = gains[YAW_TQ_CUTOFF]
     for _ in range(n_steps):
         x = xe[:STATE_SIZE].copy()
         omega = x[RATE]
         omegadot = (omega - xe[LAST_RATE]) / dt_s
-        sp = rate_setpoint(x[QUAT], q_c, omega_c, gains, max_rate)
-        tn, integral = rate_control(omega, sp, omegadot, xe[INTEGRAL], missed, gains, dt_s)
-        c[1] = tn[0] * torque_unit[0]
-        c[2] = tn[1] * torque_unit[1]
-        c[3] = tn[2] * torque_unit[2]
-        u, miss = allocate(c, M, E)
-        s = motor_speeds(xe[SPEEDS], u, decay)
-        T, tau = rotor_wrench(s, t_max_N, q_max_Nm, l_roll_m, l_pitch_m)
+        sp = rate_setpoint(x[QUAT], q_c, yaw_rate_ff, gains, max_rate)
+        tn, integral = rate_control(omega, sp, omegadot, xe[INTEGRAL], saturation(unallocated), gains, dt_s)
+        tn[2] = yaw_lowpass(xe[YAW_TORQUE], tn[2], cutoff, dt_s)
+        u, miss = allocate(thrust, tn, mix, E, scale)
+        m = motor_step(xe[MOTORS], u, decay, motor_model)
+        T, tau = rotor_wrench(thrust_fraction(m, motor_model), t_max_N, q_max_Nm, l_roll_m, l_pitch_m)
         if drag_Ns2pm2 > 0.0:
             xn = rk4_step_in_air(x, T, tau, mass_kg, inertia_kgm2, g_mps2, dt_s, drag_Ns2pm2, wind_W)
         else:
             xn = rk4_step(x, T, tau, mass_kg, inertia_kgm2, g_mps2, dt_s)
         xe[LAST_RATE] = omega
         xe[:STATE_SIZE] = xn
-        xe[SPEEDS] = s
+        xe[MOTORS] = m
         xe[INTEGRAL] = integral
-        for a in range(3):
-            missed[a] = miss[a] / torque_unit[a]
+        xe[YAW_TORQUE] = tn[2]
+        unallocated[:] = miss
     return xe
 
 
@@ -111,7 +119,8 @@ class QuadX:
     I/O: the MAVLink endpoint wraps it as it wraps ``Autopilot``.
 
     ``airframe``: ``AIRFRAME``'s keys (its defaults for the missing ones); ``px4``: PX4 parameters
-    of ``px4_control.GAINS`` (its defaults for the missing ones)."""
+    of ``px4_control.GAINS`` (its defaults for the missing ones). The body-rate limits are
+    ``params.max_rate_rps`` (PX4's ``MC_*RATE_MAX``)."""
 
     def __init__(
         self,
@@ -130,9 +139,10 @@ class QuadX:
         self.t_max_N = params.max_thrust_N / 4.0
         self.q_max_Nm, self.l_roll_m, self.l_pitch_m = a["Q_MAX_NM"], a["L_ROLL_M"], a["L_PITCH_M"]
         self.tau_s = a["T_TAU_S"]
+        self.motor_model = int(a["MOTOR_MODEL"])
         self.E = effectiveness(self.t_max_N, self.q_max_Nm, self.l_roll_m, self.l_pitch_m)
-        self.M = np.linalg.inv(self.E)
-        self.torque_unit = full_torque_Nm(self.t_max_N, self.q_max_Nm, self.l_roll_m, self.l_pitch_m)
+        #: PX4's normalised mix and its scale (``px4_allocation.normalized_mix``)
+        self.mix, self.scale = normalized_mix(self.E)
         self.decay = math.exp(-self.dt_s / self.tau_s) if self.tau_s > 0 else 0.0
         #: the PX4 parameters in force (a PARAM_SET changes them, and ``gains`` with them)
         self.tunables = {n: float((px4 or {}).get(n, d)) for n, d in GAINS.items()}
@@ -141,12 +151,13 @@ class QuadX:
         self.wind_W = np.zeros(3)
         self.wind: WindModel | None = None
         self._inertia = params.inertia
-        self._missed = np.zeros(3)
+        self._unallocated = np.zeros(3)
         xe = np.zeros(EXT_SIZE)
         xe[:STATE_SIZE] = state0
         xe[QUAT] /= np.linalg.norm(xe[QUAT])
-        hover = params.hover_thrust_N / 4.0 / self.t_max_N  # each rotor's actuator at hover
-        xe[SPEEDS] = math.sqrt(min(max(hover, 0.0), 1.0))  # spinning for hover, as if just armed aloft
+        hover = min(max(params.hover_thrust_N / 4.0 / self.t_max_N, 0.0), 1.0)  # each rotor's share
+        # the motors at hover, as if just armed aloft
+        xe[MOTORS] = math.sqrt(hover) if self.motor_model == SPEED_LAG else hover
         xe[LAST_RATE] = xe[RATE]
         self.ext = xe
         self.set_command(AttitudeCommand(q_c=xe[QUAT].copy(), thrust_N=params.hover_thrust_N))
@@ -167,13 +178,13 @@ class QuadX:
 
     def set_command(self, command: AttitudeCommand, kernel_ready: bool = False) -> None:
         """Hold ``command`` from now (``kernel_ready`` as ``Autopilot.set_command``'s: accepted,
-        not needed: the arrays are made contiguous here either way)."""
+        not needed: the arrays are made contiguous here either way). As PX4 flies an attitude
+        setpoint: its yaw rate (``omega_c_B[2]``, MAVLink's ``body_yaw_rate``) is fed forward
+        about the world's vertical, its roll and pitch rates are not used; the thrust is taken
+        over the largest (PX4's normalised thrust, 0..1)."""
         self.command = command
-        self._args = (
-            kernel_array(command.q_c),
-            kernel_array(command.omega_c_B),
-            float(command.thrust_N),
-        )
+        thrust = min(max(float(command.thrust_N) / self.params.max_thrust_N, 0.0), 1.0)
+        self._args = (kernel_array(command.q_c), float(command.omega_c_B[2]), thrust)
 
     def set_param(self, name: str, value: float) -> bool:
         """Set PX4 parameter ``name`` (one of ``tunables``) if ``value`` is within its range
@@ -190,11 +201,11 @@ class QuadX:
         if self.wind is not None:
             self.wind_W[:] = self.wind.update(self.time_s, self.state[POS])
         p = self.params
-        q_c, omega_c, thrust = self._args
+        q_c, yaw_rate, thrust = self._args
         self.ext = advance_quad_kernel(
             self.ext,
             q_c,
-            omega_c,
+            yaw_rate,
             thrust,
             p.mass_kg,
             self._inertia,
@@ -204,20 +215,21 @@ class QuadX:
             p.drag_Ns2pm2,
             self.wind_W,
             self.gains,
-            self.M,
+            self.mix,
             self.E,
-            self.torque_unit,
+            self.scale,
             self.t_max_N,
             self.q_max_Nm,
             self.l_roll_m,
             self.l_pitch_m,
             self.decay,
-            self._missed,
+            self.motor_model,
+            self._unallocated,
             int(n_steps),
         )
         self.step_index += int(n_steps)
 
     @property
-    def rotor_speeds(self) -> np.ndarray:
-        """The rotors' normalised speeds (0..1), in PX4's quad X order."""
-        return self.ext[SPEEDS].copy()
+    def thrust_fractions(self) -> np.ndarray:
+        """Each rotor's thrust over its largest (0..1), in PX4's quad X order."""
+        return thrust_fraction(self.ext[MOTORS], self.motor_model)

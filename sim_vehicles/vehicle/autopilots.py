@@ -30,6 +30,8 @@ from sim_vehicles.mavlink import ardupilot_profile as ap
 from sim_vehicles.mavlink import px4_profile as px4
 from sim_vehicles.mavlink.thrust_map import hover_fraction
 from sim_vehicles.plant.failsafe import ACTION_HOLD, ACTION_LAND, ACTION_LEVEL, LAND_SPEED_MPS
+from sim_vehicles.plant.px4_params import BY_NAME as PX4_DECLARED
+from sim_vehicles.plant.px4_params import RATE_MAX as PX4_RATE_NAMES
 
 
 @dataclass(frozen=True)
@@ -132,7 +134,7 @@ PROFILES = {p.name: p for p in (PX4, ARDUCOPTER)}
 #: PX4's COM_OBL_RC_ACT values this vehicle flies (``failsafe.ACTION_*``): 0 Position mode (no RC
 #: here: a hold), 4 Land, 5 Hold
 PX4_OBL_ACT = {0: ACTION_HOLD, 4: ACTION_LAND, 5: ACTION_HOLD}
-PX4_RATE_MAX = ("MC_ROLLRATE_MAX", "MC_PITCHRATE_MAX", "MC_YAWRATE_MAX")  #: [deg/s]
+PX4_RATE_MAX = PX4_RATE_NAMES  #: [deg/s]
 
 
 def px4_params(vehicle: Any, flight: Any) -> list[ParamDef]:
@@ -188,8 +190,10 @@ def ardupilot_params(vehicle: Any, flight: Any) -> list[ParamDef]:
     return out
 
 
-#: PX4's MC_*RATE_MAX reach 1800 deg/s; ArduPilot's ATC_RATE_*_MAX 1080, and 0 is "disabled"
-PX4_RATE_RANGE, ARDUPILOT_RATE_RANGE = (1.0, 1800.0), (0.0, 1080.0)
+#: PX4's MC_*RATE_MAX (their declaration: ``plant.px4_params``); ArduPilot's ATC_RATE_*_MAX reach
+#: 1080 deg/s, and 0 is "disabled"
+PX4_RATE_RANGE = (PX4_DECLARED["MC_ROLLRATE_MAX"].low, PX4_DECLARED["MC_ROLLRATE_MAX"].high)
+ARDUPILOT_RATE_RANGE = (0.0, 1080.0)
 NO_LIMIT_DEG_S = 1800.0  #: what ArduPilot's 0 (no limit) is here: the vehicle's largest limit
 
 

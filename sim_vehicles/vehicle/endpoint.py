@@ -10,9 +10,12 @@ two run loops (``loops``). PX4's conventions are in ``mavlink.px4_profile``.
   ``custom_mode`` PX4's mode: Hold (AUTO.LOITER), OFFBOARD, or its failsafe as what it flies
   (``modes``: arming, modes and the setpoint-loss failsafe, as PX4 has them).
 - SET_ATTITUDE_TARGET honoured as PX4 does, on the controller's port only: target system and
-  component checked, type_mask bits (1..4 ignore body rates, 64 ignore throttle, 128 ignore
-  attitude), NED/FRD converted at the wire (``wire_format``), thrust 0..1 of its largest thrust
-  (``thrust_map``; an ArduCopter's reading: ``mavlink.ardupilot_guided``).
+  component checked, type_mask bits (1, 2, 4 each ignore a body rate, which is then none: 0;
+  64 ignore throttle, 128 ignore attitude), NED/FRD converted at the wire (``wire_format``),
+  thrust 0..1 of its largest thrust (``thrust_map``; an ArduCopter's reading:
+  ``mavlink.ardupilot_guided``). What the model does with the body rates is its own: the paper's
+  vehicle tracks all three, ``px4_quad_x`` feeds the yaw rate forward about the vertical as PX4
+  does (``plant.px4_control``).
   Commanded body rates are clipped to MC_ROLLRATE_MAX, MC_PITCHRATE_MAX and MC_YAWRATE_MAX, so the
   plant's state stays finite.
 - Optionally the true state (float64, ENU/FLU) at every LOCAL_POSITION_NED instant sent to its
@@ -393,11 +396,15 @@ class VehicleEndpoint:
                 self.step(self._lockstep_steps)  # the clock still advances; the old command is held
             return
         new = command_of(m.command)
-        if mask & (IGNORE_ATTITUDE | IGNORE_THROTTLE) or mask & IGNORE_RATES == IGNORE_RATES:
+        if mask & (IGNORE_ATTITUDE | IGNORE_THROTTLE | IGNORE_RATES):
+            omega = new.omega_c_B.copy()
+            for axis in range(3):  # each body rate its bit ignores is not given: none asked
+                if mask & (1 << axis):
+                    omega[axis] = 0.0
             cmd = AttitudeCommand(
                 q_c=cur.q_c if mask & IGNORE_ATTITUDE else new.q_c,
                 thrust_N=cur.thrust_N if mask & IGNORE_THROTTLE else new.thrust_N,
-                omega_c_B=np.zeros(3) if mask & IGNORE_RATES == IGNORE_RATES else new.omega_c_B,
+                omega_c_B=omega,
             )
         else:  # every field taken (what a position controller sends)
             cmd = new

@@ -9,7 +9,6 @@ from typing import Annotated, Literal
 from pydantic import BaseModel, ConfigDict, Field, StrictFloat, StrictInt, model_validator
 
 from sim_vehicles.models import spec as vehicle_spec
-from sim_vehicles.plant.params import MAX_RATE_DEFAULT_RPS
 
 Vec3 = tuple[float, float, float]
 Positive = Annotated[float, Field(gt=0)]
@@ -81,8 +80,9 @@ class VehicleSpec(_Strict):
     #: loss, or a landing (descending at 0.7 m/s holding its horizontal position)
     failsafe_action: Literal["hold", "land"] = "hold"
     #: commanded body rates are clipped to +- these (PX4's MC_ROLLRATE_MAX, MC_PITCHRATE_MAX,
-    #: MC_YAWRATE_MAX) [rad/s]; the default is PX4's largest setting, 1800 deg/s
-    max_rate_rps: tuple[Positive, Positive, Positive] = (MAX_RATE_DEFAULT_RPS,) * 3
+    #: MC_YAWRATE_MAX) [rad/s]; none given: the model's, PX4 v1.15's defaults (220, 220, 200
+    #: deg/s) on ``px4_quad_x``, PX4's largest setting (1800 deg/s) on the paper's vehicle
+    max_rate_rps: tuple[Positive, Positive, Positive] | None = None
     sensors: SensorSpec = SensorSpec()  #: latency and noise of the state it reports
     #: quadratic drag rho C_d A / 2: the air pushes with -drag |v - w| (v - w) [N s^2/m^2] (``wind``)
     drag_Ns2pm2: Annotated[float, Field(ge=0)] = 0.0

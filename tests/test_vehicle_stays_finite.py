@@ -1,0 +1,63 @@
+"""No valid setpoint makes a vehicle non-finite: every built-in model, from random states (any
+attitude, fast rates), held on random valid commands (any unit quaternion, the one exactly
+upside down from the vehicle's and those within 1e-12 rad of it, any thrust the vehicle takes,
+any body rates), stays finite with a unit attitude."""
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from sim_vehicles.common.command import AttitudeCommand
+from sim_vehicles.common.quaternion import qmul
+from sim_vehicles.common.state import QUAT, make_state
+from sim_vehicles.models.build import MODELS, build_vehicle
+from sim_vehicles.models.spec import VehicleSpec
+from tests.strategies import FUZZ, unit_quaternions
+
+pytestmark = pytest.mark.unit
+
+rates = st.tuples(*[st.floats(-30.0, 30.0)] * 3)
+
+
+@st.composite
+def setpoints(draw, q_now: np.ndarray):
+    """Any unit quaternion, or ``q_now`` turned half a turn about a horizontal body axis (its
+    thrust axis opposite), exactly or off by at most 1e-12 rad."""
+    kind = draw(st.sampled_from(["any", "opposite", "near"]))
+    if kind == "any":
+        return draw(unit_quaternions())
+    phi = draw(st.floats(0.0, 2 * math.pi))
+    q = qmul(q_now, np.array([0.0, math.cos(phi), math.sin(phi), 0.0]))
+    if kind == "near":
+        off = draw(st.floats(-1e-12, 1e-12))
+        q = qmul(q, np.array([math.cos(off / 2), 0.0, math.sin(off / 2), 0.0]))
+    return q
+
+
+@FUZZ
+@given(st.sampled_from(sorted(MODELS)), st.data())
+def test_any_valid_setpoint_from_any_state_keeps_the_vehicle_finite(model, data):
+    q0 = data.draw(unit_quaternions())
+    x0 = make_state(
+        data.draw(st.tuples(*[st.floats(-100.0, 100.0)] * 3)),
+        data.draw(st.tuples(*[st.floats(-20.0, 20.0)] * 3)),
+        q0,
+        data.draw(rates),
+    )
+    spec = VehicleSpec(model=model)
+    vehicle = build_vehicle(spec, 1)
+    vehicle.state = x0
+    command = AttitudeCommand(
+        q_c=data.draw(setpoints(q0)),
+        thrust_N=data.draw(st.floats(0.0, spec.max_thrust_N)),
+        omega_c_B=np.array(data.draw(st.tuples(*[st.floats(-50.0, 50.0)] * 3))),
+    )
+    vehicle.set_command(command)
+    for _ in range(20):
+        vehicle.advance(10)
+        x = np.asarray(vehicle.state)
+        assert np.all(np.isfinite(x)), (model, x)
+        assert np.linalg.norm(x[QUAT]) == pytest.approx(1.0, abs=1e-9)
