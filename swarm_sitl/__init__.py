@@ -3,9 +3,11 @@
 Its folders, each allowed to import only those before it (``tests/test_layout.py``): ``laws``
 (the paper's laws, pure), ``bus`` (zenoh), ``faults`` (the fault plan and its wrappers),
 ``config`` (the schema), ``link`` (a controller's MAVLink link), ``rundir`` (the run directory),
-``nodes`` (the controller and leader processes), ``running`` (``sim``, the supervisor, a run),
-``bench`` (speed figures), ``campaigns`` (robustness sweeps), ``commands`` (the CLI's
-subcommands). Above them all: ``cli`` (``swarm-sitl``), ``api`` (``Swarm``: runs from Python,
+``specs`` (requirements in signal temporal logic), ``nodes`` (the controller and leader
+processes), ``running`` (``sim``, the supervisor, a run), ``view`` (the swarm in a browser),
+``bench`` (speed figures), ``campaigns`` (robustness sweeps), ``falsify`` (the search for a plan
+that breaks a requirement), ``commands`` (the CLI's subcommands). Above them all: ``cli``
+(``swarm-sitl``; ``__main__``: ``python -m swarm_sitl``), ``api`` (``Swarm``: runs from Python,
 with a fault plan, as objects) and ``pytest_plugin`` (the ``swarm`` fixture); ``sweep`` is
 ``campaigns.sweep.sweep``, ``falsify`` and ``assert_no_counterexample`` are ``falsify.search``'s.
 """

@@ -185,11 +185,11 @@ def test_sim_vehicles_does_not_depend_on_the_swarm():
     assert not bad, f"sim_vehicles must be usable alone: {bad}"
 
 
-def test_the_readme_maps_every_folder():
-    """The README's layout section names every folder of the tree, once, and no other."""
-    text = (ROOT / "README.md").read_text()
-    m = re.search(r"## Layout\n.*?```\n(.*?)```", text, re.S)
-    assert m, "README.md has no '## Layout' section with a code block"
+def test_the_docs_index_maps_every_folder():
+    """The layout section of ``docs/README.md`` names every folder of the tree, once, and no other."""
+    text = (ROOT / "docs" / "README.md").read_text()
+    m = re.search(r"## The code, folder by folder\n.*?```\n(.*?)```", text, re.S)
+    assert m, "docs/README.md has no '## The code, folder by folder' section with a code block"
     listed, package = [], ""
     for line in m.group(1).splitlines():
         name = line.split()[0] if line.strip() else ""
@@ -202,6 +202,20 @@ def test_the_readme_maps_every_folder():
             listed.append(f"{package}.{name.rstrip('/')}" if package in PACKAGES else f"{package}/{name}")
     tree = [*PACKAGES, *_folders()]
     ours = [n for n in listed if n.split(".")[0] in PACKAGES]
-    assert sorted(ours) == sorted(tree), f"README lists {sorted(ours)}, the tree has {sorted(tree)}"
+    assert sorted(ours) == sorted(tree), f"docs/README.md lists {sorted(ours)}, the tree has {sorted(tree)}"
     others = [n for n in listed if n.split(".")[0] not in PACKAGES]
-    assert all((ROOT / n).is_dir() for n in others), f"README lists folders that do not exist: {others}"
+    gone = [n for n in others if not (ROOT / n).is_dir()]
+    assert not gone, f"docs/README.md lists folders that do not exist: {gone}"
+
+
+def test_every_folder_docstring_names_each_of_its_modules():
+    """A folder's ``__init__`` says what it holds: each module (and, for a package, each folder)
+    is named in it, so a newcomer finds a module from its folder's docstring."""
+    missing = []
+    for init in sorted(p for package in PACKAGES for p in (ROOT / package).rglob("__init__.py")):
+        doc = ast.get_docstring(ast.parse(init.read_text())) or ""
+        names = [p.stem for p in init.parent.glob("*.py") if p.stem != "__init__"]
+        names += [d.name for d in init.parent.iterdir() if (d / "__init__.py").is_file()]
+        folder = init.parent.relative_to(ROOT)
+        missing += [f"{folder}/{n}" for n in names if not re.search(rf"\b{re.escape(n)}\b", doc)]
+    assert not missing, f"modules their folder's docstring does not name: {missing}"

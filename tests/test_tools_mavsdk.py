@@ -1,6 +1,6 @@
 """MAVSDK (the native ``mavsdk`` 4.x binding from PyPI, unchanged) against a vehicle process.
 
-It runs ``examples/fly_with_mavsdk.py`` (what the README tells a user to run): MAVSDK's own flows,
+It runs ``examples/fly_with_mavsdk.py`` (what `docs/tools.md` tells a user to run): MAVSDK's own flows,
 discover the autopilot, read telemetry (position, attitude, armed, flight mode, health), arm, set
 an attitude setpoint, ``offboard.start()``, tilt, ``offboard.stop()``; the vehicle must move as
 commanded. Skipped, with the reason, where the package is not installed (the ``test`` extra

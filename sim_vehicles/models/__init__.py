@@ -5,7 +5,8 @@
   and crossing a process boundary whole as one JSON document (``python -m sim_vehicles --spec``);
 - ``build``: the registry of models and ``build_vehicle``, the one function that makes a vehicle
   from its spec, called by ``swarm-sitl sim``, by the vehicle process and by the fork server's
-  warm-up alike.
+  warm-up alike;
+- ``template``: a user's model to copy, runnable, with the vehicle contract in its docstring.
 
 May import: common, plant.
 """

@@ -5,6 +5,7 @@
 - ``session``: how a process joins (``ZenohSpec``), the run's router, the start signal;
 - ``access``: which node may use which key, its credentials, the router's access control;
 - ``node_bus``: one node's bus (its in-edges in, its out-edges out), the interface its loop uses;
+- ``estimates``: the estimates a node has heard and may use, per in-neighbour and tick;
 - ``clock``: waiting for inputs or for a wall-clock instant, and the run's clock;
 - ``hold``: a lockstep run held at a tick and stepped (a page's pause), the supervisor's side.
 

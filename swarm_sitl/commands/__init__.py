@@ -1,6 +1,8 @@
 """The subcommands of ``swarm-sitl`` (``cli``), each a function of its parsed arguments with the
 parser that defines them: ``runs`` (sim, run, vehicles, controllers), ``tools`` (check, new,
-router, plot, export), ``bench``, ``campaign`` (sweep); ``common`` has what they share.
+router, plot, export; ``law_check``: check for a law other than the paper's), ``bench``,
+``campaign`` (sweep), ``falsify``, ``view`` (view, and run's live page); ``common`` has what they
+share.
 ``controller`` and ``leader`` are the node processes' own (``nodes.arguments``).
 
 May import: sim_vehicles, laws, bus, faults, config, rundir, link, nodes, running, bench, campaigns,

@@ -1,5 +1,6 @@
 """A run described by one file: the schema (``schema``; its ``vehicle:`` and ``wind:`` sections in
-``vehicle_section``; the run's one seed and its streams in ``seeds``), reading a file into it
+``vehicle_section``; the run's one seed and its streams in ``seeds``; its ``law:`` entry made a
+class in ``law_entry``), reading a file into it
 with one-line errors (``load``; a run directory's without importing its plug-ins), a generated
 swarm's config (``generator``, ``swarm-sitl new``) and the reference of every key (``reference``,
 ``docs/config.md``).

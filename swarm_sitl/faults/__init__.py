@@ -8,7 +8,9 @@
   ``delays`` (delay, stall, reorder), ``copies`` (duplicate, corrupt), ``bursts``
   (Gilbert-Elliott), ``radio_range`` (path loss with distance, retries), ``bandwidth`` (a node's
   radio and its queue), with ``draws``, the seeded draws they make;
-- ``edges``: the plan on a node's in-edges, a wrapper of its bus (``FaultyBus``);
+- ``edges``: the plan on a node's in-edges, a wrapper of its bus (``FaultyBus``), its stage on
+  each estimate (``in_edges``), and in lockstep the fates a block of ticks at a time
+  (``fate_table``);
 - ``mavlink``: the plan on a vehicle's MAVLink link, a wrapper of the controller's datagrams;
 - ``counts``: what those wrappers count per edge and per link, in memory or in a file that
   outlives a killed process;

@@ -11,6 +11,7 @@ needs. No I/O, no clock, no process.
   - ``command_attitude``: the singularity-free command attitude, its rate and acceleration;
   - ``follower_law``: the three assembled, in compiled kernels;
   - ``gain_conditions``, ``gain_report``: Theorem 1's sufficient conditions, and their text;
+  - ``paper_gains``: its gains, one type for the config, the law and ``check``;
 
 - ``trajectories``: the leader's reference and its derivatives;
 - ``graph``: the directed communication graph (leader 0, followers 1..n).

@@ -6,8 +6,9 @@
 - ``controller``: follower i's loop: its vehicle over MAVLink, its neighbours over the bus, both
   clocks; ``neighbour_inbox``: which neighbour estimates a tick uses (riding through silent ones);
 - ``leader``: node 0, the reference, on the wall clock or a window ahead of the followers;
-- ``entry``: the process entry (``python -m swarm_sitl.nodes controller|leader``): a node built
-  from its config, its link, bus, fault wrappers and recording, run, its figures written.
+- ``entry``: the process entry (``python -m swarm_sitl.nodes controller|leader``, ``__main__``):
+  a node built from its config, its link, bus, fault wrappers and recording, run, its figures
+  written; ``arguments``: its command line, shared with ``swarm-sitl controller|leader``.
 
 May import: sim_vehicles.common, sim_vehicles.mavlink, sim_vehicles.plant, sim_vehicles.models,
 sim_vehicles.runtime, laws, bus, faults, config, rundir, link.
