@@ -12,7 +12,8 @@ import pytest
 
 PAPER = Path(__file__).resolve().parents[1] / "configs" / "paper.yaml"
 
-pytestmark = pytest.mark.system
+#: its system tests run in lockstep or ``sim`` only (no wall clock): free to run beside others
+pytestmark = [pytest.mark.system, pytest.mark.lockstep]
 
 
 def test_formation_holds_with_half_of_an_edge_lost(swarm):

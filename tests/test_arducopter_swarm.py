@@ -4,7 +4,6 @@ processes each equals ``sim`` of the same swarm bit for bit, and it converges as
 does (its final formation error within twice the PX4 one's)."""
 
 import subprocess
-import sys
 
 import numpy as np
 import pytest
@@ -12,9 +11,10 @@ import yaml
 
 from swarm_sitl.config.load import parse_config
 from swarm_sitl.running.sim import run_sim
-from tests.conftest import CONFIGS
+from tests.support import CLI, CONFIGS
 
-pytestmark = pytest.mark.system
+#: its system tests run in lockstep or ``sim`` only (no wall clock): free to run beside others
+pytestmark = [pytest.mark.system, pytest.mark.lockstep]
 DURATION_S = 12.0  #: past the paper's convergence below 1 cm (7.9 s)
 
 
@@ -37,7 +37,7 @@ def test_arducopters_fly_the_paper_swarm_as_processes_equal_to_sim_and_as_px4_do
     path.write_text(yaml.safe_dump(data))
     out = tmp_path / "run"
     r = subprocess.run(
-        [sys.executable, "-m", "swarm_sitl", "run", str(path), "--out", str(out), "--quiet"],
+        [*CLI, "run", str(path), "--out", str(out), "--quiet"],
         capture_output=True,
         text=True,
         timeout=240,

@@ -16,8 +16,8 @@ import yaml
 from swarm_sitl.link.transport import LinkError
 from swarm_sitl.link.vehicle_link import VehicleLink
 from swarm_sitl.running.children import child_env, module_argv
-from tests.conftest import CONFIGS
 from tests.fake_autopilot import FakeAutopilot
+from tests.support import CONFIGS
 
 TIMEOUT_S = 1.5
 DURATION_S = 4.0  #: the real-time run's

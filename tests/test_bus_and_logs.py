@@ -5,7 +5,6 @@ import os
 import re
 import struct
 import subprocess
-import sys
 import time
 import zlib
 from pathlib import Path
@@ -34,6 +33,7 @@ from swarm_sitl.bus.node_bus import ZenohNodeBus
 from swarm_sitl.bus.session import ROUTER_RUNTIME, RUNTIME_ENV, ZenohSpec, open_session, router_runtime
 from swarm_sitl.running.children import child_env
 from swarm_sitl.running.hub import free_tcp_port
+from tests.support import CLI
 
 finite = st.floats(allow_nan=False, allow_infinity=False, width=64)
 
@@ -384,7 +384,7 @@ def test_swarm_sitl_router_routes_on_one_thread_unless_the_user_sets_the_runtime
     if users_runtime is not None:
         env[RUNTIME_ENV] = users_runtime
     router = subprocess.Popen(
-        [sys.executable, "-m", "swarm_sitl", "router", "--listen", endpoint],
+        [*CLI, "router", "--listen", endpoint],
         stdout=subprocess.PIPE,
         text=True,
         env=env,

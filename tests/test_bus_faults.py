@@ -13,49 +13,13 @@ from hypothesis import strategies as st
 from sim_vehicles.runtime.event_log import EventLog
 from swarm_sitl.bus.clock import RunClock, StallError
 from swarm_sitl.bus.codec import Message, PayloadError, decode_message, encode_message
-from swarm_sitl.bus.node_bus import ZenohNodeBus
 from swarm_sitl.faults.counts import EdgeStats
 from swarm_sitl.faults.edges import FaultyBus
 from swarm_sitl.faults.plan import FaultPlan
 from swarm_sitl.nodes.neighbour_inbox import NeighbourInbox
+from tests.fakes import DT, EDGES, ManualClock, MemoryBus, Publisher
 
 pytestmark = pytest.mark.integration
-
-DT = 0.01
-EDGES = [(0, 1), (0, 2), (1, 4), (2, 4)]
-
-
-class MemoryBus:
-    """The part of ``ZenohNodeBus`` a fault stage uses, in memory: ``arrive`` puts an estimate on
-    the wire, ``poll`` decodes what arrived through ``deliver``."""
-
-    def __init__(self) -> None:
-        self.deliver = self.file
-        self.dropped = 0
-        self.wire: list[Message] = []
-        self.table: dict[tuple[int, int], Message] = {}
-        self.newest: dict[int, Message] = {}
-        self.counted_steps: range | None = None
-
-    counts = ZenohNodeBus.counts
-
-    def arrive(self, src: int, step: int) -> None:
-        self.wire.append(Message(src, step, step * DT, np.full(12, float(step))))
-
-    def poll(self) -> None:
-        while self.wire:
-            self.deliver(self.wire.pop(0))
-
-    def file(self, m: Message) -> None:
-        self.table[m.src, m.step] = m
-        if m.src not in self.newest or m.step >= self.newest[m.src].step:
-            self.newest[m.src] = m
-
-    def estimate(self, src: int, step: int) -> Message | None:
-        return self.table.get((src, step))
-
-    def latest(self, src: int) -> Message | None:
-        return self.newest.get(src)
 
 
 def _bus(*entries: dict, seed: int = 0, lockstep: bool = True) -> tuple[FaultyBus, MemoryBus, RunClock]:
@@ -135,21 +99,6 @@ def test_duplicates_reorders_and_corruptions():
     bus, inner, clock = _bus({"edge": [1, 4], "corrupt": 1.0})
     _lockstep_ticks(bus, inner, clock, 20)
     assert bus.stats[1].corrupt == 20 and inner.dropped == 20 and not any(s == 1 for s, _ in inner.table)
-
-
-class ManualClock(RunClock):
-    """A real-time run's clock that reads ``self.t`` [s], set by the test."""
-
-    def __init__(self) -> None:
-        super().__init__(False, DT)
-        self.t = 0.0
-        self.epoch_mono = 0.0  # started: it reads ``t``
-
-    def now(self) -> float:
-        return self.t
-
-    def now_s(self) -> float:
-        return self.t
 
 
 def test_in_real_time_a_delay_counts_from_arrival():
@@ -384,26 +333,6 @@ def test_a_real_time_mavlink_delay_holds_datagrams_until_due():
     assert lf.release(sent.append) == [b"telemetry"]
 
 
-class _Publisher(MemoryBus):
-    """A node's inner bus as a publisher sees it: what it sent, the progress its out-neighbours
-    reported (none here: their statuses were sent before this session existed) and their
-    liveliness tokens."""
-
-    def __init__(self, alive: dict[int, int]):
-        super().__init__()
-        self.sent: list[int] = []
-        self.alive = alive
-
-    def publish(self, m: Message) -> None:
-        self.sent.append(m.step)
-
-    def progress(self, follower: int) -> int:
-        return -1
-
-    def alive_puts(self, node: int) -> int:
-        return self.alive.get(node, 0)
-
-
 def test_a_restarted_node_waits_for_the_liveliness_of_a_neighbour_that_came_back_before_it():
     """Lockstep: controller 1 comes back at tick 400, the leader (its in-neighbour) at tick 650.
     The leader's new session cannot hear the status 1 sent at tick 400; 1 is blocked waiting for
@@ -417,7 +346,7 @@ def test_a_restarted_node_waits_for_the_liveliness_of_a_neighbour_that_came_back
     )
     resume = 650
     for alive in ({1: 1, 2: 1}, {2: 1}):
-        inner = _Publisher(alive)
+        inner = Publisher(alive)
         bus = FaultyBus(inner, plan, 0, EDGES, RunClock(True, DT), 60.0, 0.2, resume)  # type: ignore[arg-type]
         if 1 in alive:
             bus.publish(Message(0, resume, resume * DT, np.zeros(12)))
@@ -427,7 +356,7 @@ def test_a_restarted_node_waits_for_the_liveliness_of_a_neighbour_that_came_back
                 bus.publish(Message(0, resume, resume * DT, np.zeros(12)))
     # the leader's first incarnation still waits for 1's first tick after its restart (it was up
     # when 1 came back, so it hears that status)
-    first = FaultyBus(_Publisher({1: 1, 2: 1}), plan, 0, EDGES, RunClock(True, DT), 60.0, 0.2)  # type: ignore[arg-type]
+    first = FaultyBus(Publisher({1: 1, 2: 1}), plan, 0, EDGES, RunClock(True, DT), 60.0, 0.2)  # type: ignore[arg-type]
     with pytest.raises(StallError, match="node 1 did not come back"):
         first.publish(Message(0, 400, 4.0, np.zeros(12)))
 
@@ -600,7 +529,7 @@ def test_an_in_neighbour_is_settled_for_the_steps_that_arrived_and_those_the_pla
     assert bus.settled(2, 0) and not bus.settled(2, 1)  # step 0 is not step 1
 
 
-class _Gated(_Publisher):
+class _Gated(Publisher):
     """A publisher whose out-neighbours' progress the test sets (and moves after some polls)."""
 
     def __init__(self, alive: dict[int, int], progress: dict[int, int], later: dict[int, int] | None = None):
@@ -617,7 +546,7 @@ class _Gated(_Publisher):
             self.at.update(self.later)
 
 
-def _leader_bus(plan: FaultPlan, inner: _Publisher, resume: int = 0, timeout_s: float = 0.2) -> FaultyBus:
+def _leader_bus(plan: FaultPlan, inner: Publisher, resume: int = 0, timeout_s: float = 0.2) -> FaultyBus:
     return FaultyBus(inner, plan, 0, EDGES, RunClock(True, DT), 60.0, timeout_s, resume)  # type: ignore[arg-type]
 
 

@@ -2,7 +2,6 @@
 
 import json
 import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -12,7 +11,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from swarm_sitl.cli import main
-from tests.conftest import CONFIGS
+from tests.support import CLI, CONFIGS
 
 pytestmark = pytest.mark.integration
 
@@ -124,9 +123,7 @@ def test_sim_writes_a_run_directory_and_plot_draws_it(tmp_path):
     run = tmp_path / "run"
     r = subprocess.run(
         [
-            sys.executable,
-            "-m",
-            "swarm_sitl",
+            *CLI,
             "sim",
             str(CONFIGS / "paper.yaml"),
             "--duration",
@@ -148,9 +145,7 @@ def test_sim_writes_a_run_directory_and_plot_draws_it(tmp_path):
     f1 = np.load(run / "follower_1.npz")
     assert f1["t_s"].shape == (301,) and f1["p_W"].shape == (301, 3) and f1["q_c"].shape == (301, 4)
     assert yaml.safe_load((run / "config.yaml").read_text())["duration_s"] == 3.0
-    r = subprocess.run(
-        [sys.executable, "-m", "swarm_sitl", "plot", str(run)], capture_output=True, text=True, check=True
-    )
+    r = subprocess.run([*CLI, "plot", str(run)], capture_output=True, text=True, check=True)
     pngs = sorted(p.name for p in (run / "plots").glob("*.png"))
     assert pngs == [
         "estimator_error.png",

@@ -12,7 +12,10 @@ import pytest
 
 from sim_vehicles.runtime.counter_file import CounterFile, read_counter, read_named_counts
 from sim_vehicles.runtime.row_log import read_rows
-from tests.conftest import CONFIGS
+from tests.support import CONFIGS
+
+#: its system tests run in lockstep or ``sim`` only (no wall clock): free to run beside others
+pytestmark = pytest.mark.lockstep
 
 
 @pytest.mark.unit

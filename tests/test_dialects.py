@@ -14,7 +14,7 @@ from sim_vehicles.plant.params import AttitudeGains, VehicleParams
 from sim_vehicles.vehicle.autopilots import ARDUCOPTER, PX4
 from sim_vehicles.vehicle.endpoint import VehicleEndpoint
 from swarm_sitl.link.dialects import DIALECTS, READ
-from tests.conftest import ROOT
+from tests.support import ROOT
 
 #: every parameter name each autopilot ships that the bench uses, with where it is declared
 #: (PX4-Autopilot and ArduPilot sources, read for this): a name outside these is the bench's own

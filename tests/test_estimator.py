@@ -9,6 +9,7 @@ from swarm_sitl.laws.contract import Received, VehicleSample, reference_values
 from swarm_sitl.laws.gain_conditions import check_gains
 from swarm_sitl.laws.zou_meng import ZouMengLaw
 from swarm_sitl.nodes.assembly import law_context
+from tests.support import config
 
 pytestmark = pytest.mark.integration
 
@@ -56,11 +57,9 @@ def test_a_tick_after_a_long_gap_keeps_the_internal_step(tmp_path):
     follower 8 stalled 1.28 s between two ticks. Advancing over the gap in the 10 RK4 substeps of
     one period (h = 128 ms) turned its estimator into NaN; at the configured internal step
     (1 ms) it stays finite and its estimate moves to where its neighbours say the leader is."""
-    from swarm_sitl.config.load import load_config
     from swarm_sitl.nodes.assembly import reported_vehicle_params
-    from tests.conftest import CONFIGS
 
-    cfg = load_config(CONFIGS / "swarm16.yaml")
+    cfg = config("swarm16")
     ctrl = ZouMengLaw(law_context(cfg, 8, *reported_vehicle_params(cfg)))
     assert [s for s, _ in ctrl.weights] == [3, 4]
     ctrl.state = np.array(

@@ -5,7 +5,6 @@ counterexample on a generated ring of six followers that a lockstep run of proce
 import json
 import signal
 import subprocess
-import sys
 
 import pytest
 import yaml
@@ -19,15 +18,13 @@ from swarm_sitl.falsify.evaluate import evaluate, requirement_config
 from swarm_sitl.falsify.search import assert_no_counterexample, falsify
 from swarm_sitl.falsify.shrink import RESOLUTION, shrink
 from swarm_sitl.falsify.space import cost, expand
-from tests.conftest import CONFIGS
+from tests.support import CLI, CONFIGS, cli
 
-CLI = [sys.executable, "-m", "swarm_sitl"]
+#: its system tests run in lockstep or ``sim`` only (no wall clock): free to run beside others
+pytestmark = pytest.mark.lockstep
+
 ESTIMATE_SPEC = '- {name: estimate, formula: "always[2, end] (est_pos_err_m <= 1e-4)"}\n'
 PAPER = str(CONFIGS / "paper.yaml")
-
-
-def _cli(*args: object) -> subprocess.CompletedProcess:
-    return subprocess.run([*CLI, *map(str, args)], capture_output=True, text=True, timeout=300)
 
 
 @pytest.mark.integration
@@ -57,7 +54,7 @@ def test_bad_input_is_one_line_and_nothing_flies(tmp_path, space, extra, names):
     if "--spec" not in extra and "--bound" not in extra:
         extra += ["--bound", "0.005"]
     out = tmp_path / "out"
-    r = _cli("falsify", PAPER, "--space", tmp_path / "space.yaml", "--out", out, *extra)
+    r = cli("falsify", PAPER, "--space", tmp_path / "space.yaml", "--out", out, *extra)
     assert r.returncode == 2, r.stderr
     lines = r.stderr.strip().splitlines()
     assert len(lines) == 1 and names in lines[0], r.stderr
@@ -202,7 +199,7 @@ def test_the_same_seed_writes_the_same_front_on_any_cores_and_on_dask(tmp_path):
     fronts = []
     for jobs in (1, 2, 1):
         out = tmp_path / f"j{jobs}-{len(fronts)}"
-        r = _cli(
+        r = cli(
             "falsify", PAPER, "--space", tmp_path / "space.yaml", "--spec", tmp_path / "spec.yaml",
             "--duration", "4", "--budget", "8", "--jobs", jobs, "--no-confirm", "--quiet", "--out", out,
         )  # fmt: skip
@@ -324,7 +321,7 @@ def test_a_law_that_ends_its_worker_is_a_violation_and_the_pool_goes_on(tmp_path
     batch, each such plan is found (flown again one at a time), counted as a violation, and the
     pool is made again for the next plans."""
     from swarm_sitl.falsify.workers import NO_ROBUSTNESS, Local
-    from tests.test_misbehaving_laws import LAWS_FILE
+    from tests.misbehaving_runs import LAWS_FILE
 
     data = yaml.safe_load((CONFIGS / "paper.yaml").read_text())
     data["duration_s"] = 1.5
@@ -434,9 +431,7 @@ def test_a_worker_that_fails_is_an_error_naming_the_plan_the_worker_and_its_last
     ``report.md`` gives no verdict on the swarm."""
     config, space = _duty_config(tmp_path, fails=fails)
     out = tmp_path / "out"
-    r = _cli(
-        "falsify", config, "--space", space, "--out", out, "--jobs", "1", "--budget", "2", "--no-confirm"
-    )
+    r = cli("falsify", config, "--space", space, "--out", out, "--jobs", "1", "--budget", "2", "--no-confirm")
     assert r.returncode == 1, (r.stdout, r.stderr)
     lines = r.stderr.strip().splitlines()
     assert len(lines) == 1 and said in lines[0] and "worker" in lines[0] and '"plan"' in lines[0], lines

@@ -3,7 +3,6 @@ seeded function with the statistics the plan asks for."""
 
 import math
 import subprocess
-import sys
 
 import numpy as np
 import pytest
@@ -12,7 +11,7 @@ import yaml
 from swarm_sitl.config.load import ConfigError, parse_config, with_faults
 from swarm_sitl.faults.draws import uniform
 from swarm_sitl.faults.plan import FaultPlan, FaultSpec, edge_channel, fate
-from tests.conftest import CONFIGS
+from tests.support import CLI, CONFIGS
 
 pytestmark = pytest.mark.unit
 
@@ -106,7 +105,7 @@ def test_the_cli_refuses_a_bad_fault_file_in_one_line(tmp_path):
     f = tmp_path / "plan.yaml"
     f.write_text("plan:\n  - {edge: [1, 4], loss: 0.5, until_s: 99}\n")
     r = subprocess.run(
-        [sys.executable, "-m", "swarm_sitl", "run", str(CONFIGS / "paper.yaml"), "--faults", str(f)],
+        [*CLI, "run", str(CONFIGS / "paper.yaml"), "--faults", str(f)],
         capture_output=True,
         text=True,
         timeout=60,

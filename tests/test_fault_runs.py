@@ -17,18 +17,19 @@ import pytest
 import yaml
 
 from swarm_sitl.rundir.load import load_run
-from tests.conftest import CONFIGS, processes_mentioning
-from tests.test_swarm_processes import (
-    _cmdline,
-    _start_run,
-    _udp_free,
-    _vehicle_ports,
-    _wait_running,
+from tests.support import (
+    CLI,
+    CONFIGS,
+    cmdline,
+    processes_mentioning,
+    start_paper_run,
+    udp_port_free,
+    vehicle_ports,
+    wait_running,
 )
 
 pytestmark = pytest.mark.system
 
-CLI = [sys.executable, "-m", "swarm_sitl"]
 
 EVERY_KIND = {
     "seed": 11,
@@ -187,10 +188,10 @@ def test_a_frozen_controller_puts_its_vehicle_in_failsafe_and_rejoins(tmp_path):
 
 def test_an_unplanned_stop_fails_the_run_naming_the_stopped_process(tmp_path):
     out = tmp_path / "stop"
-    proc = _start_run(out, "--duration", 60)
-    _wait_running(out)
+    proc = start_paper_run(out, "--duration", 60)
+    wait_running(out)
     victim = [
-        p for p in processes_mentioning(str(out)) if "--id 3" in _cmdline(p) and " controller " in _cmdline(p)
+        p for p in processes_mentioning(str(out)) if "--id 3" in cmdline(p) and " controller " in cmdline(p)
     ]
     assert len(victim) == 1
     os.kill(victim[0], signal.SIGSTOP)
@@ -202,16 +203,16 @@ def test_an_unplanned_stop_fails_the_run_naming_the_stopped_process(tmp_path):
 
 def test_a_killed_supervisor_leaves_a_readable_run_and_nothing_running(tmp_path):
     out = tmp_path / "orphan"
-    proc = _start_run(out, "--realtime", "--duration", 60)
-    _wait_running(out)
-    ports = _vehicle_ports(out)
+    proc = start_paper_run(out, "--realtime", "--duration", 60)
+    wait_running(out)
+    ports = vehicle_ports(out)
     proc.kill()  # SIGKILL to the supervisor alone: its children are in sessions of their own
     proc.wait(timeout=10)
     end = time.monotonic() + 15
     while processes_mentioning(str(tmp_path)) and time.monotonic() < end:
         time.sleep(0.2)
     assert not processes_mentioning(str(tmp_path))
-    assert all(_udp_free(p) for p in ports)
+    assert all(udp_port_free(p) for p in ports)
     assert not (out / "leader.npz").exists()  # the supervisor never got to write the arrays
     rec = load_run(out)  # what the processes recorded, merged on reading
     for i in range(1, 5):
@@ -241,9 +242,9 @@ def test_a_ground_station_slowing_a_vehicles_stream_fails_the_run_naming_the_sta
         text=True,
         start_new_session=True,
     )
-    _wait_running(out)
+    wait_running(out)
     time.sleep(2.0)
-    port = _vehicle_ports(out)[2]
+    port = vehicle_ports(out)[2]
     gcs = mavutil.mavlink_connection(f"udpout:127.0.0.1:{port}", source_system=255, dialect="common")
     # it holds the run's signing key, as MAVProxy given the passphrase would (a stranger is refused)
     passphrase = (out / "mavlink_signing.key").read_text().split()[0]

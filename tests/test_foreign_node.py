@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 import yaml
 
-from tests.conftest import CONFIGS
+from tests.support import CLI, CONFIGS
 
 pytestmark = pytest.mark.system
 HERE = Path(__file__).resolve().parent
@@ -37,7 +37,7 @@ def test_a_foreign_node_takes_a_controllers_place_and_the_formation_holds(tmp_pa
     run_args = ["--duration", str(duration), "--out", str(out), "--quiet"]
     node_args = ["--id", "3", "--offset", "-2", "-2", "0", "--duration", str(duration), "--out-edges", "4"]
     run = subprocess.Popen(
-        [sys.executable, "-m", "swarm_sitl", "run", str(path), "--realtime", "--external", "3", *run_args],
+        [*CLI, "run", str(path), "--realtime", "--external", "3", *run_args],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,

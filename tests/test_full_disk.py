@@ -9,16 +9,15 @@ import math
 import os
 import shutil
 import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from tests.conftest import CONFIGS
+from tests.support import CLI, CONFIGS
 
-pytestmark = pytest.mark.system
-CLI = [sys.executable, "-m", "swarm_sitl"]
+#: its system tests run in lockstep or ``sim`` only (no wall clock): free to run beside others
+pytestmark = [pytest.mark.system, pytest.mark.lockstep]
 PAGE = 4096
 OUTPUTS = ("summary.json", "events.jsonl", "leader.npz")
 

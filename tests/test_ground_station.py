@@ -8,7 +8,6 @@ bit for bit.
 import hashlib
 import re
 import subprocess
-import sys
 import time
 
 import numpy as np
@@ -17,8 +16,7 @@ import yaml
 from pymavlink import mavutil
 
 from swarm_sitl.running.sim import run_sim
-from tests.conftest import CONFIGS
-from tests.test_vehicle_mavlink import _free_udp_port, spawn_vehicle
+from tests.support import CLI, CONFIGS, free_udp_port, spawn_vehicle
 
 pytestmark = pytest.mark.system
 mav = mavutil.mavlink
@@ -40,7 +38,7 @@ def _counts(*conns, seconds: float) -> list[dict[str, int]]:
 
 
 def test_a_ground_station_gets_its_own_streams_and_changes_only_them():
-    port, gcs_port = _free_udp_port(), _free_udp_port()
+    port, gcs_port = free_udp_port(), free_udp_port()
     proc = spawn_vehicle(2, port, "--gcs-port", str(gcs_port), "--duration", "30")
     try:
         controller = mavutil.mavlink_connection(
@@ -80,7 +78,7 @@ def test_a_watcher_on_the_ground_station_port_leaves_a_lockstep_run_unchanged(tm
     path.write_text(yaml.safe_dump(cfg))
     out = tmp_path / "run"
     run = subprocess.Popen(
-        [sys.executable, "-m", "swarm_sitl", "run", str(path), "--out", str(out)],
+        [*CLI, "run", str(path), "--out", str(out)],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,

@@ -13,7 +13,7 @@ import pytest
 
 from swarm_sitl.bus.codec import HOLD_NONE, PayloadError, Status, decode_hold, encode_hold
 from swarm_sitl.bus.hold import REPUT_EVERY_S, SETTLE_S, STOP, LockstepHold
-from tests.test_leader_restart import _Bus, _cfg
+from tests.fakes import LeaderBus, leader_config
 
 
 def _status(i: int, k: int) -> Status:
@@ -124,7 +124,7 @@ def test_a_hold_payload_round_trips_and_a_bad_one_is_refused_in_one_line():
         decode_hold(encode_hold(-5))
 
 
-class _HeldBus(_Bus):
+class _HeldBus(LeaderBus):
     """The test's bus, with a hold the test moves."""
 
     def __init__(self) -> None:
@@ -139,7 +139,7 @@ class _HeldBus(_Bus):
 def test_a_held_leader_finishes_the_tick_it_is_on_and_waits_past_the_stall_timeout():
     from swarm_sitl.nodes.leader import run_leader
 
-    cfg = _cfg()  # stall timeout 0.3 s, 800 ticks
+    cfg = leader_config()  # stall timeout 0.3 s, 800 ticks
     bus = _HeldBus()
     errors: list[BaseException] = []
 

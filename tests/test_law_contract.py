@@ -3,7 +3,6 @@ error naming the law, and the follower once it runs), and what a run keeps when 
 
 import math
 import subprocess
-import sys
 from pathlib import Path
 from typing import ClassVar
 
@@ -16,10 +15,12 @@ from swarm_sitl.laws.contract import AttitudeCommand, LawOutput, Received, Vehic
 from swarm_sitl.nodes.assembly import build_law
 from swarm_sitl.nodes.law_host import HostedLaw, LawError
 from swarm_sitl.running.sim import SimFailedError, run_sim
-from tests.conftest import CONFIGS
+from tests.support import CLI, CONFIGS
+
+#: its system tests run in lockstep or ``sim`` only (no wall clock): free to run beside others
+pytestmark = pytest.mark.lockstep
 
 LEVEL = np.array([1.0, 0.0, 0.0, 0.0])
-CLI = [sys.executable, "-m", "swarm_sitl"]
 
 LAWS = """
 import numpy as np

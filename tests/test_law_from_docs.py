@@ -9,9 +9,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tests.conftest import ROOT, page_files
+from tests.support import CLI, ROOT, page_files
 
-pytestmark = pytest.mark.system
+#: its system tests run in lockstep or ``sim`` only (no wall clock): free to run beside others
+pytestmark = [pytest.mark.system, pytest.mark.lockstep]
 GUIDE = ROOT / "docs" / "laws.md"
 COMMANDS = [
     "swarm-sitl new --followers 4 --graph layered --duration 12 --law my_law.py:RelayPD -o my_swarm.yaml",
@@ -23,11 +24,7 @@ COMMANDS = [
 
 def _sh(cmd: str, cwd: Path) -> subprocess.CompletedProcess:
     argv = cmd.split()
-    argv = (
-        [sys.executable, "-m", "swarm_sitl", *argv[1:]]
-        if argv[0] == "swarm-sitl"
-        else [sys.executable, *argv[1:]]
-    )
+    argv = [*CLI, *argv[1:]] if argv[0] == "swarm-sitl" else [sys.executable, *argv[1:]]
     return subprocess.run(argv, cwd=cwd, capture_output=True, text=True, timeout=300)
 
 

@@ -12,7 +12,10 @@ import yaml
 from swarm_sitl.config.load import ConfigError, parse_config
 from swarm_sitl.faults.link_model import MessageOnLink
 from swarm_sitl.faults.plan import FaultPlan, edge_channel, fate
-from tests.conftest import CONFIGS, ROOT, page_command, page_files
+from tests.support import CONFIGS, ROOT, page_command, page_files
+
+#: its system tests run in lockstep or ``sim`` only (no wall clock): free to run beside others
+pytestmark = pytest.mark.lockstep
 
 GUIDE = ROOT / "docs" / "links.md"
 COMMANDS = [

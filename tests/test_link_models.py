@@ -14,7 +14,10 @@ from swarm_sitl.config.load import ConfigError, parse_config
 from swarm_sitl.faults import bursts
 from swarm_sitl.faults.bursts import GilbertElliott
 from swarm_sitl.faults.plan import FaultSpec, edge_channel, fate
-from tests.conftest import CONFIGS
+from tests.support import CONFIGS
+
+#: its system tests run in lockstep or ``sim`` only (no wall clock): free to run beside others
+pytestmark = pytest.mark.lockstep
 
 
 def _paper(plan: list[dict]) -> dict:

@@ -8,7 +8,6 @@ run's duration plus its limits."""
 import json
 import re
 import subprocess
-import sys
 import time
 
 import numpy as np
@@ -17,8 +16,7 @@ import yaml
 
 from swarm_sitl.rundir.load import load_run
 from tests import misbehaving_laws as laws
-from tests.conftest import processes_mentioning
-from tests.test_misbehaving_laws import (
+from tests.misbehaving_runs import (
     DURATION_S,
     MAX_OUTPUT_MB,
     SAYS,
@@ -29,6 +27,7 @@ from tests.test_misbehaving_laws import (
     law_path,
     the_line,
 )
+from tests.support import CLI, processes_mentioning
 
 #: a real-time tick may come up to a period late, and the followers' ticks are staggered by 2.5 ms
 LATE_S = 0.0125
@@ -98,7 +97,7 @@ def test_with_stop_on_loss_a_failing_law_ends_a_real_time_run_at_once(tmp_path):
     out = tmp_path / "out"
     t0 = time.monotonic()
     r = subprocess.run(
-        [sys.executable, "-m", "swarm_sitl", "run", str(path), "--realtime", "--out", str(out), "--quiet"],
+        [*CLI, "run", str(path), "--realtime", "--out", str(out), "--quiet"],
         capture_output=True,
         text=True,
         timeout=240,

@@ -5,7 +5,6 @@ number (``true`` is not 1.0). And ``check`` holds a link model's ``fates`` to it
 
 import re
 import subprocess
-import sys
 
 import pytest
 import yaml
@@ -15,7 +14,7 @@ from hypothesis import strategies as st
 from swarm_sitl.config.load import ConfigError, parse_config
 from swarm_sitl.faults.link_model import fates_disagreement
 from swarm_sitl.faults.plan import FaultSpec
-from tests.conftest import CONFIGS, ROOT, page_files
+from tests.support import CLI, CONFIGS, ROOT, page_files
 
 #: plug-ins of each kind, in one file: each declares ``k`` and ``tau_s`` (a pydantic ``Params``
 #: that lets extra keys through, a dataclass, a vehicle's ``tunables``)
@@ -151,7 +150,7 @@ def test_a_vehicle_parameter_is_a_finite_number_not_a_bool_or_text(value):
 
 def _spawn(args: list[str], cwd) -> subprocess.Popen:
     return subprocess.Popen(
-        [sys.executable, "-m", "swarm_sitl", *args],
+        [*CLI, *args],
         cwd=cwd,
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
@@ -248,9 +247,7 @@ def test_check_names_the_first_message_a_models_fates_and_fate_disagree_on(plugi
     assert link_model_lines(honest) == []  # (no fates: nothing to hold it to)
     r = subprocess.run(
         [
-            sys.executable,
-            "-m",
-            "swarm_sitl",
+            *CLI,
             "check",
             str(_write(tmp_path, _data(plugins, "link", "LyingLink", {}))),
         ],
@@ -281,9 +278,7 @@ def test_new_writes_a_config_for_a_model_with_a_required_parameter_given_on_the_
         "    Params = Req\n"
     )
     base = [
-        sys.executable,
-        "-m",
-        "swarm_sitl",
+        *CLI,
         "new",
         "--followers",
         "3",

@@ -8,15 +8,15 @@ from importlib import metadata
 import pytest
 import yaml
 
-from swarm_sitl.config.load import load_config, parse_config
+from swarm_sitl.config.load import parse_config
 from swarm_sitl.rundir.provenance import provenance
-from tests.conftest import CONFIGS, ROOT
+from tests.support import CONFIGS, ROOT, config
 
 pytestmark = pytest.mark.unit
 
 
 def test_it_names_the_versions_in_use_and_the_seeds():
-    cfg = load_config(CONFIGS / "paper.yaml")
+    cfg = config("paper")
     p = provenance(cfg)
     assert p["swarm_sitl"]["version"] == metadata.version("swarm-sitl")
     assert p["python"] == platform.python_version()

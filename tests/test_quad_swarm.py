@@ -3,7 +3,6 @@
 bit, and a fault plan flies it through the ``swarm`` fixture."""
 
 import subprocess
-import sys
 
 import numpy as np
 import pytest
@@ -11,18 +10,17 @@ import yaml
 
 from swarm_sitl.config.load import load_config, parse_config
 from swarm_sitl.running.sim import run_sim
-from tests.conftest import CONFIGS, ROOT
+from tests.support import CLI, CONFIGS, ROOT
 
-pytestmark = pytest.mark.system
+#: its system tests run in lockstep or ``sim`` only (no wall clock): free to run beside others
+pytestmark = [pytest.mark.system, pytest.mark.lockstep]
 
 
 def _lockstep_equals_sim(tmp_path, path, duration_s: float) -> None:
     out = tmp_path / "run"
     r = subprocess.run(
         [
-            sys.executable,
-            "-m",
-            "swarm_sitl",
+            *CLI,
             "run",
             str(path),
             "--duration",

@@ -16,9 +16,10 @@ from pymavlink import mavutil
 
 from sim_vehicles.mavlink.enu_ned import q_enu_flu_to_ned_frd, q_ned_frd_to_enu_flu
 from sim_vehicles.models.spec import VehicleSpec
-from tests.test_quad_x import SIH, _cascade_response
+from tests.support import sih_quad, sih_roll_step
 
 pytestmark = pytest.mark.integration
+SIH = sih_quad()
 mav = mavutil.mavlink
 PERIOD_MS = 10
 
@@ -108,12 +109,12 @@ def test_px4_gains_set_over_mavlink_change_the_step_response_as_the_closed_form_
     # tolerance: the unit test's, 2 % of the step (the small-angle error and the loop's sampling),
     # plus the float32 quaternion of ATTITUDE_QUATERNION (1e-7 rad)
     t_ms, rolls = _fly(conn, 0, angle, 1.5)  # PX4's default MC_ROLLRATE_P = 0.15
-    assert np.max(np.abs(rolls - angle * _cascade_response(t, 0.15))) < 0.02 * angle
+    assert np.max(np.abs(rolls - angle * sih_roll_step(t, 0.15))) < 0.02 * angle
 
     assert _param_set(conn, "MC_ROLLRATE_P", 0.3) == pytest.approx(0.3)
     t_ms, rolls = _fly(conn, t_ms, 0.0, 1.5)  # back to level, from the first step's 0.02 rad
-    assert np.max(np.abs(rolls - angle * (1 - _cascade_response(t, 0.3)))) < 0.02 * angle
-    assert np.max(np.abs(rolls - angle * (1 - _cascade_response(t, 0.15)))) > 0.05 * angle  # not the old gain
+    assert np.max(np.abs(rolls - angle * (1 - sih_roll_step(t, 0.3)))) < 0.02 * angle
+    assert np.max(np.abs(rolls - angle * (1 - sih_roll_step(t, 0.15)))) > 0.05 * angle  # not the old gain
 
     # refused: out of PX4's range, not a float, no such parameter; the kept value is answered
     assert _param_set(conn, "MC_ROLLRATE_P", 0.9) == pytest.approx(0.3)
@@ -121,7 +122,7 @@ def test_px4_gains_set_over_mavlink_change_the_step_response_as_the_closed_form_
     conn.mav.param_set_send(1, 1, b"MC_NOPE_P", 1.0, mav.MAV_PARAM_TYPE_REAL32)
     # and it flies on, with the gain it kept
     t_ms, rolls = _fly(conn, t_ms, angle, 1.5)
-    assert np.max(np.abs(rolls - angle * _cascade_response(t, 0.3))) < 0.02 * angle
+    assert np.max(np.abs(rolls - angle * sih_roll_step(t, 0.3))) < 0.02 * angle
     assert proc.poll() is None
 
 

@@ -14,8 +14,6 @@ from hypothesis import strategies as st
 
 from sim_vehicles.common.command import AttitudeCommand
 from sim_vehicles.common.state import POS, QUAT, RATE, VEL, make_state
-from sim_vehicles.plant.params import VehicleParams
-from sim_vehicles.plant.px4_allocation import normalized_mix, torque_per_unit_Nm
 from sim_vehicles.plant.quad_x import AIRFRAME, QuadX
 from sim_vehicles.plant.rigid_body import derivative
 from sim_vehicles.plant.rotors import (
@@ -29,12 +27,13 @@ from sim_vehicles.plant.rotors import (
     rotor_wrench,
     thrust_fraction,
 )
+from tests.support import sih_quad, sih_roll_step
 
 pytestmark = pytest.mark.unit
 
 T_MAX, Q_MAX, L_R, L_P = 5.0, 0.1, 0.2, 0.2  # PX4 SIH's quadrotor: per rotor [N], [N m], arms [m]
 E = effectiveness(T_MAX, Q_MAX, L_R, L_P)
-SIH = VehicleParams(1.0, (0.025, 0.025, 0.03), 4 * T_MAX)
+SIH = sih_quad()
 DT = 0.001
 unit = st.floats(0.0, 1.0)
 
@@ -129,22 +128,6 @@ def _roll_step(angle: float, rate_p: float, seconds: float) -> tuple[np.ndarray,
     return np.array(t), np.array(roll)
 
 
-def _cascade_response(t: np.ndarray, rate_p: float) -> np.ndarray:
-    """The unit step response from rest of the linearised roll cascade with rate gain ``rate_p``
-    and attitude gain 6.5: ``x'' + 2 zeta wn x' + wn^2 x = wn^2`` with ``wn^2 = U P_r P_a / J``,
-    ``2 zeta wn = U P_r / J`` (``U``: the roll torque a normalised 1 asks, PX4's scale of the
-    effectiveness' pseudo-inverse: 2 sqrt 2 l T_max), under- or overdamped."""
-    U = torque_per_unit_Nm(normalized_mix(E)[1])[0]
-    J = SIH.inertia_kgm2[0]
-    a, b = U * rate_p / J, U * rate_p * 6.5 / J  # x'' + a x' + b x = b
-    disc = a * a / 4 - b
-    if disc < 0:
-        wd = math.sqrt(-disc)
-        return 1 - np.exp(-a / 2 * t) * (np.cos(wd * t) + a / 2 / wd * np.sin(wd * t))
-    r1, r2 = -a / 2 + math.sqrt(disc), -a / 2 - math.sqrt(disc)
-    return 1 - (r2 * np.exp(r1 * t) - r1 * np.exp(r2 * t)) / (r2 - r1)
-
-
 @pytest.mark.parametrize("rate_p", [0.15, 0.3])
 def test_a_small_roll_step_follows_the_linearised_cascade(rate_p):
     """Roll alone, no motor lag, P only: ``J theta'' = U P_r (P_a (theta_c - theta) - theta')``
@@ -154,9 +137,9 @@ def test_a_small_roll_step_follows_the_linearised_cascade(rate_p):
     delay: ``wn dt / 2`` of the step, under 1 %), so 2 % of the step holds with room."""
     angle = 0.02
     t, roll = _roll_step(angle, rate_p, 1.5)
-    assert np.max(np.abs(roll - angle * _cascade_response(t, rate_p))) < 0.02 * angle
+    assert np.max(np.abs(roll - angle * sih_roll_step(t, rate_p))) < 0.02 * angle
     # and the two gains differ where the closed forms do: the test tells them apart
-    assert np.max(np.abs(roll - angle * _cascade_response(t, 0.45 - rate_p))) > 0.05 * angle
+    assert np.max(np.abs(roll - angle * sih_roll_step(t, 0.45 - rate_p))) > 0.05 * angle
 
 
 def _level_with_yaw_rate(q: QuadX, rate: float) -> None:

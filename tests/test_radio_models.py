@@ -22,8 +22,11 @@ from swarm_sitl.faults.counts import EdgeStats
 from swarm_sitl.faults.edges import FaultyBus
 from swarm_sitl.faults.plan import FaultPlan, FaultSpec, edge_channel, fate
 from swarm_sitl.faults.radio_range import PathLoss, distance_m
-from tests.conftest import CONFIGS
-from tests.test_bus_faults import DT, EDGES, ManualClock, MemoryBus, _Publisher
+from tests.fakes import DT, EDGES, ManualClock, MemoryBus, Publisher
+from tests.support import CONFIGS
+
+#: its system tests run in lockstep or ``sim`` only (no wall clock): free to run beside others
+pytestmark = pytest.mark.lockstep
 
 PHI = NormalDist().cdf
 
@@ -264,7 +267,7 @@ def test_a_lockstep_receiver_decides_a_range_fate_with_its_own_position_of_that_
     distance |p_1(s) - p_4(s)|, even when it comes before node 4 has done its own tick s (it
     waits, undecided, and is still usable at tick s + 1)."""
     plan = FaultPlan(seed=1, plan=[FaultSpec(edge=(1, 4), range={"range_m": 10.0})])
-    inner = _Publisher({})
+    inner = Publisher({})
     clock = RunClock(True, DT)
     bus = FaultyBus(inner, plan, 4, EDGES, clock, 60.0)  # type: ignore[arg-type]
     for k in range(20):
@@ -280,7 +283,7 @@ def test_a_lockstep_receiver_decides_a_range_fate_with_its_own_position_of_that_
     assert st.lost == st.out_of_range == 9 and st.delivered == 11
     assert st.as_dict()["distance_m"] == {"min": 0.0, "mean": 9.5, "max": 19.0}
     # a sender two ticks ahead (the leader's window allows it): judged at its own step, not ours
-    inner = _Publisher({})
+    inner = Publisher({})
     bus = FaultyBus(inner, plan, 4, EDGES, clock, 60.0)  # type: ignore[arg-type]
     inner.wire += [_at(1, 0, (0.0, 0.0, 0.0)), _at(1, 1, (0.0, 0.0, 0.0))]
     bus.poll()
@@ -298,7 +301,7 @@ def test_a_receiver_counts_what_the_range_fates_say_and_uses_a_retried_message_i
     receiver ticks on past the last message (``LAST_USE`` ticks) so a late last one is seen used."""
     spec = FaultSpec(edge=(1, 4), range={"range_m": 12.0, "fading_db": 5.0, "retries": 2, "retry_s": 0.015})
     plan = FaultPlan(seed=seed, plan=[spec])
-    inner = _Publisher({})
+    inner = Publisher({})
     clock = RunClock(True, DT)
     bus = FaultyBus(inner, plan, 4, EDGES, clock, 60.0)  # type: ignore[arg-type]
     used_at: dict[int, int] = {}
@@ -373,7 +376,7 @@ def test_in_real_time_a_range_fate_takes_the_receivers_newest_position_and_a_lat
     first); a message that leaves its sender's queue w after its tick is handed on at t_s + w."""
     clock = ManualClock()
     plan = FaultPlan(plan=[FaultSpec(edge=(1, 4), range={"range_m": 12.0})])
-    inner = _Publisher({})
+    inner = Publisher({})
     bus = FaultyBus(inner, plan, 4, EDGES, clock, 60.0)  # type: ignore[arg-type]
     inner.wire.append(_at(1, 2, (9.0, 0.0, 0.0)))  # its sender runs ahead of node 4
     bus.poll()
@@ -388,7 +391,7 @@ def test_in_real_time_a_range_fate_takes_the_receivers_newest_position_and_a_lat
     assert bus.stats[1].out_of_range == 1
     assert bus.stats[1].as_dict()["distance_m"] == {"min": 9.0, "mean": 35 / 3, "max": 15.0}
     plan = FaultPlan(plan=[FaultSpec(out_of=1, bandwidth={"rate_bps": 8 * 141 / 0.025, "queue": 0})])
-    inner = _Publisher({})
+    inner = Publisher({})
     bus = FaultyBus(inner, plan, 4, EDGES, clock, 60.0)  # type: ignore[arg-type]
     clock.t = 0.481
     inner.wire.append(_at(1, 48, (0.0, 0.0, 0.0)))  # sent at 0.48 s, 25 ms on the air

@@ -13,7 +13,6 @@ receiver got is delivered or counted under a named reason.
 
 import json
 import subprocess
-import sys
 
 import numpy as np
 import pytest
@@ -22,11 +21,10 @@ import yaml
 from sim_vehicles.runtime.row_log import read_rows
 from swarm_sitl.config.generator import generate
 from swarm_sitl.rundir.layout import controller_rows_path, controller_stats_path
-from tests.conftest import CONFIGS
+from tests.support import CLI, CONFIGS
 
 pytestmark = pytest.mark.system
 
-CLI = [sys.executable, "-m", "swarm_sitl"]
 BOUND_M = 0.05
 WITHIN_S = 6.0
 #: real time: the most a restarted controller may take from its restart instant to its first tick

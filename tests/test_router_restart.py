@@ -6,18 +6,15 @@ one line naming the router."""
 import json
 import signal
 import subprocess
-import sys
 import time
 
 import numpy as np
 import pytest
 import yaml
 
-from tests.conftest import CONFIGS
-from tests.test_swarm_processes import _udp_free, _vehicle_ports
+from tests.support import CLI, CONFIGS, udp_port_free, vehicle_ports
 
 pytestmark = pytest.mark.system
-CLI = [sys.executable, "-m", "swarm_sitl"]
 #: the bound the real-time paper run holds (test_swarm_processes): a converged follower is under
 #: 1 mm, and a real-time tick on a loaded machine spikes to 1 cm now and then (seen here)
 BOUND_M = 0.05
@@ -136,5 +133,5 @@ def test_lockstep_ends_in_one_line_naming_the_router(tmp_path):
     assert len(lines) == 1 and f"zenoh router at tcp/127.0.0.1:{port} went away" in lines[0], stderr
     assert took_s < 10.0  # at once, not after the 20 s stall timeout
     assert (out / "summary.json").is_file()  # the partial run is written
-    ports = _vehicle_ports(out)
-    assert len(ports) == 4 and all(_udp_free(p) for p in ports)  # nothing left bound
+    ports = vehicle_ports(out)
+    assert len(ports) == 4 and all(udp_port_free(p) for p in ports)  # nothing left bound

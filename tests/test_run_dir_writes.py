@@ -5,7 +5,6 @@ import errno
 import os
 import signal
 import subprocess
-import sys
 from collections import namedtuple
 
 import numpy as np
@@ -15,9 +14,8 @@ from swarm_sitl.rundir import recording
 from swarm_sitl.rundir.layout import expected_run_bytes
 from swarm_sitl.rundir.recording import save_npz
 from swarm_sitl.rundir.whole_files import WriteError, write_text_whole
-from tests.conftest import CONFIGS
+from tests.support import CLI, CONFIGS, config
 
-CLI = [sys.executable, "-m", "swarm_sitl"]
 Usage = namedtuple("Usage", "total used free")
 
 
@@ -121,9 +119,8 @@ def test_a_run_whose_disk_fills_keeps_its_raw_records_and_merge_rebuilds_it(tmp_
     the processes' raw records stay, and `swarm-sitl merge RUN_DIR` writes the run directory from
     them, equal to what it would have been."""
     from swarm_sitl.commands.runs import _run_and_record
-    from swarm_sitl.config.load import load_config
 
-    cfg = load_config(CONFIGS / "paper.yaml").model_copy(update={"duration_s": 2.0})
+    cfg = config("paper").model_copy(update={"duration_s": 2.0})
     good = tmp_path / "good"
     assert _run_and_record(cfg, good, True, True, None, "run") == 0
     written = sum(p.stat().st_size for p in good.rglob("*") if p.is_file())

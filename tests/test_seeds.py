@@ -9,7 +9,7 @@ import yaml
 from swarm_sitl.campaigns.grid import point_data
 from swarm_sitl.config.load import parse_config, with_seed
 from swarm_sitl.config.seeds import STREAMS, seed_lines
-from tests.conftest import CONFIGS
+from tests.support import CONFIGS
 
 
 def _paper() -> dict:

@@ -6,25 +6,18 @@ RUN_DIR/config.yaml`` flies it again from the run directory alone, bit for bit."
 import hashlib
 import json
 import shutil
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 import yaml
 
-from tests.conftest import CONFIGS, ROOT
+from tests.support import CONFIGS, ROOT, cli_ok
 
-CLI = [sys.executable, "-m", "swarm_sitl"]
+#: its system tests run in lockstep or ``sim`` only (no wall clock): free to run beside others
+pytestmark = pytest.mark.lockstep
+
 LAW = ROOT / "examples" / "laws" / "consensus_pd.py"
-
-
-def _cli(*args: str, cwd: Path) -> subprocess.CompletedProcess:
-    r = subprocess.run([*CLI, *args], capture_output=True, text=True, timeout=240, cwd=cwd)
-    assert r.returncode == 0, r.stderr[-2000:]
-    assert "Traceback" not in r.stderr
-    return r
 
 
 def _arrays(run_dir: Path) -> dict[str, dict[str, np.ndarray]]:
@@ -49,7 +42,7 @@ def test_a_moved_run_directory_reads_and_flies_again_without_the_law_file(tmp_pa
     data["duration_s"] = 2.0
     data["faults"] = {"plan": [{"edge": [1, 4], "loss": 0.3}]}
     (src / "cfg.yaml").write_text(yaml.safe_dump(data))
-    _cli(command, "cfg.yaml", "--out", str(tmp_path / "first"), "--quiet", cwd=src)
+    cli_ok(command, "cfg.yaml", "--out", str(tmp_path / "first"), "--quiet", cwd=src)
     shutil.rmtree(src)  # the law's file, and the config that named it, gone
     moved = tmp_path / "elsewhere" / "run"
     moved.parent.mkdir()
@@ -70,7 +63,7 @@ def test_a_moved_run_directory_reads_and_flies_again_without_the_law_file(tmp_pa
     before = _arrays(moved)
 
     again = tmp_path / "again"  # from the run directory alone, elsewhere
-    _cli(
+    cli_ok(
         "run" if command == "run" else "sim",
         str(moved / "config.yaml"),
         "--out",
@@ -81,13 +74,13 @@ def test_a_moved_run_directory_reads_and_flies_again_without_the_law_file(tmp_pa
     assert _same(_arrays(again), before)
 
     shutil.rmtree(moved / "plugins")  # the readers import no plug-in: the copies are not needed
-    figures = _cli("plot", str(moved), cwd=tmp_path).stdout.split()
+    figures = cli_ok("plot", str(moved), cwd=tmp_path).stdout.split()
     names = {Path(f).name for f in figures}
     expected = {"position_error.png", "velocity_error.png", "estimator_error.png", "thrust.png"}
     assert expected <= names and all(Path(f).stat().st_size > 0 for f in figures)
     if command == "run":
         assert "links.png" in names  # the edges' traffic, read from the recorded config
-        _cli("merge", str(moved), cwd=tmp_path)
+        cli_ok("merge", str(moved), cwd=tmp_path)
         assert _same(_arrays(moved), before)
-    _cli("export", str(moved), "--out", str(tmp_path / "run.mcap"), cwd=tmp_path)
+    cli_ok("export", str(moved), "--out", str(tmp_path / "run.mcap"), cwd=tmp_path)
     assert (tmp_path / "run.mcap").stat().st_size > 0

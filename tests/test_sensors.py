@@ -11,7 +11,10 @@ import yaml
 from sim_vehicles.common.quaternion import qconj, qmul
 from sim_vehicles.common.state import POS, QUAT, VEL, make_state
 from sim_vehicles.plant.sensors import SensorModel
-from tests.conftest import CONFIGS
+from tests.support import CLI, CONFIGS
+
+#: its system tests run in lockstep or ``sim`` only (no wall clock): free to run beside others
+pytestmark = pytest.mark.lockstep
 
 
 def _x(p=(1.0, 2.0, 3.0)) -> np.ndarray:
@@ -98,14 +101,13 @@ def _noisy_config(tmp_path) -> str:
 @pytest.mark.system
 def test_a_swarm_on_noisy_late_reports_flies_in_processes_as_in_sim_and_records_the_true_state(tmp_path):
     import subprocess
-    import sys
 
     from swarm_sitl.config.load import load_config
     from swarm_sitl.running.sim import run_sim
 
     path = _noisy_config(tmp_path)
     r = subprocess.run(
-        [sys.executable, "-m", "swarm_sitl", "run", path, "--out", str(tmp_path / "run"), "--quiet"],
+        [*CLI, "run", path, "--out", str(tmp_path / "run"), "--quiet"],
         capture_output=True,
         text=True,
     )

@@ -28,7 +28,7 @@ import sim_vehicles.mavlink.signing as signing
 from sim_vehicles.mavlink.sha256 import sha256_into
 from sim_vehicles.mavlink.signing import Signer, Verifier, key_from_passphrase
 from swarm_sitl.running.children import child_env, module_argv
-from tests.conftest import CONFIGS
+from tests.support import CONFIGS
 
 KEY = key_from_passphrase("correct horse battery staple")
 

@@ -8,7 +8,6 @@ overlap little, so each kind acts on the swarm; the test checks that they all do
 
 import json
 import subprocess
-import sys
 import textwrap
 
 import numpy as np
@@ -22,9 +21,11 @@ from swarm_sitl.faults.plan import LINK_HOW, FaultPlan
 from swarm_sitl.rundir.requirements import judge
 from swarm_sitl.running.sim import run_sim
 from swarm_sitl.specs.requirement import Requirement
-from tests.conftest import CONFIGS
+from tests.support import CLI, CONFIGS, config
 
-CLI = [sys.executable, "-m", "swarm_sitl"]
+#: its system tests run in lockstep or ``sim`` only (no wall clock): free to run beside others
+pytestmark = pytest.mark.lockstep
+
 SPEC = [
     {"name": "no_failsafe", "formula": "always (failsafe <= 0)"},
     {"name": "fresh", "over": "edges", "formula": "always[0.01, end] (age_s <= 0.2)"},
@@ -122,7 +123,7 @@ def test_a_lockstep_run_under_every_fault_kind_equals_sim_bit_for_bit(tmp_path):
         timeout=300,
     )
     assert r.returncode == 3, r.stderr + r.stdout  # (the failsafe requirement fails: vehicle 3's)
-    cfg = load_config(CONFIGS / "paper.yaml").model_copy(
+    cfg = config("paper").model_copy(
         update={
             "duration_s": 12.0,
             "faults": FaultPlan.model_validate(plan),
@@ -160,7 +161,7 @@ def test_a_lockstep_run_under_every_fault_kind_equals_sim_bit_for_bit(tmp_path):
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_a_plan_that_does_nothing_to_the_swarm_flies_the_plain_sim(seed):
     """The planned path (stages, inboxes, the vehicle's modes) and the plain one are one run."""
-    cfg = load_config(CONFIGS / "paper.yaml").model_copy(update={"duration_s": 3.0})
+    cfg = config("paper").model_copy(update={"duration_s": 3.0})
     quiet = FaultPlan.model_validate(
         {
             "seed": seed,

@@ -6,7 +6,6 @@ land in its summary and its exit code."""
 import json
 import math
 import subprocess
-import sys
 from typing import Any
 
 import numpy as np
@@ -16,7 +15,7 @@ import yaml
 from hypothesis import given
 from hypothesis import strategies as st
 
-from swarm_sitl.config.load import ConfigError, load_config, parse_config
+from swarm_sitl.config.load import ConfigError, parse_config
 from swarm_sitl.rundir.requirements import failsafe_signal
 from swarm_sitl.specs.formula import (
     END,
@@ -32,7 +31,7 @@ from swarm_sitl.specs.formula import (
 )
 from swarm_sitl.specs.requirement import parse_over
 from swarm_sitl.specs.robustness import robustness
-from tests.conftest import CONFIGS
+from tests.support import CLI, CONFIGS, config
 
 N = 12  #: samples of a random trace
 
@@ -199,7 +198,7 @@ def test_a_bad_requirement_is_one_line_naming_it(req, says):
 
 @pytest.mark.unit
 def test_what_a_requirement_ranges_over_on_the_graph():
-    cfg = load_config(CONFIGS / "paper.yaml")  # 0 -> 1, 2, 3; 1, 2 -> 4
+    cfg = config("paper")  # 0 -> 1, 2, 3; 1, 2 -> 4
     g, ids = cfg.build_graph(), [1, 2, 3, 4]
     assert parse_over("followers within 1 hops").members(g, ids) == [1, 2, 3]
     assert parse_over("followers within 2 hops").members(g, ids) == [1, 2, 3, 4]
@@ -218,7 +217,7 @@ def _edge_robustness(plan: dict, formula: str, over: str, duration_s: float = 8.
     from swarm_sitl.running.sim import run_sim
     from swarm_sitl.specs.requirement import Requirement
 
-    cfg = load_config(CONFIGS / "paper.yaml").model_copy(
+    cfg = config("paper").model_copy(
         update={"duration_s": duration_s, "faults": FaultPlan.model_validate(plan)}
     )
     cfg = cfg.model_copy(update={"spec": [Requirement(name="r", over=over, formula=formula)]})
@@ -262,9 +261,7 @@ def test_the_delivered_fraction_counts_the_plans_losses_exactly(seed):
 
     plan = {"seed": seed, "plan": [{"edge": [1, 4], "loss": 0.3}]}
     _, rec = _edge_robustness(plan, "always (age_s <= 100)", "edges", duration_s=4.0)
-    cfg = load_config(CONFIGS / "paper.yaml").model_copy(
-        update={"duration_s": 4.0, "faults": FaultPlan.model_validate(plan)}
-    )
+    cfg = config("paper").model_copy(update={"duration_s": 4.0, "faults": FaultPlan.model_validate(plan)})
     rules = cfg.faults.on_edge(1, 4, cfg.graph_edges())
     n = cfg.n_control_steps
     lost = [fate(seed, rules, edge_channel(1, 4), s, s * 0.01, 4.0, 0.01).lost for s in range(n)]
@@ -299,7 +296,7 @@ def test_three_requirements_land_in_the_summary_and_one_that_fails_exits_3(tmp_p
     path.write_text(yaml.safe_dump(_paper(reqs, duration_s=30.0)))
     out = tmp_path / "run"
     r = subprocess.run(
-        [sys.executable, "-m", "swarm_sitl", "sim", str(path), "--out", str(out), "--quiet"],
+        [*CLI, "sim", str(path), "--out", str(out), "--quiet"],
         capture_output=True,
         text=True,
         timeout=240,
@@ -323,7 +320,7 @@ def test_three_requirements_land_in_the_summary_and_one_that_fails_exits_3(tmp_p
 def test_a_spec_file_is_a_list_with_or_without_its_key_and_anything_else_is_one_line(tmp_path):
     from swarm_sitl.config.load import with_spec
 
-    cfg = load_config(CONFIGS / "paper.yaml")
+    cfg = config("paper")
     reqs = [{"name": "apart", "over": "pairs", "formula": "always (distance_m > 1)"}]
     for text in (yaml.safe_dump(reqs), yaml.safe_dump({"spec": reqs})):
         (tmp_path / "spec.yaml").write_text(text)

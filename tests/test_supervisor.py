@@ -11,12 +11,11 @@ from pathlib import Path
 import pytest
 
 from sim_vehicles.runtime.counter_file import CounterFile
-from swarm_sitl.config.load import load_config
 from swarm_sitl.nodes.law_guard import HARD_STOP_S
 from swarm_sitl.rundir.layout import procs_dir, tick_path
 from swarm_sitl.running import ends
 from swarm_sitl.running.supervisor import RunFailedError, Supervisor
-from tests.conftest import CONFIGS
+from tests.support import config
 
 pytestmark = pytest.mark.integration
 DT = 0.01
@@ -132,7 +131,7 @@ def test_ridden_through_an_exit_is_recorded_and_the_others_go_on(tmp_path):
 
 
 def test_a_real_time_controller_whose_ticks_stop_is_named_and_a_run_past_its_end(tmp_path):
-    cfg = load_config(CONFIGS / "paper.yaml")
+    cfg = config("paper")
     sup = _supervisor(tmp_path)
     tick = _ticked(tmp_path, "controller_4", 120)
     try:
@@ -254,7 +253,7 @@ def test_closing_ends_a_child_that_ignores_sigterm(tmp_path, monkeypatch):
 def test_a_controller_stuck_at_its_first_tick_is_named_and_one_that_never_ticked_is_left_to_the_start(
     tmp_path,
 ):
-    cfg = load_config(CONFIGS / "paper.yaml")
+    cfg = config("paper")
     sup = _supervisor(tmp_path)
     ticks = [_ticked(tmp_path, "controller_1", 0), _ticked(tmp_path, "controller_2", -1)]
     try:

@@ -7,8 +7,6 @@ import signal
 import socket
 import subprocess
 import sys
-import time
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -18,37 +16,23 @@ from pymavlink import mavutil
 from sim_vehicles.runtime.row_log import read_rows
 from swarm_sitl.config.load import parse_config
 from swarm_sitl.running.sim import run_sim
-from tests.conftest import CONFIGS, processes_mentioning
+from tests.support import (
+    CLI,
+    CONFIGS,
+    cli,
+    cmdline,
+    processes_mentioning,
+    start_paper_run,
+    udp_port_free,
+    vehicle_ports,
+    wait_running,
+)
 
 pytestmark = pytest.mark.system
 # A shell that starts a job in the background ignores SIGINT in it, and an ignored signal stays
 # ignored in every child: the Ctrl-C tests below would then test nothing. Restore the default
 # here; the processes these tests start inherit it.
 signal.signal(signal.SIGINT, signal.default_int_handler)
-
-CLI = [sys.executable, "-m", "swarm_sitl"]
-
-
-def _cli(*args, timeout=240, **kw):
-    return subprocess.run([*CLI, *map(str, args)], capture_output=True, text=True, timeout=timeout, **kw)
-
-
-def _udp_free(port: int) -> bool:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        try:
-            s.bind(("127.0.0.1", port))
-        except OSError:
-            return False
-    return True
-
-
-def _vehicle_ports(run_dir: Path) -> list[int]:
-    ports = []
-    for log in sorted((run_dir / "logs").glob("vehicle_*.log")):
-        m = re.search(r"listening on udp:[0-9.]+:(\d+)", log.read_text())
-        if m:
-            ports.append(int(m.group(1)))
-    return ports
 
 
 @pytest.fixture(scope="module")
@@ -60,7 +44,7 @@ def test_lockstep_run_equals_sim_and_is_repeatable(tmp_path, sim20):
     runs = []
     for name in ("a", "b"):
         out = tmp_path / name
-        r = _cli("run", CONFIGS / "paper.yaml", "--duration", 20, "--out", out, "--quiet")
+        r = cli("run", CONFIGS / "paper.yaml", "--duration", 20, "--out", out, "--quiet")
         assert r.returncode == 0, r.stderr + r.stdout
         runs.append({i: dict(np.load(out / f"follower_{i}.npz")) for i in range(1, 5)})
     for i, s in sim20.followers.items():
@@ -88,7 +72,7 @@ def test_lockstep_run_equals_sim_and_is_repeatable(tmp_path, sim20):
 
 def test_realtime_run_reaches_the_formation(tmp_path, paper_cfg):
     out = tmp_path / "rt"
-    r = _cli("run", CONFIGS / "paper.yaml", "--realtime", "--duration", 14, "--out", out, "--quiet")
+    r = cli("run", CONFIGS / "paper.yaml", "--realtime", "--duration", 14, "--out", out, "--quiet")
     assert r.returncode == 0, r.stderr + r.stdout
     summary = json.loads((out / "summary.json").read_text())
     logs = "; ".join(
@@ -145,40 +129,19 @@ def test_a_process_failing_to_start_tears_everything_down(tmp_path):
     path = tmp_path / "bad.yaml"
     path.write_text(yaml.safe_dump(cfg))
     out = tmp_path / "run"
-    r = _cli("run", path, "--out", out, "--quiet", "--duration", 5)
+    r = cli("run", path, "--out", out, "--quiet", "--duration", 5)
     assert r.returncode == 1
     line = r.stderr.strip().splitlines()[-1]
     assert re.search(r"(leader|controller_\d) exited with code 1: .*zenoh", line), r.stderr
     assert not processes_mentioning(str(tmp_path))
-    assert all(_udp_free(p) for p in _vehicle_ports(out))
+    assert all(udp_port_free(p) for p in vehicle_ports(out))
     cfg["zenoh"] = {"mode": "router", "listen": [taken]}  # the supervisor's router cannot listen
     path.write_text(yaml.safe_dump(cfg))
-    r = _cli("run", path, "--out", tmp_path / "run2", "--quiet", "--duration", 5)
+    r = cli("run", path, "--out", tmp_path / "run2", "--quiet", "--duration", 5)
     busy.close()
     assert r.returncode == 1 and len(r.stderr.strip().splitlines()) == 1, r.stderr
     assert "zenoh (router mode): Can not create a new TCP listener" in r.stderr
     assert not processes_mentioning(str(tmp_path))
-
-
-def _start_run(out: Path, *extra) -> subprocess.Popen:
-    return subprocess.Popen(
-        [*CLI, "run", str(CONFIGS / "paper.yaml"), "--out", str(out), "--quiet", *map(str, extra)],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-        start_new_session=True,
-    )
-
-
-def _wait_running(out: Path, timeout=120.0) -> None:
-    """Until every controller has recorded ticks."""
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        rows = [out / "procs" / f"controller_{i}.rows" for i in range(1, 5)]
-        if all(p.is_file() and p.stat().st_size > 20_000 for p in rows):
-            return
-        time.sleep(0.1)
-    raise AssertionError("the run did not get going")
 
 
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=lambda s: s.name)
@@ -187,17 +150,17 @@ def test_ctrl_c_or_sigterm_leaves_no_process_no_bound_port_and_the_run_written(t
     everything torn down, the run directory written whole from what was recorded, one line, exit
     128 + the signal. (SIGHUP takes the same path: ``test_run_dir_writes``.)"""
     out = tmp_path / "int"
-    proc = _start_run(out, "--realtime", "--duration", 60)
-    _wait_running(out)
-    ports = _vehicle_ports(out)
-    assert len(ports) == 4 and not any(_udp_free(p) for p in ports)
+    proc = start_paper_run(out, "--realtime", "--duration", 60)
+    wait_running(out)
+    ports = vehicle_ports(out)
+    assert len(ports) == 4 and not any(udp_port_free(p) for p in ports)
     proc.send_signal(sig)
     _, err = proc.communicate(timeout=60)
     assert proc.returncode == 128 + sig, err
     assert err.strip().splitlines()[-1].startswith(f"swarm-sitl: interrupted ({sig.name}); partial run in")
     assert "Traceback" not in err
     assert not processes_mentioning(str(tmp_path))
-    assert all(_udp_free(p) for p in ports)
+    assert all(udp_port_free(p) for p in ports)
     a = np.load(out / "follower_1.npz")  # what was recorded is kept
     assert np.isfinite(a["p_W"]).any()
     assert json.loads((out / "summary.json").read_text())["swarm"]
@@ -206,12 +169,12 @@ def test_ctrl_c_or_sigterm_leaves_no_process_no_bound_port_and_the_run_written(t
 
 def test_a_killed_controller_ends_the_run_naming_it(tmp_path):
     out = tmp_path / "kill"
-    proc = _start_run(out, "--duration", 60)
-    _wait_running(out)
+    proc = start_paper_run(out, "--duration", 60)
+    wait_running(out)
     victim = [
         pid
         for pid in processes_mentioning(str(out))
-        if " controller " in _cmdline(pid) and "--id 3" in _cmdline(pid)
+        if " controller " in cmdline(pid) and "--id 3" in cmdline(pid)
     ]
     assert len(victim) == 1
     os.kill(victim[0], signal.SIGKILL)
@@ -219,13 +182,6 @@ def test_a_killed_controller_ends_the_run_naming_it(tmp_path):
     assert proc.returncode == 1
     assert "controller_3 exited with code -9" in err
     assert not processes_mentioning(str(tmp_path))
-
-
-def _cmdline(pid: int) -> str:
-    try:
-        return Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode()
-    except OSError:
-        return ""
 
 
 def test_own_vehicles_and_controllers_meet_over_given_endpoints(tmp_path, paper_cfg):
@@ -254,7 +210,7 @@ def test_own_vehicles_and_controllers_meet_over_given_endpoints(tmp_path, paper_
             if m:
                 urls.append(m.group(1))
         out = tmp_path / "ctl"
-        r = _cli(
+        r = cli(
             "controllers",
             mixed,
             "--lockstep",
@@ -302,7 +258,7 @@ def test_the_same_swarm_runs_as_zenoh_peers(tmp_path, paper_cfg):
     path = tmp_path / "peers.yaml"
     path.write_text(yaml.safe_dump(cfg))
     out = tmp_path / "run"
-    r = _cli("run", path, "--duration", 3, "--out", out, "--quiet")
+    r = cli("run", path, "--duration", 3, "--out", out, "--quiet")
     assert r.returncode == 0, r.stderr
     assert not (out / "zenoh_users.txt").exists()
     sim = run_sim(paper_cfg.model_copy(update={"duration_s": 3.0}))
@@ -324,7 +280,7 @@ def test_the_same_swarm_runs_through_a_zenoh_router(tmp_path, paper_cfg):
         path = tmp_path / "routed.yaml"
         path.write_text(yaml.safe_dump(cfg))
         out = tmp_path / "run"
-        r = _cli("run", path, "--duration", 3, "--out", out, "--quiet")
+        r = cli("run", path, "--duration", 3, "--out", out, "--quiet")
         assert r.returncode == 0, r.stderr
     finally:
         router.terminate()

@@ -7,7 +7,6 @@ import csv
 import math
 import signal
 import subprocess
-import sys
 import time
 
 import pytest
@@ -18,10 +17,11 @@ from hypothesis import strategies as st
 from swarm_sitl.campaigns.breaking import breaking_point
 from swarm_sitl.campaigns.grid import SweepSpecError, grid, parse_values, parse_vary, point_data
 from swarm_sitl.campaigns.table import TableWriter, read_rows, row_key
-from swarm_sitl.config.load import ConfigError, load_config, parse_config
-from tests.conftest import CONFIGS
+from swarm_sitl.config.load import ConfigError, parse_config
+from tests.support import CLI, CONFIGS, config
 
-CLI = [sys.executable, "-m", "swarm_sitl"]
+#: its system tests run in lockstep or ``sim`` only (no wall clock): free to run beside others
+pytestmark = pytest.mark.lockstep
 
 
 @pytest.mark.unit
@@ -229,7 +229,7 @@ def test_the_settle_check_reads_each_points_own_settle_s_and_duration(end, settl
     refused exactly when some point settles at or after its run's end, whatever the base says."""
     from swarm_sitl.campaigns.sweep import _check_points
 
-    data = load_config(CONFIGS / "paper.yaml").data()
+    data = config("paper").data()
     data["duration_s"], data["run"]["settle_s"] = end, base_settle
     points = [{"run.settle_s": s} for s in settles]
     late = [s for s in settles if s >= end]

@@ -14,7 +14,10 @@ import swarm_sitl
 import swarm_sitl.campaigns.sweep as sweep_module
 from swarm_sitl.campaigns.point import INTERRUPT_GRACE_S
 from tests import misbehaving_laws
-from tests.conftest import CONFIGS, ROOT
+from tests.support import CONFIGS, ROOT
+
+#: its system tests run in lockstep or ``sim`` only (no wall clock): free to run beside others
+pytestmark = pytest.mark.lockstep
 
 
 def _config(src: Path, entry: str, duration_s: float, params: dict | None = None) -> Path:

@@ -17,7 +17,7 @@ from concurrent.futures import ThreadPoolExecutor
 
 import pytest
 
-from tests.test_vehicle_mavlink import _free_udp_port, spawn_vehicle
+from tests.support import free_udp_port, spawn_vehicle
 
 pytestmark = pytest.mark.system
 MAVPROXY = shutil.which("mavproxy.py") or str(
@@ -72,7 +72,7 @@ class Console:
 def vehicle_ports(tmp_path):
     """A vehicle speaking as PX4 and one speaking as ArduCopter, each on its own port."""
     pytest.importorskip("MAVProxy", reason="MAVProxy is not installed (pip install '.[test]')")
-    ports = {"px4": _free_udp_port(), "ardupilot": _free_udp_port()}
+    ports = {"px4": free_udp_port(), "ardupilot": free_udp_port()}
     procs = [spawn_vehicle(1, ports[kind], "--autopilot", kind) for kind in ports]
     yield ports
     for proc in procs:

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.test_vehicle_mavlink import _free_udp_port, spawn_vehicle
+from tests.support import free_udp_port, spawn_vehicle
 
 pytestmark = pytest.mark.system
 pytest.importorskip(
@@ -28,7 +28,7 @@ _spec.loader.exec_module(example)
 
 
 def test_mavsdk_reads_telemetry_and_flies_offboard_attitude():
-    port = _free_udp_port()
+    port = free_udp_port()
     proc = spawn_vehicle(1, port, "--duration", "60")
     try:
         seen = asyncio.run(asyncio.wait_for(example.fly(port), 60))

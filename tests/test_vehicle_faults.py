@@ -5,7 +5,6 @@ import json
 import math
 import signal
 import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -14,10 +13,10 @@ import yaml
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import common as mav
 
-from tests.conftest import CONFIGS
+from tests.support import CLI, CONFIGS
 
 pytestmark = pytest.mark.system
-VEHICLES = [sys.executable, "-m", "swarm_sitl", "vehicles", str(CONFIGS / "paper.yaml")]
+VEHICLES = [*CLI, "vehicles", str(CONFIGS / "paper.yaml")]
 
 DOWN_LOSS, UP_LOSS = 0.3, 0.5
 

@@ -10,7 +10,10 @@ import pytest
 
 from sim_vehicles.models.build import build_vehicle
 from sim_vehicles.models.spec import VehicleSpec, VehicleSpecError
-from tests.conftest import ROOT, page_command, page_files
+from tests.support import ROOT, page_command, page_files
+
+#: its system tests run in lockstep or ``sim`` only (no wall clock): free to run beside others
+pytestmark = pytest.mark.lockstep
 
 GUIDE = ROOT / "docs" / "vehicles.md"
 COMMANDS = [

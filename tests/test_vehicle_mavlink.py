@@ -10,26 +10,14 @@ from pathlib import Path
 import pytest
 from pymavlink import mavutil
 
+from tests.support import free_udp_port, spawn_vehicle
+
 pytestmark = pytest.mark.system
-
-
-def _free_udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-def spawn_vehicle(system_id: int, port: int, *extra: str) -> subprocess.Popen:
-    """``python -m sim_vehicles`` at 20 m up on ``port``, once it says it listens."""
-    argv = [sys.executable, "-m", "sim_vehicles", "--id", str(system_id), "--port", str(port)]
-    proc = subprocess.Popen([*argv, "--position", "0", "0", "20", *extra], stdout=subprocess.PIPE, text=True)
-    assert proc.stdout is not None and "listening" in proc.stdout.readline()
-    return proc
 
 
 @pytest.fixture
 def vehicle(tmp_path):
-    port = _free_udp_port()
+    port = free_udp_port()
     tlog = tmp_path / "vehicle.tlog"
     proc = spawn_vehicle(3, port, "--tlog", str(tlog), "--duration", "60")
     yield port, tlog, proc

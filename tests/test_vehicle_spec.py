@@ -15,9 +15,8 @@ from hypothesis import strategies as st
 
 from sim_vehicles.models.build import build_vehicle, sensor_model
 from sim_vehicles.models.spec import Gusts, SensorNoise, VehicleSpec, VehicleSpecError
-from swarm_sitl.config.load import load_config
 from swarm_sitl.nodes.assembly import build_autopilot
-from tests.conftest import CONFIGS
+from tests.support import CLI, CONFIGS, config
 
 finite = st.floats(-1e6, 1e6, allow_nan=False)
 positive = st.floats(1e-6, 1e6, allow_nan=False)
@@ -147,7 +146,7 @@ def test_flags_set_fields_over_the_spec_file(tmp_path):
 def test_the_paper_configs_vehicle_is_the_specs_default_airframe():
     """``VehicleSpec()``'s defaults are section 4's airframe, what ``python -m sim_vehicles``
     flies by hand without flags (as before the spec)."""
-    cfg = load_config(CONFIGS / "paper.yaml")
+    cfg = config("paper")
     spec = cfg.vehicle_spec(1)
     default = VehicleSpec()
     same = ("mass_kg", "inertia_kgm2", "max_thrust_N", "g_mps2", "l_q", "k_q", "attitude_hz")
@@ -185,9 +184,7 @@ def test_the_cli_says_the_notice_in_one_line_and_carries_on(tmp_path):
     data["gains"]["l_q"] = data["vehicle"].pop("l_q")
     path = tmp_path / "old.yaml"
     path.write_text(yaml.safe_dump(data))
-    r = subprocess.run(
-        [sys.executable, "-m", "swarm_sitl", "check", str(path)], capture_output=True, text=True, timeout=120
-    )
+    r = subprocess.run([*CLI, "check", str(path)], capture_output=True, text=True, timeout=120)
     assert r.returncode == 0 and "all conditions hold" in r.stdout
     assert r.stderr.strip() == (
         f"swarm-sitl: notice: {path}: gains.l_q: the vehicle's attitude loop now, read as vehicle.l_q "

@@ -19,7 +19,7 @@ import pytest
 
 from swarm_sitl.bus.codec import Status
 from swarm_sitl.config.generator import GRAPH_BUILDERS
-from swarm_sitl.config.load import load_config, with_faults
+from swarm_sitl.config.load import with_faults
 from swarm_sitl.rundir.load import RunDirError
 from swarm_sitl.rundir.outputs import write_outputs
 from swarm_sitl.running.sim import run_sim
@@ -27,7 +27,7 @@ from swarm_sitl.view import live
 from swarm_sitl.view.layout import MARGIN_PX, NODE_PX, graph_layout, hops_from_leader
 from swarm_sitl.view.replay import DOWN, FRAME_HZ, GRAPH_PX, ReplaySource, replay_document
 from swarm_sitl.view.server import TOKEN_HEADER, ViewError, ViewServer
-from tests.conftest import CONFIGS
+from tests.support import config
 
 
 @pytest.mark.unit
@@ -63,7 +63,7 @@ def cut_run(tmp_path_factory):
     plan.write_text(
         json.dumps({"seed": 1, "plan": [{"edge": [1, 4], "drop": True, "from_s": 1, "until_s": 2}]})
     )
-    cfg = with_faults(load_config(CONFIGS / "paper.yaml").model_copy(update={"duration_s": 5.0}), str(plan))
+    cfg = with_faults(config("paper").model_copy(update={"duration_s": 5.0}), str(plan))
     rec = run_sim(cfg)
     out = d / "run"
     out.mkdir()
@@ -120,7 +120,7 @@ def test_a_directory_that_is_not_a_run_is_one_line(tmp_path):
 
 @pytest.mark.unit
 def test_the_live_feed_makes_at_most_20_frames_a_simulated_second_and_drops_the_oldest(monkeypatch, tmp_path):
-    cfg = load_config(CONFIGS / "paper.yaml")
+    cfg = config("paper")
     monkeypatch.setattr(live, "MAX_FRAMES", 50)
     feed = live.LiveFeed(cfg, tmp_path, True)
     monkeypatch.setattr(feed, "_frames", live.deque(maxlen=50))
@@ -149,7 +149,7 @@ def test_the_live_feed_makes_at_most_20_frames_a_simulated_second_and_drops_the_
 
 @pytest.mark.unit
 def test_a_live_feed_hands_pause_and_step_to_a_lockstep_runs_hold_and_a_frame_to_each_step(tmp_path):
-    cfg = load_config(CONFIGS / "paper.yaml")
+    cfg = config("paper")
     dt = cfg.control_dt_s
 
     def statuses(k: int) -> dict[int, Status]:
@@ -297,7 +297,7 @@ def test_thousands_of_requests_leave_a_live_feed_and_its_server_answering(tmp_pa
     server answers after."""
     from concurrent.futures import ThreadPoolExecutor
 
-    cfg = load_config(CONFIGS / "paper.yaml")
+    cfg = config("paper")
     feed = live.LiveFeed(cfg, tmp_path, True)
     server = ViewServer(feed).start()
     paths = ["document.json", "frames.json?from=0&events=0", "frames.json?from=zz", "x" * 3000, "view.js"]

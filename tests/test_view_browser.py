@@ -29,7 +29,7 @@ import pytest
 import yaml
 
 from swarm_sitl.running.children import child_env, module_argv
-from tests.conftest import CONFIGS
+from tests.support import CONFIGS
 
 pytestmark = pytest.mark.system
 CUT = {"edge": [1, 4], "drop": True, "from_s": 2.0, "until_s": 4.0}

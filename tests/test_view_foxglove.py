@@ -17,11 +17,13 @@ import numpy as np
 import pytest
 
 from swarm_sitl.bus.codec import Status
-from swarm_sitl.config.load import load_config
 from swarm_sitl.running.children import child_env, module_argv
 from swarm_sitl.view.foxglove_live import FoxgloveError, FoxgloveStream
 from swarm_sitl.view.live import LiveFeed
-from tests.conftest import CONFIGS
+from tests.support import CONFIGS, config
+
+#: its system tests run in lockstep or ``sim`` only (no wall clock): free to run beside others
+pytestmark = pytest.mark.lockstep
 
 websocket = pytest.importorskip("websocket", reason="websocket-client is in the test extra")
 pytest.importorskip("foxglove", reason="foxglove-sdk is in the test extra")
@@ -84,7 +86,7 @@ def _until(cond, what: str, timeout_s: float = 10.0) -> None:
 
 @pytest.fixture
 def cfg():
-    return load_config(CONFIGS / "paper.yaml")
+    return config("paper")
 
 
 def _statuses(cfg, k: int) -> dict[int, Status]:

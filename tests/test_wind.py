@@ -14,7 +14,10 @@ from sim_vehicles.plant.autopilot import Autopilot
 from sim_vehicles.plant.params import AttitudeGains, VehicleParams
 from sim_vehicles.plant.wind import WIND_DT_S, FrozenGusts, WindModel
 from swarm_sitl.config.load import ConfigError, parse_config
-from tests.conftest import CONFIGS
+from tests.support import CLI, CONFIGS, config
+
+#: its system tests run in lockstep or ``sim`` only (no wall clock): free to run beside others
+pytestmark = pytest.mark.lockstep
 
 
 @pytest.mark.unit
@@ -139,7 +142,6 @@ def test_the_worlds_gusts_are_felt_alike_across_the_wind_and_later_downstream():
 @pytest.mark.parametrize("air", ["independent", "frozen"])
 def test_the_paper_swarm_in_wind_gusts_and_noisy_reports_flies_in_processes_as_in_sim(tmp_path, air):
     import subprocess
-    import sys
 
     from swarm_sitl.config.load import load_config
     from swarm_sitl.running.sim import run_sim
@@ -153,14 +155,14 @@ def test_the_paper_swarm_in_wind_gusts_and_noisy_reports_flies_in_processes_as_i
     path = tmp_path / "windy.yaml"
     path.write_text(yaml.safe_dump(data))
     r = subprocess.run(
-        [sys.executable, "-m", "swarm_sitl", "run", str(path), "--out", str(tmp_path / "run")],
+        [*CLI, "run", str(path), "--out", str(tmp_path / "run")],
         capture_output=True,
         text=True,
     )
     assert r.returncode == 0, r.stderr
     assert "formation error" in r.stdout  # it reports its error
     sim = run_sim(load_config(path))
-    calm = run_sim(load_config(CONFIGS / "paper.yaml").model_copy(update={"duration_s": 25.0}))
+    calm = run_sim(config("paper").model_copy(update={"duration_s": 25.0}))
     for i in range(1, 5):
         a = np.load(tmp_path / "run" / f"follower_{i}.npz")
         for key in ("p_W", "v_W", "u", "thrust_N", "pos_err_m"):

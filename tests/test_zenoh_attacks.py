@@ -7,7 +7,6 @@ every follower's recording equals ``sim``'s, bit for bit.
 import json
 import struct
 import subprocess
-import sys
 import threading
 import time
 import zlib
@@ -21,10 +20,11 @@ from swarm_sitl.bus import keys as zenoh_keys
 from swarm_sitl.rundir.layout import zenoh_users_path
 from swarm_sitl.running.hub import free_tcp_port
 from swarm_sitl.running.sim import run_sim
-from tests.conftest import CONFIGS
+from tests.support import CLI, CONFIGS
 from tests.zenoh_client import client_session
 
-pytestmark = pytest.mark.system
+#: its system tests run in lockstep or ``sim`` only (no wall clock): free to run beside others
+pytestmark = [pytest.mark.system, pytest.mark.lockstep]
 
 
 def _estimate(src: int, step: int, value: float) -> bytes:
@@ -47,7 +47,7 @@ def test_strangers_and_a_node_out_of_its_rights_leave_the_formation_where_it_was
     path.write_text(yaml.safe_dump(cfg))
     out = tmp_path / "run"
     run = subprocess.Popen(
-        [sys.executable, "-m", "swarm_sitl", "run", str(path), "--out", str(out), "--quiet"],
+        [*CLI, "run", str(path), "--out", str(out), "--quiet"],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,

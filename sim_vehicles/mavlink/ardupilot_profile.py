@@ -106,6 +106,10 @@ def requested_mode(param1: float, param2: float) -> int | None:
     return int(param2)
 
 
+#: float's epsilon, 2^-23: ArduPilot's is_zero is ``fabsf(x) < FLT_EPSILON``
+FLT_EPSILON = 2.0**-23
+
+
 def motor_thrust(throttle: float, expo: float, airframe_expo: float = AIRFRAME_EXPO) -> float:
     """The thrust fraction the rotors give for ArduCopter's throttle (thrust) ``throttle``: its
     motor command through ``MOT_THST_EXPO``'s curve (``apply_thrust_curve_and_volt_scaling``, a
@@ -113,8 +117,10 @@ def motor_thrust(throttle: float, expo: float, airframe_expo: float = AIRFRAME_E
     airframe's the two cancel: thrust is the throttle."""
     t = min(max(throttle, 0.0), 1.0)
     e = min(max(expo, -1.0), 1.0)
-    # (ArduPilot's is_zero: no curve within float's epsilon)
-    a = t if abs(e) < 1.2e-7 else ((e - 1.0) + math.sqrt((1.0 - e) * (1.0 - e) + 4.0 * e * t)) / (2.0 * e)
+    # the root of e a^2 + (1 - e) a = t, ArduPilot's ((e - 1) + sqrt(...)) / (2 e) written without
+    # its cancellation for a small e; no curve within float's epsilon (ArduPilot's is_zero)
+    root = math.sqrt((1.0 - e) * (1.0 - e) + 4.0 * e * t)
+    a = t if abs(e) < FLT_EPSILON else (2.0 * t / ((1.0 - e) + root) if (1.0 - e) + root > 0.0 else 0.0)
     a = min(max(a, 0.0), 1.0)
     return (1.0 - airframe_expo) * a + airframe_expo * a * a
 

@@ -1,0 +1,121 @@
+"""In-process fakes of the bench's interfaces, shared by the tests that drive a piece without its
+processes: an in-memory node bus (``MemoryBus``) and a publisher's (``Publisher``), a real-time
+clock the test sets (``ManualClock``), and the leader's bus with no one on it (``LeaderBus``) with
+the short config a leader's tests fly (``leader_config``)."""
+
+import time
+
+import numpy as np
+
+from swarm_sitl.bus.clock import RunClock
+from swarm_sitl.bus.codec import HOLD_NONE, Message
+from swarm_sitl.bus.node_bus import ZenohNodeBus
+
+DT = 0.01  #: the paper's control period [s]: the fakes' tick
+EDGES = [(0, 1), (0, 2), (1, 4), (2, 4)]  #: a small graph: the leader to 1 and 2, both to 4
+
+
+class MemoryBus:
+    """The part of ``ZenohNodeBus`` a fault stage uses, in memory: ``arrive`` puts an estimate on
+    the wire, ``poll`` decodes what arrived through ``deliver``."""
+
+    def __init__(self) -> None:
+        self.deliver = self.file
+        self.dropped = 0
+        self.wire: list[Message] = []
+        self.table: dict[tuple[int, int], Message] = {}
+        self.newest: dict[int, Message] = {}
+        self.counted_steps: range | None = None
+
+    counts = ZenohNodeBus.counts
+
+    def arrive(self, src: int, step: int) -> None:
+        self.wire.append(Message(src, step, step * DT, np.full(12, float(step))))
+
+    def poll(self) -> None:
+        while self.wire:
+            self.deliver(self.wire.pop(0))
+
+    def file(self, m: Message) -> None:
+        self.table[m.src, m.step] = m
+        if m.src not in self.newest or m.step >= self.newest[m.src].step:
+            self.newest[m.src] = m
+
+    def estimate(self, src: int, step: int) -> Message | None:
+        return self.table.get((src, step))
+
+    def latest(self, src: int) -> Message | None:
+        return self.newest.get(src)
+
+
+class ManualClock(RunClock):
+    """A real-time run's clock that reads ``self.t`` [s], set by the test."""
+
+    def __init__(self) -> None:
+        super().__init__(False, DT)
+        self.t = 0.0
+        self.epoch_mono = 0.0  # started: it reads ``t``
+
+    def now(self) -> float:
+        return self.t
+
+    def now_s(self) -> float:
+        return self.t
+
+
+class Publisher(MemoryBus):
+    """A node's inner bus as a publisher sees it: what it sent, the progress its out-neighbours
+    reported (none here: their statuses were sent before this session existed) and their
+    liveliness tokens."""
+
+    def __init__(self, alive: dict[int, int]):
+        super().__init__()
+        self.sent: list[int] = []
+        self.alive = alive
+
+    def publish(self, m: Message) -> None:
+        self.sent.append(m.step)
+
+    def progress(self, follower: int) -> int:
+        return -1
+
+    def alive_puts(self, node: int) -> int:
+        return self.alive.get(node, 0)
+
+
+class LeaderBus:
+    """A bus with no one on it but what the test says: the followers' progress, the start."""
+
+    def __init__(self, progress: int = -1):
+        self.published: list[int] = []
+        self.at = progress
+        self.dropped = 0
+
+    def set_ready(self) -> None: ...
+    def fileno(self) -> int:
+        return -1
+
+    def poll(self) -> None: ...
+    def hold_tick(self) -> int:
+        return HOLD_NONE
+
+    def start_epoch(self) -> float:
+        return time.time()
+
+    def progress(self, follower: int) -> int:
+        return self.at
+
+    def publish(self, msg) -> None:
+        self.published.append(msg.step)
+
+    def drain(self, timeout_s: float) -> bool:
+        return True
+
+
+def leader_config():
+    """The paper's config, 8 s long, with a stall timeout of 0.3 s: what a leader driven over a
+    ``LeaderBus`` flies (800 ticks)."""
+    from tests.support import config
+
+    cfg = config("paper").model_copy(update={"duration_s": 8.0})
+    return cfg.model_copy(update={"run": cfg.run.model_copy(update={"stall_timeout_s": 0.3})})

@@ -1,0 +1,187 @@
+"""The tests' one toolbox: where things are, the one way to run ``swarm-sitl`` as a user does, the
+configs, free ports, processes, the guides' files, and the closed forms more than one test holds
+code to. In-process fakes of the bench's interfaces are ``tests.fakes``. A test module imports
+from here (and ``tests.fakes``, ``tests.strategies``), never from another test module
+(``tests/test_suite_rules.py``)."""
+
+import functools
+import math
+import re
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+CONFIGS = ROOT / "configs"
+#: ``swarm-sitl`` as this interpreter runs it
+CLI = [sys.executable, "-m", "swarm_sitl"]
+
+
+# -- the command line --------------------------------------------------------------------------------
+def cli(*args: object, timeout: float = 300, **kw: Any) -> "subprocess.CompletedProcess[str]":
+    """``swarm-sitl ARGS`` run to its end, its output captured (``kw``: ``cwd``, ``env``, ...)."""
+    return subprocess.run([*CLI, *map(str, args)], capture_output=True, text=True, timeout=timeout, **kw)
+
+
+def cli_ok(*args: object, **kw: Any) -> "subprocess.CompletedProcess[str]":
+    """``cli``, held to exit 0 with no traceback."""
+    r = cli(*args, **kw)
+    assert r.returncode == 0, (r.stderr + r.stdout)[-3000:]
+    assert "Traceback" not in r.stderr, r.stderr[-3000:]
+    return r
+
+
+def start_cli(*args: object, **kw: Any) -> "subprocess.Popen[str]":
+    """``swarm-sitl ARGS`` started in its own session (a signal to the group reaches all of it),
+    its output piped."""
+    return subprocess.Popen(
+        [*CLI, *map(str, args)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        start_new_session=True,
+        **kw,
+    )
+
+
+# -- the configs ---------------------------------------------------------------------------------------
+@functools.cache
+def config(name: str) -> Any:
+    """``configs/NAME.yaml`` as the bench loads it (a frozen ``SwarmConfig``: ``model_copy`` to vary it)."""
+    from swarm_sitl.config.load import load_config
+
+    return load_config(CONFIGS / f"{name}.yaml")
+
+
+def config_data(name: str) -> dict:
+    """``configs/NAME.yaml`` as a fresh mapping, to change and write out."""
+    import yaml
+
+    return yaml.safe_load((CONFIGS / f"{name}.yaml").read_text())
+
+
+# -- ports and processes -------------------------------------------------------------------------------
+def free_udp_port() -> int:
+    """A loopback UDP port free now."""
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def udp_port_free(port: int) -> bool:
+    """Whether loopback UDP ``port`` can be bound."""
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        try:
+            s.bind(("127.0.0.1", port))
+        except OSError:
+            return False
+    return True
+
+
+def vehicle_ports(run_dir: Path) -> list[int]:
+    """The ports a run's vehicles said they listen on, from their logs."""
+    ports = []
+    for log in sorted((run_dir / "logs").glob("vehicle_*.log")):
+        m = re.search(r"listening on udp:[0-9.]+:(\d+)", log.read_text())
+        if m:
+            ports.append(int(m.group(1)))
+    return ports
+
+
+def wait_running(out: Path, followers: int = 4, timeout: float = 120.0) -> None:
+    """Until every controller of the run writing ``out`` has recorded ticks."""
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        rows = [out / "procs" / f"controller_{i}.rows" for i in range(1, followers + 1)]
+        if all(p.is_file() and p.stat().st_size > 20_000 for p in rows):
+            return
+        time.sleep(0.1)
+    raise AssertionError("the run did not get going")
+
+
+def spawn_vehicle(system_id: int, port: int, *extra: str) -> "subprocess.Popen[str]":
+    """``python -m sim_vehicles`` at 20 m up on ``port``, once it says it listens."""
+    argv = [sys.executable, "-m", "sim_vehicles", "--id", str(system_id), "--port", str(port)]
+    proc = subprocess.Popen([*argv, "--position", "0", "0", "20", *extra], stdout=subprocess.PIPE, text=True)
+    assert proc.stdout is not None and "listening" in proc.stdout.readline()
+    return proc
+
+
+def cmdline(pid: int) -> str:
+    """Process ``pid``'s command line ("" once it is gone)."""
+    try:
+        return Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode()
+    except OSError:
+        return ""
+
+
+def processes_mentioning(text: str) -> list[int]:
+    """Live processes whose command line contains ``text`` (a run directory): what a run left."""
+    found = []
+    for d in Path("/proc").iterdir():
+        if not d.name.isdigit():
+            continue
+        try:
+            cmd = (d / "cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
+            state = (d / "stat").read_text().rsplit(")", 1)[1].split()[0]
+        except OSError:
+            continue
+        if text in cmd and state != "Z":
+            found.append(int(d.name))
+    return found
+
+
+# -- the guides -------------------------------------------------------------------------------------------
+def page_files(text: str) -> dict[str, str]:
+    """The files a guide in ``docs/`` gives: each ``<!-- file: NAME -->`` and the Python or YAML
+    block after it."""
+    return dict(re.findall(r"<!-- file: (\S+) -->\n```(?:python|yaml)\n(.*?)```", text, re.S))
+
+
+def page_command(cmd: str, cwd: Path) -> "subprocess.CompletedProcess[str]":
+    """A guide's ``swarm-sitl ...`` command line, run in ``cwd`` as ``cli`` runs one."""
+    return cli(*cmd.split()[1:], cwd=cwd)
+
+
+# -- PX4 SIH's quadrotor, and closed forms more than one test holds code to ----------------------------
+def sih_quad() -> Any:
+    """PX4 SIH's quadrotor as ``VehicleParams``: 1 kg, inertia 0.025, 0.025, 0.03 kg m^2, 4 x 5 N."""
+    from sim_vehicles.plant.params import VehicleParams
+
+    return VehicleParams(1.0, (0.025, 0.025, 0.03), 20.0)
+
+
+def sih_roll_step(t: np.ndarray, rate_p: float) -> np.ndarray:
+    """``roll_cascade_step`` on PX4 SIH's quadrotor with PX4's torque scale (the roll torque a
+    normalised 1 asks: the effectiveness' pseudo-inverse, as PX4 normalises it)."""
+    from sim_vehicles.plant.px4_allocation import normalized_mix, torque_per_unit_Nm
+    from sim_vehicles.plant.rotors import effectiveness
+
+    scale = normalized_mix(effectiveness(5.0, 0.1, 0.2, 0.2))[1]
+    return roll_cascade_step(t, float(torque_per_unit_Nm(scale)[0]), sih_quad().inertia_kgm2[0], rate_p)
+
+
+def roll_cascade_step(
+    t: np.ndarray, torque_per_unit_Nm: float, inertia_kgm2: float, rate_p: float, att_p: float = 6.5
+) -> np.ndarray:
+    """The unit step response from rest of PX4's roll cascade, linearised, P only: ``x'' + 2 zeta
+    wn x' + wn^2 x = wn^2`` with ``wn^2 = U P_r P_a / J`` and ``2 zeta wn = U P_r / J`` (``U``: the
+    roll torque a normalised 1 asks), under- or overdamped."""
+    a = torque_per_unit_Nm * rate_p / inertia_kgm2
+    b = a * att_p  # x'' + a x' + b x = b
+    disc = a * a / 4 - b
+    if disc < 0:
+        wd = math.sqrt(-disc)
+        return 1 - np.exp(-a / 2 * t) * (np.cos(wd * t) + a / 2 / wd * np.sin(wd * t))
+    r1, r2 = -a / 2 + math.sqrt(disc), -a / 2 - math.sqrt(disc)
+    return 1 - (r2 * np.exp(r1 * t) - r1 * np.exp(r2 * t)) / (r2 - r1)
+
+
+def start_paper_run(out: Path, *extra: object) -> "subprocess.Popen[str]":
+    """``swarm-sitl run configs/paper.yaml --out OUT --quiet EXTRA``, started (``start_cli``)."""
+    return start_cli("run", CONFIGS / "paper.yaml", "--out", out, "--quiet", *extra)
