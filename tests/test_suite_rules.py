@@ -11,7 +11,7 @@ from tests.support import ROOT
 
 pytestmark = pytest.mark.unit
 
-TEST_FILES = sorted([*(ROOT / "tests").glob("test_*.py"), *(ROOT / "examples").glob("test_*.py")])
+TEST_FILES = sorted([*(ROOT / "tests").glob("test_*.py"), *(ROOT / "examples").rglob("test_*.py")])
 
 
 def test_no_test_module_imports_another():

@@ -153,6 +153,7 @@ def cfg():
 
 
 @pytest.mark.system
+@pytest.mark.lockstep  # (no wall clock: free to run beside others)
 def test_lockstep_processes_equal_sim_bit_for_bit(tmp_path, cfg, swarm):
     sim = run_sim(cfg.model_copy(update={"duration_s": 4.0}))
     r = swarm(CONFIG, duration_s=4.0)
@@ -164,6 +165,7 @@ def test_lockstep_processes_equal_sim_bit_for_bit(tmp_path, cfg, swarm):
 
 
 @pytest.mark.system
+@pytest.mark.lockstep
 def test_a_cut_edge_from_the_leader_costs_formation_and_the_swarm_recovers(swarm):
     """The edge 0 -> 1 is cut from 20 s to 30 s: follower 1 coasts on its last estimate of the
     leader's acceleration (the helix turns away from it) and follower 4 hears it; both come back
