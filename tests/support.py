@@ -185,3 +185,27 @@ def roll_cascade_step(
 def start_paper_run(out: Path, *extra: object) -> "subprocess.Popen[str]":
     """``swarm-sitl run configs/paper.yaml --out OUT --quiet EXTRA``, started (``start_cli``)."""
     return start_cli("run", CONFIGS / "paper.yaml", "--out", out, "--quiet", *extra)
+
+
+def cli_in_process(*args: object) -> tuple[int, str, str]:
+    """``swarm-sitl ARGS`` run in this process (``cli.main``): its exit code, standard output and
+    error. For what fails before anything starts (a bad argument, config or space), where a new
+    interpreter would only add its start-up; the signal handlers ``main`` installs are put back."""
+    import contextlib
+    import io
+    import signal
+
+    from swarm_sitl.cli import main
+
+    saved = {s: signal.getsignal(s) for s in (signal.SIGTERM, signal.SIGHUP)}
+    out, err = io.StringIO(), io.StringIO()
+    try:
+        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+            try:
+                code = main([str(a) for a in args])
+            except SystemExit as e:  # (argparse's own refusals)
+                code = e.code if isinstance(e.code, int) else 2
+    finally:
+        for s, h in saved.items():
+            signal.signal(s, h)
+    return code, out.getvalue(), err.getvalue()

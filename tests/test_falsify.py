@@ -18,7 +18,7 @@ from swarm_sitl.falsify.evaluate import evaluate, requirement_config
 from swarm_sitl.falsify.search import assert_no_counterexample, falsify
 from swarm_sitl.falsify.shrink import RESOLUTION, shrink
 from swarm_sitl.falsify.space import cost, expand
-from tests.support import CLI, CONFIGS, cli
+from tests.support import CLI, CONFIGS, cli, cli_in_process
 
 #: its system tests run in lockstep or ``sim`` only (no wall clock): free to run beside others
 pytestmark = pytest.mark.lockstep
@@ -54,10 +54,11 @@ def test_bad_input_is_one_line_and_nothing_flies(tmp_path, space, extra, names):
     if "--spec" not in extra and "--bound" not in extra:
         extra += ["--bound", "0.005"]
     out = tmp_path / "out"
-    r = cli("falsify", PAPER, "--space", tmp_path / "space.yaml", "--out", out, *extra)
-    assert r.returncode == 2, r.stderr
-    lines = r.stderr.strip().splitlines()
-    assert len(lines) == 1 and names in lines[0], r.stderr
+    # (in ``swarm-sitl``'s own main, in this process: each refusal comes before anything starts)
+    code, _, err = cli_in_process("falsify", PAPER, "--space", tmp_path / "space.yaml", "--out", out, *extra)
+    assert code == 2, err
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and names in lines[0], err
     assert not out.exists()  # before anything ran
 
 
@@ -197,7 +198,7 @@ def test_the_same_seed_writes_the_same_front_on_any_cores_and_on_dask(tmp_path):
         '- {name: estimate, formula: "always[2, end] (est_pos_err_m <= 1e-4)"}\n'
     )
     fronts = []
-    for jobs in (1, 2, 1):
+    for jobs in (1, 2):  # (with the cluster's below: three runs of one seed, in three ways, equal)
         out = tmp_path / f"j{jobs}-{len(fronts)}"
         r = cli(
             "falsify", PAPER, "--space", tmp_path / "space.yaml", "--spec", tmp_path / "spec.yaml",
@@ -207,7 +208,7 @@ def test_the_same_seed_writes_the_same_front_on_any_cores_and_on_dask(tmp_path):
         assert "per minute" in r.stdout
         fronts.append((out / "front.csv").read_bytes())
         assert (out / "robustness_cost.png").stat().st_size > 0 and (out / "edges.png").is_file()
-    assert fronts[0] == fronts[1] == fronts[2]
+    assert fronts[0] == fronts[1]
     from distributed import LocalCluster
 
     with LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=None) as c:

@@ -8,6 +8,7 @@ import math
 import signal
 import subprocess
 import time
+from pathlib import Path
 
 import pytest
 import yaml
@@ -18,7 +19,7 @@ from swarm_sitl.campaigns.breaking import breaking_point
 from swarm_sitl.campaigns.grid import SweepSpecError, grid, parse_values, parse_vary, point_data
 from swarm_sitl.campaigns.table import TableWriter, read_rows, row_key
 from swarm_sitl.config.load import ConfigError, parse_config
-from tests.support import CLI, CONFIGS, config
+from tests.support import CLI, CONFIGS, cli_in_process, config
 
 #: its system tests run in lockstep or ``sim`` only (no wall clock): free to run beside others
 pytestmark = pytest.mark.lockstep
@@ -240,8 +241,10 @@ def test_the_settle_check_reads_each_points_own_settle_s_and_duration(end, settl
         _check_points(data, points, 0)
 
 
-@pytest.mark.system
+@pytest.mark.integration
 def test_bad_campaigns_are_one_line_before_anything_runs(tmp_path):
+    """Each refused in ``swarm-sitl sweep``'s own ``main``, in this process (nothing of it starts
+    a process before it refuses; ``test_config_and_cli`` holds the command line's exit codes)."""
     cfg = _config(tmp_path)
     for args, message in [
         (["--vary", "gains.kp=1,2"], r"no setting 'gains\.kp'"),
@@ -258,9 +261,9 @@ def test_bad_campaigns_are_one_line_before_anything_runs(tmp_path):
         ),
         (["--vary", "link.loss=0", "--seeds", "x"], r"--seeds x: a count or a comma list"),
     ]:
-        r = _sweep(cfg, *args, "--out", tmp_path / "bad", timeout=60)
-        lines = r.stderr.strip().splitlines()
-        assert r.returncode == 2 and len(lines) == 1 and lines[0].startswith("swarm-sitl: error: "), r.stderr
+        code, _, err = cli_in_process("sweep", cfg, *args, "--out", tmp_path / "bad", "--quiet")
+        lines = err.strip().splitlines()
+        assert code == 2 and len(lines) == 1 and lines[0].startswith("swarm-sitl: error: "), err
         assert __import__("re").search(message, lines[0]), lines[0]
         assert not (tmp_path / "bad").exists()  # nothing written either
 
@@ -317,3 +320,26 @@ def test_refine_bisects_between_the_last_value_that_holds_and_the_first_that_bre
         SweepSpecError, match=r"--refine bisects one varied key .*varies link\.delay_s, link\.loss"
     ):
         sweep_mod.sweep(CONFIGS / "paper.yaml", {**held, "link.delay_s": [0.0, 0.1]}, **kw)
+
+
+@pytest.mark.unit
+@given(
+    rows=st.lists(st.tuples(st.sampled_from([0.0, 0.1, 0.2, 0.3]), st.booleans()), max_size=8),
+    key=st.sampled_from(["link.loss", "estimator.staleness_s"]),
+)
+def test_the_summary_reads_any_table_an_interrupted_campaign_leaves_empty_included(rows, key):
+    """Whatever rows a campaign ended with (none, when a signal came before the first finished:
+    it once raised on formatting None), its last lines are one per fact, naming the key and the
+    breaking point the table gives."""
+    from swarm_sitl.campaigns.breaking import breaking_point
+    from swarm_sitl.campaigns.sweep import Campaign, summary_lines
+
+    table = [{key: v, "passed": int(ok)} for v, ok in rows]
+    c = Campaign(Path("/tmp/c"), [key], 0.005, rows=table)
+    lines = summary_lines(c)
+    assert lines[0].startswith(f"{len(table)} runs in ") and all("\n" not in line for line in lines)
+    held, broke = breaking_point(table, key)
+    point = lines[1]
+    assert point.startswith("breaking point: ") and key in point
+    for v in (held, broke):
+        assert v is None or f"{v:g}" in point

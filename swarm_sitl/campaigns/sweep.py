@@ -379,7 +379,9 @@ def summary_lines(c: Campaign) -> list[str]:
         held, broke = c.breaking_point()
         k = (c.varied or c.keys)[0]
         way = toward(k)
-        if held is None:
+        if held is None and broke is None:  # (no run finished: an interrupted campaign's first)
+            lines.append(f"breaking point: no run of {k} finished")
+        elif held is None:
             lines.append(f"breaking point: {k} breaks at its first value, {broke:g}")
         elif broke is None:
             lines.append(f"breaking point: none; every seed holds the bound {way} {k} = {held:g}")
