@@ -3,7 +3,7 @@ import os
 import pytest
 from hypothesis import settings
 
-from tests import support
+from tests import support, workers
 
 # kernels are compiled (or loaded from cache) on first call: no per-example deadline
 settings.register_profile("swarm", deadline=None, max_examples=100)
@@ -22,16 +22,35 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
             bad.append(f"{item.nodeid}: {layers or 'none'}")
     if bad:
         raise pytest.UsageError(f"mark each test with one of {', '.join(LAYERS)}:\n" + "\n".join(bad))
-    # with pytest-xdist's --dist loadgroup: the system tests on one worker, in their order. The
-    # group is a suffix of the node id (what xdist's own hook makes of an xdist_group mark, which
-    # may run before this one; pytest 9 no longer reads it, so pyproject.toml keeps pytest 8).
-    # A system test marked ``lockstep`` (it runs in lockstep or ``sim`` only: CPU, no wall clock) is
-    # left free to go to either worker.
+    # with pytest-xdist's --dist loadgroup: each system test that flies in real time is a group of
+    # its own, numbered in the order collected, which only the real-time workers take
+    # (``tests/workers.py``). The group is a suffix of the node id (what xdist's own hook makes of an
+    # xdist_group mark, which may run before this one; pytest 9 no longer reads it, so
+    # pyproject.toml keeps pytest 8). A system test marked ``lockstep`` (it runs in lockstep or
+    # ``sim`` only: CPU, no wall clock) goes to any worker.
     grouped = bool(config.getvalue("loadgroup")) if hasattr(config.option, "loadgroup") else False
-    for item in items:
-        free = item.get_closest_marker("lockstep") is not None
-        if grouped and item.get_closest_marker("system") is not None and not free and "@" not in item.nodeid:
-            item._nodeid = f"{item.nodeid}@system"
+    realtime = [
+        item
+        for item in items
+        if item.get_closest_marker("system") is not None
+        and item.get_closest_marker("lockstep") is None
+        and "@" not in item.nodeid
+    ]
+    for k, item in enumerate(realtime if grouped else []):
+        item._nodeid = f"{item.nodeid}@{workers.REALTIME_GROUP}-{k:04d}"
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_xdist_auto_num_workers(config: pytest.Config) -> int:
+    return workers.worker_count()
+
+
+def pytest_xdist_make_scheduler(config: pytest.Config, log):  # type: ignore[no-untyped-def]
+    return workers.RealtimeOnTheirWorkers(config, log)
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    workers.lower_priority_unless_realtime_worker()
 
 
 _COMPILED: list[bool] = []

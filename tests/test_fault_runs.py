@@ -68,6 +68,7 @@ def _run(path, out, *extra, timeout=240):
     return r, time.monotonic() - t0
 
 
+@pytest.mark.lockstep
 def test_a_lockstep_run_under_every_link_fault_is_the_same_twice_and_never_stalls(tmp_path):
     plan = tmp_path / "plan.yaml"
     plan.write_text(yaml.safe_dump(EVERY_KIND))

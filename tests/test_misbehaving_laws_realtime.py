@@ -16,6 +16,7 @@ import yaml
 
 from swarm_sitl.rundir.load import load_run
 from tests import misbehaving_laws as laws
+from tests import support
 from tests.misbehaving_runs import (
     DURATION_S,
     MAX_OUTPUT_MB,
@@ -29,8 +30,16 @@ from tests.misbehaving_runs import (
 )
 from tests.support import CLI, processes_mentioning
 
-#: a real-time tick may come up to a period late, and the followers' ticks are staggered by 2.5 ms
-LATE_S = 0.0125
+PAPER = support.config("paper")
+DT_S, N = PAPER.control_dt_s, len(PAPER.followers)
+
+
+def late_s(i: int) -> float:
+    """How late follower ``i``'s tick may stamp: its place in the staggered period (``(i - 1) / n``
+    of it: ``run.realtime_ticks``) and up to a period more (a real-time tick may come a period late)."""
+    return (i - 1) / N * DT_S + DT_S
+
+
 FLEW_ON = "(the swarm flew on to the end: run.stop_on_loss false)"
 
 
@@ -59,7 +68,7 @@ def test_three_laws_that_exit_or_hang_in_real_time_are_ridden_through_and_each_n
         )
         assert found and SAYS[name] in line[found.end() :].split(";")[0], (name, line)
         lo, hi = failure_window(name)
-        assert lo <= float(found[1]) <= hi + LATE_S, line
+        assert lo <= float(found[1]) <= hi + late_s(i), line
     assert _lost(out) == [("controller_2", 1), ("controller_3", 1), ("controller_4", 1)]
     _flew_on(out)
     assert wall < bound_s("Loops"), wall
@@ -75,7 +84,7 @@ def test_a_hoarding_a_slow_and_a_chatty_law_in_real_time(tmp_path):
     found = re.search(rf"law {law_path('run')}:MixedLoads, follower 2 at t=([0-9.]+) s: ", line)
     assert found and SAYS["Hoards"] in line, line
     lo, _ = failure_window("Hoards")  # ticks a hoarder is late for are skipped, and allocate nothing
-    assert lo <= float(found[1]) <= DURATION_S + LATE_S, line
+    assert lo <= float(found[1]) <= DURATION_S + late_s(2), line
     assert _lost(out) == [("controller_2", 1)]
     report = json.loads((out / "summary.json").read_text())["inputs"]["3"]  # 50 ms a tick
     ticks = DURATION_S / 0.01

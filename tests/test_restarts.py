@@ -142,6 +142,7 @@ def test_real_time_a_follower_listening_only_to_a_follower_rejoins_and_so_after_
     _second_incarnation(out, 3, round(dur * 100), t3, 0.01, 2 / 6 * 0.01)
 
 
+@pytest.mark.lockstep
 @pytest.mark.parametrize("graph", ["paper", "chain"])
 def test_lockstep_restarts_of_a_controller_and_the_leader_rejoin(tmp_path, graph):
     """The same in lockstep: the restarted controller resumes at its restart tick, and the run is

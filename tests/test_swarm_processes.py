@@ -40,6 +40,7 @@ def sim20(paper_cfg):
     return run_sim(paper_cfg.model_copy(update={"duration_s": 20.0}))
 
 
+@pytest.mark.lockstep
 def test_lockstep_run_equals_sim_and_is_repeatable(tmp_path, sim20):
     runs = []
     for name in ("a", "b"):
@@ -119,6 +120,7 @@ def test_realtime_run_reaches_the_formation(tmp_path, paper_cfg):
     assert worst_after_10 < 0.05, (worst_after_10, logs)
 
 
+@pytest.mark.lockstep
 def test_a_process_failing_to_start_tears_everything_down(tmp_path):
     busy = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
     busy.bind(("127.0.0.1", 0))

@@ -1,0 +1,67 @@
+"""Which pytest-xdist worker runs what, and at which priority (``tests/conftest.py`` plugs it in).
+
+The system tests that are not marked ``lockstep`` fly in real time: their processes must get the
+CPU when their clocks say so. Only the first two workers, ``gw0`` and ``gw1``, take them, one at a
+time each, in the order collected, at the normal priority. Every other worker lowers its own
+priority (``nice``) before its first test, and so do the processes its tests start: the unit and
+integration tests and the lockstep system tests take the CPU the real-time runs leave idle (most
+of it: a real-time run mostly waits for its clock) without making a real-time run late. A
+real-time worker with no real-time test left takes the others' work.
+
+So there are two more workers than cores (``-n auto``): on two cores, ``gw0`` and ``gw1`` with
+the real-time flights and two niced workers with the rest. ``PYTEST_XDIST_AUTO_NUM_WORKERS`` sets
+the count, as pytest-xdist documents; ``-n 0`` runs everything in one process at the normal
+priority, and with two workers or fewer no worker is niced.
+"""
+
+from __future__ import annotations
+
+import os
+
+from xdist.scheduler import LoadGroupScheduling
+
+#: the xdist groups of the system tests that run in real time: ``realtime-0000``, ... (one test each)
+REALTIME_GROUP = "realtime"
+#: the workers that run them, at the normal priority
+REALTIME_WORKERS = ("gw0", "gw1")
+#: how much the other workers lower their priority: under contention a niced process gets about
+#: 110 / 1024 of a normal one's share of a core (Linux CFS weights), so a real-time run is not late
+OTHERS_NICE = 10
+
+
+def worker_count() -> int:
+    """One worker per core plus the two real-time ones, whose flights leave most of a core idle."""
+    pinned = os.environ.get("PYTEST_XDIST_AUTO_NUM_WORKERS")
+    if pinned:
+        return int(pinned)
+    return len(os.sched_getaffinity(0)) + len(REALTIME_WORKERS)
+
+
+def lower_priority_unless_realtime_worker() -> None:
+    """Called in each worker before its first test: every worker but the real-time ones gives way."""
+    worker = os.environ.get("PYTEST_XDIST_WORKER")
+    if worker is not None and worker not in REALTIME_WORKERS:
+        os.nice(OTHERS_NICE)
+
+
+def is_realtime(scope: str) -> bool:
+    return scope.startswith(REALTIME_GROUP + "-")
+
+
+class RealtimeOnTheirWorkers(LoadGroupScheduling):
+    """``--dist loadgroup``, but a real-time test goes to a real-time worker, in the order collected,
+    and to no other worker while one is there (were both to die, xdist gives their work back and
+    any worker takes it); a real-time worker takes other work when no real-time test is left."""
+
+    def _assign_work_unit(self, node) -> None:  # type: ignore[no-untyped-def]
+        ours = node.gateway.id in REALTIME_WORKERS
+        realtime_alive = any(n.gateway.id in REALTIME_WORKERS for n in self.nodes)
+        pending = [s for s in self.workqueue if is_realtime(s)]
+        others = [s for s in self.workqueue if not is_realtime(s)]
+        if ours and pending:
+            self.workqueue.move_to_end(min(pending), last=False)
+        elif realtime_alive and others:
+            self.workqueue.move_to_end(others[0], last=False)
+        elif realtime_alive:
+            return  # only real-time tests are left: this worker waits to be shut down
+        super()._assign_work_unit(node)
