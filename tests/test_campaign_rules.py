@@ -10,7 +10,7 @@ import time
 import numpy as np
 import pytest
 
-from swarm_sitl.campaigns.breaking import HARSHER_WHEN_SMALLER, breaking_point, toward
+from swarm_sitl.campaigns.breaking import breaking_point, harsher_smaller, toward
 from swarm_sitl.campaigns.grid import SweepSpecError, point_data
 from swarm_sitl.campaigns.point import failsafe_s, recovered_after, run_point
 from swarm_sitl.campaigns.sweep import _open_campaign
@@ -32,7 +32,7 @@ SMALLER_IS_HARSHER = [
 @pytest.mark.parametrize("key", SMALLER_IS_HARSHER)
 def test_each_key_harsher_when_smaller_is_read_from_its_largest_value_down(key):
     """Held at the large values, broken below: the break is where it shrank too far."""
-    assert key in HARSHER_WHEN_SMALLER
+    assert harsher_smaller(key)
     rows = [{key: v, "passed": int(v >= 0.4)} for v in (0.1, 0.2, 0.4, 0.8) for _ in range(2)]
     assert breaking_point(rows, key) == (0.4, 0.2) and toward(key) == "down to"
     rows[-1]["passed"] = 0  # the gentlest value broke: nothing held

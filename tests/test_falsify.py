@@ -178,7 +178,7 @@ def test_shrinking_finds_the_known_minimal_plan(losses, a, b, threshold, seeds):
         flown.extend(plans)
         return [robustness(p) for p in plans]
 
-    found, r, spent = shrink(plan, check_many, lambda f: (0.0, 1.0), 0.01, seeds)
+    found, r, spent = shrink(plan, check_many, lambda f: [(("loss",), (0.0, 1.0))], 0.01, seeds)
     assert spent == len(flown)
     kept = {tuple(f["edge"]): f["loss"] for f in found["plan"]}
     assert set(kept) == {tuple(ENTRIES[a]), tuple(ENTRIES[b])}

@@ -7,11 +7,12 @@ on every edge of the graph or every vehicle's MAVLink link:
 - ``link.loss``, ``link.corrupt``, ``link.duplicate``, ``link.reorder`` (probabilities),
   ``link.delay_s``, ``link.jitter_s`` (seconds; jitter goes with a delay): an entry ``into: i``
   for every follower i, so every edge of the graph meets it;
-- ``link.MODEL.PARAM``, a parameter of a link model (``link.bursty.p``, ``link.range.range_m``,
-  ``link.range.fading_db``, ``link.bandwidth.rate_bps``, ...: the keys of ``bursty:``, ``range:``
-  and ``bandwidth:`` in a plan): one entry ``all_edges: true`` with that model, its other
-  parameters from the other keys of the campaign (a required one must be swept too, with one
-  value if it is to stay fixed) or their defaults;
+- ``link.MODEL.PARAM``, a parameter of a link model the plan writes as a mapping (``link.bursty.p``,
+  ``link.range.range_m``, ``link.bandwidth.rate_bps``, ...: ``faults.link_models``' registry), or of
+  a user's own named by its entry (``link.my_link.py:DutyCycle.duty``, a file relative to where
+  the campaign is started, or ``link.package.module:Name.param``): one entry ``all_edges: true``
+  with that model, its other parameters from the other keys of the campaign (a required one must
+  be swept too, with one value if it is to stay fixed) or their defaults;
 - ``mavlink.loss``, ``mavlink.corrupt``: an entry ``mavlink: i`` for every follower, both ways.
 
 A value of 0 puts no entry (the plan's values are positive), and so does ``link.bursty.p=0``.
@@ -20,25 +21,22 @@ VALUES is ``START:STOP:STEP`` (inclusive of STOP when the steps land on it) or a
 """
 
 import math
+from pathlib import Path
 from typing import Any
 
 from pydantic import BaseModel
 
-from swarm_sitl.faults.bandwidth import Bandwidth
-from swarm_sitl.faults.bursts import GilbertElliott
-from swarm_sitl.faults.radio_range import PathLoss
+from sim_vehicles.common.entry import absolute_entry
+from swarm_sitl.faults.link_model import LinkModelError, declared, resolve_link_model
+from swarm_sitl.faults.link_models import LINK_MODELS, keys_of_form
 
-LINK_HOW = ("loss", "corrupt", "duplicate", "reorder", "delay_s", "jitter_s")
-MAVLINK_HOW = ("loss", "corrupt")
-#: a model's key at which 0 puts no entry (a bursty link that never turns bad); 0 elsewhere is
+#: ``link.HOW``: the probabilities of the registry's models, and a delay with its jitter
+LINK_HOW = (*keys_of_form("p"), "delay_s", "jitter_s")
+#: ``mavlink.HOW``: the probabilities that may act on a vehicle's link in lockstep (a campaign's runs)
+MAVLINK_HOW = tuple(k for k in keys_of_form("p") if declared(LINK_MODELS[k], "mavlink_in_lockstep"))
+#: a model's parameter at which 0 puts no entry (a bursty link that never turns bad); 0 elsewhere is
 #: the model's own value (validated: a range or a rate of 0 is refused)
 NO_ENTRY_AT_ZERO = {"bursty": "p"}
-#: the link models a campaign can vary, by their key in a plan entry
-LINK_MODELS: dict[str, type[BaseModel]] = {
-    "bursty": GilbertElliott,
-    "range": PathLoss,
-    "bandwidth": Bandwidth,
-}
 MAX_POINTS = 100_000
 
 
@@ -111,16 +109,45 @@ def _set_path(data: dict[str, Any], key: str, value: float) -> None:
             node = node[idx]
 
 
+def link_model_key(key: str) -> tuple[str, str] | None:
+    """``(model, param)`` of a ``link.MODEL.PARAM`` key (``model``: a registered key or a user's
+    entry), None for any other key."""
+    head, _, how = key.partition(".")
+    if head != "link":
+        return None
+    if ":" in how:  # a user's entry: its parameter follows the class name's last dot
+        model, dot, param = how.rpartition(".")
+        return (model, param) if dot and ":" not in param else (how, "")
+    model, dot, param = how.partition(".")
+    return (model, param) if dot else None
+
+
+def params_of(model: str) -> type[BaseModel]:
+    """The ``Params`` of ``model``: a registered key, or a user's entry (imported and held to the
+    link-model contract)."""
+    if ":" in model:
+        try:
+            return resolve_link_model(model).Params
+        except LinkModelError as e:
+            raise SweepSpecError(f"sweep link.{model}: {e}") from None
+    return LINK_MODELS[model].Params
+
+
 def check_key(key: str) -> None:
     """A shorthand key's own check (a config path is checked against the config)."""
     head, _, how = key.partition(".")
-    model, dot, param = how.partition(".")
-    if head == "link" and dot:
-        if model not in LINK_MODELS:
-            raise SweepSpecError(f"sweep {key}: link.MODEL.PARAM is a model of {', '.join(LINK_MODELS)}")
-        fields = LINK_MODELS[model].model_fields
+    model_param = link_model_key(key)
+    if model_param is not None:
+        model, param = model_param
+        mapped = keys_of_form("params")  # (read when asked: a model registered since counts)
+        if ":" not in model and model not in mapped:
+            raise SweepSpecError(
+                f"sweep {key}: link.MODEL.PARAM is a model of {', '.join(mapped)}, or a link model of "
+                "your own by its entry (link.my_link.py:Name.param)"
+            )
+        fields = params_of(model).model_fields
         if param not in fields:
-            known = ", ".join(f"link.{model}.{f}" for f in fields)
+            known = ", ".join(f"link.{model}.{f}" for f in fields) or "none"
             raise SweepSpecError(f"sweep {key}: {model} has no parameter {param!r} ({known})")
     elif head == "link" and how not in LINK_HOW:
         known = ", ".join("link." + h for h in LINK_HOW)
@@ -135,9 +162,19 @@ def check_key(key: str) -> None:
         )
 
 
-def point_data(base: dict[str, Any], point: dict[str, float], seed: int) -> dict[str, Any]:
+def user_models(keys: list[str]) -> list[str]:
+    """The entries of the users' link models that ``keys`` vary (``link.ENTRY.PARAM``), each once."""
+    found = [mp[0] for mp in map(link_model_key, keys) if mp is not None and ":" in mp[0]]
+    return list(dict.fromkeys(found))
+
+
+def point_data(
+    base: dict[str, Any], point: dict[str, float], seed: int, shipped: dict[str, str] | None = None
+) -> dict[str, Any]:
     """The config data of one run: ``base`` (a config's ``data()``) with ``point``'s values
-    and the run's seed; link shorthands add their entries after the base plan's."""
+    and the run's seed; link shorthands add their entries after the base plan's. ``shipped``: the
+    entry a run names a user's link model by (its copy shipped beside the point's config) in place
+    of the one the key spells."""
     import copy
 
     data = copy.deepcopy(base)
@@ -148,8 +185,9 @@ def point_data(base: dict[str, Any], point: dict[str, float], seed: int) -> dict
     for key, value in point.items():
         check_key(key)
         head, _, how = key.partition(".")
-        if head == "link" and "." in how:
-            model, _, param = how.partition(".")
+        model_param = link_model_key(key)
+        if model_param is not None:
+            model, param = model_param
             models.setdefault(model, {})[param] = value
         elif head == "link":
             link[how] = value
@@ -167,14 +205,19 @@ def point_data(base: dict[str, Any], point: dict[str, float], seed: int) -> dict
         extra = {"jitter_s": link["jitter_s"]} if link.get("jitter_s") else {}
         entries += [{"into": i, "delay_s": link["delay_s"], **extra} for i in followers]
     for model, params in models.items():
-        required = [n for n, f in LINK_MODELS[model].model_fields.items() if f.is_required()]
+        required = [n for n, f in params_of(model).model_fields.items() if f.is_required()]
         missing = [n for n in required if n not in params]
         if missing:
             raise SweepSpecError(
                 f"sweep link.{model}.{next(iter(params))}: a {model} link needs "
                 f"{', '.join(f'link.{model}.{n}' for n in missing)} too (one value to hold it)"
             )
-        if params.get(NO_ENTRY_AT_ZERO.get(model, ""), 1.0):
+        if not params.get(NO_ENTRY_AT_ZERO.get(model, ""), 1.0):
+            continue
+        if ":" in model:  # a file relative to where the campaign started: its runs fly elsewhere
+            entry = (shipped or {}).get(model) or absolute_entry(model, Path.cwd())
+            entries.append({"all_edges": True, "model": {"entry": entry, "params": params}})
+        else:
             entries.append({"all_edges": True, model: params})
     for how in MAVLINK_HOW:
         if mav.get(how):

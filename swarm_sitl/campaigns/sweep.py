@@ -16,9 +16,18 @@ from typing import Any
 
 import yaml
 
+from sim_vehicles.common.entry import absolute_entry
 from swarm_sitl.campaigns import charts
 from swarm_sitl.campaigns.breaking import breaking_point, toward
-from swarm_sitl.campaigns.grid import SweepSpecError, check_key, grid, parse_values, parse_vary, point_data
+from swarm_sitl.campaigns.grid import (
+    SweepSpecError,
+    check_key,
+    grid,
+    parse_values,
+    parse_vary,
+    point_data,
+    user_models,
+)
 from swarm_sitl.campaigns.runner import Task, connect, default_jobs, run_dask, run_local
 from swarm_sitl.campaigns.table import SPEC, TABLE, TableWriter, read_rows, row_key, write_sorted
 from swarm_sitl.config.load import ConfigError, load_config, parse_config, plan_data, with_spec
@@ -160,11 +169,27 @@ def _open_campaign(out: Path, spec: dict[str, Any]) -> None:
 @dataclass(frozen=True)
 class Shipment:
     """What every run of a campaign takes: the base (its plug-ins named ``plugins/...``), the
-    plug-ins' files, and the wall budget of a run."""
+    plug-ins' files, the wall budget of a run, and the entry each run names a swept link model of
+    the user's by (``link.ENTRY.PARAM``: its copy, shipped as the base's are)."""
 
     base: dict[str, Any]
     files: dict[str, bytes]
     timeout_s: float
+    models: dict[str, str] = field(default_factory=dict)
+
+
+def _shipment(base: dict[str, Any], keys: list[str], point_timeout_s: float | None) -> Shipment:
+    """The base's plug-ins and the swept users' link models packed at once (``rundir.plugins``:
+    one copy per file, two files of one name told apart)."""
+    swept = user_models(keys)
+    plan = base["faults"]["plan"]
+    extra = [{"model": {"entry": absolute_entry(m, Path.cwd())}} for m in swept]
+    packed, files, _ = pack({**base, "faults": {**base["faults"], "plan": [*plan, *extra]}})
+    copies = [f["model"]["entry"] for f in packed["faults"]["plan"][len(plan) :]]
+    packed["faults"] = {**packed["faults"], "plan": packed["faults"]["plan"][: len(plan)]}
+    return Shipment(
+        packed, files, point_timeout_s or default_budget_s(base), dict(zip(swept, copies, strict=True))
+    )
 
 
 def default_budget_s(base: dict[str, Any]) -> float:
@@ -257,8 +282,8 @@ def sweep(
     points = grid(items)
     _check_points(base, points, seed_list[0])
     out = Path(out)
-    packed, files, _ = pack(base)  # what each run flies: its plug-ins as files beside it
-    ship = Shipment(packed, files, point_timeout_s or default_budget_s(base))
+    ship = _shipment(base, keys, point_timeout_s)
+    packed, files = ship.base, ship.files
     base_text = yaml.safe_dump(packed, sort_keys=True)
     identity = {
         "config": str(source) if not isinstance(source, SwarmConfig) else source.name,
@@ -337,7 +362,7 @@ def _run(
             row = {**p, "seed": s}
             key = row_key(keys, row)
             name = _name(p, s)
-            text = yaml.safe_dump(point_data(ship.base, p, s), sort_keys=False)
+            text = yaml.safe_dump(point_data(ship.base, p, s, ship.models), sort_keys=False)
             (campaign.out / POINTS / f"{name}.yaml").write_text(text)  # a row's config, run or not
             if key in done:
                 continue

@@ -73,7 +73,8 @@ def add_sweep(sub: Any) -> None:
         metavar="KEY=VALUES",
         help="a config path (gains.k_p, vehicle.mass_kg, wind.gust_mps) or link.loss, link.delay_s, "
         "link.jitter_s, link.duplicate, link.corrupt, link.reorder, link.MODEL.PARAM (link.bursty.p, "
-        "link.range.range_m, link.bandwidth.rate_bps: every graph edge), mavlink.loss, "
+        "link.range.range_m, link.bandwidth.rate_bps, a model of yours: link.my_link.py:Name.param; "
+        "every graph edge), mavlink.loss, "
         "mavlink.corrupt (every vehicle link); VALUES: START:STOP:STEP or a,b,c",
     )
     s.add_argument("--seeds", default="3", help="a count (seeds 0..N-1) or a list 1,5,9 (default 3)")

@@ -53,6 +53,7 @@ from swarm_sitl.falsify.space import (
     SpaceEntry,
     cost,
     default_space,
+    entries_relative_to,
     expand,
     flown_plan,
     items,
@@ -125,7 +126,7 @@ def load_inputs(
             data = section_file(Path(space), "space")
             if isinstance(data, list):
                 data = {"entries": data}
-            sp = Space.model_validate(data)
+            sp = Space.model_validate(entries_relative_to(data, Path(space).parent))
         sp.check_against(cfg)
     except FalsifyError:
         raise
@@ -215,11 +216,8 @@ def falsify(
             violating = sorted((r for r in rows if r["robustness"] < 0), key=order)
             if violating and found.baseline >= 0:
 
-                def ranges(f: dict[str, Any]) -> tuple[float, float] | None:
-                    for e in sp.entries:
-                        if e.how in f and e.severity_range is not None:
-                            return e.severity_range
-                    return None
+                def ranges(f: dict[str, Any]) -> list[tuple[tuple[str, ...], tuple[float, float]]]:
+                    return next((e.searched(f) for e in sp.entries if e.makes(f)), [])
 
                 held = [r["plan"] for r in rows if r["robustness"] >= 0]
                 plan, r, spent = shrink(

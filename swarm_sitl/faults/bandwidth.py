@@ -28,7 +28,7 @@ from typing import Annotated
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from swarm_sitl.faults.link_model import Effect, Effects, MessageOnLink, StepsOnLink
+from swarm_sitl.faults.link_model import HARSHER_WHEN_SMALLER, Effect, Effects, MessageOnLink, StepsOnLink
 
 KEEP_STEPS = 1024  #: how many of the newest steps' departures a queue keeps (messages come in order)
 
@@ -38,8 +38,9 @@ class Bandwidth(BaseModel):
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
-    rate_bps: Annotated[float, Field(gt=0)]  #: what the radio sends [bit/s]
-    queue: Annotated[int, Field(ge=0, le=100_000)] = 16  #: messages that may wait behind the one on the air
+    rate_bps: Annotated[float, Field(gt=0), HARSHER_WHEN_SMALLER]  #: what the radio sends [bit/s]
+    #: messages that may wait behind the one on the air
+    queue: Annotated[int, Field(ge=0, le=100_000), HARSHER_WHEN_SMALLER] = 16
 
     def air_time_s(self, size_bytes: int) -> float:
         """``tau``: how long a message of ``size_bytes`` takes on the air [s]."""
@@ -116,6 +117,8 @@ class Budget:
     each receiver: ``edges``), not on a message's fate here."""
 
     Params = Bandwidth
+    plan_form = "params"  #: ``bandwidth: {rate_bps, queue}`` (``link_models``)
+    node_radio = True  #: a sending node's radio: one per node
 
     def fate(self, p: Bandwidth, m: MessageOnLink) -> Effect | None:
         return None

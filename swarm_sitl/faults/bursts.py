@@ -23,7 +23,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from swarm_sitl.faults.draws import uniform
-from swarm_sitl.faults.link_model import Effect, Effects, MessageOnLink, StepsOnLink
+from swarm_sitl.faults.link_model import HARSHER_WHEN_SMALLER, Effect, Effects, MessageOnLink, StepsOnLink
 from swarm_sitl.faults.loss import DRAW, LOST
 
 _STATE = 5  #: salt of the state-transition draws (``plan``'s loss draw is salt 1)
@@ -35,7 +35,7 @@ class GilbertElliott(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
 
     p: Annotated[float, Field(gt=0, le=1)]  #: good -> bad, per message [netem p]
-    r: Annotated[float, Field(gt=0, le=1)]  #: bad -> good, per message [netem r]
+    r: Annotated[float, Field(gt=0, le=1), HARSHER_WHEN_SMALLER]  #: bad -> good, per message [netem r]
     loss_bad: Annotated[float, Field(ge=0, le=1)] = 1.0  #: loss in the bad state [netem 1-h]
     loss_good: Annotated[float, Field(ge=0, le=1)] = 0.0  #: loss in the good state [netem 1-k]
 
@@ -90,6 +90,11 @@ class Bursty:
     entry's chain is in its bad or good state at the message's place in its stream."""
 
     Params = GilbertElliott
+    plan_form = "params"  #: ``bursty: {p, r, ...}`` (``link_models``)
+    on_mavlink = mavlink_in_lockstep = True
+
+    def severity(self, p: GilbertElliott, period_s: float, staleness_s: float) -> float:
+        return p.mean_loss
 
     def fate(self, p: GilbertElliott, m: MessageOnLink) -> Effect | None:
         bad = state_at(p, m.seed, m.entry, m.channel, m.chain)

@@ -11,8 +11,15 @@ class Duplicate(Chance):
 
     EFFECT = Effect(duplicate=True)
 
+    def severity(self, p: Chance.Params, period_s: float, staleness_s: float) -> float:
+        return 0.0  # every message still comes
+
 
 class Corrupt(Chance):
     """Each message, with probability ``p``, has one byte flipped."""
 
     EFFECT = Effect(corrupt=True)
+    mavlink_in_lockstep = True  #: a corrupted datagram is dropped by the checksum: a lost one
+
+    def severity(self, p: Chance.Params, period_s: float, staleness_s: float) -> float:
+        return p.p

@@ -16,6 +16,9 @@ JITTER = 2  #: the salt of a message's jitter draw
 class Delay:
     """Each message ``delay_s`` late, plus a draw uniform in ``[0, jitter_s]``."""
 
+    plan_form = "delay"  #: ``delay_s: d`` and the entry's ``jitter_s`` (``link_models``)
+    on_mavlink = True
+
     class Params(BaseModel):
         model_config = ConfigDict(extra="forbid", frozen=True)
         delay_s: Annotated[float, Field(ge=0)]  #: [s]
@@ -23,6 +26,10 @@ class Delay:
 
     def fate(self, p: Params, m: MessageOnLink) -> Effect:
         return Effect(delay_s=p.delay_s + p.jitter_s * m.uniform(JITTER))
+
+    def severity(self, p: Params, period_s: float, staleness_s: float) -> float:
+        """The mean delay over the estimator's staleness (an estimate past it is as good as lost)."""
+        return (p.delay_s + p.jitter_s / 2) / staleness_s
 
     def fates(self, p: Params, ms: StepsOnLink) -> Effects:
         none = np.zeros(len(ms.steps), dtype=bool)
@@ -32,12 +39,18 @@ class Delay:
 class Stall:
     """Every message held until ``until_s`` (the entry's end), then released at once."""
 
+    plan_form = "flag"  #: ``stall: true``, held until the entry's ``until_s`` (``link_models``)
+    on_mavlink = True
+
     class Params(BaseModel):
         model_config = ConfigDict(extra="forbid", frozen=True)
         until_s: Annotated[float, Field(gt=0)]  #: when the held messages go [s]
 
     def fate(self, p: Params, m: MessageOnLink) -> Effect:
         return Effect(delay_s=p.until_s - m.t_s)
+
+    def severity(self, p: Params, period_s: float, staleness_s: float) -> float:
+        return 1.0  # held past its use: a cut for the entry's window
 
     def fates(self, p: Params, ms: StepsOnLink) -> Effects:
         none = np.zeros(len(ms.steps), dtype=bool)
@@ -46,6 +59,9 @@ class Stall:
 
 class Reorder:
     """Each message, with probability ``p``, held one period: it comes after the next one."""
+
+    plan_form = "p"  #: ``reorder: p`` (``link_models``)
+    on_mavlink = True
 
     class Params(BaseModel):
         model_config = ConfigDict(extra="forbid", frozen=True)

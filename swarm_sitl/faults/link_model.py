@@ -29,8 +29,20 @@ line naming the entry otherwise):
   built-in model but ``range`` (which needs each message's distance) has it, held to ``fate``
   by ``tests/test_link_models.py``.
 
+- of a parameter that hurts more as it gets smaller (a radio's range), ``HARSHER_WHEN_SMALLER``
+  in its annotation (``range_m: Annotated[float, Field(gt=0), HARSHER_WHEN_SMALLER]``): a campaign
+  reads its breaking point from the largest value down, ``falsify`` shrinks it upward;
+- what it declares of itself (class attributes, each optional; ``declared`` reads them with
+  ``DECLARED``'s defaults): ``on_mavlink`` (it may act on a vehicle's MAVLink link: no distance,
+  no shared radio; default False), ``mavlink_in_lockstep`` (and on one in lockstep, where a
+  datagram may be lost or corrupted but never held; default False), ``node_radio`` (it is a
+  sending node's radio, one per node; default False) and ``severity(params, period_s,
+  staleness_s)`` (how much of a link it takes, in [0, 1]: ``falsify``'s cost; default: drawn from
+  ``fate``, ``severity_of``). A plan, ``check``, ``sweep`` and ``falsify`` read these, never a
+  model's name.
+
 A model acts in plan order with the others on the link (``plan.fate``: a loss ends a message's
-fate, delays add). It acts on the bus's edges (not on a vehicle's MAVLink link).
+fate, delays add). A user's acts on the bus's edges (not on a vehicle's MAVLink link).
 """
 
 import math
@@ -38,7 +50,15 @@ from dataclasses import dataclass
 from typing import Any, NamedTuple
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, PrivateAttr, ValidationError, ValidationInfo, model_validator
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    PrivateAttr,
+    ValidationError,
+    ValidationInfo,
+    model_validator,
+)
 
 from sim_vehicles.common.entry import EntryError, declared_params, load_entry, one_line, undeclared_line
 from swarm_sitl.faults.draws import uniform_at, uniforms
@@ -196,6 +216,55 @@ def resolve_link_model(entry: str) -> Any:
     except Exception as e:
         raise LinkModelError(f"link model {entry!r}: building it raised {one_line(e)}") from None
     return cls
+
+
+#: a parameter's declaration that it hurts more as it gets smaller (module docstring)
+HARSHER_WHEN_SMALLER = Field(json_schema_extra={"harsher": "when smaller"})
+
+
+def harsher_when_smaller(params: type[BaseModel], name: str) -> bool:
+    """Whether parameter ``name`` of ``params`` declares ``HARSHER_WHEN_SMALLER``."""
+    extra = params.model_fields[name].json_schema_extra
+    return isinstance(extra, dict) and extra.get("harsher") == "when smaller"
+
+
+#: what a model may declare of itself (module docstring), and what it is when it does not
+DECLARED: dict[str, bool] = {
+    "needs_distance": False,
+    "on_mavlink": False,
+    "mavlink_in_lockstep": False,
+    "node_radio": False,
+}
+
+
+def declared(model: Any, name: str) -> bool:
+    """What ``model`` (a class or an instance) declares of ``name`` (``DECLARED``)."""
+    return bool(getattr(model, name, DECLARED[name]))
+
+
+#: ``severity_of``'s draws: messages of one link, from one plan seed
+SEVERITY_STEPS, SEVERITY_SEED = 2048, 0
+
+
+def severity_of(model: Any, params: Any, period_s: float, staleness_s: float) -> float:
+    """How much of a link ``model`` takes under ``params``, in [0, 1]: its own ``severity`` if it
+    declares one, else the one drawn from its ``fate`` (``drawn_severity``)."""
+    own = getattr(model, "severity", None)
+    if callable(own):
+        return min(1.0, max(0.0, float(own(params, period_s, staleness_s))))
+    return drawn_severity(model, params, period_s, staleness_s)
+
+
+def drawn_severity(model: Any, params: Any, period_s: float, staleness_s: float) -> float:
+    """The mean over ``SEVERITY_STEPS`` consecutive messages of one link, drawn from ``model``'s
+    ``fate``, of what each loses: lost or corrupted, 1; late, its delay over ``staleness_s``, at
+    most 1 (an estimate past staleness is as good as lost); duplicated or on time, 0."""
+    total = 0.0
+    for step in range(SEVERITY_STEPS):
+        m = MessageOnLink(SEVERITY_SEED, 0, 0, step, step * period_s, period_s)
+        e = model.fate(params, m) or Effect()
+        total += 1.0 if (e.lost or e.corrupt) else min(1.0, max(0.0, e.delay_s) / staleness_s)
+    return total / SEVERITY_STEPS
 
 
 #: ``fates_disagreement``: blocks of consecutive steps drawn, and each block's length

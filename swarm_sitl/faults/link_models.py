@@ -17,6 +17,20 @@ key            model                               module
 ``corrupt``    a byte flipped, with ``p``          ``copies``
 ``model``      a user's own, by entry              ``link_model.ModelEntry``
 =============  ==================================  ==============================
+
+Every consumer reads this registry and what each model declares (``link_model.declared``): the
+plan (its hows, which may act on a vehicle's MAVLink link and in lockstep, which is a node's
+radio), ``sweep`` (``link.KEY`` for a probability, ``link.KEY.PARAM`` for a model written as a
+mapping, ``link.ENTRY.PARAM`` for a user's) and ``falsify`` (a space's hows and their severity).
+A built-in also says how a plan entry writes its parameters (``plan_form``):
+
+- ``flag``: ``drop: true`` (no parameter; ``stall: true`` takes the entry's ``until_s``);
+- ``p``: a probability, ``loss: 0.3`` (its ``Params`` is ``{p}``);
+- ``delay``: ``delay_s: d`` and the entry's ``jitter_s``;
+- ``params``: the mapping of its ``Params``, ``bursty: {p: 0.05, r: 0.5}``.
+
+Adding a model: its module, its line in ``LINK_MODELS``, and its field in ``plan.FaultSpec`` (the
+plan's schema; ``tests/test_link_registry.py`` names what is missing).
 """
 
 from typing import Any
@@ -43,6 +57,26 @@ LINK_MODELS: dict[str, Any] = {
 }
 
 
+#: how a plan entry writes a built-in's parameters (module docstring)
+PLAN_FORMS = ("flag", "p", "delay", "params")
+
+
+def keys_of_form(form: str) -> list[str]:
+    """The built-in models' keys that a plan writes in ``form``."""
+    return [k for k, cls in LINK_MODELS.items() if cls.plan_form == form]
+
+
+def model_of(entry: Any) -> Any:
+    """The class of a link entry's model (``plan.FaultSpec``; None: a user's model not imported,
+    as in a run's record)."""
+    if entry.model is not None:
+        return None if entry.model.model is None else type(entry.model.model)
+    for key, cls in LINK_MODELS.items():
+        if getattr(entry, key) is not None:
+            return cls
+    raise ValueError(f"{entry.what}: no link model")  # (a process entry)
+
+
 def how_of(entry: Any) -> tuple[Any, Any]:
     """``(model, params)`` of a link entry of a plan (``plan.FaultSpec``), by its one how."""
     if entry.model is not None:
@@ -51,13 +85,16 @@ def how_of(entry: Any) -> tuple[Any, Any]:
         value = getattr(entry, key)
         if value is None:
             continue
-        if key in ("drop", "stall"):
-            params = cls.Params() if key == "drop" else cls.Params(until_s=entry.until_s)
-        elif key == "delay_s":
+        form = cls.plan_form
+        if form == "flag":
+            params = (
+                cls.Params(until_s=entry.until_s) if "until_s" in cls.Params.model_fields else cls.Params()
+            )
+        elif form == "delay":
             params = cls.Params(delay_s=value, jitter_s=entry.jitter_s)
-        elif isinstance(value, cls.Params):
-            params = value
-        else:
+        elif form == "p":
             params = cls.Params(p=value)
+        else:
+            params = value
         return cls(), params
     raise ValueError(f"{entry.what}: no link model")  # (a process entry)

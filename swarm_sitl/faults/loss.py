@@ -15,11 +15,17 @@ LOST = Effect(lost=True)
 class Drop:
     """Every message is lost."""
 
+    plan_form = "flag"  #: ``drop: true`` (``link_models``)
+    on_mavlink = mavlink_in_lockstep = True
+
     class Params(BaseModel):
         model_config = ConfigDict(extra="forbid", frozen=True)
 
     def fate(self, p: Params, m: MessageOnLink) -> Effect:
         return LOST
+
+    def severity(self, p: Params, period_s: float, staleness_s: float) -> float:
+        return 1.0
 
     def fates(self, p: Params, ms: StepsOnLink) -> Effects:
         return ms.where(np.ones(len(ms.steps), dtype=bool), LOST)
@@ -30,6 +36,8 @@ class Chance:
     message's, ``DRAW``): the base of ``Loss``, ``copies.Duplicate`` and ``copies.Corrupt``."""
 
     EFFECT = LOST
+    plan_form = "p"  #: ``KEY: p`` (``link_models``)
+    on_mavlink = True
 
     class Params(BaseModel):
         model_config = ConfigDict(extra="forbid", frozen=True)
@@ -44,3 +52,8 @@ class Chance:
 
 class Loss(Chance):
     """Each message is lost with probability ``p``."""
+
+    mavlink_in_lockstep = True
+
+    def severity(self, p: Chance.Params, period_s: float, staleness_s: float) -> float:
+        return p.p

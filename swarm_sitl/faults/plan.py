@@ -70,28 +70,17 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from swarm_sitl.faults.bandwidth import Bandwidth
 from swarm_sitl.faults.bursts import GilbertElliott
-from swarm_sitl.faults.link_model import MessageOnLink, ModelEntry
-from swarm_sitl.faults.link_models import how_of
+from swarm_sitl.faults.link_model import MessageOnLink, ModelEntry, declared
+from swarm_sitl.faults.link_models import LINK_MODELS, how_of, model_of
 from swarm_sitl.faults.radio_range import PathLoss
 
 Probability = Annotated[float, Field(gt=0, le=1)]
 NonNegative = Annotated[float, Field(ge=0)]
 
 LINK_WHAT = ("edge", "into", "out_of", "leader_edges", "all_edges", "partition", "mavlink")
-LINK_HOW = (
-    "drop",
-    "loss",
-    "bursty",
-    "range",
-    "bandwidth",
-    "delay_s",
-    "stall",
-    "duplicate",
-    "reorder",
-    "corrupt",
-    "model",
-)
-#: the whats that name a node's radio (a bandwidth budget is the sender's)
+#: the hows of a link: the registry's models by key, and a user's own (``model``)
+LINK_HOW = (*LINK_MODELS, "model")
+#: the whats that name a node's radio (a model that declares ``node_radio``: a bandwidth budget)
 NODE_WHAT = ("out_of", "leader_edges", "all_edges")
 PROCESS_WHAT = ("controller", "vehicle", "leader")
 PROCESS_HOW = ("kill", "freeze_s")
@@ -147,6 +136,21 @@ class FaultSpec(BaseModel):
             return {**data, "drop": True}
         return data
 
+    @model_validator(mode="before")
+    @classmethod
+    def _registered_by_its_key(cls, data: object) -> object:
+        """A model of the registry that this schema has no field for, named by its key, is the
+        same as naming it by its entry (``model: {entry, params}``): a built-in added to
+        ``link_models.LINK_MODELS`` is a how of every plan with no other file edited."""
+        if not isinstance(data, dict):
+            return data
+        for key in [k for k in data if k in LINK_MODELS and k not in cls.model_fields]:
+            model, value = LINK_MODELS[key], data[key]
+            params = {} if model.plan_form == "flag" else ({"p": value} if model.plan_form == "p" else value)
+            rest = {k: v for k, v in data.items() if k != key}
+            data = {**rest, "model": {"entry": f"{model.__module__}:{model.__qualname__}", "params": params}}
+        return data
+
     @model_validator(mode="after")
     def _one_of_each(self) -> "FaultSpec":
         all_what, all_how = LINK_WHAT + PROCESS_WHAT, LINK_HOW + PROCESS_HOW
@@ -160,18 +164,8 @@ class FaultSpec(BaseModel):
             kind = "a process" if what[0] in PROCESS_WHAT else "a link"
             allowed = PROCESS_HOW if what[0] in PROCESS_WHAT else LINK_HOW
             raise ValueError(f"{what[0]} is {kind}: it fails by {', '.join(allowed)}, not {how[0]}")
-        if (self.range is not None or self.bandwidth is not None or self.model is not None) and (
-            self.mavlink is not None
-        ):
-            raise ValueError(
-                f"{how[0]} acts on bus edges: a vehicle's MAVLink link is on board (no distance, "
-                "no shared radio)"
-            )
-        if self.bandwidth is not None and what[0] not in NODE_WHAT:
-            raise ValueError(
-                f"a bandwidth budget is a sending node's radio: name it with {', '.join(NODE_WHAT)}, "
-                f"not {what[0]}"
-            )
+        if how[0] in LINK_HOW:
+            self._fits_its_model(what[0], how[0])
         if self.restart_after_s is not None and not self.kill:
             raise ValueError("restart_after_s goes with kill")
         if self.restart_after_s is not None and self.vehicle is not None:
@@ -197,6 +191,21 @@ class FaultSpec(BaseModel):
         if self.until_s is not None and self.until_s <= self.from_s:
             raise ValueError(f"until_s ({self.until_s:g}) must be after from_s ({self.from_s:g})")
         return self
+
+    def _fits_its_model(self, what: str, how: str) -> None:
+        """What the entry's model declares of itself (``link_model.declared``) against its what."""
+        model = model_of(self)
+        if model is None:  # a user's model in a run's record: read, not imported
+            return
+        if self.mavlink is not None and not declared(model, "on_mavlink"):
+            raise ValueError(
+                f"{how} acts on bus edges: a vehicle's MAVLink link is on board (no distance, "
+                "no shared radio)"
+            )
+        if declared(model, "node_radio") and what not in NODE_WHAT:
+            raise ValueError(
+                f"a {how} budget is a sending node's radio: name it with {', '.join(NODE_WHAT)}, not {what}"
+            )
 
     @property
     def is_process(self) -> bool:
@@ -354,11 +363,12 @@ class FaultPlan(BaseModel):
     def check_lockstep(self) -> None:
         """What a lockstep run cannot do, as a ``ValueError`` naming the entry (one line)."""
         for j, f in enumerate(self.plan):
-            if f.mavlink is not None and f.how.split()[0] not in ("drop", "loss", "bursty", "corrupt"):
+            if f.mavlink is not None and not declared(model_of(f), "mavlink_in_lockstep"):
+                hows = ", ".join(k for k, m in LINK_MODELS.items() if declared(m, "mavlink_in_lockstep"))
                 raise ValueError(
-                    f"faults.plan.{j}: in lockstep a MAVLink link fails by drop, loss, bursty or corrupt "
+                    f"faults.plan.{j}: in lockstep a MAVLink link fails by {hows} "
                     "(a lost setpoint or sample is a period on what was there); "
-                    f"{f.how} it in a real-time run"
+                    f"fly {f.how} on it in a real-time run"
                 )
             if f.vehicle is not None and f.kill and not f.with_controller:
                 raise ValueError(

@@ -31,7 +31,7 @@ from typing import Annotated
 from pydantic import BaseModel, ConfigDict, Field
 
 from swarm_sitl.faults.draws import uniform
-from swarm_sitl.faults.link_model import Effect, MessageOnLink
+from swarm_sitl.faults.link_model import HARSHER_WHEN_SMALLER, Effect, MessageOnLink
 
 _ATTEMPT = 16  #: salt of attempt 0's draw (attempt a: 16 + a; the plan's other draws use 1..5)
 _NEAR_M = 1e-9  #: distances are clamped up to this (two nodes at one point: the margin is finite)
@@ -42,7 +42,8 @@ class PathLoss(BaseModel):
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
-    range_m: Annotated[float, Field(gt=0)]  #: where the mean power meets the sensitivity (R) [m]
+    #: where the mean power meets the sensitivity (R) [m]
+    range_m: Annotated[float, Field(gt=0), HARSHER_WHEN_SMALLER]
     exponent: Annotated[float, Field(gt=0, le=10)] = 2.0  #: path-loss exponent n (2: free space)
     fading_db: Annotated[float, Field(ge=0, le=40)] = 0.0  #: spread sigma of each attempt's fading [dB]
     retries: Annotated[int, Field(ge=0, le=15)] = 0  #: attempts after the first one, if it fails
@@ -90,7 +91,8 @@ class Range:
     else late by the retries it took."""
 
     Params = PathLoss
-    needs_distance = True
+    plan_form = "params"  #: ``range: {range_m, ...}`` (``link_models``)
+    needs_distance = True  #: (its severity then depends on where the swarm flies: none declared)
 
     def fate(self, p: PathLoss, m: MessageOnLink) -> Effect | None:
         assert not math.isnan(m.distance_m), "a range entry needs the distance"

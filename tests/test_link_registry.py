@@ -1,0 +1,279 @@
+"""The link-model registry (``faults.link_models``) is the one source every consumer reads: the
+plan (its hows, which act on a vehicle's MAVLink link and in lockstep, which is a node's radio),
+``sweep`` (``link.KEY``, ``link.KEY.PARAM``, ``link.ENTRY.PARAM``) and ``falsify`` (a space's
+hows, their severity, the way shrinking lowers them). Each test loops over every registered model,
+and a model registered at run time, or a user's named by its entry, is swept and searched as a
+built-in one is."""
+
+import csv
+import json
+import math
+import random
+
+import pytest
+import yaml
+from pydantic import BaseModel, ConfigDict, Field
+
+from swarm_sitl.campaigns.breaking import harsher_smaller
+from swarm_sitl.campaigns.grid import LINK_HOW, SweepSpecError, check_key, point_data
+from swarm_sitl.config.load import parse_config
+from swarm_sitl.falsify.space import Space, cost, expand, items, plan_of
+from swarm_sitl.faults import link_models
+from swarm_sitl.faults.link_model import (
+    SEVERITY_STEPS,
+    Effect,
+    declared,
+    drawn_severity,
+    harsher_when_smaller,
+    severity_of,
+)
+from swarm_sitl.faults.link_models import LINK_MODELS, PLAN_FORMS, model_of
+from swarm_sitl.faults.plan import LINK_HOW as PLAN_HOWS
+from swarm_sitl.faults.plan import FaultPlan, FaultSpec
+from tests import support
+
+
+def _value(lo_hi, rng: random.Random) -> float:
+    lo, hi = lo_hi
+    return lo + (hi - lo) * rng.uniform(0.05, 0.95)
+
+
+def example_params(params: type[BaseModel], rng: random.Random) -> dict:
+    """Valid values of a model's required parameters, drawn inside each one's declared bounds."""
+    out = {}
+    for name, field in params.model_fields.items():
+        if not field.is_required():
+            continue
+        lo, hi = 0.0, 1.0
+        for m in field.metadata:
+            lo = float(getattr(m, "gt", None) or getattr(m, "ge", None) or lo)
+            top = getattr(m, "lt", None) or getattr(m, "le", None)
+            hi = float(top) if top is not None else max(hi, lo + 100.0)
+        out[name] = _value((lo, hi), rng)
+    return out
+
+
+def plan_value(key: str, rng: random.Random) -> tuple[object, dict]:
+    """``(value, the entry's other keys)`` that names registered model ``key`` in a plan entry."""
+    cls = LINK_MODELS[key]
+    form = cls.plan_form
+    if form == "flag":
+        held = "until_s" in cls.Params.model_fields
+        return True, ({"from_s": 1.0, "until_s": 2.0} if held else {})
+    if form == "p":
+        return _value((0.0, 1.0), rng), {}
+    if form == "delay":
+        return _value((0.0, 0.1), rng), {"jitter_s": _value((0.0, 0.05), rng)}
+    return example_params(cls.Params, rng), {}
+
+
+PAPER_EDGES = support.config("paper").graph_edges()
+
+
+@pytest.mark.unit
+@pytest.mark.parametrize("key", list(LINK_MODELS))
+def test_every_registered_model_is_a_how_of_a_plan_acting_where_it_declares(key):
+    cls = LINK_MODELS[key]
+    assert cls.plan_form in PLAN_FORMS and key in PLAN_HOWS
+    assert issubclass(cls.Params, BaseModel) and callable(cls.fate)
+    rng = random.Random(key)
+    for _ in range(5):
+        value, extra = plan_value(key, rng)
+        f = FaultSpec.model_validate({"all_edges": True, key: value, **extra})
+        model, params = f.link_how
+        assert type(model) is cls and model_of(f) is cls and isinstance(params, cls.Params)
+    on_link = {"mavlink": 1, key: value, **extra}
+    if not declared(cls, "on_mavlink"):
+        with pytest.raises(ValueError, match="acts on bus edges"):
+            FaultSpec.model_validate(on_link)
+        return
+    plan = FaultPlan.model_validate({"plan": [on_link]})
+    if declared(cls, "mavlink_in_lockstep"):
+        plan.check_lockstep()
+    else:
+        takes = ", ".join(k for k, m in LINK_MODELS.items() if declared(m, "mavlink_in_lockstep"))
+        with pytest.raises(ValueError, match=f"in lockstep a MAVLink link fails by {takes} "):
+            plan.check_lockstep()
+
+
+@pytest.mark.unit
+@pytest.mark.parametrize("key", [k for k, m in LINK_MODELS.items() if declared(m, "node_radio")])
+def test_a_nodes_radio_is_named_by_its_sender(key):
+    value, _ = plan_value(key, random.Random(0))
+    with pytest.raises(ValueError, match="sending node's radio"):
+        FaultSpec.model_validate({"edge": [0, 1], key: value})
+    FaultSpec.model_validate({"out_of": 1, key: value})
+
+
+@pytest.mark.unit
+@pytest.mark.parametrize("key", list(LINK_MODELS))
+def test_every_registered_model_is_swept_by_its_probability_or_each_parameter(key):
+    cls = LINK_MODELS[key]
+    base = support.config("paper").data()
+    if cls.plan_form == "p":
+        assert key in LINK_HOW
+        check_key(f"link.{key}")
+    if cls.plan_form != "params":
+        with pytest.raises(SweepSpecError, match=r"link\.MODEL\.PARAM is a model of"):
+            check_key(f"link.{key}.p")
+        return
+    rng = random.Random(key)
+    point = {f"link.{key}.{n}": v for n, v in example_params(cls.Params, rng).items()}
+    for name in cls.Params.model_fields:
+        check_key(f"link.{key}.{name}")
+        assert harsher_smaller(f"link.{key}.{name}") == harsher_when_smaller(cls.Params, name)
+    with pytest.raises(SweepSpecError, match="has no parameter 'nope'"):
+        check_key(f"link.{key}.nope")
+    cfg = parse_config(point_data(base, point, 0), "sweep")
+    assert [type(f.link_how[0]) for f in cfg.faults.plan] == [cls]
+
+
+@pytest.mark.unit
+def test_a_models_declared_severity_is_the_one_its_fate_draws():
+    """For every registered model with a severity of its own and no memory (the ones whose
+    messages are independent draws), what it declares equals what ``severity_of`` draws from its
+    ``fate``: each message's severity lies in [0, 1], so the mean of ``SEVERITY_STEPS`` draws is
+    within 5 x 0.5 / sqrt(N) of its expectation (Popoviciu's bound on the deviation)."""
+    tol = 5 * 0.5 / math.sqrt(SEVERITY_STEPS)
+    rng = random.Random(1)
+    checked = []
+    for key, cls in LINK_MODELS.items():
+        memoryless = cls.plan_form in ("p", "delay") or key == "drop"
+        if not callable(getattr(cls, "severity", None)) or not memoryless:
+            continue
+        for _ in range(20):
+            value, extra = plan_value(key, rng)
+            model, params = FaultSpec.model_validate({"edge": [0, 1], key: value, **extra}).link_how
+            staleness_s = rng.uniform(0.2, 1.0)  # above every delay drawn: none is cut at 1
+            own = severity_of(model, params, 0.02, staleness_s)
+            assert abs(own - drawn_severity(model, params, 0.02, staleness_s)) <= tol, (key, params)
+        checked.append(key)
+    assert {"drop", "loss", "corrupt", "delay_s"} <= set(checked)
+
+
+class Brownout:
+    """A model registered at run time, with one parameter and nothing else: each message lost
+    with probability ``level`` (it declares no severity: drawn from its fate)."""
+
+    plan_form = "params"
+
+    class Params(BaseModel):
+        model_config = ConfigDict(extra="forbid", frozen=True)
+        level: float = Field(ge=0, le=1)
+
+    def fate(self, p, m):
+        return Effect(lost=True) if m.uniform(3) < p.level else None
+
+
+class _Trial:
+    """A sampler's trial that answers every question with a fixed draw (``space.Trial``)."""
+
+    def __init__(self, rng: random.Random):
+        self.rng = rng
+
+    def suggest_float(self, name, low, high):
+        return self.rng.uniform(low, high)
+
+    def suggest_categorical(self, name, choices):
+        return choices[-1]
+
+
+@pytest.mark.unit
+def test_a_model_added_to_the_registry_alone_is_a_plan_how_a_sweep_key_and_a_search_space(monkeypatch):
+    """One class and its line in ``LINK_MODELS``: no other file knows it, yet a plan names it by
+    its key, a campaign varies its parameter and a space searches it, with its severity drawn
+    from its fate."""
+    monkeypatch.setitem(link_models.LINK_MODELS, "brownout", Brownout)
+    cfg = support.config("paper")
+    f = FaultSpec.model_validate({"all_edges": True, "brownout": {"level": 0.25}})
+    assert type(f.link_how[0]) is Brownout and f.link_how[1].level == 0.25
+
+    check_key("link.brownout.level")
+    swept = parse_config(point_data(cfg.data(), {"link.brownout.level": 0.5}, 0), "sweep")
+    assert [type(e.link_how[0]) for e in swept.faults.plan] == [Brownout]
+
+    space = Space.model_validate({"entries": [{"edges": "all", "brownout": {"level": [0.0, 1.0]}}]})
+    space.check_against(cfg)
+    its = items(space, cfg)
+    plan = plan_of(_Trial(random.Random(2)), space, its, cfg)
+    level = plan["plan"][0]["brownout"]["level"]
+    flown = expand(plan, cfg)
+    parse_config({**cfg.data(), "faults": flown}, "falsify")
+    tol = 5 * 0.5 / math.sqrt(SEVERITY_STEPS)
+    assert cost(flown, cfg) == pytest.approx(len(cfg.followers) * level * cfg.duration_s, abs=tol * 4 * 60)
+    assert space.entries[0].searched(plan["plan"][0]) == [(("brownout", "level"), (0.0, 1.0))]
+
+
+@pytest.mark.unit
+@pytest.mark.parametrize(
+    ("entry", "said"),
+    [
+        ({"edges": "all", "range": {"range_m": [10, 50]}}, "not a message's own fate"),
+        ({"edges": "all", "bandwidth": {"rate_bps": [1000, 9000]}}, "not a message's own fate"),
+        ({"edges": "all", "bursty": {"p": [0.1, 0.5], "q": 1}}, "no parameter 'q'"),
+        ({"edges": "all", "bursty": {"p": 0.1, "r": 0.5}}, "at least one parameter a range"),
+        ({"edges": "all", "bursty": {"p": [0.1, 2.0], "r": 0.5}}, r"bursty.p: 2 is out of its range"),
+        ({"edges": "all", "stall": True}, "not searched by a space"),
+        ({"links": "each", "corrupt": [0.1, 0.5]}, "links fail by loss or drop, not corrupt"),
+        ({"edges": "all", "loss": [0, 1], "corrupt": [0.1, 0.5]}, "exactly one of"),
+    ],
+)
+def test_a_space_entry_a_model_cannot_take_is_one_line_naming_it(entry, said):
+    with pytest.raises(ValueError, match=said):
+        Space.model_validate({"entries": [entry]})
+
+
+#: a user's link model with one parameter, in a file: messages lost while ``m.t_s`` is within the
+#: first ``dark`` of each second
+BLACKOUT = """
+from pydantic import BaseModel, Field
+
+from swarm_sitl.faults.link_model import Effect
+
+
+class Blackout:
+    class Params(BaseModel):
+        dark: float = Field(ge=0, le=1)
+
+    def fate(self, p, m):
+        return Effect(lost=True) if (m.t_s % 1.0) < p.dark else None
+"""
+
+
+@pytest.mark.system
+@pytest.mark.lockstep
+def test_a_users_model_named_by_its_entry_is_swept_and_searched(tmp_path, monkeypatch):
+    """``sweep --vary link.blackout.py:Blackout.dark=...`` (the file relative to where it runs)
+    and a space over the same parameter: each run flies the model from the copy shipped beside
+    its config, a longer blackout costs more formation, and the search's plans name it."""
+    from swarm_sitl.campaigns.sweep import sweep
+    from swarm_sitl.falsify.search import falsify
+
+    (tmp_path / "blackout.py").write_text(BLACKOUT)
+    data = support.config_data("paper")
+    data["duration_s"], data["run"] = 4.0, {**data.get("run", {}), "settle_s": 1.0}
+    config = tmp_path / "short.yaml"
+    config.write_text(yaml.safe_dump(data))
+    monkeypatch.chdir(tmp_path)
+    key = "link.blackout.py:Blackout.dark"
+    campaign = sweep(config, [f"{key}=0,0.6"], out=tmp_path / "c", seeds=1, bound_m=50.0, jobs=2)
+    rows = sorted(campaign.rows, key=lambda r: float(r[key]))
+    assert [float(r[key]) for r in rows] == [0.0, 0.6] and all(r["failure"] == "" for r in rows)
+    assert float(rows[1]["final_error_m"]) > float(rows[0]["final_error_m"])
+    flown = yaml.safe_load((tmp_path / "c" / rows[1]["config"]).read_text())["faults"]["plan"]
+    assert flown[-1]["model"]["entry"] == "plugins/blackout.py:Blackout"
+
+    (tmp_path / "space.yaml").write_text(
+        'entries:\n  - {edges: all, model: {entry: "blackout.py:Blackout", params: {dark: [0.0, 0.9]}}}\n'
+    )
+    space = tmp_path / "space.yaml"
+    found = falsify(
+        config, tmp_path / "f", space=space, bound_m=50.0, budget=2, jobs=1, batch=2, confirm=False
+    )
+    assert found.evaluations >= 3  # the baseline and the budget
+    with open(tmp_path / "f" / "evaluations.csv") as f:
+        plans = [json.loads(r["plan"]) for r in csv.DictReader(f)]
+    entries = [e for p in plans for e in p["plan"]]
+    assert len(plans) == 2 and entries  # each plan on every edge, or none (an item on or off)
+    assert all(e["model"]["entry"] == f"{tmp_path / 'blackout.py'}:Blackout" for e in entries)
+    assert all(0.0 <= e["model"]["params"]["dark"] <= 0.9 for e in entries)
