@@ -222,3 +222,81 @@ def test_a_field_added_to_the_vehicle_spec_is_a_config_key_with_no_change_to_the
     for elsewhere in ("g_mps2", "position_m", "wind"):  # set from the config's other sections
         with pytest.raises(ConfigError, match=f"vehicle: {elsewhere}: unknown key"):
             parse_config({**data, "vehicle": {**data["vehicle"], elsewhere: 1.0}})
+
+
+#: values the config may give a spec field that the generic rule below cannot make valid
+SAMPLES = {
+    "model": "px4_quad_x",
+    "failsafe_action": "land",
+    "autopilot": "ardupilot",
+    "attitude_hz": 2000.0,  # (a multiple of the control rate)
+    "quaternion_wxyz": (0.0, 0.0, 0.0, 1.0),
+    "max_rate_rps": (5.0, 6.0, 7.0),
+    "wind": {"mean_mps": (1.0, -2.0, 0.5), "gust_mps": 0.3, "gust_time_s": 2.0, "seed": 5, "model": "frozen"},
+    "sensors": {
+        "position_noise_m": 0.1,
+        "velocity_noise_mps": 0.2,
+        "attitude_noise_rad": 0.01,
+        "latency_s": 0.02,
+        "seed": 3,
+        "position_bias_walk_m_per_sqrt_s": 0.05,
+    },
+}
+
+
+def _sample(field: dataclasses.Field) -> object:
+    """A valid value other than the field's default: ``SAMPLES``', or a number (or each number of
+    a tuple) moved up from it."""
+    if field.name in SAMPLES:
+        return SAMPLES[field.name]
+    default = field.default
+    if isinstance(default, float):
+        return default * 1.5 + 0.25
+    if isinstance(default, tuple) and all(isinstance(x, float) for x in default):
+        return tuple(x * 1.5 + 0.25 for x in default)
+    raise AssertionError(f"VehicleSpec.{field.name}: give the test a sample value (SAMPLES)")
+
+
+@pytest.mark.unit
+@pytest.mark.parametrize("name", [f.name for f in dataclasses.fields(VehicleSpec) if f.name != "params"])
+def test_every_field_of_the_spec_reaches_the_vehicle_from_where_the_config_sets_it(name):
+    """Each field of ``VehicleSpec``, given a value of its own where the config sets it (its
+    ``vehicle:`` key, or the section ``SET_ELSEWHERE`` names), is that value in every follower's
+    spec: a field the mapping dropped would keep its default."""
+    from swarm_sitl.config.load import parse_config
+    from swarm_sitl.config.vehicle_section import SET_ELSEWHERE
+
+    field = next(f for f in dataclasses.fields(VehicleSpec) if f.name == name)
+    value = _sample(field)
+    data = yaml.safe_load((CONFIGS / "paper.yaml").read_text())
+    data["vehicle"]["drag_Ns2pm2"] = 0.01  # (wind acts through it)
+    path = SET_ELSEWHERE.get(name, f"vehicle.{name}").split(".")
+    for node in (
+        [data["followers"][k] for k in range(len(data["followers"]))] if path[0] == "FOLLOWER" else [data]
+    ):
+        for part in path[1:-1] if path[0] == "FOLLOWER" else path[:-1]:
+            node = node.setdefault(part, {})
+        node[path[-1]] = list(value) if isinstance(value, tuple) else value
+    cfg = parse_config(data)
+    for f in cfg.followers:
+        got = getattr(cfg.vehicle_spec(f.id), name)
+        if isinstance(value, dict):  # a nested spec, field by field
+            assert dataclasses.asdict(got) == {
+                k: tuple(v) if isinstance(v, list) else v for k, v in value.items()
+            }
+        else:
+            assert got == value, (name, got, value)
+
+
+@pytest.mark.unit
+def test_a_models_parameters_and_a_followers_autopilot_reach_its_vehicle():
+    from swarm_sitl.config.load import parse_config
+
+    data = yaml.safe_load((CONFIGS / "paper.yaml").read_text())
+    data["vehicle"].update(model="px4_quad_x", params={"T_TAU_S": 0.05, "MC_ROLL_P": 5})
+    data["followers"][1]["autopilot"] = "ardupilot"
+    cfg = parse_config(data)
+    specs = {f.id: cfg.vehicle_spec(f.id) for f in cfg.followers}
+    assert all(s.params == {"T_TAU_S": 0.05, "MC_ROLL_P": 5.0} for s in specs.values())
+    assert all(type(x) is float for s in specs.values() for x in s.params.values())
+    assert [s.autopilot for s in specs.values()] == ["px4", "ardupilot", "px4", "px4"]

@@ -7,6 +7,7 @@ Two sections are defined where they are used: ``zenoh`` (``bus.session.ZenohSpec
 ``faults`` (``faults.plan.FaultPlan``).
 """
 
+import dataclasses
 from typing import Annotated, Any, Literal
 
 import numpy as np
@@ -27,7 +28,7 @@ from swarm_sitl.bus.access import NodeKeys, node_keys
 from swarm_sitl.bus.session import ZenohSpec
 from swarm_sitl.config.law_entry import resolve, validate_params
 from swarm_sitl.config.seeds import STREAMS, derive_seeds, stream_seed, without_derived_seeds
-from swarm_sitl.config.vehicle_section import VehicleSpec, WindSpec
+from swarm_sitl.config.vehicle_section import SET_ELSEWHERE, VehicleSpec, WindSpec, spec_value
 from swarm_sitl.faults.link_model import recorded
 from swarm_sitl.faults.plan import FaultPlan
 from swarm_sitl.laws.follower_law import HOLD_EXTRAPOLATE, HOLD_ZERO_ORDER, ControlGains
@@ -387,41 +388,25 @@ class SwarmConfig(_Strict):
 
     def vehicle_spec(self, i: int) -> vehicle_spec.VehicleSpec:
         """Follower ``i``'s vehicle, whole (``sim_vehicles.models``): what ``sim`` builds and
-        what the run hands its vehicle process as one file."""
-        v, f, w, s = self.vehicle, self.follower(i), self.wind, self.vehicle.sensors
-        return vehicle_spec.VehicleSpec(
-            **{k: tuple(x) if isinstance(x, list) else x for k, x in (v.model_extra or {}).items()},
-            mass_kg=v.mass_kg,
-            inertia_kgm2=v.inertia_kgm2,
-            max_thrust_N=v.max_thrust_N,
-            g_mps2=self.gravity_mps2,
-            max_rate_rps=v.max_rate_rps,
-            drag_Ns2pm2=v.drag_Ns2pm2,
-            l_q=v.l_q,
-            k_q=v.k_q,
-            attitude_hz=self.rates.attitude_hz,
-            setpoint_timeout_s=v.setpoint_timeout_s,
-            failsafe_action=v.failsafe_action,
-            model=v.model,
-            autopilot=f.autopilot or v.autopilot,
-            params={k: float(x) for k, x in v.params.items()},
-            position_m=f.initial_position_m,
-            velocity_mps=f.initial_velocity_mps,
-            quaternion_wxyz=f.initial_quaternion_wxyz,
-            wind=vehicle_spec.Gusts(w.mean_mps, w.gust_mps, w.gust_time_s, w.seed, w.model)
-            if w.enabled
-            else None,
-            sensors=vehicle_spec.SensorNoise(
-                s.position_noise_m,
-                s.velocity_noise_mps,
-                s.attitude_noise_rad,
-                s.latency_s,
-                s.seed,
-                s.position_bias_walk_m_per_sqrt_s,
-            )
-            if s.enabled
-            else None,
-        )
+        what the run hands its vehicle process as one file. Each field of the spec comes from the
+        ``vehicle:`` key of its name (declared there or taken as it is), or from the section
+        ``vehicle_section.SET_ELSEWHERE`` names; none is mapped by hand."""
+        v, f = self.vehicle, self.follower(i)
+        given = {**(v.model_extra or {}), **{k: getattr(v, k) for k in type(v).model_fields}}
+        fields: dict[str, Any] = {}
+        for field in dataclasses.fields(vehicle_spec.VehicleSpec):
+            if field.name in SET_ELSEWHERE:
+                value: Any = self
+                for part in SET_ELSEWHERE[field.name].split("."):
+                    value = f if part == "FOLLOWER" else getattr(value, part)
+            elif field.name in given:
+                value = given[field.name]
+            else:
+                continue  # the spec's default
+            fields[field.name] = spec_value(value, field.type)
+        fields["autopilot"] = f.autopilot or v.autopilot  # a follower's own in place of the swarm's
+        fields["params"] = {k: float(x) for k, x in v.params.items()}
+        return vehicle_spec.VehicleSpec(**fields)
 
     def control_gains(self, mass_kg: float | None = None) -> ControlGains:
         """The paper's law's kernel parameters (``paper_law_params`` and the vehicle's)."""

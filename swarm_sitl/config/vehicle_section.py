@@ -4,7 +4,7 @@ model, what it reports of its state, and the air it flies in (``schema.SwarmConf
 """
 
 import dataclasses
-from typing import Annotated, Literal
+from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, StrictFloat, StrictInt, model_validator
 
@@ -58,8 +58,29 @@ class WindSpec(_Strict):
         return any(self.mean_mps) or self.gust_mps > 0
 
 
-#: the fields of a vehicle's spec the config sets from its other sections (not ``vehicle:``'s)
-SET_ELSEWHERE = frozenset({"g_mps2", "attitude_hz", "position_m", "velocity_mps", "quaternion_wxyz", "wind"})
+#: the fields of a vehicle's spec the config sets from its other sections, not ``vehicle:``'s:
+#: each the dotted path it is read from (``FOLLOWER.`` the follower's own section)
+SET_ELSEWHERE: dict[str, str] = {
+    "g_mps2": "gravity_mps2",
+    "attitude_hz": "rates.attitude_hz",
+    "position_m": "FOLLOWER.initial_position_m",
+    "velocity_mps": "FOLLOWER.initial_velocity_mps",
+    "quaternion_wxyz": "FOLLOWER.initial_quaternion_wxyz",
+    "wind": "wind",
+}
+
+
+def spec_value(value: Any, kind: object) -> Any:
+    """A section's value as the spec's field of type ``kind`` holds it: a section for a nested
+    spec (``Gusts``, ``SensorNoise``) field by field by name, or None where it is not ``enabled``;
+    a list as a tuple; the rest as it is."""
+    nested = [t for t in (vehicle_spec.Gusts, vehicle_spec.SensorNoise) if t.__name__ in str(kind)]
+    if nested and isinstance(value, BaseModel):
+        if not getattr(value, "enabled", True):
+            return None
+        names = [f.name for f in dataclasses.fields(nested[0])]
+        return nested[0](**{n: spec_value(getattr(value, n), None) for n in names})
+    return tuple(value) if isinstance(value, list) else value
 
 
 class VehicleSpec(_Strict):
@@ -106,7 +127,7 @@ class VehicleSpec(_Strict):
     @model_validator(mode="after")
     def _spec_fields_only(self) -> "VehicleSpec":
         spec_fields = {f.name for f in dataclasses.fields(vehicle_spec.VehicleSpec)}
-        unknown = sorted(set(self.model_extra or {}) - (spec_fields - SET_ELSEWHERE))
+        unknown = sorted(set(self.model_extra or {}) - (spec_fields - set(SET_ELSEWHERE)))
         if unknown:
             raise ValueError(f"{unknown[0]}: unknown key")
         return self
