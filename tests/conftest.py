@@ -27,16 +27,16 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
     # (``tests/workers.py``). The group is a suffix of the node id (what xdist's own hook makes of an
     # xdist_group mark, which may run before this one; pytest 9 no longer reads it, so
     # pyproject.toml keeps pytest 8). A system test marked ``lockstep`` (it runs in lockstep or
-    # ``sim`` only: CPU, no wall clock) goes to any worker.
+    # ``sim`` only: CPU, no wall clock) goes to any worker; a unit or integration test marked
+    # ``realtime`` (an in-process loop timed to the millisecond) to a real-time worker.
     grouped = bool(config.getvalue("loadgroup")) if hasattr(config.option, "loadgroup") else False
     realtime = [
         item
         for item in items
-        if item.get_closest_marker("system") is not None
-        and item.get_closest_marker("lockstep") is None
-        and "@" not in item.nodeid
+        if (item.get_closest_marker("system") is not None and item.get_closest_marker("lockstep") is None)
+        or item.get_closest_marker("realtime") is not None
     ]
-    for k, item in enumerate(realtime if grouped else []):
+    for k, item in enumerate([item for item in realtime if "@" not in item.nodeid] if grouped else []):
         item._nodeid = f"{item.nodeid}@{workers.REALTIME_GROUP}-{k:04d}"
 
 

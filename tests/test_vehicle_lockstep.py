@@ -122,6 +122,7 @@ def test_message_interval_and_request_message(lockstep):
         assert not any(m.get_type() == "HIGHRES_IMU" for m in got)  # switched off
 
 
+@pytest.mark.realtime
 @pytest.mark.parametrize("stamped", [True, False], ids=["kernel-stamps", "read-on-arrival"])
 def test_real_time_setpoint_acts_from_its_arrival_though_read_later(tmp_path, stamped):
     """In offboard the real-time loop reads its socket only at its own instants (up to
