@@ -30,14 +30,20 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
     # ``sim`` only: CPU, no wall clock) goes to any worker; a unit or integration test marked
     # ``realtime`` (an in-process loop timed to the millisecond) to a real-time worker.
     grouped = bool(config.getvalue("loadgroup")) if hasattr(config.option, "loadgroup") else False
-    realtime = [
-        item
-        for item in items
-        if (item.get_closest_marker("system") is not None and item.get_closest_marker("lockstep") is None)
-        or item.get_closest_marker("realtime") is not None
-    ]
+    realtime = [item for item in items if _realtime(item)]
     for k, item in enumerate([item for item in realtime if "@" not in item.nodeid] if grouped else []):
         item._nodeid = f"{item.nodeid}@{workers.REALTIME_GROUP}-{k:04d}"
+
+
+def _realtime(item: pytest.Item) -> bool:
+    """A test that keeps time on the wall clock: a system test not marked ``lockstep``, or one
+    marked ``realtime``."""
+    system = item.get_closest_marker("system") is not None and item.get_closest_marker("lockstep") is None
+    return system or item.get_closest_marker("realtime") is not None
+
+
+def pytest_runtest_setup(item: pytest.Item) -> None:
+    workers.before_test(_realtime(item))
 
 
 @pytest.hookimpl(tryfirst=True)

@@ -84,9 +84,33 @@ def test_real_time_tests_run_once_each_on_a_real_time_worker_in_their_order(n_wo
 def test_only_the_other_workers_lower_their_priority(monkeypatch, worker, niced):
     calls = []
     monkeypatch.setattr(workers.os, "nice", calls.append)
+    monkeypatch.setattr(workers, "_NICED", [])
     if worker is None:
         monkeypatch.delenv("PYTEST_XDIST_WORKER", raising=False)
     else:
         monkeypatch.setenv("PYTEST_XDIST_WORKER", worker)
     workers.lower_priority_unless_realtime_worker()
     assert calls == ([workers.OTHERS_NICE] if niced else [])
+
+
+@pytest.mark.parametrize(
+    ("worker", "tests", "nices"),
+    [
+        ("gw0", [True, True, False, False], 1),  # its real-time tests, then the others': once
+        ("gw1", [True, True], 0),
+        ("gw2", [False, False], 1),  # (at its start: ``lower_priority_unless_realtime_worker``)
+        (None, [True, False], 0),  # -n 0: one process, nothing niced
+    ],
+)
+def test_a_real_time_worker_gives_way_once_it_runs_the_others_tests(monkeypatch, worker, tests, nices):
+    calls = []
+    monkeypatch.setattr(workers.os, "nice", calls.append)
+    monkeypatch.setattr(workers, "_NICED", [])
+    if worker is None:
+        monkeypatch.delenv("PYTEST_XDIST_WORKER", raising=False)
+    else:
+        monkeypatch.setenv("PYTEST_XDIST_WORKER", worker)
+    workers.lower_priority_unless_realtime_worker()
+    for realtime in tests:
+        workers.before_test(realtime)
+    assert calls == [workers.OTHERS_NICE] * nices

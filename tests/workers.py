@@ -6,7 +6,8 @@ time each, in the order collected, at the normal priority. Every other worker lo
 priority (``nice``) before its first test, and so do the processes its tests start: the unit and
 integration tests and the lockstep system tests take the CPU the real-time runs leave idle (most
 of it: a real-time run mostly waits for its clock) without making a real-time run late. A
-real-time worker with no real-time test left takes the others' work.
+real-time worker with no real-time test left takes the others' work, and gives way as they did
+(at its first such test), so the rest of the run shares the CPU evenly.
 
 So there are two more workers than cores (``-n auto``): on two cores, ``gw0`` and ``gw1`` with
 the real-time flights and two niced workers with the rest. ``PYTEST_XDIST_AUTO_NUM_WORKERS`` sets
@@ -37,11 +38,30 @@ def worker_count() -> int:
     return len(os.sched_getaffinity(0)) + len(REALTIME_WORKERS)
 
 
+_NICED: list[bool] = []
+
+
 def lower_priority_unless_realtime_worker() -> None:
     """Called in each worker before its first test: every worker but the real-time ones gives way."""
     worker = os.environ.get("PYTEST_XDIST_WORKER")
     if worker is not None and worker not in REALTIME_WORKERS:
+        give_way()
+
+
+def give_way() -> None:
+    """This process (and what it starts) lowers its priority to the other workers', once."""
+    if not _NICED:
+        _NICED.append(True)
         os.nice(OTHERS_NICE)
+
+
+def before_test(realtime: bool) -> None:
+    """Called before each test in a worker: a real-time worker that comes to a test that is not
+    (it has none left: ``RealtimeOnTheirWorkers`` gives it others only then) gives way as the
+    others did, so the rest of the run shares the CPU evenly instead of starving them."""
+    worker = os.environ.get("PYTEST_XDIST_WORKER")
+    if worker in REALTIME_WORKERS and not realtime:
+        give_way()
 
 
 def is_realtime(scope: str) -> bool:
