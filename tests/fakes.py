@@ -7,7 +7,7 @@ import time
 
 import numpy as np
 
-from swarm_sitl.bus.clock import RunClock
+from swarm_sitl.bus.clock import WallTime
 from swarm_sitl.bus.codec import HOLD_NONE, Message
 from swarm_sitl.bus.node_bus import ZenohNodeBus
 
@@ -48,7 +48,7 @@ class MemoryBus:
         return self.newest.get(src)
 
 
-class ManualClock(RunClock):
+class ManualClock(WallTime):
     """A real-time run's clock that reads ``self.t`` [s], set by the test."""
 
     def __init__(self) -> None:

@@ -11,7 +11,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from sim_vehicles.runtime.event_log import EventLog
-from swarm_sitl.bus.clock import RunClock, StallError
+from swarm_sitl.bus.clock import RunClock, StallError, WallTime
 from swarm_sitl.bus.codec import Message, PayloadError, decode_message, encode_message
 from swarm_sitl.faults.counts import EdgeStats
 from swarm_sitl.faults.edges import FaultyBus
@@ -316,7 +316,7 @@ def test_a_real_time_mavlink_delay_holds_datagrams_until_due():
 
     now = [10.0]
 
-    class Clock(RunClock):
+    class Clock(WallTime):
         def now_s(self) -> float:
             return now[0]
 

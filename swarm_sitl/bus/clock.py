@@ -27,8 +27,15 @@ HELD_BLOCK_S = 0.02
 
 class RunClock:
     """Where a node's run is, for the wrappers that act in time (a fault plan's stages): in
-    lockstep the tick being run (the node's loop sets ``tick``), in real time the run seconds since
-    the start epoch (the loop sets ``epoch_mono`` once the start signal has come)."""
+    lockstep the tick being run (the node's loop sets ``tick``: ``TickTime``), in real time the run
+    seconds since the start epoch (the loop sets ``epoch_mono`` once the start signal has come:
+    ``WallTime``). ``RunClock(lockstep, period_s)`` is the one of that clock."""
+
+    def __new__(cls, *args: object, **kwargs: object) -> "RunClock":
+        if cls is RunClock:  # the clock a run's kind asks for
+            lockstep = args[0] if args else kwargs["lockstep"]
+            cls = TickTime if lockstep else WallTime
+        return super().__new__(cls)
 
     def __init__(self, lockstep: bool, period_s: float):
         self.lockstep = lockstep
@@ -37,25 +44,67 @@ class RunClock:
         self.epoch_mono = math.nan
 
     def started(self) -> bool:
-        """Whether the clock reads the run's time: always in lockstep, in real time once the
-        start signal has given the epoch (before it ``now`` is NaN)."""
-        return self.lockstep or not math.isnan(self.epoch_mono)
+        """Whether the clock reads the run's time (before the start signal a wall clock's
+        ``now`` is NaN)."""
+        raise NotImplementedError
 
     def now(self) -> float:
         """Lockstep: the tick (a count); real time: run seconds."""
-        return float(self.tick) if self.lockstep else time.monotonic() - self.epoch_mono
+        raise NotImplementedError
 
     def horizon(self, last_tick: int) -> int:
-        """The latest tick another node's message may be of now: in lockstep any of the run (a
-        neighbour may run far ahead), in real time none more than ``HORIZON_LEAD_S`` ahead of
-        this clock (before the start signal: any of the run)."""
-        if self.lockstep or math.isnan(self.epoch_mono):
+        """The latest tick another node's message may be of now."""
+        raise NotImplementedError
+
+    def now_s(self) -> float:
+        """Run seconds: simulated in lockstep, on the wall clock in real time."""
+        raise NotImplementedError
+
+    def arrival_s(self, sent_for_s: float) -> float:
+        """When a message sent for ``sent_for_s`` is taken to arrive, for a fault plan's windows
+        (``from_s``, ``until_s``) [s]."""
+        raise NotImplementedError
+
+
+class TickTime(RunClock):
+    """Lockstep: the tick being run; a message is of the time it was sent for."""
+
+    def started(self) -> bool:
+        return True
+
+    def now(self) -> float:
+        return float(self.tick)
+
+    def horizon(self, last_tick: int) -> int:
+        return last_tick  # a neighbour may run far ahead
+
+    def now_s(self) -> float:
+        return self.tick * self.period_s
+
+    def arrival_s(self, sent_for_s: float) -> float:
+        return sent_for_s
+
+
+class WallTime(RunClock):
+    """Real time: run seconds on the wall clock since the start epoch."""
+
+    def started(self) -> bool:
+        return not math.isnan(self.epoch_mono)
+
+    def now(self) -> float:
+        return time.monotonic() - self.epoch_mono
+
+    def horizon(self, last_tick: int) -> int:
+        """None more than ``HORIZON_LEAD_S`` ahead of this clock (before the start signal: any)."""
+        if math.isnan(self.epoch_mono):
             return last_tick
         return min(last_tick, int((time.monotonic() - self.epoch_mono + HORIZON_LEAD_S) / self.period_s))
 
     def now_s(self) -> float:
-        """Run seconds: simulated in lockstep, on the wall clock in real time."""
-        return self.tick * self.period_s if self.lockstep else time.monotonic() - self.epoch_mono
+        return time.monotonic() - self.epoch_mono
+
+    def arrival_s(self, sent_for_s: float) -> float:
+        return self.now_s()  # (its arrival: now)
 
 
 class StallError(RuntimeError):

@@ -125,7 +125,7 @@ class InEdges:
         if self.in_order and self._plain_fate(m, st):
             return
         clock = self.clock
-        if not clock.lockstep and not clock.started():
+        if not clock.started():
             # real time, before this node has the start signal (a restarted node hears its
             # in-neighbours before it has the swarm's clock): judged once it has it
             self._early.append(m)
@@ -181,7 +181,7 @@ class InEdges:
         counted = st is not self._uncounted
         clock = self.clock
         dt = clock.period_s
-        at = m.t_s if clock.lockstep else clock.now_s()
+        at = clock.arrival_s(m.t_s)
         left_s = 0.0  # how long after its tick it left its sender's queue [s]
         if src in self._budgeted:
             left = self._queue(m).leaves(m.step)

@@ -100,7 +100,7 @@ class MavlinkFaults:
         counted = self._stats("up", stamp_ms)
         st = counted or EdgeStats()
         st.received += 1
-        f = self._fate("up", key, stamp_ms / 1000 if lockstep else self.clock.now_s())
+        f = self._fate("up", key, self.clock.arrival_s(stamp_ms / 1000))
         st.count_fate(bool(f.lost or (f.corrupt and not counted)))
         if f.lost or f.corrupt:
             if f.corrupt and counted:

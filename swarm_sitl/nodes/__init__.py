@@ -3,9 +3,12 @@
 - ``assembly``: the laws of a node built from the config (``sim`` builds them the same way);
 - ``law_host``: a law stepped through its contract; ``law_guard``: a user's law kept from hanging,
   ending or flooding the process that hosts it (``sim`` too);
-- ``controller``: follower i's loop: its vehicle over MAVLink, its neighbours over the bus, both
-  clocks; ``neighbour_inbox``: which neighbour estimates a tick uses (riding through silent ones);
+- ``controller``: follower i's loop: its vehicle over MAVLink, its neighbours over the bus, one
+  loop for both clocks; ``neighbour_inbox``: which neighbour estimates a tick uses (riding
+  through silent ones);
 - ``leader``: node 0, the reference, on the wall clock or a window ahead of the followers;
+- ``pacing``: the two clocks the loops run on (``Lockstep``, ``WallClock``): the first tick,
+  waiting for tick k and its lateness, the hold, the end; each is also the node's ``RunClock``;
 - ``entry``: the process entry (``python -m swarm_sitl.nodes controller|leader``, ``__main__``):
   a node built from its config, its link, bus, fault wrappers and recording, run, its figures
   written; ``arguments``: its command line, shared with ``swarm-sitl controller|leader``.

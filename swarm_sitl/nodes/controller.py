@@ -35,26 +35,18 @@ from sim_vehicles.mavlink import signing, tick_frames
 from sim_vehicles.runtime.event_log import EventLog
 from sim_vehicles.runtime.lifeline import mark, settle_heap
 from sim_vehicles.runtime.row_log import RowLog
-from swarm_sitl.bus.clock import (
-    RunClock,
-    StallError,
-    join_tick,
-    linger_after_last_tick,
-    sleep_until,
-    wait_until,
-    wait_while_held,
-    wall_epoch_to_monotonic,
-)
+from swarm_sitl.bus.clock import StallError, sleep_until, wait_until, wall_epoch_to_monotonic
 from swarm_sitl.bus.codec import Message, Status
 from swarm_sitl.bus.estimates import newest_for_tick
 from swarm_sitl.bus.node_bus import NodeBus
-from swarm_sitl.config.schema import SwarmConfig
+from swarm_sitl.config.schema import RunSpec, SwarmConfig
 from swarm_sitl.laws.contract import VehicleSample
 from swarm_sitl.link.vehicle_link import VehicleLink
 from swarm_sitl.nodes.assembly import build_law
 from swarm_sitl.nodes.law_guard import LawGuard, max_output_bytes
 from swarm_sitl.nodes.law_host import HostedLaw, LawError, warm_up
 from swarm_sitl.nodes.neighbour_inbox import NeighbourInbox
+from swarm_sitl.nodes.pacing import Lockstep, Pacer, pacer
 from swarm_sitl.rundir.recording import command_parts
 
 RESEND_AFTER_S = 0.25
@@ -145,6 +137,9 @@ class _Inputs:
         #: (what a node held mid-tick says: ``idle``), and the tick last said so
         self.done: tuple[int, float, float, np.ndarray] | None = None
         self._said = -1
+        self.old_samples = 0  #: ticks on an old vehicle sample (``NodeReport.old_samples``)
+        self.max_age = 0.0  #: the oldest sample a tick flew on [s]
+        self.stall_timeout_s = math.inf
 
     def read(self) -> None:
         self.bus.poll()
@@ -234,6 +229,90 @@ class _Inputs:
         self.sent_at = time.monotonic()
 
 
+class _LockstepInputs(_Inputs):
+    """A lockstep tick's inputs: the vehicle's sample stamped ``t_k`` and the in-neighbours'
+    estimates of tick ``k - 1``, waited for (module docstring)."""
+
+    def start(self, clock: Pacer, resume_tick: int, phase_s: float, r: RunSpec) -> None:
+        link = self.link
+        if resume_tick:  # the vehicle flew on its own through the gap: its clock moves first
+            link.advance_to(round(resume_tick * self.dt * 1000), r.start_timeout_s)
+        link.engage(r.start_timeout_s, True)
+        link.request_sample(r.start_timeout_s)
+        self.epoch_mono = wall_epoch_to_monotonic(wait_for_start(self.bus, link, r.start_timeout_s, self.who))
+        clock.epoch_mono = self.epoch_mono
+        self.first = clock.first_tick(resume_tick, phase_s)
+        link.block_reads(SAMPLE_WAIT_S)  # a tick's first read of its link waits for the vehicle's answer
+        self.stall_timeout_s = r.stall_timeout_s
+
+    def tick(
+        self, k: int, t: float, inbox_of: NeighbourInbox
+    ) -> tuple[dict, float, np.ndarray, np.ndarray, np.ndarray, float]:
+        """``(inbox, the sample's boot time [s], p, v, q, its instant [s])`` of tick ``k``."""
+        self.wait_lockstep(k, self.stall_timeout_s)
+        inbox = inbox_of.gather(t, self.newest_lockstep) if k > self.first else {}
+        boot_s, p, v, q = self.link.sample()
+        sample_t = t
+        if self.link.sample_ms != self.t_ms:  # a fault plan lost it: the one before, carried
+            sample_t = boot_s
+            self.old_samples += 1
+            self.max_age = max(self.max_age, t - boot_s)
+        return inbox, boot_s, p, v, q, sample_t
+
+    def stamp_ms(self, t: float) -> int:
+        """A setpoint's ``time_boot_ms``: its tick's instant, which steps the vehicle there."""
+        return round(t * 1000)
+
+    def finished(self, k: int, t: float, sample_t: float, p: np.ndarray) -> None:
+        self.done = (k, t, sample_t, p)
+
+
+class _WallInputs(_Inputs):
+    """A real-time tick's inputs: the latest sample and estimates at its instant (module docstring)."""
+
+    def start(self, clock: Pacer, resume_tick: int, phase_s: float, r: RunSpec) -> None:
+        self.epoch_mono = wall_epoch_to_monotonic(
+            wait_for_start(self.bus, self.link, r.start_timeout_s, self.who)
+        )
+        clock.epoch_mono = self.epoch_mono
+        # the swarm's clock where it stands: tick 0 at the run's start (the start signal comes
+        # half a second ahead), a later one for a controller started again mid-run (a fault
+        # plan's restart, or one started by hand), which flies its vehicle from there on
+        self.first = clock.first_tick(resume_tick, phase_s, ARM_LEAD_S)
+        # offboard only just before the setpoints start: offboard without setpoints for
+        # the setpoint timeout (COM_OF_LOSS_T) is the vehicle's failsafe
+        sleep_until(
+            self.epoch_mono + self.first * self.dt + phase_s - ARM_LEAD_S, self.tick_fds, self.read_link
+        )
+        self.link.engage(r.start_timeout_s, False)
+        self._used_boot_s = math.nan  # the sample the tick before flew on
+
+    def tick(
+        self, k: int, t: float, inbox_of: NeighbourInbox
+    ) -> tuple[dict, float, np.ndarray, np.ndarray, np.ndarray, float]:
+        link = self.link
+        if link.sample_ms < 0:
+            raise StallError(f"{self.who}: no vehicle sample at tick {k}")
+        inbox = inbox_of.gather(t, self.bus.latest)
+        boot_s, p, v, q = link.sample()
+        sample_t = min(boot_s + self.offset_s, t)
+        age = t - sample_t
+        # (a lost sample's successor is about a period old, and whether its age reads above or
+        # below dt turns on time_boot_ms's millisecond: the sample used again is what tells)
+        if age > self.dt or boot_s == self._used_boot_s:
+            self.old_samples += 1
+            self.max_age = max(self.max_age, age)
+        self._used_boot_s = boot_s
+        return inbox, boot_s, p, v, q, sample_t
+
+    def stamp_ms(self, t: float) -> int:
+        """A setpoint's ``time_boot_ms``: its tick's instant on the vehicle's clock."""
+        return round((t - self.offset_s) * 1000)
+
+    def finished(self, k: int, t: float, sample_t: float, p: np.ndarray) -> None:
+        return None
+
+
 def _warm_up(cfg: SwarmConfig, i: int, link: VehicleLink, sources: list[int]) -> None:
     """Two ticks of a scratch law (``sources``: its in-neighbours) and a call of each per-tick
     frame kernel: the compiled kernels load now, not in the first ticks."""
@@ -252,7 +331,7 @@ def run_controller(
     bus: NodeBus,
     lockstep: bool,
     rows: RowLog | None,
-    clock: RunClock | None = None,
+    clock: Pacer | None = None,
     events: EventLog | None = None,
     resume_tick: int = 0,
 ) -> NodeReport:
@@ -265,12 +344,14 @@ def run_controller(
     who = f"follower {i}"
     r = cfg.run
     dt = cfg.control_dt_s
-    clock = RunClock(lockstep, dt) if clock is None else clock
+    clock = pacer(lockstep, dt) if clock is None else clock
+    clock.attach(bus, r.stall_timeout_s)
     events = EventLog(None, f"controller_{i}") if events is None else events
     link.connect(r.start_timeout_s, cfg.vehicle.mass_kg, cfg.gravity_mps2)
     law = build_law(cfg, i, link.mass_kg, link.full_thrust_N)
     sources = [s for s, _ in cfg.build_graph().in_neighbours(i)]
-    io = _Inputs(who, i, link, bus, sources, dt)
+    inputs = _LockstepInputs if isinstance(clock, Lockstep) else _WallInputs
+    io = inputs(who, i, link, bus, sources, dt)
     inbox_of = NeighbourInbox(i, sources, cfg.estimator.staleness_s, events)
     _warm_up(cfg, i, link, sources)
     settle_heap()
@@ -285,7 +366,7 @@ def run_controller(
         )
         law.guard = guard
     try:
-        return _loop(cfg, i, link, bus, lockstep, rows, clock, events, resume_tick, law, io, inbox_of)
+        return _loop(cfg, i, link, bus, rows, clock, resume_tick, law, io, inbox_of)
     finally:
         if guard is not None:
             guard.close()
@@ -304,82 +385,29 @@ def _loop(
     i: int,
     link: VehicleLink,
     bus: NodeBus,
-    lockstep: bool,
     rows: RowLog | None,
-    clock: RunClock,
-    events: EventLog,
+    clock: Pacer,
     resume_tick: int,
     law: HostedLaw,
-    io: "_Inputs",
+    io: "_LockstepInputs | _WallInputs",
     inbox_of: NeighbourInbox,
 ) -> NodeReport:
-    """``run_controller``'s ticks, its law built and warmed up."""
-    who = f"follower {i}"
+    """``run_controller``'s ticks, its law built and warmed up: one loop for both clocks (the
+    clock paces the ticks, ``pacing``; the inputs read what a tick of that clock flies on)."""
     r = cfg.run
     dt = cfg.control_dt_s
     n = cfg.n_control_steps
-    phase = cfg.tick_phase_s(i, lockstep)
+    phase = cfg.tick_phase_s(i, clock.lockstep)
     link.request_rates(dt, r.other_telemetry_hz, r.start_timeout_s)
-    if lockstep and resume_tick:
-        link.advance_to(round(resume_tick * dt * 1000), r.start_timeout_s)
-    if lockstep:
-        link.engage(r.start_timeout_s, lockstep)
-        link.request_sample(r.start_timeout_s)
-    io.epoch_mono = wall_epoch_to_monotonic(wait_for_start(bus, link, r.start_timeout_s, who))
-    clock.epoch_mono = io.epoch_mono
-    if lockstep:
-        io.first = resume_tick
-    else:
-        # the swarm's clock where it stands: tick 0 at the run's start (the start signal comes
-        # half a second ahead), a later one for a controller started again mid-run (a fault
-        # plan's restart, or one started by hand), which flies its vehicle from there on
-        io.first = join_tick(time.monotonic(), io.epoch_mono, phase, dt, ARM_LEAD_S)
-        # offboard only just before the setpoints start: offboard without setpoints for
-        # the setpoint timeout (COM_OF_LOSS_T) is the vehicle's failsafe
-        sleep_until(io.epoch_mono + io.first * dt + phase - ARM_LEAD_S, io.tick_fds, io.read_link)
-        link.engage(r.start_timeout_s, lockstep)
-    late = 0
-    max_late = 0.0
-    old_samples = 0
-    max_age = 0.0
-    used_boot_s = math.nan  # real time: the sample the tick before flew on
+    io.start(clock, resume_tick, phase, r)
     k = io.first
-    if lockstep:  # a tick's first read of its link waits in recvfrom for the vehicle's answer
-        link.block_reads(SAMPLE_WAIT_S)
     while k <= n:
         t = k * dt + phase
-        clock.tick = k
-        if lockstep:
-            io.wait_lockstep(k, r.stall_timeout_s)
-            inbox = inbox_of.gather(t, io.newest_lockstep) if k > io.first else {}
-            boot_s, p, v, q = link.sample()
-            sample_t = t
-            if link.sample_ms != io.t_ms:  # a fault plan lost it: the one before, carried
-                sample_t = boot_s
-                old_samples += 1
-                max_age = max(max_age, t - boot_s)
-            lateness = 0.0
-        else:
-            sleep_until(io.epoch_mono + t, io.tick_fds, io.read_link)  # the bus is read at the tick
-            io.read()
-            lateness = time.monotonic() - io.epoch_mono - t
-            if lateness > dt:  # a whole period behind: skip to the current tick
-                skip_to = int((time.monotonic() - io.epoch_mono - phase) / dt)
-                late += skip_to - k
-                k = skip_to
-                continue
-            if link.sample_ms < 0:
-                raise StallError(f"{who}: no vehicle sample at tick {k}")
-            inbox = inbox_of.gather(t, bus.latest)
-            boot_s, p, v, q = link.sample()
-            sample_t = min(boot_s + io.offset_s, t)
-            age = t - sample_t
-            # (a lost sample's successor is about a period old, and whether its age reads above or
-            # below dt turns on time_boot_ms's millisecond: the sample used again is what tells)
-            if age > dt or boot_s == used_boot_s:
-                old_samples += 1
-                max_age = max(max_age, age)
-            used_boot_s = boot_s
+        at, lateness = clock.wait_instant(k, phase, io.tick_fds, io.read_link, io.read)
+        if at != k:  # a whole period behind: skip to the current tick
+            k = at
+            continue
+        inbox, boot_s, p, v, q, sample_t = io.tick(k, t, inbox_of)
         link.check_vehicle()  # (rebooted or disarmed: this controller ends, in one line)
         try:
             step = law.step(t, VehicleSample(sample_t, p, v, q), inbox)
@@ -390,13 +418,8 @@ def _loop(
             raise
         bus.publish(Message(i, k, t, step.message, (float(p[0]), float(p[1]), float(p[2]))))
         if k < n:
-            io.send(step.command, round(t * 1000) if lockstep else round((t - io.offset_s) * 1000))
-        done = 0.0
-        if not lockstep:
-            done = time.monotonic() - io.epoch_mono - t  # the setpoint is out this long after t_k
-            if done > dt:
-                late += 1
-            max_late = max(max_late, done)
+            io.send(step.command, io.stamp_ms(t))
+        done = clock.out_at(k, phase)  # the setpoint is out this long after t_k
         if rows is not None:
             rows.append(
                 (k, t, boot_s, sample_t, lateness, done),
@@ -407,28 +430,24 @@ def _loop(
                 step.record,
                 inbox_of.ages,
             )
-        # lockstep: a node held after this tick says where it stopped (a page shows each step)
-        held = lockstep and k >= bus.hold_tick()
+        # a node held after this tick says where it stopped (a page shows each step)
+        held = clock.held(k)
         if held or k % r.status_every == 0 or k == n or k == io.first:
             bus.publish_status(Status(i, k, t, sample_t, p))
-        if lockstep:
-            io.done = (k, t, sample_t, p)
-            if held and k < n:
-                wait_while_held(bus.hold_tick, k, io.read, io.fds, link.send_heartbeat_if_due)
+        io.finished(k, t, sample_t, p)
+        if held and k < n:
+            clock.hold_after(k, io.read, io.fds, link.send_heartbeat_if_due)
         if k % FORGET_EVERY == 0:
             bus.forget_before(k - 1)
         k += 1
-    if not lockstep:
-        linger_after_last_tick(io.epoch_mono + n * dt + phase, dt)
-    else:
-        bus.drain(r.stall_timeout_s)  # its receivers have every estimate before the session closes
+    clock.end(n, phase)
     return NodeReport(
         n + 1 - io.first,
-        late,
-        max_late,
+        clock.late,
+        clock.max_late_s,
         io.resends,
         bus.dropped + link.rx_bad,
-        old_samples,
-        max_age,
+        io.old_samples,
+        io.max_age,
         sum(inbox_of.stale_ticks.values()),
     )

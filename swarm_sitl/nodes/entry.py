@@ -38,6 +38,7 @@ from swarm_sitl.nodes.arguments import add_node_parsers
 from swarm_sitl.nodes.controller import run_controller
 from swarm_sitl.nodes.law_host import LawError
 from swarm_sitl.nodes.leader import run_leader
+from swarm_sitl.nodes.pacing import pacer
 from swarm_sitl.rundir.layout import (
     controller_columns,
     controller_events_path,
@@ -146,7 +147,7 @@ def cmd_controller(cfg: SwarmConfig, args: argparse.Namespace) -> int:
             events = EventLog(
                 controller_events_path(out, i, args.incarnation) if out else None, f"controller_{i}"
             )
-            clock = RunClock(args.lockstep, cfg.control_dt_s)
+            clock = pacer(args.lockstep, cfg.control_dt_s)
             link_faults = None
             if cfg.faults.on_mavlink(i, True) or cfg.faults.on_mavlink(i, False):
                 link_faults = MavlinkFaults(cfg.faults, i, clock, cfg.duration_s)
@@ -216,7 +217,7 @@ def cmd_leader(cfg: SwarmConfig, args: argparse.Namespace) -> int:
         try:
             session = _session(cfg, args.connect)
             mark("zenoh")
-            clock = RunClock(args.lockstep, cfg.control_dt_s)
+            clock = pacer(args.lockstep, cfg.control_dt_s)
             zbus = ZenohNodeBus.of(session, cfg.name, cfg.node_keys(0))
             zbus.horizon = _horizon(clock, cfg.n_control_steps)
             if args.out:
