@@ -7,7 +7,7 @@ to import only those before it (``tests/test_layout.py``):
 - ``common``: what both packages share (the JIT helper, quaternions, the state layout, the command);
 - ``runtime``: process helpers (UDP arrival stamps, a supervised life, crash-safe logs);
 - ``plant``: the aircraft, pure (rigid body, torque law, attitude loop, failsafe);
-- ``models``: what one vehicle is, whole (``VehicleSpec``), and the one function that builds it;
+- ``models``: what one vehicle is, whole (``VehicleConfig``), and the one function that builds it;
 - ``mavlink``: the wire, pure (ENU/NED, message fields and frames, the decoder, signing, PX4);
 - ``vehicle``: the endpoint (ports, telemetry, services, flight modes, run loops);
 

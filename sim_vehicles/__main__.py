@@ -21,7 +21,7 @@ from sim_vehicles.mavlink import frames, signing, tick_frames
 from sim_vehicles.mavlink.signing import read_key
 from sim_vehicles.mavlink.wire_format import command_roundtrip, encode_attitude_quaternion
 from sim_vehicles.models.build import build_vehicle, sensor_model
-from sim_vehicles.models.spec import Gusts, SensorNoise, VehicleSpec, VehicleSpecError
+from sim_vehicles.models.vehicle_config import Gusts, SensorNoise, VehicleConfig, VehicleConfigError
 from sim_vehicles.plant.autopilot import Autopilot
 from sim_vehicles.plant.failsafe import ACTION_LAND, ACTIONS, failsafe_command, hold_at
 from sim_vehicles.plant.params import VehicleParamError
@@ -38,7 +38,7 @@ from sim_vehicles.vehicle.autopilots import PROFILES
 from sim_vehicles.vehicle.endpoint import VehicleEndpoint
 
 
-def warm_up(spec: VehicleSpec) -> None:
+def warm_up(spec: VehicleConfig) -> None:
     """Load the compiled kernels for the argument types they will see (the plant's for the hover
     command's read-only zero rates, then a command from the wire; the per-tick frames'), so the
     first setpoints are not held up by it. Kernels are typed by their arguments, not their
@@ -79,8 +79,8 @@ def _host_port(text: str) -> tuple[str, int]:
     return host, int(port)
 
 
-#: flags that set a field of the spec (``--mass-kg`` sets ``mass_kg``), over ``--spec``'s
-SPEC_FLAGS = {
+#: flags that set a field of the vehicle's config (``--mass-kg`` sets ``mass_kg``), over ``--config``'s
+CONFIG_FLAGS = {
     "position": "position_m",
     "velocity": "velocity_mps",
     "quaternion": "quaternion_wxyz",
@@ -123,13 +123,13 @@ def _given(a: argparse.Namespace, flags: dict[str, str]) -> dict[str, object]:
     return out
 
 
-def vehicle_spec(a: argparse.Namespace) -> VehicleSpec:
-    """The vehicle the arguments describe: ``--spec FILE`` (default: the paper's airframe at
-    rest at the origin), with each physical flag given set over it; ``VehicleSpecError`` (one
+def vehicle_config(a: argparse.Namespace) -> VehicleConfig:
+    """The vehicle the arguments describe: ``--config FILE`` (default: the paper's airframe at
+    rest at the origin), with each physical flag given set over it; ``VehicleConfigError`` (one
     line) if the result is not a vehicle."""
-    base = VehicleSpec.from_json(Path(a.spec).read_text()) if a.spec else VehicleSpec()
+    base = VehicleConfig.from_json(Path(a.config).read_text()) if a.config else VehicleConfig()
     wind, sensors = _given(a, WIND_FLAGS), _given(a, SENSOR_FLAGS)
-    changes = _given(a, SPEC_FLAGS)
+    changes = _given(a, CONFIG_FLAGS)
     try:
         if wind:
             changes["wind"] = dataclasses.replace(base.wind or Gusts(), **wind)  # type: ignore[arg-type]
@@ -137,7 +137,7 @@ def vehicle_spec(a: argparse.Namespace) -> VehicleSpec:
             changes["sensors"] = dataclasses.replace(base.sensors or SensorNoise(), **sensors)  # type: ignore[arg-type]
         return dataclasses.replace(base, **changes)  # type: ignore[arg-type]
     except TypeError as e:
-        raise VehicleSpecError(f"vehicle spec: {e}") from None
+        raise VehicleConfigError(f"vehicle config: {e}") from None
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -158,11 +158,13 @@ def main(argv: list[str] | None = None) -> int:
         help="the ground-station port sends here until someone speaks to it (PX4 SITL: 127.0.0.1:14550)",
     )
     p.add_argument(
-        "--spec",
+        "--config",
         metavar="FILE",
-        help="the vehicle, whole, as JSON (sim_vehicles.models.spec.VehicleSpec; a run writes one per "
-        "vehicle to RUN_DIR/procs/vehicle_<i>.spec.json); the flags below set fields over it",
+        help="the vehicle's config, whole, as JSON (sim_vehicles.models.vehicle_config.VehicleConfig; a "
+        "run writes one per vehicle to RUN_DIR/procs/vehicle_<i>.config.json); the flags below set "
+        "fields over it",
     )
+    p.add_argument("--spec", metavar="FILE", help=argparse.SUPPRESS)  # (its name before: read, with a notice)
     p.add_argument("--model", help="the vehicle model (default: paper_vtol)")
     p.add_argument(
         "--autopilot", choices=("px4", "ardupilot"), help="speak as PX4 (default) or as ArduCopter"
@@ -224,13 +226,17 @@ def main(argv: list[str] | None = None) -> int:
     )
     p.add_argument("--duration", type=float, help="stop after this many seconds of wall time (real time)")
     a = p.parse_args(argv)
+    if a.spec is not None:  # a script of before: the word "spec" is a run's requirements now
+        notice = "--spec is --config now (the vehicle's config file); read as --config"
+        print(f"sim_vehicles: notice: {notice}", file=sys.stderr)
+        a.config = a.config or a.spec
     if not 1 <= a.id <= 255:
         print(f"sim_vehicles: error: --id must be 1..255, got {a.id}", file=sys.stderr)
         return 2
     if a.lockstep_period_s is not None:
         batch_scheduling()
     try:
-        spec = vehicle_spec(a)
+        spec = vehicle_config(a)
         key = read_key(a.signing_key_file) if a.signing_key_file else None
         ep = VehicleEndpoint(
             build_vehicle(spec, a.id),
@@ -248,12 +254,12 @@ def main(argv: list[str] | None = None) -> int:
             sensors=sensor_model(spec, a.id),
             profile=PROFILES[spec.autopilot],
         )
-    except (VehicleParamError, ValueError) as e:  # VehicleSpecError, a bad key file or address
+    except (VehicleParamError, ValueError) as e:  # VehicleConfigError, a bad key file or address
         print(f"sim_vehicles: error: {e}", file=sys.stderr)
         return 2
     except OSError as e:
-        if a.spec and e.filename == a.spec:
-            print(f"sim_vehicles: error: --spec {a.spec}: {e.strerror}", file=sys.stderr)
+        if a.config and e.filename == a.config:
+            print(f"sim_vehicles: error: --config {a.config}: {e.strerror}", file=sys.stderr)
             return 2
         ports = f"{a.port}" + (f" or {a.gcs_port}" if a.gcs_port is not None else "")
         print(f"sim_vehicles: error: cannot bind udp {a.host}:{ports} ({e.strerror})", file=sys.stderr)

@@ -54,5 +54,5 @@ def test_arducopters_fly_the_paper_swarm_as_processes_equal_to_sim_and_as_px4_do
         for key, v in arrays.items():
             assert np.array_equal(got[key], v, equal_nan=True), (i, key)
     assert _final_error(sim) <= 2 * _final_error(px4), (_final_error(sim), _final_error(px4))
-    spec = (out / "procs" / "vehicle_3.spec.json").read_text()
+    spec = (out / "procs" / "vehicle_3.config.json").read_text()
     assert '"autopilot": "ardupilot"' in spec

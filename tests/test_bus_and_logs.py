@@ -30,7 +30,7 @@ from swarm_sitl.bus.codec import (
     encode_status,
 )
 from swarm_sitl.bus.node_bus import ZenohNodeBus
-from swarm_sitl.bus.session import ROUTER_RUNTIME, RUNTIME_ENV, ZenohSpec, open_session, router_runtime
+from swarm_sitl.bus.session import ROUTER_RUNTIME, RUNTIME_ENV, ZenohSection, open_session, router_runtime
 from swarm_sitl.running.children import child_env
 from swarm_sitl.running.hub import free_tcp_port
 from tests.support import CLI
@@ -99,7 +99,7 @@ def test_malformed_messages_are_refused_with_one_line(payload, match):
 def test_each_node_subscribes_to_exactly_its_in_edges(paper_cfg):
     """The bus mirrors the graph: full keys, never a wildcard."""
     g = paper_cfg.build_graph()
-    session = open_session(ZenohSpec(mode="peer", listen=[]))
+    session = open_session(ZenohSection(mode="peer", listen=[]))
     try:
         for f in paper_cfg.followers:
             i = f.id
@@ -116,7 +116,7 @@ def test_each_node_subscribes_to_exactly_its_in_edges(paper_cfg):
 
 @pytest.mark.unit
 def test_bad_payload_on_an_edge_is_dropped_and_counted():
-    session = open_session(ZenohSpec(mode="peer", listen=[]))
+    session = open_session(ZenohSection(mode="peer", listen=[]))
     try:
         bus = ZenohNodeBus(session, "t", 2, [1], [])
         good = Message(1, 5, 0.05, np.ones(12))
@@ -137,7 +137,7 @@ def test_bad_payload_on_an_edge_is_dropped_and_counted():
 def test_a_message_of_another_length_than_its_sender_sends_is_dropped_and_counted():
     """Node 2 runs a law whose messages have 9 values: from follower 1 it takes 9, never 12;
     from the leader (node 0) it takes the reference's 12, never 9."""
-    session = open_session(ZenohSpec(mode="peer", listen=[]))
+    session = open_session(ZenohSection(mode="peer", listen=[]))
     try:
         bus = ZenohNodeBus(session, "t", 2, [0, 1], [], message_length=9)
         sent = [
@@ -183,7 +183,7 @@ def test_decode_waiting_returns_the_good_payloads_in_order_and_counts_the_bad():
 @pytest.mark.unit
 def test_forget_before_drops_exactly_the_older_ticks_even_out_of_order():
     """Out of order as a fault plan's delay files them (the wire's order is refused, below)."""
-    session = open_session(ZenohSpec(mode="peer", listen=[]))
+    session = open_session(ZenohSection(mode="peer", listen=[]))
     try:
         bus = ZenohNodeBus(session, "t", 2, [1], [])
         for k in [0, 1, 2, 4, 3, 5, 6, 7]:  # one pair out of order
@@ -218,7 +218,7 @@ def test_estimates_that_cannot_follow_the_last_are_refused_and_counted():
     """On node 2's in-edge from 1: another sender's estimate, a tick already taken (a replay, a
     duplicate, one out of order) and ticks past the horizon (2^32-1; past the run) are refused
     and counted per sender; the sender's next real estimates are still taken and are the newest."""
-    session = open_session(ZenohSpec(mode="peer", listen=[]))
+    session = open_session(ZenohSection(mode="peer", listen=[]))
     try:
         bus = ZenohNodeBus(session, "t", 2, [1], [])
         bus.horizon = lambda: 100
@@ -250,7 +250,7 @@ def test_estimates_that_cannot_follow_the_last_are_refused_and_counted():
 
 @pytest.mark.unit
 def test_a_status_from_another_sender_or_past_the_horizon_does_not_pace_the_leader():
-    session = open_session(ZenohSpec(mode="peer", listen=[]))
+    session = open_session(ZenohSection(mode="peer", listen=[]))
     try:
         bus = ZenohNodeBus(session, "t", 0, [], [1], watch_status=[1])
         bus.horizon = lambda: 50
@@ -300,7 +300,7 @@ def test_the_bus_descriptor_wakes_a_select_when_an_estimate_comes_and_is_quiet_a
     import select
     import socket
 
-    session = open_session(ZenohSpec(mode="peer", listen=[]))
+    session = open_session(ZenohSection(mode="peer", listen=[]))
     try:
         bus = ZenohNodeBus(session, "t", 2, [1], [])
         fd = bus.fileno()
@@ -392,7 +392,7 @@ def test_swarm_sitl_router_routes_on_one_thread_unless_the_user_sets_the_runtime
     sessions = []
     try:
         assert "router listening" in (router.stdout.readline() if router.stdout else "")
-        spec = ZenohSpec(mode="client", connect=[endpoint])
+        spec = ZenohSection(mode="client", connect=[endpoint])
         sessions = [open_session(spec), open_session(spec)]
         sub = sessions[1].declare_subscriber("t/routed", zenoh.handlers.FifoChannel(64))
         got = None

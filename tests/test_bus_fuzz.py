@@ -19,7 +19,7 @@ from hypothesis import strategies as st
 
 from swarm_sitl.bus import keys as zenoh_keys
 from swarm_sitl.bus.node_bus import ZenohNodeBus
-from swarm_sitl.bus.session import ZenohSpec, open_session
+from swarm_sitl.bus.session import ZenohSection, open_session
 from tests.strategies import FUZZ, FUZZ_TIMEOUT
 
 pytestmark = pytest.mark.unit
@@ -103,7 +103,7 @@ def _payload(spec: tuple, last: int) -> bytes:
 
 @pytest.fixture(scope="module")
 def session():
-    s = open_session(ZenohSpec(mode="peer", listen=[]))
+    s = open_session(ZenohSection(mode="peer", listen=[]))
     yield s
     s.close()
 

@@ -10,7 +10,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from swarm_sitl.faults.fate_table import BLOCK, FateTable, batched
-from swarm_sitl.faults.plan import FaultSpec, edge_channel, fate, mavlink_channel
+from swarm_sitl.faults.plan import FaultEntry, edge_channel, fate, mavlink_channel
 
 PERIOD_S = 0.01  #: the paper's control period
 END_S = 12.0  #: the run's end: past two blocks of ticks
@@ -35,11 +35,11 @@ hows = st.one_of(
 windows = st.tuples(st.floats(0.0, 6.0), st.one_of(st.none(), st.floats(6.01, 11.0)))
 
 
-def _entry(how: dict, window: tuple[float, float | None], what: dict) -> FaultSpec:
+def _entry(how: dict, window: tuple[float, float | None], what: dict) -> FaultEntry:
     frm, until = window
     if "bandwidth" in how:  # (a sending node's radio: every edge out of the edge's sender)
         what = {"out_of": 2}
-    return FaultSpec.model_validate({**what, **how, "from_s": frm, "until_s": until})
+    return FaultEntry.model_validate({**what, **how, "from_s": frm, "until_s": until})
 
 
 def _same(a, b) -> bool:
@@ -100,8 +100,8 @@ def test_a_mavlink_links_table_gives_each_datagram_the_fate_keyed_by_its_time_bo
 
 @pytest.mark.unit
 def test_a_model_that_needs_the_distance_or_draws_one_at_a_time_has_no_table():
-    ranged = FaultSpec.model_validate({"edge": (1, 2), "range": {"range_m": 50}})
-    lossy = FaultSpec.model_validate({"edge": (1, 2), "loss": 0.5})
+    ranged = FaultEntry.model_validate({"edge": (1, 2), "range": {"range_m": 50}})
+    lossy = FaultEntry.model_validate({"edge": (1, 2), "loss": 0.5})
     assert batched([(0, lossy)]) and not batched([(0, lossy), (1, ranged)])
 
     class OneAtATime:  # a user's model without ``fates``: the contract's required part only

@@ -10,7 +10,7 @@ import yaml
 
 from swarm_sitl.config.load import ConfigError, parse_config, with_faults
 from swarm_sitl.faults.draws import uniform
-from swarm_sitl.faults.plan import FaultPlan, FaultSpec, edge_channel, fate
+from swarm_sitl.faults.plan import FaultEntry, FaultPlan, edge_channel, fate
 from tests.support import CLI, CONFIGS
 
 pytestmark = pytest.mark.unit
@@ -115,8 +115,8 @@ def test_the_cli_refuses_a_bad_fault_file_in_one_line(tmp_path):
     assert "until_s: 99 s is past the end of the run (60 s)" in r.stderr
 
 
-def _rules(*entries: dict) -> list[tuple[int, FaultSpec]]:
-    return list(enumerate(FaultSpec(**e) for e in entries))
+def _rules(*entries: dict) -> list[tuple[int, FaultEntry]]:
+    return list(enumerate(FaultEntry(**e) for e in entries))
 
 
 def test_a_fate_depends_only_on_seed_entry_edge_and_step():

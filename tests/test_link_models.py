@@ -13,7 +13,7 @@ from hypothesis import strategies as st
 from swarm_sitl.config.load import ConfigError, parse_config
 from swarm_sitl.faults import bursts
 from swarm_sitl.faults.bursts import GilbertElliott
-from swarm_sitl.faults.plan import FaultSpec, edge_channel, fate
+from swarm_sitl.faults.plan import FaultEntry, edge_channel, fate
 from tests.support import CONFIGS
 
 #: its system tests run in lockstep or ``sim`` only (no wall clock): free to run beside others
@@ -27,7 +27,7 @@ def _paper(plan: list[dict]) -> dict:
 
 
 def _losses(model: dict, n: int, seed: int = 1) -> np.ndarray:
-    rules = [(0, FaultSpec(edge=(1, 4), bursty=model))]
+    rules = [(0, FaultEntry(edge=(1, 4), bursty=model))]
     return np.array([fate(seed, rules, edge_channel(1, 4), k, 0.0, 1.0, 0.01).lost for k in range(n)])
 
 
@@ -73,7 +73,7 @@ def test_a_chain_is_the_same_whatever_order_it_is_asked_in_and_each_entry_and_ed
     model = {"p": 0.1, "r": 0.3}
     first = _losses(model, 2000)
     bursts._CHAINS.clear()
-    rules = [(0, FaultSpec(edge=(1, 4), bursty=model))]
+    rules = [(0, FaultEntry(edge=(1, 4), bursty=model))]
     order = [1500, 3, 1999, 700, 0, 1200]
     again = [fate(1, rules, edge_channel(1, 4), k, 0.0, 1.0, 0.01).lost for k in order]
     assert again == [bool(first[k]) for k in order]
@@ -97,7 +97,7 @@ def test_a_bursty_mavlink_link_moves_its_chain_one_step_per_datagram(lockstep):
     from swarm_sitl.faults.plan import FaultPlan
 
     ge = GilbertElliott(p=0.05, r=0.25)
-    plan = FaultPlan(seed=2, plan=[FaultSpec(mavlink=1, bursty={"p": ge.p, "r": ge.r})])
+    plan = FaultPlan(seed=2, plan=[FaultEntry(mavlink=1, bursty={"p": ge.p, "r": ge.r})])
     faults = MavlinkFaults(plan, 1, RunClock(lockstep, 0.01), 1e9)
     per = 10 if lockstep else 1
     runs = _runs(np.array([faults._fate("up", per * k, k * 0.01).lost for k in range(100_000)]))

@@ -29,7 +29,7 @@ from swarm_sitl.faults.link_model import (
 )
 from swarm_sitl.faults.link_models import LINK_MODELS, PLAN_FORMS, model_of
 from swarm_sitl.faults.plan import LINK_HOW as PLAN_HOWS
-from swarm_sitl.faults.plan import FaultPlan, FaultSpec
+from swarm_sitl.faults.plan import FaultEntry, FaultPlan
 from tests import support
 
 
@@ -79,13 +79,13 @@ def test_every_registered_model_is_a_how_of_a_plan_acting_where_it_declares(key)
     rng = random.Random(key)
     for _ in range(5):
         value, extra = plan_value(key, rng)
-        f = FaultSpec.model_validate({"all_edges": True, key: value, **extra})
+        f = FaultEntry.model_validate({"all_edges": True, key: value, **extra})
         model, params = f.link_how
         assert type(model) is cls and model_of(f) is cls and isinstance(params, cls.Params)
     on_link = {"mavlink": 1, key: value, **extra}
     if not declared(cls, "on_mavlink"):
         with pytest.raises(ValueError, match="acts on bus edges"):
-            FaultSpec.model_validate(on_link)
+            FaultEntry.model_validate(on_link)
         return
     plan = FaultPlan.model_validate({"plan": [on_link]})
     if declared(cls, "mavlink_in_lockstep"):
@@ -101,8 +101,8 @@ def test_every_registered_model_is_a_how_of_a_plan_acting_where_it_declares(key)
 def test_a_nodes_radio_is_named_by_its_sender(key):
     value, _ = plan_value(key, random.Random(0))
     with pytest.raises(ValueError, match="sending node's radio"):
-        FaultSpec.model_validate({"edge": [0, 1], key: value})
-    FaultSpec.model_validate({"out_of": 1, key: value})
+        FaultEntry.model_validate({"edge": [0, 1], key: value})
+    FaultEntry.model_validate({"out_of": 1, key: value})
 
 
 @pytest.mark.unit
@@ -143,7 +143,7 @@ def test_a_models_declared_severity_is_the_one_its_fate_draws():
             continue
         for _ in range(20):
             value, extra = plan_value(key, rng)
-            model, params = FaultSpec.model_validate({"edge": [0, 1], key: value, **extra}).link_how
+            model, params = FaultEntry.model_validate({"edge": [0, 1], key: value, **extra}).link_how
             staleness_s = rng.uniform(0.2, 1.0)  # above every delay drawn: none is cut at 1
             own = severity_of(model, params, 0.02, staleness_s)
             assert abs(own - drawn_severity(model, params, 0.02, staleness_s)) <= tol, (key, params)
@@ -185,7 +185,7 @@ def test_a_model_added_to_the_registry_alone_is_a_plan_how_a_sweep_key_and_a_sea
     from its fate."""
     monkeypatch.setitem(link_models.LINK_MODELS, "brownout", Brownout)
     cfg = support.config("paper")
-    f = FaultSpec.model_validate({"all_edges": True, "brownout": {"level": 0.25}})
+    f = FaultEntry.model_validate({"all_edges": True, "brownout": {"level": 0.25}})
     assert type(f.link_how[0]) is Brownout and f.link_how[1].level == 0.25
 
     check_key("link.brownout.level")

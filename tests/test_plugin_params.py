@@ -13,7 +13,7 @@ from hypothesis import strategies as st
 
 from swarm_sitl.config.load import ConfigError, parse_config
 from swarm_sitl.faults.link_model import fates_disagreement
-from swarm_sitl.faults.plan import FaultSpec
+from swarm_sitl.faults.plan import FaultEntry
 from tests.support import CLI, CONFIGS, ROOT, page_files
 
 #: plug-ins of each kind, in one file: each declares ``k`` and ``tau_s`` (a pydantic ``Params``
@@ -230,7 +230,7 @@ def test_every_built_in_model_with_fates_agrees_with_its_fate_as_check_draws_the
         "delay_s": {"delay_s": p / 5, "jitter_s": p / 10},
     }.get(key, {key: p})
     what = {"out_of": 1} if key == "bandwidth" else {"edge": [1, 2]}  # (a radio: its sender)
-    model, params = FaultSpec.model_validate({**what, **how}).link_how
+    model, params = FaultEntry.model_validate({**what, **how}).link_how
     assert fates_disagreement(model, params, 0.01, seed) is None
 
 

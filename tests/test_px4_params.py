@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from sim_vehicles.models.build import build_vehicle
-from sim_vehicles.models.spec import VehicleSpec, VehicleSpecError
+from sim_vehicles.models.vehicle_config import VehicleConfig, VehicleConfigError
 from sim_vehicles.plant import px4_params
 from sim_vehicles.plant.px4_control import GAINS, RANGES
 
@@ -32,7 +32,7 @@ def test_the_docs_table_is_the_declarations():
 
 
 def _quad(params: dict | None = None, **fields):
-    return build_vehicle(VehicleSpec(model="px4_quad_x", params=params or {}, **fields), 1)
+    return build_vehicle(VehicleConfig(model="px4_quad_x", params=params or {}, **fields), 1)
 
 
 def test_the_model_starts_at_the_declared_defaults_and_serves_them_by_name():
@@ -45,7 +45,7 @@ def test_the_model_starts_at_the_declared_defaults_and_serves_them_by_name():
     assert np.degrees(q.max_rate_rps) == pytest.approx(rate_max, rel=1e-12)  # 220, 220, 200
     assert q.tau_s == px4_params.BY_NAME["T_TAU_S"].default and q.motor_model == 0
     # the paper's vehicle keeps its own default: 1800 deg/s
-    assert np.degrees(VehicleSpec().max_rate_rps) == pytest.approx([1800.0] * 3)
+    assert np.degrees(VehicleConfig().max_rate_rps) == pytest.approx([1800.0] * 3)
 
 
 @pytest.mark.parametrize(
@@ -61,7 +61,7 @@ def test_each_declared_range_is_the_one_the_spec_and_param_set_hold_to(p):
             continue
         _quad({p.name: ok})
     for bad in (p.low - step, p.high + step, *((0.5,) if p.choices else ())):
-        with pytest.raises(VehicleSpecError, match=p.name):
+        with pytest.raises(VehicleConfigError, match=p.name):
             _quad({p.name: bad})
     if p.name in GAINS:
         assert RANGES[p.name] == (p.low, p.high)
@@ -71,7 +71,7 @@ def test_each_declared_range_is_the_one_the_spec_and_param_set_hold_to(p):
 
 
 def test_a_rate_limit_given_as_a_param_is_refused_with_where_it_goes():
-    with pytest.raises(VehicleSpecError, match="MC_ROLLRATE_MAX is the vehicle's max_rate_rps"):
+    with pytest.raises(VehicleConfigError, match="MC_ROLLRATE_MAX is the vehicle's max_rate_rps"):
         _quad({"MC_ROLLRATE_MAX": 300.0})
 
 

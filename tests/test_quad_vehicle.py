@@ -15,7 +15,7 @@ import pytest
 from pymavlink import mavutil
 
 from sim_vehicles.mavlink.enu_ned import q_enu_flu_to_ned_frd, q_ned_frd_to_enu_flu
-from sim_vehicles.models.spec import VehicleSpec
+from sim_vehicles.models.vehicle_config import VehicleConfig
 from tests.support import sih_quad, sih_roll_step
 
 pytestmark = pytest.mark.integration
@@ -28,7 +28,7 @@ PERIOD_MS = 10
 def quad(tmp_path):
     """A px4_quad_x vehicle (PX4 SIH's airframe, no motor lag, rate loops P only) at 50 m, and a
     pymavlink connection to it as its controller."""
-    spec = VehicleSpec(
+    spec = VehicleConfig(
         model="px4_quad_x",
         mass_kg=SIH.mass_kg,
         inertia_kgm2=SIH.inertia_kgm2,
@@ -38,7 +38,7 @@ def quad(tmp_path):
     )
     path = tmp_path / "quad.json"
     path.write_text(spec.to_json())
-    argv = [sys.executable, "-m", "sim_vehicles", "--id", "1", "--port", "0", "--spec", str(path)]
+    argv = [sys.executable, "-m", "sim_vehicles", "--id", "1", "--port", "0", "--config", str(path)]
     proc = subprocess.Popen([*argv, "--lockstep-period-s", "0.01"], stdout=subprocess.PIPE, text=True)
     assert proc.stdout is not None
     line = proc.stdout.readline()
@@ -129,16 +129,16 @@ def test_px4_gains_set_over_mavlink_change_the_step_response_as_the_closed_form_
 def test_a_quad_spec_with_a_gain_out_of_its_range_is_one_line_before_the_vehicle_binds(tmp_path):
     path = tmp_path / "quad.json"
     path.write_text(
-        json.dumps({**json.loads(VehicleSpec(model="px4_quad_x").to_json()), "params": {"MC_ROLL_P": 40}})
+        json.dumps({**json.loads(VehicleConfig(model="px4_quad_x").to_json()), "params": {"MC_ROLL_P": 40}})
     )
     r = subprocess.run(
-        [sys.executable, "-m", "sim_vehicles", "--port", "0", "--spec", str(path)],
+        [sys.executable, "-m", "sim_vehicles", "--port", "0", "--config", str(path)],
         capture_output=True,
         text=True,
         timeout=60,
     )
     assert r.returncode == 2 and r.stderr.strip() == (
-        "sim_vehicles: error: vehicle spec: params: MC_ROLL_P must be within 0..12, got 40"
+        "sim_vehicles: error: vehicle config: params: MC_ROLL_P must be within 0..12, got 40"
     )
 
 

@@ -20,7 +20,7 @@ from swarm_sitl.faults import bandwidth
 from swarm_sitl.faults.bandwidth import KEEP_STEPS, Bandwidth, RadioQueue
 from swarm_sitl.faults.counts import EdgeStats
 from swarm_sitl.faults.edges import FaultyBus
-from swarm_sitl.faults.plan import FaultPlan, FaultSpec, edge_channel, fate
+from swarm_sitl.faults.plan import FaultEntry, FaultPlan, edge_channel, fate
 from swarm_sitl.faults.radio_range import PathLoss, distance_m
 from tests.fakes import DT, EDGES, ManualClock, MemoryBus, Publisher
 from tests.support import CONFIGS
@@ -70,7 +70,7 @@ def test_retries_lose_q_to_the_power_of_the_attempts_and_delay_by_the_geometric_
     pl = PathLoss(range_m=20.0, exponent=3.0, fading_db=6.0, retries=3, retry_s=0.004)
     d = 24.0
     q = pl.attempt_loss(d)
-    rules = [(0, FaultSpec(edge=(1, 4), range=pl))]
+    rules = [(0, FaultEntry(edge=(1, 4), range=pl))]
     n = 60_000
     fates = [fate(7, rules, edge_channel(1, 4), k, 0.0, 1.0, DT, distance_m=d) for k in range(n)]
     lost = sum(f.lost for f in fates)
@@ -101,7 +101,7 @@ def test_the_distance_is_euclidean_in_three_dimensions_and_the_mean_delay_is_the
 @pytest.mark.unit
 def test_a_range_entry_draws_the_same_fate_for_a_message_whoever_asks():
     model = {"range_m": 10.0, "fading_db": 5.0, "retries": 1, "retry_s": 0.05}
-    rules = [(2, FaultSpec(all_edges=True, range=model))]
+    rules = [(2, FaultEntry(all_edges=True, range=model))]
     a = [fate(9, rules, edge_channel(1, 4), k, 0.0, 1.0, DT, distance_m=11.0) for k in range(300)]
     b = [fate(9, rules, edge_channel(1, 4), k, 0.0, 1.0, DT, distance_m=11.0) for k in reversed(range(300))]
     assert a == b[::-1]
@@ -109,13 +109,13 @@ def test_a_range_entry_draws_the_same_fate_for_a_message_whoever_asks():
     assert [f.lost for f in a] != [f.lost for f in other]  # each edge draws its own
     seeded = [fate(10, rules, edge_channel(1, 4), k, 0.0, 1.0, DT, distance_m=11.0) for k in range(300)]
     assert [f.lost for f in a] != [f.lost for f in seeded]  # and each seed
-    delayed = [(0, FaultSpec(edge=(1, 4), delay_s=0.1)), *rules]  # delays add up, entry by entry
+    delayed = [(0, FaultEntry(edge=(1, 4), delay_s=0.1)), *rules]  # delays add up, entry by entry
     both = [fate(9, delayed, edge_channel(1, 4), k, 0.0, 1.0, DT, distance_m=11.0) for k in range(300)]
     assert [f.lost for f in both] == [f.lost for f in a]
     assert [f.delay_s for f in both if not f.lost] == [
         pytest.approx(0.1 + f.delay_s) for f in a if not f.lost
     ]
-    later = [*rules, (3, FaultSpec(edge=(1, 4), delay_s=0.1))]  # and an entry after it still acts
+    later = [*rules, (3, FaultEntry(edge=(1, 4), delay_s=0.1))]  # and an entry after it still acts
     after = [fate(9, later, edge_channel(1, 4), k, 0.0, 1.0, DT, distance_m=11.0) for k in range(300)]
     assert [f.delay_s for f in after] == [f.delay_s for f in both]
 
@@ -266,7 +266,7 @@ def test_a_lockstep_receiver_decides_a_range_fate_with_its_own_position_of_that_
     """Node 4 moves away from node 1 along x, one metre a tick: a message of step s is judged at
     distance |p_1(s) - p_4(s)|, even when it comes before node 4 has done its own tick s (it
     waits, undecided, and is still usable at tick s + 1)."""
-    plan = FaultPlan(seed=1, plan=[FaultSpec(edge=(1, 4), range={"range_m": 10.0})])
+    plan = FaultPlan(seed=1, plan=[FaultEntry(edge=(1, 4), range={"range_m": 10.0})])
     inner = Publisher({})
     clock = RunClock(True, DT)
     bus = FaultyBus(inner, plan, 4, EDGES, clock, 60.0)  # type: ignore[arg-type]
@@ -299,7 +299,7 @@ def test_a_receiver_counts_what_the_range_fates_say_and_uses_a_retried_message_i
     each message's fate as ``fate`` draws it; one through at its second attempt (15 ms late) is
     used ceil(1.5) = 2 ticks after the on-time tick s + 1, at its third (30 ms) 3 after it. The
     receiver ticks on past the last message (``LAST_USE`` ticks) so a late last one is seen used."""
-    spec = FaultSpec(edge=(1, 4), range={"range_m": 12.0, "fading_db": 5.0, "retries": 2, "retry_s": 0.015})
+    spec = FaultEntry(edge=(1, 4), range={"range_m": 12.0, "fading_db": 5.0, "retries": 2, "retry_s": 0.015})
     plan = FaultPlan(seed=seed, plan=[spec])
     inner = Publisher({})
     clock = RunClock(True, DT)
@@ -351,8 +351,8 @@ def test_a_budget_holds_in_its_window_and_a_sender_back_from_a_kill_has_an_empty
     A delay entry below saturation adds its own delay and no queue time."""
     plan = FaultPlan(
         plan=[
-            FaultSpec(out_of=1, bandwidth={"rate_bps": 8 * 141 / 0.015, "queue": 1000}, until_s=1.0),
-            FaultSpec(controller=1, kill=True, from_s=0.5, restart_after_s=0.2),
+            FaultEntry(out_of=1, bandwidth={"rate_bps": 8 * 141 / 0.015, "queue": 1000}, until_s=1.0),
+            FaultEntry(controller=1, kill=True, from_s=0.5, restart_after_s=0.2),
         ]
     )
     _, used_at = _ticks_of_use(plan, 130, silent=range(50, 70))
@@ -362,8 +362,8 @@ def test_a_budget_holds_in_its_window_and_a_sender_back_from_a_kill_has_an_empty
     assert all(late[s] == 1 for s in range(100, 129)) and not any(50 <= s < 70 for s in late)
     plan = FaultPlan(
         plan=[
-            FaultSpec(out_of=1, bandwidth={"rate_bps": 8 * 141 / 0.004}),
-            FaultSpec(edge=(1, 4), delay_s=0.02),
+            FaultEntry(out_of=1, bandwidth={"rate_bps": 8 * 141 / 0.004}),
+            FaultEntry(edge=(1, 4), delay_s=0.02),
         ]
     )
     bus, _ = _ticks_of_use(plan, 20)
@@ -375,7 +375,7 @@ def test_in_real_time_a_range_fate_takes_the_receivers_newest_position_and_a_lat
     """Real time: the distance is to where the receiver last was (it waits for no tick but its
     first); a message that leaves its sender's queue w after its tick is handed on at t_s + w."""
     clock = ManualClock()
-    plan = FaultPlan(plan=[FaultSpec(edge=(1, 4), range={"range_m": 12.0})])
+    plan = FaultPlan(plan=[FaultEntry(edge=(1, 4), range={"range_m": 12.0})])
     inner = Publisher({})
     bus = FaultyBus(inner, plan, 4, EDGES, clock, 60.0)  # type: ignore[arg-type]
     inner.wire.append(_at(1, 2, (9.0, 0.0, 0.0)))  # its sender runs ahead of node 4
@@ -390,7 +390,7 @@ def test_in_real_time_a_range_fate_takes_the_receivers_newest_position_and_a_lat
     assert {s for (_, s) in inner.table} == {2, 3}  # 11 m: within range; 15 m: not
     assert bus.stats[1].out_of_range == 1
     assert bus.stats[1].as_dict()["distance_m"] == {"min": 9.0, "mean": 35 / 3, "max": 15.0}
-    plan = FaultPlan(plan=[FaultSpec(out_of=1, bandwidth={"rate_bps": 8 * 141 / 0.025, "queue": 0})])
+    plan = FaultPlan(plan=[FaultEntry(out_of=1, bandwidth={"rate_bps": 8 * 141 / 0.025, "queue": 0})])
     inner = Publisher({})
     bus = FaultyBus(inner, plan, 4, EDGES, clock, 60.0)  # type: ignore[arg-type]
     clock.t = 0.481
@@ -411,7 +411,7 @@ def test_a_message_that_leaves_its_senders_queue_after_the_next_tick_is_used_tha
     drops); at 15 ms a message the queue is too slow: half are dropped, the rest leave 15 ms
     after their tick, usable at tick s + 2."""
     for rate, lost, late in ((8 * 141 / 0.008, 0, 0), (8 * 141 / 0.015, 50, 50)):
-        plan = FaultPlan(plan=[FaultSpec(out_of=1, bandwidth={"rate_bps": rate, "queue": 0})])
+        plan = FaultPlan(plan=[FaultEntry(out_of=1, bandwidth={"rate_bps": rate, "queue": 0})])
         bus, used_at = _ticks_of_use(plan, 100)
         st = bus.stats[1]
         assert message_size(12) == 141 and st.queue_full == st.lost == lost and st.delayed == late

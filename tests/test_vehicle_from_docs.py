@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from sim_vehicles.models.build import build_vehicle
-from sim_vehicles.models.spec import VehicleSpec, VehicleSpecError
+from sim_vehicles.models.vehicle_config import VehicleConfig, VehicleConfigError
 from tests.support import ROOT, page_command, page_files
 
 #: its system tests run in lockstep or ``sim`` only (no wall clock): free to run beside others
@@ -36,7 +36,7 @@ def test_the_guides_vehicle_loads_by_its_entry_and_flies_as_processes_equal_to_s
         r = page_command(cmd, tmp_path)
         assert r.returncode == 0, f"{cmd}: {r.stdout}{r.stderr}"
     sim, run = tmp_path / "runs" / "mine-sim", tmp_path / "runs" / "mine-run"
-    assert '"model": "' in (run / "procs" / "vehicle_1.spec.json").read_text()
+    assert '"model": "' in (run / "procs" / "vehicle_1.config.json").read_text()
     for i in range(1, 5):
         a, b = np.load(sim / f"follower_{i}.npz"), np.load(run / f"follower_{i}.npz")
         for key in a.files:
@@ -58,22 +58,22 @@ def test_a_model_entry_that_does_not_exist_or_does_not_meet_the_contract_is_one_
         ("quad9", "is not one of paper_vtol, px4_quad_x nor an entry"),
     ]
     for model, named in cases:
-        with pytest.raises(VehicleSpecError, match=re.escape(named)) as e:
-            build_vehicle(VehicleSpec(model=model), 1)
+        with pytest.raises(VehicleConfigError, match=re.escape(named)) as e:
+            build_vehicle(VehicleConfig(model=model), 1)
         assert "\n" not in str(e.value)
     raising = tmp_path / "raising_vehicle.py"
     raising.write_text(
         "class Boom:\n    def __init__(self, spec, state0, dt_s):\n        raise RuntimeError('no')\n"
     )
-    with pytest.raises(VehicleSpecError, match="building it raised RuntimeError: no"):
-        build_vehicle(VehicleSpec(model=f"{raising}:Boom"), 1)
+    with pytest.raises(VehicleConfigError, match="building it raised RuntimeError: no"):
+        build_vehicle(VehicleConfig(model=f"{raising}:Boom"), 1)
 
 
 @pytest.mark.unit
 def test_the_template_is_a_model_that_meets_the_contract_and_flies_a_lagging_thrust():
     """``models/template.py``'s ``LaggyVtol``: a hover command from rest at a thrust of zero
     reaches the weight as ``1 - exp(-t / tau)``: after one time constant, 63 % of it."""
-    spec = VehicleSpec(model="sim_vehicles.models.template:LaggyVtol", params={"THRUST_TAU_S": 0.05})
+    spec = VehicleConfig(model="sim_vehicles.models.template:LaggyVtol", params={"THRUST_TAU_S": 0.05})
     v = build_vehicle(spec, 1)
     v.thrust_N = 0.0  # type: ignore[attr-defined]
     v.advance(50)  # 50 ms: one time constant

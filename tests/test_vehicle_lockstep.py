@@ -250,9 +250,9 @@ def loaded():
         if isinstance(obj, numba.core.registry.CPUDispatcher)
     }
 
-from sim_vehicles.models.spec import VehicleSpec
+from sim_vehicles.models.vehicle_config import VehicleConfig
 params, gains = VehicleParams(0.85, (0.05, 0.05, 0.09), 25.0), AttitudeGains(16.0, 16.0)
-warm_up(VehicleSpec(mass_kg=0.85, inertia_kgm2=(0.05, 0.05, 0.09), max_thrust_N=25.0))
+warm_up(VehicleConfig(mass_kg=0.85, inertia_kgm2=(0.05, 0.05, 0.09), max_thrust_N=25.0))
 gcs = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
 gcs.bind(("127.0.0.1", 0))
 ep = VehicleEndpoint(

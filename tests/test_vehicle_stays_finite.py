@@ -14,7 +14,7 @@ from sim_vehicles.common.command import AttitudeCommand
 from sim_vehicles.common.quaternion import qmul
 from sim_vehicles.common.state import QUAT, make_state
 from sim_vehicles.models.build import MODELS, build_vehicle
-from sim_vehicles.models.spec import VehicleSpec
+from sim_vehicles.models.vehicle_config import VehicleConfig
 from tests.strategies import FUZZ, unit_quaternions
 
 pytestmark = pytest.mark.unit
@@ -47,7 +47,7 @@ def test_any_valid_setpoint_from_any_state_keeps_the_vehicle_finite(model, data)
         q0,
         data.draw(rates),
     )
-    spec = VehicleSpec(model=model)
+    spec = VehicleConfig(model=model)
     vehicle = build_vehicle(spec, 1)
     vehicle.state = x0
     command = AttitudeCommand(

@@ -30,7 +30,7 @@ import numpy as np
 
 from sim_vehicles.common.entry import EntryError, declared_params, load_entry, one_line, undeclared_line
 from sim_vehicles.common.state import STATE_SIZE, make_state
-from sim_vehicles.models.spec import VehicleSpec, VehicleSpecError
+from sim_vehicles.models.vehicle_config import VehicleConfig, VehicleConfigError
 from sim_vehicles.plant import px4_params
 from sim_vehicles.plant.autopilot import Autopilot
 from sim_vehicles.plant.contract import VehicleModel
@@ -41,7 +41,7 @@ from sim_vehicles.plant.sensors import SensorModel
 from sim_vehicles.plant.wind import WIND_MODELS, WindModel
 
 
-def vehicle_params(spec: VehicleSpec) -> VehicleParams:
+def vehicle_params(spec: VehicleConfig) -> VehicleParams:
     """What the airframe is, as the plant and the endpoint's parameters take it."""
     assert spec.max_rate_rps is not None  # (the spec holds the model's default once it is made)
     return VehicleParams(
@@ -49,43 +49,43 @@ def vehicle_params(spec: VehicleSpec) -> VehicleParams:
     )
 
 
-def paper_vtol(spec: VehicleSpec, state0: np.ndarray, dt_s: float) -> VehicleModel:
+def paper_vtol(spec: VehicleConfig, state0: np.ndarray, dt_s: float) -> VehicleModel:
     """The paper's vehicle: its rigid body (eqs. 2-5) under the paper's torque law, thrust and
     torque applied the instant they are asked for (``plant.autopilot``)."""
     if spec.params:
-        raise VehicleSpecError(
-            f"vehicle spec: params: paper_vtol takes none, got {', '.join(sorted(spec.params))}"
+        raise VehicleConfigError(
+            f"vehicle config: params: paper_vtol takes none, got {', '.join(sorted(spec.params))}"
         )
     return Autopilot(vehicle_params(spec), AttitudeGains(spec.l_q, spec.k_q), state0, dt_s)
 
 
-def px4_quad_x(spec: VehicleSpec, state0: np.ndarray, dt_s: float) -> VehicleModel:
+def px4_quad_x(spec: VehicleConfig, state0: np.ndarray, dt_s: float) -> VehicleModel:
     """A rotor-level quadrotor in X under PX4's attitude and rate control (``plant.quad_x``),
     its airframe and gains from ``spec.params`` (PX4 SIH's quadrotor and PX4 v1.15's defaults,
     ``plant.px4_params``)."""
     for name, value in spec.params.items():
         p = px4_params.BY_NAME.get(name)
         if name in px4_params.RATE_MAX:
-            raise VehicleSpecError(
-                f"vehicle spec: params: {name} is the vehicle's max_rate_rps (roll, pitch, yaw "
+            raise VehicleConfigError(
+                f"vehicle config: params: {name} is the vehicle's max_rate_rps (roll, pitch, yaw "
                 "[rad/s]), not a param"
             )
         if p is None:
-            raise VehicleSpecError(
-                f"vehicle spec: params: px4_quad_x has no parameter {name!r} "
+            raise VehicleConfigError(
+                f"vehicle config: params: px4_quad_x has no parameter {name!r} "
                 f"(it has {', '.join(n for n in px4_params.BY_NAME if n not in px4_params.RATE_MAX)})"
             )
         if not p.accepts(value):
             allowed = (
                 " or ".join(f"{c:g}" for c in p.choices) if p.choices else f"within {p.low:g}..{p.high:g}"
             )
-            raise VehicleSpecError(f"vehicle spec: params: {name} must be {allowed}, got {value!r}")
+            raise VehicleConfigError(f"vehicle config: params: {name} must be {allowed}, got {value!r}")
     airframe = {k: float(v) for k, v in spec.params.items() if k in AIRFRAME}
     px4 = {k: float(v) for k, v in spec.params.items() if k in GAINS}
     return QuadX(vehicle_params(spec), state0, dt_s, airframe, px4)
 
 
-MODELS: dict[str, Callable[[VehicleSpec, np.ndarray, float], VehicleModel]] = {
+MODELS: dict[str, Callable[[VehicleConfig, np.ndarray, float], VehicleModel]] = {
     "paper_vtol": paper_vtol,
     "px4_quad_x": px4_quad_x,
 }
@@ -109,50 +109,51 @@ CONTRACT = (
 )
 
 
-def _user_model(spec: VehicleSpec, state0: np.ndarray, dt_s: float) -> VehicleModel:
+def _user_model(spec: VehicleConfig, state0: np.ndarray, dt_s: float) -> VehicleModel:
     """A model of the user's (``model: "my_vehicle.py:MyQuad"``), built and held to the contract."""
     try:
         factory = load_entry(spec.model, "sim_vehicles_model")
     except EntryError as e:
-        raise VehicleSpecError(f"vehicle spec: model: {e}") from None
+        raise VehicleConfigError(f"vehicle config: model: {e}") from None
     if not callable(factory):
-        raise VehicleSpecError(
-            f"vehicle spec: model {spec.model!r} is a {type(factory).__name__}, not callable"
+        raise VehicleConfigError(
+            f"vehicle config: model {spec.model!r} is a {type(factory).__name__}, not callable"
         )
     schema = getattr(factory, "Params", None)
     if schema is not None:  # declared: held to it before the model sees them
         _check_params(spec, schema)
     try:
         vehicle = factory(spec, state0, dt_s)
-    except VehicleSpecError:
+    except VehicleConfigError:
         raise
     except Exception as e:
-        raise VehicleSpecError(
-            f"vehicle spec: model {spec.model!r}: building it raised {one_line(e)}"
+        raise VehicleConfigError(
+            f"vehicle config: model {spec.model!r}: building it raised {one_line(e)}"
         ) from None
     missing = [name for name in CONTRACT if not hasattr(vehicle, name)]
     if missing:
-        raise VehicleSpecError(
-            f"vehicle spec: model {spec.model!r} does not meet the vehicle contract: no {', '.join(missing)}"
+        raise VehicleConfigError(
+            f"vehicle config: model {spec.model!r} does not meet the vehicle contract: "
+            f"no {', '.join(missing)}"
         )
     if schema is None:  # its parameters are the ones it serves (``tunables``)
         unknown = undeclared_line(spec.params, frozenset(vehicle.tunables), f"model {spec.model!r}")
         if unknown is not None:
-            raise VehicleSpecError(f"vehicle spec: params: {unknown}")
+            raise VehicleConfigError(f"vehicle config: params: {unknown}")
     state = np.asarray(vehicle.state)
     if state.shape != (STATE_SIZE,) or not np.all(np.isfinite(state)):
-        raise VehicleSpecError(
-            f"vehicle spec: model {spec.model!r}: state must be {STATE_SIZE} finite values, "
+        raise VehicleConfigError(
+            f"vehicle config: model {spec.model!r}: state must be {STATE_SIZE} finite values, "
             f"got shape {state.shape}"
         )
     return vehicle
 
 
-def _check_params(spec: VehicleSpec, schema: Any) -> None:
+def _check_params(spec: VehicleConfig, schema: Any) -> None:
     """``spec.params`` held to a model's ``Params``: every name declared, every value in its range."""
     unknown = undeclared_line(spec.params, declared_params(schema), f"model {spec.model!r}")
     if unknown is not None:
-        raise VehicleSpecError(f"vehicle spec: params: {unknown}")
+        raise VehicleConfigError(f"vehicle config: params: {unknown}")
     validate = getattr(schema, "model_validate", None)  # a pydantic model's; else a class of keywords
     try:
         validate(dict(spec.params)) if validate is not None else schema(**spec.params)
@@ -162,22 +163,24 @@ def _check_params(spec: VehicleSpec, schema: Any) -> None:
             err = errors()[0]
             where = ".".join(str(p) for p in err["loc"])
             msg = str(err["msg"]).removeprefix("Value error, ")
-            raise VehicleSpecError(f"vehicle spec: params: {where}: {msg} (model {spec.model!r})") from None
-        raise VehicleSpecError(f"vehicle spec: params: {one_line(e)} (model {spec.model!r})") from None
+            raise VehicleConfigError(
+                f"vehicle config: params: {where}: {msg} (model {spec.model!r})"
+            ) from None
+        raise VehicleConfigError(f"vehicle config: params: {one_line(e)} (model {spec.model!r})") from None
 
 
-def check(spec: VehicleSpec) -> None:
-    """``VehicleSpecError`` (one line) if ``spec``'s model does not exist or does not take its
+def check(spec: VehicleConfig) -> None:
+    """``VehicleConfigError`` (one line) if ``spec``'s model does not exist or does not take its
     parameters: what a config's load asks before anything starts."""
     build_vehicle(spec, 1)
 
 
-def build_vehicle(spec: VehicleSpec, system_id: int) -> VehicleModel:
+def build_vehicle(spec: VehicleConfig, system_id: int) -> VehicleModel:
     """Vehicle ``system_id`` as ``spec`` says, at its initial state, in its air."""
     model = _user_model if ":" in spec.model else MODELS.get(spec.model)
     if model is None:
-        raise VehicleSpecError(
-            f"vehicle spec: model {spec.model!r} is not one of {', '.join(sorted(MODELS))} "
+        raise VehicleConfigError(
+            f"vehicle config: model {spec.model!r} is not one of {', '.join(sorted(MODELS))} "
             "nor an entry ('my_vehicle.py:MyVehicle')"
         )
     x0 = make_state(spec.position_m, spec.velocity_mps, np.asarray(spec.quaternion_wxyz, dtype=float))
@@ -195,7 +198,7 @@ def build_vehicle(spec: VehicleSpec, system_id: int) -> VehicleModel:
     return ap
 
 
-def sensor_model(spec: VehicleSpec, system_id: int) -> SensorModel | None:
+def sensor_model(spec: VehicleConfig, system_id: int) -> SensorModel | None:
     """What vehicle ``system_id`` reports of its state (None: the true state)."""
     s = spec.sensors
     if s is None:

@@ -7,13 +7,13 @@ fault plans and the ``swarm`` fixture fly it (``docs/vehicles.md``).
 **The contract** (``plant.contract.VehicleModel``; ``models.build`` holds a model to it when it is
 built, and a run builds it once at load to check it):
 
-- it is built as ``Model(spec, state0, dt_s)``: ``spec`` the ``models.spec.VehicleSpec`` (mass,
+- it is built as ``Model(spec, state0, dt_s)``: ``spec`` the ``models.spec.VehicleConfig`` (mass,
   inertia, largest thrust, gravity, rate limits, drag, ``l_q``/``k_q``, and ``spec.params``: the
   model's own parameters, by name, from the config's ``vehicle.params``: each one the model
   declares, in its ``Params`` if it has one, else in its ``tunables``; ``models.build`` refuses
   any other name before the model sees it), ``state0`` the 13-value
   rigid-body state (``common.state``: position, velocity [ENU], attitude [Hamilton, FLU -> ENU],
-  body rates [FLU]), ``dt_s`` its step. Raise ``models.spec.VehicleSpecError`` (one line naming
+  body rates [FLU]), ``dt_s`` its step. Raise ``models.spec.VehicleConfigError`` (one line naming
   the parameter) for parameters it cannot take;
 - ``params``: a ``plant.params.VehicleParams`` (the vehicle serves its hover thrust from
   it; a controller's thrust 1.0 is ``max_thrust_N``);
@@ -44,7 +44,7 @@ import numpy as np
 from sim_vehicles.common.command import AttitudeCommand
 from sim_vehicles.common.state import QUAT, RATE
 from sim_vehicles.models.build import vehicle_params
-from sim_vehicles.models.spec import VehicleSpec, VehicleSpecError
+from sim_vehicles.models.vehicle_config import VehicleConfig, VehicleConfigError
 from sim_vehicles.plant.rigid_body import rk4_step
 from sim_vehicles.plant.torque_law import torque
 
@@ -52,7 +52,7 @@ THRUST_TAU_RANGE_S = (0.0, 1.0)  #: the range of ``THRUST_TAU_S`` [s]
 
 
 class LaggyVtol:
-    def __init__(self, spec: VehicleSpec, state0: np.ndarray, dt_s: float):
+    def __init__(self, spec: VehicleConfig, state0: np.ndarray, dt_s: float):
         self.params = vehicle_params(spec)  # the spec's mass, inertia, thrust, gravity, rate limits, drag
         self.dt_s = float(dt_s)
         self.step_index = 0
@@ -62,8 +62,8 @@ class LaggyVtol:
         self.wind_W = np.zeros(3)
         self.tunables = {"THRUST_TAU_S": 0.05}
         if not self.set_param("THRUST_TAU_S", float(spec.params.get("THRUST_TAU_S", 0.05))):
-            raise VehicleSpecError(
-                f"vehicle spec: params: THRUST_TAU_S must be within {THRUST_TAU_RANGE_S}, "
+            raise VehicleConfigError(
+                f"vehicle config: params: THRUST_TAU_S must be within {THRUST_TAU_RANGE_S}, "
                 f"got {spec.params['THRUST_TAU_S']!r}"
             )
         self.l_q, self.k_q = spec.l_q, spec.k_q

@@ -2,7 +2,7 @@
 
 - ``keys``: the key layout (``swarm/<name>/edge/<src>/<dst>``, status, start, hold, liveliness);
 - ``codec``: the payloads, byte by byte (versioned, fixed size, checked);
-- ``session``: how a process joins (``ZenohSpec``), the run's router, the start signal;
+- ``session``: how a process joins (``ZenohSection``), the run's router, the start signal;
 - ``access``: which node may use which key, its credentials, the router's access control;
 - ``node_bus``: one node's bus (its in-edges in, its out-edges out), the interface its loop uses;
 - ``estimates``: the estimates a node has heard and may use, per in-neighbour and tick;

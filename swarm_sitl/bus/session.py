@@ -1,4 +1,4 @@
-"""Zenoh sessions of a swarm: how a node joins the bus (``ZenohSpec``, the config's ``zenoh:``
+"""Zenoh sessions of a swarm: how a node joins the bus (``ZenohSection``, the config's ``zenoh:``
 section), the run's router with access control, a plain router for several hosts, and the
 supervisor's start signal. What crosses the bus, and whose it is, is ``node_bus``, ``keys``,
 ``codec`` and ``access``.
@@ -18,7 +18,7 @@ from swarm_sitl.bus import keys as zenoh_keys
 from swarm_sitl.bus.codec import encode_hold, encode_start
 
 
-class ZenohSpec(BaseModel):
+class ZenohSection(BaseModel):
     """How each process joins the zenoh bus; everything stays on loopback unless configured.
 
     - ``router`` (default): the supervisor's session is the run's zenoh router, on ``listen`` (the
@@ -42,7 +42,7 @@ class ZenohSpec(BaseModel):
 
 
 def zenoh_config(
-    spec: ZenohSpec, extra_connect: Iterable[str] = (), credentials: tuple[str, str] | None = None
+    spec: ZenohSection, extra_connect: Iterable[str] = (), credentials: tuple[str, str] | None = None
 ) -> zenoh.Config:
     """A node's session: a client of the run's router (``router``, ``client``) or a peer, with
     ``credentials`` (user, password) to authenticate with if given."""
@@ -60,7 +60,7 @@ def zenoh_config(
 
 
 def open_session(
-    spec: ZenohSpec, extra_connect: Iterable[str] = (), credentials: tuple[str, str] | None = None
+    spec: ZenohSection, extra_connect: Iterable[str] = (), credentials: tuple[str, str] | None = None
 ) -> zenoh.Session:
     return zenoh.open(zenoh_config(spec, extra_connect, credentials))
 

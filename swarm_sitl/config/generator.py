@@ -18,7 +18,7 @@ import yaml
 
 from swarm_sitl.config.law_entry import absolute_entry
 from swarm_sitl.config.load import ConfigError, parse_config
-from swarm_sitl.config.schema import PAPER_LAW, LeaderSpec, SwarmConfig
+from swarm_sitl.config.schema import PAPER_LAW, LeaderSection, SwarmConfig
 from swarm_sitl.laws.gain_conditions import check_gains
 
 GRAPHS = ("ring", "tree", "layered", "random")
@@ -200,7 +200,7 @@ def generate(
     name = f"{graph}{followers}-{formation}-{trajectory}".replace("_", "-")
 
     # the leader's start, for the initial positions: the trajectory's own p_r(0)
-    leader = LeaderSpec.model_validate({"trajectory": yaml.safe_load(TRAJECTORY_YAML[trajectory])})
+    leader = LeaderSection.model_validate({"trajectory": yaml.safe_load(TRAJECTORY_YAML[trajectory])})
     p0 = np.asarray(leader.trajectory.build().derivatives(0.0)[0], dtype=float)
     spread = np.random.default_rng([seed, 1]).uniform(-INITIAL_SPREAD_M, INITIAL_SPREAD_M, offsets.shape)
     start = offsets + p0 + spread

@@ -3,7 +3,7 @@
 Unknown keys are errors. Cross-field checks (graph nodes exist and have a spanning tree from the
 leader, rates divide evenly, unit quaternions, thrust above weight, the fault plan against the
 graph and the duration) happen at validation, not mid-flight; ``load`` reads a file into one.
-Two sections are defined where they are used: ``zenoh`` (``bus.session.ZenohSpec``) and
+Two sections are defined where they are used: ``zenoh`` (``bus.session.ZenohSection``) and
 ``faults`` (``faults.plan.FaultPlan``).
 """
 
@@ -22,13 +22,13 @@ from pydantic import (
     model_validator,
 )
 
-from sim_vehicles.models import spec as vehicle_spec
+from sim_vehicles.models import vehicle_config
 from sim_vehicles.models.build import check as model_check
 from swarm_sitl.bus.access import NodeKeys, node_keys
-from swarm_sitl.bus.session import ZenohSpec
+from swarm_sitl.bus.session import ZenohSection
 from swarm_sitl.config.law_entry import resolve, validate_params
 from swarm_sitl.config.seeds import STREAMS, derive_seeds, stream_seed, without_derived_seeds
-from swarm_sitl.config.vehicle_section import SET_ELSEWHERE, VehicleSpec, WindSpec, spec_value
+from swarm_sitl.config.vehicle_section import SET_ELSEWHERE, VehicleSection, WindSection, spec_value
 from swarm_sitl.faults.link_model import recorded
 from swarm_sitl.faults.plan import FaultPlan
 from swarm_sitl.laws.follower_law import HOLD_EXTRAPOLATE, HOLD_ZERO_ORDER, ControlGains
@@ -54,7 +54,7 @@ Vec3 = tuple[float, float, float]
 Positive = Annotated[float, Field(gt=0)]
 
 
-class HelixSpec(_Strict):
+class HelixSection(_Strict):
     type: Literal["helix"]  #: a circle in the horizontal plane that climbs at a constant rate
     radius_m: Positive  #: of the circle [m]
     #: about the vertical axis (positive: counter-clockwise seen from above) [rad/s]
@@ -69,7 +69,7 @@ class HelixSpec(_Strict):
         )
 
 
-class FigureEightSpec(_Strict):
+class FigureEightSection(_Strict):
     type: Literal["figure_eight"]  #: a horizontal figure eight (lemniscate of Gerono)
     amplitude_x_m: Positive  #: east half-width [m]
     amplitude_y_m: Positive  #: north half-width [m]
@@ -80,7 +80,7 @@ class FigureEightSpec(_Strict):
         return FigureEight(self.amplitude_x_m, self.amplitude_y_m, self.angular_rate_radps, self.center_m)
 
 
-class LineSpec(_Strict):
+class LineSection(_Strict):
     type: Literal["line"]  #: a straight line at constant velocity
     start_m: Vec3  #: position at t = 0 [m; ENU]
     velocity_mps: Vec3  #: [m/s; ENU]
@@ -89,18 +89,18 @@ class LineSpec(_Strict):
         return Line(self.start_m, self.velocity_mps)
 
 
-class LeaderSpec(_Strict):
+class LeaderSection(_Strict):
     #: the leader's reference p_r(t), with its derivatives in closed form; ``type`` picks the kind
-    trajectory: Annotated[HelixSpec | FigureEightSpec | LineSpec, Field(discriminator="type")]
+    trajectory: Annotated[HelixSection | FigureEightSection | LineSection, Field(discriminator="type")]
 
 
-class RatesSpec(_Strict):
+class RatesSection(_Strict):
     control_hz: Positive  #: position loop / estimator exchange rate
     attitude_hz: Positive  #: attitude loop and plant integration rate
     estimator_substeps: Annotated[int, Field(ge=1, le=1000)] = 10  #: RK4 steps per control period
 
     @model_validator(mode="after")
-    def _divides(self) -> "RatesSpec":
+    def _divides(self) -> "RatesSection":
         ratio = self.attitude_hz / self.control_hz
         if abs(ratio - round(ratio)) > 1e-9 or round(ratio) < 1:
             raise ValueError(
@@ -113,11 +113,11 @@ class RatesSpec(_Strict):
         return round(self.attitude_hz / self.control_hz)
 
 
-class GraphSpec(_Strict):
+class GraphSection(_Strict):
     edges: list[tuple[int, int] | tuple[int, int, Positive]]  #: [src, dst] or [src, dst, weight]
 
 
-class FollowerSpec(_Strict):
+class FollowerSection(_Strict):
     id: Annotated[int, Field(ge=1)]  #: 1..n, each once; the graph's node and the vehicle's MAVLink system id
     offset_m: Vec3  #: delta_i, desired position relative to the leader [m; ENU]
     initial_position_m: Vec3  #: [m; ENU]
@@ -140,7 +140,7 @@ class FollowerSpec(_Strict):
         return q
 
 
-class EstimatorSpec(_Strict):
+class EstimatorSection(_Strict):
     #: the bracket inside gamma_ddot (docs/paper.md, erratum 7): ``sliding_surface`` weighs its acceleration
     #: sum by l_a, the form Theorem 1's proof and ``swarm-sitl check`` cover; ``printed`` is the
     #: paper's equation as printed (no l_a), which the theorem does not cover unless l_a = 1
@@ -154,7 +154,7 @@ class EstimatorSpec(_Strict):
     staleness_s: Positive = 0.5
 
 
-class LawSpec(_Strict):
+class LawSection(_Strict):
     """The followers' control law (``laws.contract``; ``docs/laws.md`` shows how to write one)."""
 
     #: the law's class: ``"package.module:Name"`` (importable) or ``"path/to/file.py:Name"``
@@ -174,7 +174,7 @@ class LawSpec(_Strict):
     max_output_mb: Annotated[float, Field(ge=0)] = 10.0
 
     @model_validator(mode="after")
-    def _flies(self, info: ValidationInfo) -> "LawSpec":
+    def _flies(self, info: ValidationInfo) -> "LawSection":
         if recorded(info):  # a run's record: read, never imported (``config.load.load_recorded``)
             return self
         cls = resolve(self.entry)
@@ -193,7 +193,7 @@ class LawSpec(_Strict):
         return self.entry == PAPER_LAW
 
 
-class SigningSpec(_Strict):
+class SigningSection(_Strict):
     """MAVLink 2 signing of every vehicle link (``sim_vehicles.mavlink.signing``): unsigned or
     wrongly signed messages, and replays, are refused by vehicle and controller alike."""
 
@@ -206,7 +206,7 @@ class SigningSpec(_Strict):
     passphrase_file: str | None = None
 
 
-class RunSpec(_Strict):
+class RunSection(_Strict):
     """Limits of a multi-process run (wall-clock seconds)."""
 
     start_timeout_s: Positive = 120.0  #: every process ready (connected, parameters read) within this
@@ -244,7 +244,7 @@ class RunSpec(_Strict):
     stop_on_loss: bool = False
 
     @model_validator(mode="after")
-    def _window(self) -> "RunSpec":
+    def _window(self) -> "RunSection":
         if self.tick_timeout_s >= self.stall_timeout_s:
             raise ValueError(
                 f"tick_timeout_s ({self.tick_timeout_s:g}) must be less than stall_timeout_s "
@@ -264,20 +264,20 @@ class SwarmConfig(_Strict):
     ]  #: the swarm's name: its zenoh keys and run directories
     duration_s: Positive  #: simulated time of a run [s]
     gravity_mps2: Positive = 9.81  #: g [m/s^2]
-    rates: RatesSpec  #: loop rates
-    leader: LeaderSpec  #: node 0, the reference
-    graph: GraphSpec  #: the directed communication graph (node 0 is the leader)
-    vehicle: VehicleSpec  #: every follower's airframe and autopilot
-    followers: list[FollowerSpec]  #: one per follower: its place in the formation and initial state
+    rates: RatesSection  #: loop rates
+    leader: LeaderSection  #: node 0, the reference
+    graph: GraphSection  #: the directed communication graph (node 0 is the leader)
+    vehicle: VehicleSection  #: every follower's airframe and autopilot
+    followers: list[FollowerSection]  #: one per follower: its place in the formation and initial state
     gains: PaperGains  #: the paper's law's gains (section 4 for its example)
     #: the paper's estimator's sampled-time choices, and how long any law's inbox keeps a message
-    estimator: EstimatorSpec = EstimatorSpec()
-    law: LawSpec = LawSpec()  #: the followers' control law
-    zenoh: ZenohSpec = ZenohSpec()  #: the bus between the processes
-    signing: SigningSpec = SigningSpec()  #: MAVLink 2 signing of the vehicle links
-    run: RunSpec = RunSpec()  #: limits and pacing of a multi-process run
+    estimator: EstimatorSection = EstimatorSection()
+    law: LawSection = LawSection()  #: the followers' control law
+    zenoh: ZenohSection = ZenohSection()  #: the bus between the processes
+    signing: SigningSection = SigningSection()  #: MAVLink 2 signing of the vehicle links
+    run: RunSection = RunSection()  #: limits and pacing of a multi-process run
     faults: FaultPlan = FaultPlan()  #: what fails, how and when (``faults``)
-    wind: WindSpec = WindSpec()  #: the air the vehicles fly in (still by default)
+    wind: WindSection = WindSection()  #: the air the vehicles fly in (still by default)
     #: requirements the run is held to (``specs.requirement``, ``docs/specs.md``): each judged with
     #: a robustness in ``summary.json``; one that fails makes the run exit 3, as the bound does
     spec: list[Requirement] = []
@@ -352,9 +352,9 @@ class SwarmConfig(_Strict):
         if recorded(info):
             return self
         try:  # the model and its parameters, as the vehicles will be built (cheap: no kernel runs)
-            model_check(self.vehicle_spec(ids[0]))
-        except vehicle_spec.VehicleSpecError as e:
-            raise ValueError(str(e).replace("vehicle spec: ", "vehicle: ", 1)) from None
+            model_check(self.vehicle_config(ids[0]))
+        except vehicle_config.VehicleConfigError as e:
+            raise ValueError(str(e).replace("vehicle config: ", "vehicle: ", 1)) from None
         return self
 
     # -- derived objects -------------------------------------------------------------------------
@@ -362,7 +362,7 @@ class SwarmConfig(_Strict):
     def n_followers(self) -> int:
         return len(self.followers)
 
-    def follower(self, i: int) -> FollowerSpec:
+    def follower(self, i: int) -> FollowerSection:
         return next(f for f in self.followers if f.id == i)
 
     def tick_phase_s(self, i: int, lockstep: bool) -> float:
@@ -386,7 +386,7 @@ class SwarmConfig(_Strict):
     def trajectory(self) -> Trajectory:
         return self.leader.trajectory.build()
 
-    def vehicle_spec(self, i: int) -> vehicle_spec.VehicleSpec:
+    def vehicle_config(self, i: int) -> vehicle_config.VehicleConfig:
         """Follower ``i``'s vehicle, whole (``sim_vehicles.models``): what ``sim`` builds and
         what the run hands its vehicle process as one file. Each field of the spec comes from the
         ``vehicle:`` key of its name (declared there or taken as it is), or from the section
@@ -394,7 +394,7 @@ class SwarmConfig(_Strict):
         v, f = self.vehicle, self.follower(i)
         given = {**(v.model_extra or {}), **{k: getattr(v, k) for k in type(v).model_fields}}
         fields: dict[str, Any] = {}
-        for field in dataclasses.fields(vehicle_spec.VehicleSpec):
+        for field in dataclasses.fields(vehicle_config.VehicleConfig):
             if field.name in SET_ELSEWHERE:
                 value: Any = self
                 for part in SET_ELSEWHERE[field.name].split("."):
@@ -406,7 +406,7 @@ class SwarmConfig(_Strict):
             fields[field.name] = spec_value(value, field.type)
         fields["autopilot"] = f.autopilot or v.autopilot  # a follower's own in place of the swarm's
         fields["params"] = {k: float(x) for k, x in v.params.items()}
-        return vehicle_spec.VehicleSpec(**fields)
+        return vehicle_config.VehicleConfig(**fields)
 
     def control_gains(self, mass_kg: float | None = None) -> ControlGains:
         """The paper's law's kernel parameters (``paper_law_params`` and the vehicle's)."""

@@ -1,6 +1,6 @@
 """The ``vehicle:`` and ``wind:`` sections of a config: every follower's airframe, autopilot and
 model, what it reports of its state, and the air it flies in (``schema.SwarmConfig`` holds them;
-``SwarmConfig.vehicle_spec`` turns them into each vehicle's spec, ``sim_vehicles.models.spec``).
+``SwarmConfig.vehicle_config`` turns them into each vehicle's spec, ``sim_vehicles.models.vehicle_config``).
 """
 
 import dataclasses
@@ -8,7 +8,7 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, StrictFloat, StrictInt, model_validator
 
-from sim_vehicles.models import spec as vehicle_spec
+from sim_vehicles.models import vehicle_config
 
 Vec3 = tuple[float, float, float]
 Positive = Annotated[float, Field(gt=0)]
@@ -18,7 +18,7 @@ class _Strict(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
 
 
-class SensorSpec(_Strict):
+class SensorSection(_Strict):
     """What each vehicle reports of its state (LOCAL_POSITION_NED, ATTITUDE_QUATERNION) as an
     autopilot's estimator gives it (``sim_vehicles.plant.sensors``); the truth files keep the
     true state. Off by default; ``sim`` reports the same, so a lockstep run still equals it."""
@@ -38,7 +38,7 @@ class SensorSpec(_Strict):
         return any(v > 0 for v in (*noise, self.position_bias_walk_m_per_sqrt_s))
 
 
-class WindSpec(_Strict):
+class WindSection(_Strict):
     """The air every vehicle flies in (``sim_vehicles.plant.wind``): a mean wind plus gusts, a
     first-order Gauss-Markov process per axis sampled every 10 ms, seeded per vehicle; it acts
     through ``vehicle.drag_Ns2pm2``. Still by default; ``sim`` flies the same air."""
@@ -74,7 +74,7 @@ def spec_value(value: Any, kind: object) -> Any:
     """A section's value as the spec's field of type ``kind`` holds it: a section for a nested
     spec (``Gusts``, ``SensorNoise``) field by field by name, or None where it is not ``enabled``;
     a list as a tuple; the rest as it is."""
-    nested = [t for t in (vehicle_spec.Gusts, vehicle_spec.SensorNoise) if t.__name__ in str(kind)]
+    nested = [t for t in (vehicle_config.Gusts, vehicle_config.SensorNoise) if t.__name__ in str(kind)]
     if nested and isinstance(value, BaseModel):
         if not getattr(value, "enabled", True):
             return None
@@ -83,9 +83,9 @@ def spec_value(value: Any, kind: object) -> Any:
     return tuple(value) if isinstance(value, list) else value
 
 
-class VehicleSpec(_Strict):
+class VehicleSection(_Strict):
     """Every follower's vehicle. Besides the keys below, ``vehicle:`` takes any other field of the
-    vehicle's spec (``sim_vehicles/models/spec.py``) as it is and hands it to the vehicle: a field
+    vehicle's spec (``sim_vehicles/models/vehicle_config.py``) as it is and hands it to the vehicle: a field
     added there is a config key with no change here (a key that is neither is an unknown key)."""
 
     model_config = ConfigDict(extra="allow", frozen=True)
@@ -104,7 +104,7 @@ class VehicleSpec(_Strict):
     #: MC_YAWRATE_MAX) [rad/s]; none given: the model's, PX4 v1.15's defaults (220, 220, 200
     #: deg/s) on ``px4_quad_x``, PX4's largest setting (1800 deg/s) on the paper's vehicle
     max_rate_rps: tuple[Positive, Positive, Positive] | None = None
-    sensors: SensorSpec = SensorSpec()  #: latency and noise of the state it reports
+    sensors: SensorSection = SensorSection()  #: latency and noise of the state it reports
     #: quadratic drag rho C_d A / 2: the air pushes with -drag |v - w| (v - w) [N s^2/m^2] (``wind``)
     drag_Ns2pm2: Annotated[float, Field(ge=0)] = 0.0
     #: the vehicle model (``sim_vehicles.models.build``): ``paper_vtol``, the paper's rigid body
@@ -125,8 +125,8 @@ class VehicleSpec(_Strict):
     k_q: Positive = 16.0  #: ``paper_vtol``'s torque law: body-rate-error gain
 
     @model_validator(mode="after")
-    def _spec_fields_only(self) -> "VehicleSpec":
-        spec_fields = {f.name for f in dataclasses.fields(vehicle_spec.VehicleSpec)}
+    def _spec_fields_only(self) -> "VehicleSection":
+        spec_fields = {f.name for f in dataclasses.fields(vehicle_config.VehicleConfig)}
         unknown = sorted(set(self.model_extra or {}) - (spec_fields - set(SET_ELSEWHERE)))
         if unknown:
             raise ValueError(f"{unknown[0]}: unknown key")

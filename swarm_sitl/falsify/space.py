@@ -49,7 +49,7 @@ from sim_vehicles.common.entry import absolute_entry
 from swarm_sitl.config.schema import SwarmConfig
 from swarm_sitl.faults.link_model import declared, resolve_link_model, severity_of
 from swarm_sitl.faults.link_models import LINK_MODELS
-from swarm_sitl.faults.plan import FaultSpec
+from swarm_sitl.faults.plan import FaultEntry
 
 COSTS = ("severity", "edges")
 Edge = tuple[Annotated[int, Field(ge=0)], Annotated[int, Field(ge=1)]]
@@ -428,7 +428,7 @@ def flown_plan(plan: dict[str, Any], cfg: SwarmConfig) -> dict[str, Any]:
     base plan, flown under every searched plan), then the searched ones (``expand``), all under
     the searched seed. What a counterexample file holds: ``run --faults`` replays it whole."""
     searched = expand(plan, cfg)
-    fields = FaultSpec.model_fields
+    fields = FaultEntry.model_fields
     base = [
         {k: v for k, v in f.items() if v is not None and not (k in fields and v == fields[k].default)}
         for f in cfg.data()["faults"]["plan"]
@@ -437,9 +437,9 @@ def flown_plan(plan: dict[str, Any], cfg: SwarmConfig) -> dict[str, Any]:
 
 
 def edges_of(entry: dict[str, Any], cfg: SwarmConfig) -> list[tuple[int, int]]:
-    """The graph edges a fault plan's entry acts on (``FaultSpec.edges``; none for a MAVLink
+    """The graph edges a fault plan's entry acts on (``FaultEntry.edges``; none for a MAVLink
     link or a process)."""
-    return FaultSpec.model_validate(entry).edges(cfg.graph_edges())
+    return FaultEntry.model_validate(entry).edges(cfg.graph_edges())
 
 
 def cost(plan: dict[str, Any], cfg: SwarmConfig, how: str = "severity") -> float:
@@ -459,6 +459,6 @@ def cost(plan: dict[str, Any], cfg: SwarmConfig, how: str = "severity") -> float
         if f.get("kill"):  # down from from_s for restart_after_s (at most to the end), all of it
             total += min(f["restart_after_s"], cfg.duration_s - f["from_s"])
             continue
-        model, params = FaultSpec.model_validate(f).link_how
+        model, params = FaultEntry.model_validate(f).link_how
         total += severity_of(model, params, cfg.control_dt_s, cfg.estimator.staleness_s) * dur
     return total

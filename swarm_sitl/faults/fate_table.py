@@ -20,13 +20,13 @@ A tick's message is keyed, timed and placed in its stream as ``plan.fate`` is as
 import numpy as np
 
 from swarm_sitl.faults.link_model import StepsOnLink
-from swarm_sitl.faults.plan import ON_TIME, Fate, FaultSpec
+from swarm_sitl.faults.plan import ON_TIME, Fate, FaultEntry
 
 BLOCK = 512  #: ticks drawn at once
 _LOST = Fate(True)
 
 
-def batched(rules: list[tuple[int, FaultSpec]]) -> bool:
+def batched(rules: list[tuple[int, FaultEntry]]) -> bool:
     """Whether every entry of ``rules`` can give many fates at once (none needs the distance)."""
     return all(callable(getattr(f.link_how[0], "fates", None)) and not f.needs_distance for _, f in rules)
 
@@ -38,7 +38,7 @@ class FateTable:
     def __init__(
         self,
         seed: int,
-        rules: list[tuple[int, FaultSpec]],
+        rules: list[tuple[int, FaultEntry]],
         channel: int,
         end_s: float,
         period_s: float,

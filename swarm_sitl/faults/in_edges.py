@@ -35,7 +35,7 @@ from swarm_sitl.faults.bandwidth import RadioQueue
 from swarm_sitl.faults.counts import EdgeStats, counts_names
 from swarm_sitl.faults.draws import uniform
 from swarm_sitl.faults.fate_table import FateTable, batched
-from swarm_sitl.faults.plan import ON_TIME, FaultPlan, FaultSpec, down_at, fate
+from swarm_sitl.faults.plan import ON_TIME, FaultEntry, FaultPlan, down_at, fate
 from swarm_sitl.faults.plan import edge_channel as channel_of
 from swarm_sitl.faults.radio_range import distance_m
 
@@ -63,7 +63,7 @@ class InEdges:
         self.end_s = end_s
         self.outages = outages
         sources = sorted({s for s, d in graph_edges if d == node})
-        self.rules: dict[int, list[tuple[int, FaultSpec]]] = {
+        self.rules: dict[int, list[tuple[int, FaultEntry]]] = {
             s: plan.on_edge(s, node, graph_edges) for s in sources
         }
         self.stats = {s: EdgeStats() for s in sources}

@@ -29,7 +29,7 @@ A built-in also says how a plan entry writes its parameters (``plan_form``):
 - ``delay``: ``delay_s: d`` and the entry's ``jitter_s``;
 - ``params``: the mapping of its ``Params``, ``bursty: {p: 0.05, r: 0.5}``.
 
-Adding a model: its module, its line in ``LINK_MODELS``, and its field in ``plan.FaultSpec`` (the
+Adding a model: its module, its line in ``LINK_MODELS``, and its field in ``plan.FaultEntry`` (the
 plan's schema; ``tests/test_link_registry.py`` names what is missing).
 """
 
@@ -67,7 +67,7 @@ def keys_of_form(form: str) -> list[str]:
 
 
 def model_of(entry: Any) -> Any:
-    """The class of a link entry's model (``plan.FaultSpec``; None: a user's model not imported,
+    """The class of a link entry's model (``plan.FaultEntry``; None: a user's model not imported,
     as in a run's record)."""
     if entry.model is not None:
         return None if entry.model.model is None else type(entry.model.model)
@@ -78,7 +78,7 @@ def model_of(entry: Any) -> Any:
 
 
 def how_of(entry: Any) -> tuple[Any, Any]:
-    """``(model, params)`` of a link entry of a plan (``plan.FaultSpec``), by its one how."""
+    """``(model, params)`` of a link entry of a plan (``plan.FaultEntry``), by its one how."""
     if entry.model is not None:
         return entry.model.model, entry.model.parsed_params
     for key, cls in LINK_MODELS.items():

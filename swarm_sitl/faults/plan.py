@@ -86,7 +86,7 @@ PROCESS_WHAT = ("controller", "vehicle", "leader")
 PROCESS_HOW = ("kill", "freeze_s")
 
 
-class FaultSpec(BaseModel):
+class FaultEntry(BaseModel):
     """One entry of a fault plan: one what, one how, and when."""
 
     model_config = ConfigDict(extra="forbid", frozen=True)
@@ -152,7 +152,7 @@ class FaultSpec(BaseModel):
         return data
 
     @model_validator(mode="after")
-    def _one_of_each(self) -> "FaultSpec":
+    def _one_of_each(self) -> "FaultEntry":
         all_what, all_how = LINK_WHAT + PROCESS_WHAT, LINK_HOW + PROCESS_HOW
         what = [k for k in all_what if getattr(self, k) is not None]
         how = [k for k in all_how if getattr(self, k) is not None]
@@ -313,7 +313,7 @@ class FaultPlan(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
 
     seed: Annotated[int, Field(ge=0, lt=2**63)] = 0  #: of every random draw: the same seed, the same faults
-    plan: list[FaultSpec] = []  #: the entries, each one what, one how and when
+    plan: list[FaultEntry] = []  #: the entries, each one what, one how and when
 
     def check_against(self, graph_edges: list[tuple[int, int]], n_followers: int, duration_s: float) -> None:
         """Cross-checks with the rest of the config; raises ``ValueError`` naming the entry."""
@@ -393,7 +393,7 @@ class FaultPlan(BaseModel):
             out.setdefault(node, []).append((k, back))
         return out
 
-    def on_mavlink(self, vehicle: int, uplink: bool) -> list[tuple[int, FaultSpec]]:
+    def on_mavlink(self, vehicle: int, uplink: bool) -> list[tuple[int, FaultEntry]]:
         """``(entry index, entry)`` of every entry acting on ``vehicle``'s MAVLink link, one way."""
         way = "up" if uplink else "down"
         return [
@@ -402,10 +402,10 @@ class FaultPlan(BaseModel):
             if f.mavlink == vehicle and (f.direction or "both") in (way, "both")
         ]
 
-    def process_faults(self) -> list[tuple[int, FaultSpec]]:
+    def process_faults(self) -> list[tuple[int, FaultEntry]]:
         return [(j, f) for j, f in enumerate(self.plan) if f.is_process]
 
-    def on_edge(self, src: int, dst: int, graph_edges: list[tuple[int, int]]) -> list[tuple[int, FaultSpec]]:
+    def on_edge(self, src: int, dst: int, graph_edges: list[tuple[int, int]]) -> list[tuple[int, FaultEntry]]:
         """``(entry index, entry)`` of every entry acting on the edge ``src -> dst``, in plan order."""
         return [(j, f) for j, f in enumerate(self.plan) if (src, dst) in f.edges(graph_edges)]
 
@@ -428,7 +428,7 @@ ON_TIME = Fate()
 
 def fate(
     seed: int,
-    rules: list[tuple[int, FaultSpec]],
+    rules: list[tuple[int, FaultEntry]],
     channel: int,
     key: int,
     t_s: float,

@@ -27,7 +27,7 @@ from pathlib import Path
 from typing import Any, Protocol
 
 from sim_vehicles.runtime.event_log import EventLog
-from swarm_sitl.faults.plan import FaultPlan, FaultSpec, tick_of
+from swarm_sitl.faults.plan import FaultEntry, FaultPlan, tick_of
 
 
 class Incarnation(Protocol):
@@ -58,7 +58,7 @@ class LostAircraftError(RuntimeError):
 
 @dataclass
 class _Action:
-    spec: FaultSpec
+    spec: FaultEntry
     at_s: float  #: when it happens [s]: simulated (lockstep) or run seconds (real time)
     kind: str  #: "kill", "freeze", "thaw", "restart"
     done: bool = False
@@ -134,7 +134,7 @@ class ProcessFaults:
             elif a.kind == "restart":
                 self._restart(a.spec.process, a.spec, run_s)
 
-    def _kill(self, name: str, spec: FaultSpec, run_s: float) -> None:
+    def _kill(self, name: str, spec: FaultEntry, run_s: float) -> None:
         child = self.sup.child(name)
         if child is None:
             return
@@ -147,7 +147,7 @@ class ProcessFaults:
             os.killpg(child.pid, sig)
         self._after_death(name, spec, run_s)
 
-    def _after_death(self, name: str, spec: FaultSpec, t_s: float) -> None:
+    def _after_death(self, name: str, spec: FaultEntry, t_s: float) -> None:
         self._event("process_killed", name, t_s)
         node = _follower_of(name)
         if name.startswith("vehicle_") and node is not None:
@@ -163,7 +163,7 @@ class ProcessFaults:
             else:
                 self._actions.append(_Action(spec, t_s + spec.restart_after_s, "restart"))
 
-    def _restart(self, name: str, spec: FaultSpec, t_s: float) -> None:
+    def _restart(self, name: str, spec: FaultEntry, t_s: float) -> None:
         assert self._restart_argv is not None and spec.restart_after_s is not None
         n = self.incarnation.get(name, 0) + 1
         self.incarnation[name] = n

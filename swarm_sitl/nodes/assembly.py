@@ -108,7 +108,7 @@ class Uplink:
     bit."""
 
     def __init__(self, cfg: SwarmConfig, i: int):
-        spec = cfg.vehicle_spec(i)
+        spec = cfg.vehicle_config(i)
         _, self.full_thrust_N = reported_vehicle_params(cfg)
         self.max_thrust_N = spec.max_thrust_N
         self.ardupilot: ArduCopterState | None = None
@@ -132,4 +132,4 @@ class Uplink:
 
 def build_autopilot(cfg: SwarmConfig, i: int) -> VehicleModel:
     """Follower ``i``'s vehicle, built as its process builds it: from its spec."""
-    return build_vehicle(cfg.vehicle_spec(i), i)
+    return build_vehicle(cfg.vehicle_config(i), i)

@@ -39,7 +39,7 @@ from swarm_sitl.bus.clock import StallError, sleep_until, wait_until, wall_epoch
 from swarm_sitl.bus.codec import Message, Status
 from swarm_sitl.bus.estimates import newest_for_tick
 from swarm_sitl.bus.node_bus import NodeBus
-from swarm_sitl.config.schema import RunSpec, SwarmConfig
+from swarm_sitl.config.schema import RunSection, SwarmConfig
 from swarm_sitl.laws.contract import VehicleSample
 from swarm_sitl.link.vehicle_link import VehicleLink
 from swarm_sitl.nodes.assembly import build_law
@@ -233,7 +233,7 @@ class _LockstepInputs(_Inputs):
     """A lockstep tick's inputs: the vehicle's sample stamped ``t_k`` and the in-neighbours'
     estimates of tick ``k - 1``, waited for (module docstring)."""
 
-    def start(self, clock: Pacer, resume_tick: int, phase_s: float, r: RunSpec) -> None:
+    def start(self, clock: Pacer, resume_tick: int, phase_s: float, r: RunSection) -> None:
         link = self.link
         if resume_tick:  # the vehicle flew on its own through the gap: its clock moves first
             link.advance_to(round(resume_tick * self.dt * 1000), r.start_timeout_s)
@@ -270,7 +270,7 @@ class _LockstepInputs(_Inputs):
 class _WallInputs(_Inputs):
     """A real-time tick's inputs: the latest sample and estimates at its instant (module docstring)."""
 
-    def start(self, clock: Pacer, resume_tick: int, phase_s: float, r: RunSpec) -> None:
+    def start(self, clock: Pacer, resume_tick: int, phase_s: float, r: RunSection) -> None:
         self.epoch_mono = wall_epoch_to_monotonic(
             wait_for_start(self.bus, self.link, r.start_timeout_s, self.who)
         )

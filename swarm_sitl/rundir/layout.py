@@ -89,9 +89,9 @@ def controller_incarnations(run_dir: Path, i: int, suffix: str, killed: str = ""
     return found
 
 
-def vehicle_spec_path(run_dir: Path, i: int) -> Path:
-    """What vehicle ``i`` is (``sim_vehicles.models.spec``), as the run hands it to its process."""
-    return procs_dir(run_dir) / f"vehicle_{i}.spec.json"
+def vehicle_config_path(run_dir: Path, i: int) -> Path:
+    """What vehicle ``i`` is (``sim_vehicles.models.vehicle_config``), as the run hands it to its process."""
+    return procs_dir(run_dir) / f"vehicle_{i}.config.json"
 
 
 def vehicle_truth_path(run_dir: Path, i: int) -> Path:

@@ -40,9 +40,9 @@ def wire_kernels() -> None:
     """The kernels of the wire: a vehicle's frames, signing and lockstep tick (and its plant's,
     for the default vehicle), as a vehicle loads them before it is ready."""
     import sim_vehicles.__main__ as vehicle
-    from sim_vehicles.models.spec import VehicleSpec
+    from sim_vehicles.models.vehicle_config import VehicleConfig
 
-    vehicle.warm_up(VehicleSpec())
+    vehicle.warm_up(VehicleConfig())
 
 
 def flight_kernels(cfg: SwarmConfig) -> None:

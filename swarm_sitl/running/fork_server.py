@@ -95,12 +95,12 @@ def _warm_up(config_path: str | None) -> None:
     work, so imported here: the supervisor imports this module for ``ForkServer`` only)."""
     import sim_vehicles.__main__
     import swarm_sitl.nodes.entry  # noqa: F401  (every node's modules: its link, bus, faults, laws)
-    from sim_vehicles.models.spec import VehicleSpec
+    from sim_vehicles.models.vehicle_config import VehicleConfig
 
     # the kernels a vehicle and a controller load before they declare themselves ready: the plant,
     # the attitude loop and the per-tick MAVLink frames (each child loaded them from numba's cache,
     # over 0.1 s of CPU apiece, 64 of them at once on two cores in a 64-follower start)
-    sim_vehicles.__main__.warm_up(VehicleSpec())  # frames' kernels too
+    sim_vehicles.__main__.warm_up(VehicleConfig())  # frames' kernels too
     if config_path:
         from swarm_sitl.config.load import load_config
         from swarm_sitl.running.sim import run_sim

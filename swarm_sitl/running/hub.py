@@ -105,7 +105,7 @@ class RunMonitor:
 
 
 def open_hub(cfg: SwarmConfig, run_dir: Path, sup: Supervisor) -> tuple[str | None, Any]:
-    """The supervisor's zenoh session and the endpoint the nodes connect to (``ZenohSpec``): in
+    """The supervisor's zenoh session and the endpoint the nodes connect to (``ZenohSection``): in
     ``router`` mode a router on ``zenoh.listen`` (by default a free loopback port) that
     authenticates each node with a fresh password (given to the node's processes in their
     environment) and holds it to its keys; in ``peer`` mode a peer on a free loopback port where

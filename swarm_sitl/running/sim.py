@@ -28,7 +28,7 @@ from sim_vehicles.mavlink.wire_format import (
     sample_from_fields,
 )
 from sim_vehicles.models.build import build_vehicle, sensor_model
-from sim_vehicles.models.spec import VehicleSpec
+from sim_vehicles.models.vehicle_config import VehicleConfig
 from swarm_sitl.bus.codec import Message
 from swarm_sitl.config.schema import SwarmConfig
 from swarm_sitl.laws.contract import Received, VehicleSample
@@ -54,7 +54,7 @@ def sample_through_wire(t_s: float, state: np.ndarray) -> VehicleSample:
     return VehicleSample(t_s, s[SAMPLE_P], s[SAMPLE_V], s[SAMPLE_Q])
 
 
-def _load_kernels(spec: VehicleSpec, i: int, n_att: int, max_thrust: float) -> None:
+def _load_kernels(spec: VehicleConfig, i: int, n_att: int, max_thrust: float) -> None:
     """A scratch vehicle's tick through the wire: the compiled kernels a tick runs loaded (their
     memory taken) before a law's guard measures what the law takes."""
     ap = build_vehicle(spec, i)
@@ -86,7 +86,9 @@ def run_sim(
     # (``sim_plan``); without one, those of this loop
     planned = PlannedSwarm(cfg, n, sample_through_wire) if cfg.faults.plan else None
     laws = {} if planned else {i: build_law(cfg, i, *reported_vehicle_params(cfg)) for i in ids}
-    specs = {} if planned else {i: cfg.vehicle_spec(i) for i in ids}  # each vehicle as its process builds it
+    specs = (
+        {} if planned else {i: cfg.vehicle_config(i) for i in ids}
+    )  # each vehicle as its process builds it
     aps = {i: build_vehicle(specs[i], i) for i in specs}
     series = (
         planned.series
@@ -115,7 +117,7 @@ def run_sim(
     guard = None
     if not cfg.law.is_paper:
         _load_kernels(
-            cfg.vehicle_spec(ids[0]), ids[0], n_att, max_thrust
+            cfg.vehicle_config(ids[0]), ids[0], n_att, max_thrust
         )  # the guard counts the law's memory
         guard = LawGuard(
             cfg.run.tick_timeout_s,

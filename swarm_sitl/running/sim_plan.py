@@ -38,7 +38,7 @@ from sim_vehicles.common.command import AttitudeCommand
 from sim_vehicles.mavlink import ardupilot_profile as ap_profile
 from sim_vehicles.mavlink import px4_profile as px4
 from sim_vehicles.models.build import build_vehicle, sensor_model
-from sim_vehicles.models.spec import VehicleSpec
+from sim_vehicles.models.vehicle_config import VehicleConfig
 from sim_vehicles.plant.failsafe import ACTIONS
 from sim_vehicles.runtime.event_log import EventLog
 from sim_vehicles.vehicle.autopilots import PROFILES, PX4
@@ -92,7 +92,7 @@ class _Vehicle:
 
     def __init__(
         self,
-        spec: VehicleSpec,
+        spec: VehicleConfig,
         i: int,
         n_att: int,
         uplink: Uplink,
@@ -193,7 +193,8 @@ class PlannedSwarm:
         self.events: list[dict[str, Any]] = []  #: the vehicles' (``MemoryEvents``)
         steady = not any(f.is_process or f.mavlink is not None for f in plan.plan)
         self.vehicles = {
-            i: _Vehicle(cfg.vehicle_spec(i), i, n_att, Uplink(cfg, i), self.events, steady) for i in self.ids
+            i: _Vehicle(cfg.vehicle_config(i), i, n_att, Uplink(cfg, i), self.events, steady)
+            for i in self.ids
         }
         self.period_ms = round(dt * 1000)
         self.up_rules = {i: plan.on_mavlink(i, True) for i in self.ids}

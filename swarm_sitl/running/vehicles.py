@@ -19,8 +19,8 @@ from swarm_sitl.config.schema import SwarmConfig
 from swarm_sitl.rundir.layout import (
     procs_dir,
     signing_key_path,
+    vehicle_config_path,
     vehicle_events_path,
-    vehicle_spec_path,
     vehicle_stats_path,
     vehicle_truth_path,
 )
@@ -38,7 +38,7 @@ GCS_REMOTE = "127.0.0.1:14550"
 
 
 def signing_key_file(cfg: SwarmConfig, run_dir: Path, own_vehicles: bool) -> Path | None:
-    """The passphrase file every vehicle link of this run is signed with (``SigningSpec``), or
+    """The passphrase file every vehicle link of this run is signed with (``SigningSection``), or
     None: the one the config gives, else for vehicles this run spawns a fresh random one written
     to ``RUN_DIR/mavlink_signing.key``, readable by this user only."""
     if not cfg.signing.enabled:
@@ -68,15 +68,15 @@ def vehicle_argv(
     host: str = "127.0.0.1",
 ) -> list[str]:
     """Vehicle ``i``'s command line: what it is goes whole in its spec file
-    (``RUN_DIR/procs/vehicle_<i>.spec.json``, written here), where it listens and writes in flags."""
-    spec = vehicle_spec_path(run_dir, i)
+    (``RUN_DIR/procs/vehicle_<i>.config.json``, written here), where it listens and writes in flags."""
+    spec = vehicle_config_path(run_dir, i)
     spec.parent.mkdir(parents=True, exist_ok=True)
-    spec.write_text(cfg.vehicle_spec(i).to_json())
+    spec.write_text(cfg.vehicle_config(i).to_json())
     argv = [
         *module_argv("sim_vehicles"),
         "--id",
         str(i),
-        "--spec",
+        "--config",
         str(spec),
         "--host",
         host,

@@ -1,4 +1,4 @@
-"""The vehicle as one spec (``sim_vehicles.models``): it crosses a process boundary whole and bit
+"""The vehicle as one config (``sim_vehicles.models``): it crosses a process boundary whole and bit
 for bit, one function builds the same vehicle from it wherever it is flown, and what is not a
 vehicle is one line naming the field."""
 
@@ -14,7 +14,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from sim_vehicles.models.build import build_vehicle, sensor_model
-from sim_vehicles.models.spec import Gusts, SensorNoise, VehicleSpec, VehicleSpecError
+from sim_vehicles.models.vehicle_config import Gusts, SensorNoise, VehicleConfig, VehicleConfigError
 from swarm_sitl.nodes.assembly import build_autopilot
 from tests.support import CLI, CONFIGS, config
 
@@ -31,7 +31,7 @@ positive = st.floats(1e-6, 1e6, allow_nan=False)
     st.integers(0, 2**63 - 1),
 )
 def test_a_spec_comes_back_from_its_json_equal_bit_for_bit(position, inertia, mass, drag, seed):
-    spec = VehicleSpec(
+    spec = VehicleConfig(
         mass_kg=mass,
         max_thrust_N=mass * 9.81 * 3.0,
         inertia_kgm2=inertia,
@@ -40,7 +40,7 @@ def test_a_spec_comes_back_from_its_json_equal_bit_for_bit(position, inertia, ma
         wind=Gusts((1.0 / 3.0, 0.1, -2.0), 0.7, 0.9, seed),
         sensors=SensorNoise(0.01, 0.02, 0.003, 0.04, seed),
     )
-    back = VehicleSpec.from_json(spec.to_json())
+    back = VehicleConfig.from_json(spec.to_json())
     assert back == spec
     assert np.array(back.position_m).tobytes() == np.array(position).tobytes()
 
@@ -57,14 +57,14 @@ def test_the_run_builds_the_vehicle_sim_builds_from_the_spec_its_process_reads()
 
     cfg = parse_config(data)
     for i in (1, 3):
-        spec = VehicleSpec.from_json(cfg.vehicle_spec(i).to_json())
+        spec = VehicleConfig.from_json(cfg.vehicle_config(i).to_json())
         a, b = build_autopilot(cfg, i), build_vehicle(spec, i)
         assert a.params == b.params and a.gains == b.gains and a.dt_s == b.dt_s
         for ap in (a, b):
             for _ in range(20):
                 ap.advance(10)
         assert a.state.tobytes() == b.state.tobytes()
-        s1, s2 = sensor_model(spec, i), sensor_model(cfg.vehicle_spec(i), i)
+        s1, s2 = sensor_model(spec, i), sensor_model(cfg.vehicle_config(i), i)
         assert s1 is not None and s2 is not None
         x = a.state
         assert s1.reported(120, x).tobytes() == s2.reported(120, x).tobytes()
@@ -85,33 +85,34 @@ def test_the_run_builds_the_vehicle_sim_builds_from_the_spec_its_process_reads()
     ],
 )
 def test_what_is_not_a_vehicle_is_one_line_naming_the_field(change, named):
-    with pytest.raises(VehicleSpecError, match=f"^vehicle spec: {named}") as e:
-        dataclasses.replace(VehicleSpec(), **change)
+    with pytest.raises(VehicleConfigError, match=f"^vehicle config: {named}") as e:
+        dataclasses.replace(VehicleConfig(), **change)
     assert "\n" not in str(e.value)
 
 
 @pytest.mark.unit
-def test_a_spec_file_that_is_not_one_is_refused_in_one_line():
+def test_a_config_file_that_is_not_one_is_refused_in_one_line():
     for text, named in [
         ("[1, 2]", "must be a mapping"),
         ('{"mass": 1}', r"unknown field\(s\) mass"),
         ("{", "not JSON"),
-        ('{"inertia_kgm2": 5}', "vehicle spec:"),
+        ('{"inertia_kgm2": 5}', "vehicle config:"),
     ]:
-        with pytest.raises(VehicleSpecError, match=named):
-            VehicleSpec.from_json(text)
-    with pytest.raises(VehicleSpecError, match="model 'quad9' is not one of paper_vtol"):
-        build_vehicle(VehicleSpec(model="quad9"), 1)
+        with pytest.raises(VehicleConfigError, match=named):
+            VehicleConfig.from_json(text)
+    with pytest.raises(VehicleConfigError, match="model 'quad9' is not one of paper_vtol"):
+        build_vehicle(VehicleConfig(model="quad9"), 1)
 
 
 @pytest.mark.integration
-def test_the_vehicle_process_refuses_a_bad_spec_file_in_one_line_before_it_binds(tmp_path):
+def test_the_vehicle_process_refuses_a_bad_config_file_in_one_line_before_it_binds(tmp_path):
     bad = tmp_path / "v.json"
-    bad.write_text(json.dumps({**json.loads(VehicleSpec().to_json()), "mass_kg": 0}))
+    bad.write_text(json.dumps({**json.loads(VehicleConfig().to_json()), "mass_kg": 0}))
     for args, named in [
-        (["--spec", str(bad)], "vehicle spec: mass_kg: must be a finite number > 0, got 0"),
-        (["--spec", str(tmp_path / "none.json")], "--spec"),
+        (["--config", str(bad)], "vehicle config: mass_kg: must be a finite number > 0, got 0"),
+        (["--config", str(tmp_path / "none.json")], "--config"),
         (["--model", "nope"], "model 'nope' is not one of"),
+        (["--spec", str(bad)], "vehicle config: mass_kg"),  # the flag's name before: read, with a notice
     ]:
         r = subprocess.run(
             [sys.executable, "-m", "sim_vehicles", "--port", "0", *args],
@@ -121,34 +122,38 @@ def test_the_vehicle_process_refuses_a_bad_spec_file_in_one_line_before_it_binds
         )
         assert r.returncode == 2, r.stderr
         lines = r.stderr.strip().splitlines()
+        if args[0] == "--spec":
+            notice = "--spec is --config now (the vehicle's config file); read as --config"
+            assert lines[0] == f"sim_vehicles: notice: {notice}"
+            lines = lines[1:]
         assert len(lines) == 1 and named in lines[0], r.stderr
 
 
 @pytest.mark.unit
-def test_flags_set_fields_over_the_spec_file(tmp_path):
-    from sim_vehicles.__main__ import vehicle_spec
+def test_flags_set_fields_over_the_config_file(tmp_path):
+    from sim_vehicles.__main__ import vehicle_config
 
     path = tmp_path / "v.json"
-    path.write_text(VehicleSpec(mass_kg=1.2, max_thrust_N=30.0, wind=Gusts(gust_mps=0.5)).to_json())
+    path.write_text(VehicleConfig(mass_kg=1.2, max_thrust_N=30.0, wind=Gusts(gust_mps=0.5)).to_json())
     import argparse
 
-    from sim_vehicles.__main__ import SENSOR_FLAGS, SPEC_FLAGS, WIND_FLAGS
+    from sim_vehicles.__main__ import CONFIG_FLAGS, SENSOR_FLAGS, WIND_FLAGS
 
-    none = {flag: None for flag in [*SPEC_FLAGS, *WIND_FLAGS, *SENSOR_FLAGS]}
-    a = argparse.Namespace(**{**none, "spec": str(path), "position": [1.0, 2.0, 3.0], "wind_seed": 7})
-    spec = vehicle_spec(a)
+    none = {flag: None for flag in [*CONFIG_FLAGS, *WIND_FLAGS, *SENSOR_FLAGS]}
+    a = argparse.Namespace(**{**none, "config": str(path), "position": [1.0, 2.0, 3.0], "wind_seed": 7})
+    spec = vehicle_config(a)
     assert spec.mass_kg == 1.2 and spec.position_m == (1.0, 2.0, 3.0)
     assert spec.wind == Gusts(gust_mps=0.5, seed=7)  # the file's gusts, the flag's seed
-    assert vehicle_spec(argparse.Namespace(**{**none, "spec": None})) == VehicleSpec()
+    assert vehicle_config(argparse.Namespace(**{**none, "config": None})) == VehicleConfig()
 
 
 @pytest.mark.unit
 def test_the_paper_configs_vehicle_is_the_specs_default_airframe():
-    """``VehicleSpec()``'s defaults are section 4's airframe, what ``python -m sim_vehicles``
+    """``VehicleConfig()``'s defaults are section 4's airframe, what ``python -m sim_vehicles``
     flies by hand without flags (as before the spec)."""
     cfg = config("paper")
-    spec = cfg.vehicle_spec(1)
-    default = VehicleSpec()
+    spec = cfg.vehicle_config(1)
+    default = VehicleConfig()
     same = ("mass_kg", "inertia_kgm2", "max_thrust_N", "g_mps2", "l_q", "k_q", "attitude_hz")
     assert all(getattr(spec, f) == getattr(default, f) for f in same)
 
@@ -166,7 +171,7 @@ def test_an_old_config_with_the_torque_law_under_gains_loads_with_one_notice():
     del old["vehicle"]["l_q"], old["vehicle"]["k_q"]
     cfg = parse_config(old)
     assert (cfg.vehicle.l_q, cfg.vehicle.k_q) == (12.0, 9.0) and "l_q" not in cfg.gain_dict()
-    assert cfg.vehicle_spec(1).l_q == 12.0
+    assert cfg.vehicle_config(1).l_q == 12.0
     assert cfg.notices == [
         "gains.l_q, gains.k_q: the vehicle's attitude loop now, read as vehicle.l_q, vehicle.k_q "
         "(move them there)"
@@ -193,21 +198,21 @@ def test_the_cli_says_the_notice_in_one_line_and_carries_on(tmp_path):
 
 
 @pytest.mark.unit
-def test_a_field_added_to_the_vehicle_spec_is_a_config_key_with_no_change_to_the_schema(monkeypatch):
-    """A parameter every model shares is one field of ``VehicleSpec`` (and its use in a model):
+def test_a_field_added_to_the_vehicle_config_is_a_config_key_with_no_change_to_the_schema(monkeypatch):
+    """A parameter every model shares is one field of ``VehicleConfig`` (and its use in a model):
     the config's ``vehicle:`` takes it as it is and hands it on, here a spec with one field more
     (``motor_kv``); a key that is no field of either is still an unknown key, in one line."""
     from swarm_sitl.config.load import ConfigError, parse_config
 
     @dataclasses.dataclass(frozen=True)
-    class Extended(VehicleSpec):
+    class Extended(VehicleConfig):
         motor_kv: float = 0.0
         props: tuple[float, float] = (0.0, 0.0)
 
-    monkeypatch.setattr("sim_vehicles.models.spec.VehicleSpec", Extended)
+    monkeypatch.setattr("sim_vehicles.models.vehicle_config.VehicleConfig", Extended)
     data = yaml.safe_load((CONFIGS / "paper.yaml").read_text())
     data["vehicle"].update(motor_kv=920.0, props=[5.0, 4.5])
-    spec = parse_config(data).vehicle_spec(2)
+    spec = parse_config(data).vehicle_config(2)
     assert isinstance(spec, Extended) and spec.motor_kv == 920.0 and spec.props == (5.0, 4.5)
     assert spec.mass_kg == 0.85  # (and everything else as before)
     data["vehicle"]["motor_kvv"] = 1.0
@@ -254,19 +259,19 @@ def _sample(field: dataclasses.Field) -> object:
         return default * 1.5 + 0.25
     if isinstance(default, tuple) and all(isinstance(x, float) for x in default):
         return tuple(x * 1.5 + 0.25 for x in default)
-    raise AssertionError(f"VehicleSpec.{field.name}: give the test a sample value (SAMPLES)")
+    raise AssertionError(f"VehicleConfig.{field.name}: give the test a sample value (SAMPLES)")
 
 
 @pytest.mark.unit
-@pytest.mark.parametrize("name", [f.name for f in dataclasses.fields(VehicleSpec) if f.name != "params"])
+@pytest.mark.parametrize("name", [f.name for f in dataclasses.fields(VehicleConfig) if f.name != "params"])
 def test_every_field_of_the_spec_reaches_the_vehicle_from_where_the_config_sets_it(name):
-    """Each field of ``VehicleSpec``, given a value of its own where the config sets it (its
+    """Each field of ``VehicleConfig``, given a value of its own where the config sets it (its
     ``vehicle:`` key, or the section ``SET_ELSEWHERE`` names), is that value in every follower's
     spec: a field the mapping dropped would keep its default."""
     from swarm_sitl.config.load import parse_config
     from swarm_sitl.config.vehicle_section import SET_ELSEWHERE
 
-    field = next(f for f in dataclasses.fields(VehicleSpec) if f.name == name)
+    field = next(f for f in dataclasses.fields(VehicleConfig) if f.name == name)
     value = _sample(field)
     data = yaml.safe_load((CONFIGS / "paper.yaml").read_text())
     data["vehicle"]["drag_Ns2pm2"] = 0.01  # (wind acts through it)
@@ -279,7 +284,7 @@ def test_every_field_of_the_spec_reaches_the_vehicle_from_where_the_config_sets_
         node[path[-1]] = list(value) if isinstance(value, tuple) else value
     cfg = parse_config(data)
     for f in cfg.followers:
-        got = getattr(cfg.vehicle_spec(f.id), name)
+        got = getattr(cfg.vehicle_config(f.id), name)
         if isinstance(value, dict):  # a nested spec, field by field
             assert dataclasses.asdict(got) == {
                 k: tuple(v) if isinstance(v, list) else v for k, v in value.items()
@@ -296,7 +301,17 @@ def test_a_models_parameters_and_a_followers_autopilot_reach_its_vehicle():
     data["vehicle"].update(model="px4_quad_x", params={"T_TAU_S": 0.05, "MC_ROLL_P": 5})
     data["followers"][1]["autopilot"] = "ardupilot"
     cfg = parse_config(data)
-    specs = {f.id: cfg.vehicle_spec(f.id) for f in cfg.followers}
+    specs = {f.id: cfg.vehicle_config(f.id) for f in cfg.followers}
     assert all(s.params == {"T_TAU_S": 0.05, "MC_ROLL_P": 5.0} for s in specs.values())
     assert all(type(x) is float for s in specs.values() for x in s.params.values())
     assert [s.autopilot for s in specs.values()] == ["px4", "ardupilot", "px4", "px4"]
+
+
+@pytest.mark.unit
+def test_a_model_written_against_the_names_before_still_imports_them():
+    """``VehicleSpec`` and ``VehicleSpecError`` from ``sim_vehicles.models.spec`` (a user's model
+    of before imports them) are the vehicle's config and its error under their names before."""
+    from sim_vehicles.models import spec, vehicle_config
+
+    assert spec.VehicleSpec is vehicle_config.VehicleConfig
+    assert spec.VehicleSpecError is vehicle_config.VehicleConfigError

@@ -1,0 +1,191 @@
+"""``VehicleConfig``: everything one simulated vehicle is, in one frozen object.
+
+A run describes each vehicle in its config; ``swarm_sitl`` turns that into a ``VehicleConfig`` per
+follower, writes it to ``RUN_DIR/procs/vehicle_<i>.config.json`` and starts ``python -m
+sim_vehicles --spec FILE``; ``sim`` builds the same vehicle from the same spec in its own process
+(``build.build_vehicle``). A new parameter of a model is one field here and its use in the model:
+no argv flag, no parser, no second builder.
+
+Units and frames as everywhere: SI, ENU world, FLU body, Hamilton ``[w, x, y, z]`` body to world.
+``VehicleConfig.from_json`` refuses what is not one, in one line naming the field
+(``VehicleConfigError``).
+"""
+
+import json
+import math
+from dataclasses import asdict, dataclass, field, fields
+from typing import Any
+
+from sim_vehicles.plant import px4_params
+from sim_vehicles.plant.failsafe import ACTIONS
+from sim_vehicles.plant.params import MAX_RATE_DEFAULT_RPS, VehicleParamError
+
+#: the model of a spec that names none: the paper's rigid body with its torque law as autopilot
+DEFAULT_MODEL = "paper_vtol"
+#: the autopilots a vehicle speaks as (``vehicle.autopilots.PROFILES``' names)
+AUTOPILOTS = ("px4", "ardupilot")
+
+
+class VehicleConfigError(ValueError):
+    """A vehicle config that is not one; the message names the field."""
+
+
+@dataclass(frozen=True)
+class Gusts:
+    """The air (``plant.wind``): a mean wind plus first-order Gauss-Markov gusts per axis."""
+
+    mean_mps: tuple[float, float, float] = (0.0, 0.0, 0.0)  #: [m/s; ENU]
+    gust_mps: float = 0.0  #: standard deviation of each axis's gust [m/s]
+    gust_time_s: float = 1.0  #: the gusts' correlation time [s]
+    seed: int = 0  #: of the gusts
+    #: ``independent``: each vehicle's own gusts (``plant.wind.WindModel``); ``frozen``: the world's,
+    #: one field carried by the mean wind (``plant.wind.FrozenGusts``)
+    model: str = "independent"
+
+
+@dataclass(frozen=True)
+class SensorNoise:
+    """What the vehicle reports of its state (``plant.sensors``): latency and Gaussian noise."""
+
+    position_noise_m: float = 0.0  #: per axis [m]
+    velocity_noise_mps: float = 0.0  #: per axis [m/s]
+    attitude_noise_rad: float = 0.0  #: error rotation, per axis [rad]
+    latency_s: float = 0.0  #: the report is the state this long ago [s]
+    seed: int = 0  #: of the noise
+    position_bias_walk_m_per_sqrt_s: float = 0.0  #: the position's bias, a random walk [m/sqrt(s)]
+
+
+def default_max_rate_rps(model: str) -> tuple[float, float, float]:
+    """The body-rate limits of a spec that gives none [rad/s]: ``px4_quad_x``'s are PX4 v1.15's
+    MC_*RATE_MAX (220, 220, 200 deg/s, ``plant.px4_params``); every other model's PX4's largest
+    setting, 1800 deg/s (the paper's vehicle: above its scenario's largest command)."""
+    if model == "px4_quad_x":
+        r, p, y = px4_params.DEFAULT_MAX_RATE_RPS
+        return (r, p, y)
+    return (MAX_RATE_DEFAULT_RPS,) * 3
+
+
+@dataclass(frozen=True)
+class VehicleConfig:
+    """One vehicle: its model and every parameter the model, its autopilot and its endpoint's
+    flight modes take. The defaults are the paper's section 4 airframe."""
+
+    model: str = DEFAULT_MODEL  #: a registered model's name (``build.MODELS``)
+    mass_kg: float = 0.85
+    inertia_kgm2: tuple[float, float, float] = (4.856e-2, 4.856e-2, 8.801e-2)  #: principal [kg m^2; FLU]
+    max_thrust_N: float = 25.0  #: largest collective thrust; MAVLink thrust 1.0 maps to it [N]
+    g_mps2: float = 9.81
+    #: commanded body rates are clipped to +- these (PX4's MC_*RATE_MAX) [rad/s; roll, pitch, yaw];
+    #: None: the model's default (``default_max_rate_rps``), which the spec holds once it is made
+    max_rate_rps: tuple[float, float, float] | None = None
+    drag_Ns2pm2: float = 0.0  #: quadratic drag rho C_d A / 2 [N s^2/m^2] (``plant.wind``)
+    l_q: float = 16.0  #: the paper's torque law: attitude-error gain
+    k_q: float = 16.0  #: the paper's torque law: body-rate-error gain
+    attitude_hz: float = 1000.0  #: the attitude loop's and the plant's step rate [Hz]
+    setpoint_timeout_s: float = 0.5  #: failsafe after this long without a valid setpoint [s]
+    failsafe_action: str = "hold"  #: PX4's COM_OBL_RC_ACT: ``hold`` position or ``land``
+    position_m: tuple[float, float, float] = (0.0, 0.0, 0.0)  #: initial [m; ENU]
+    velocity_mps: tuple[float, float, float] = (0.0, 0.0, 0.0)  #: initial [m/s; ENU]
+    quaternion_wxyz: tuple[float, float, float, float] = (1.0, 0.0, 0.0, 0.0)  #: initial, body to world
+    wind: Gusts | None = None  #: None: still air
+    sensors: SensorNoise | None = None  #: None: the true state is reported
+    params: dict[str, float] = field(default_factory=dict)  #: a model's own parameters, by name
+    #: the autopilot it speaks as over MAVLink (``vehicle.autopilots``): ``px4`` or ``ardupilot``
+    autopilot: str = "px4"
+
+    def __post_init__(self) -> None:
+        def bad(name: str, why: str) -> VehicleConfigError:
+            return VehicleConfigError(f"vehicle config: {name}: {why}")
+
+        if self.max_rate_rps is None:
+            object.__setattr__(self, "max_rate_rps", default_max_rate_rps(self.model))
+        elif isinstance(self.max_rate_rps, list):  # (JSON's list: the tuple the field is)
+            object.__setattr__(self, "max_rate_rps", tuple(self.max_rate_rps))
+
+        for name in ("mass_kg", "max_thrust_N", "g_mps2", "attitude_hz", "setpoint_timeout_s", "l_q", "k_q"):
+            v = getattr(self, name)
+            if not (isinstance(v, int | float) and 0 < v < math.inf):
+                raise bad(name, f"must be a finite number > 0, got {v!r}")
+        for name, n in (("inertia_kgm2", 3), ("max_rate_rps", 3)):
+            v = getattr(self, name)
+            if len(v) != n or not all(isinstance(x, int | float) and 0 < x < math.inf for x in v):
+                raise bad(name, f"must be {n} finite numbers > 0, got {v!r}")
+        for name, n in (("position_m", 3), ("velocity_mps", 3), ("quaternion_wxyz", 4)):
+            v = getattr(self, name)
+            if len(v) != n or not all(isinstance(x, int | float) and math.isfinite(x) for x in v):
+                raise bad(name, f"must be {n} finite numbers, got {v!r}")
+        for name, v in self.params.items():  # (a bool is not a number here: {X: true} is a mistake)
+            if isinstance(v, bool) or not (isinstance(v, int | float) and math.isfinite(v)):
+                raise bad(f"params: {name}", f"must be a finite number, got {v!r}")
+        if abs(math.sqrt(sum(x * x for x in self.quaternion_wxyz)) - 1.0) > 1e-6:
+            raise bad("quaternion_wxyz", f"must be a unit quaternion, got {self.quaternion_wxyz!r}")
+        if self.autopilot not in AUTOPILOTS:
+            raise bad("autopilot", f"must be one of {', '.join(AUTOPILOTS)}, got {self.autopilot!r}")
+        if self.failsafe_action not in ACTIONS:
+            raise bad(
+                "failsafe_action",
+                f"must be one of {', '.join(sorted(ACTIONS))}, got {self.failsafe_action!r}",
+            )
+        if not 0 <= self.drag_Ns2pm2 < math.inf:
+            raise bad("drag_Ns2pm2", f"must be >= 0 and finite, got {self.drag_Ns2pm2!r}")
+        if not self.max_thrust_N > self.mass_kg * self.g_mps2:
+            raise bad(
+                "max_thrust_N",
+                f"{self.max_thrust_N} must exceed the weight m g ({self.mass_kg * self.g_mps2:.3f} N) "
+                "or the vehicle cannot hover",
+            )
+        if self.wind is not None and (self.wind.gust_mps < 0 or not self.wind.gust_time_s > 0):
+            raise bad("wind", "gust_mps is zero or positive and gust_time_s positive")
+        if self.wind is not None and self.wind.model not in ("independent", "frozen"):
+            raise bad("wind", f"model must be independent or frozen, got {self.wind.model!r}")
+        if self.sensors is not None:
+            s = self.sensors
+            values = (
+                s.position_noise_m,
+                s.velocity_noise_mps,
+                s.attitude_noise_rad,
+                s.latency_s,
+                s.position_bias_walk_m_per_sqrt_s,
+            )
+            if any(not (v >= 0) for v in values):
+                raise bad("sensors", "noise and latency are zero or positive")
+
+    # -- crossing a process boundary -------------------------------------------------------------
+    def to_json(self) -> str:
+        """The spec as one JSON document (``from_json`` reads it back to an equal spec: floats are
+        written as ``repr`` writes them, so they come back bit for bit)."""
+        return json.dumps(asdict(self), indent=1, sort_keys=True) + "\n"
+
+    @classmethod
+    def from_json(cls, text: str) -> "VehicleConfig":
+        """The spec ``to_json`` wrote; ``VehicleConfigError`` naming what is wrong otherwise."""
+        try:
+            data = json.loads(text)
+        except ValueError as e:
+            raise VehicleConfigError(f"vehicle config: not JSON ({e})") from None
+        return cls.from_dict(data)
+
+    @classmethod
+    def from_dict(cls, data: Any) -> "VehicleConfig":
+        if not isinstance(data, dict):
+            raise VehicleConfigError("vehicle config: must be a mapping of field names to values")
+        known = {f.name for f in fields(cls)}
+        unknown = sorted(set(data) - known)
+        if unknown:
+            raise VehicleConfigError(f"vehicle config: unknown field(s) {', '.join(unknown)}")
+        d = dict(data)
+        try:
+            for f in fields(cls):  # JSON's lists back to the tuples the fields are
+                if isinstance(f.default, tuple) and isinstance(d.get(f.name), list):
+                    d[f.name] = tuple(d[f.name])
+            if d.get("wind") is not None:
+                w = dict(d["wind"])
+                w["mean_mps"] = tuple(w.get("mean_mps", (0.0, 0.0, 0.0)))
+                d["wind"] = Gusts(**w)
+            if d.get("sensors") is not None:
+                d["sensors"] = SensorNoise(**d["sensors"])
+            return cls(**d)
+        except VehicleConfigError:
+            raise
+        except (TypeError, ValueError, VehicleParamError) as e:
+            raise VehicleConfigError(f"vehicle config: {e}") from None
