@@ -15,7 +15,7 @@ from swarm_sitl.laws.contract import AttitudeCommand, LawOutput, Received, Vehic
 from swarm_sitl.nodes.assembly import build_law
 from swarm_sitl.nodes.law_host import HostedLaw, LawError
 from swarm_sitl.running.sim import SimFailedError, run_sim
-from tests.support import CLI, CONFIGS
+from tests.support import CLI, CONFIGS, cli
 
 #: its system tests run in lockstep or ``sim`` only (no wall clock): free to run beside others
 pytestmark = pytest.mark.lockstep
@@ -231,19 +231,14 @@ def test_sim_of_a_failing_law_keeps_what_it_recorded_and_exits_1_in_one_line(tmp
 @pytest.mark.system
 def test_run_of_a_failing_law_names_the_process_its_code_the_law_and_keeps_the_records(tmp_path, laws_file):
     out = tmp_path / "run"
-    r = subprocess.run(
-        [
-            *CLI,
-            "run",
-            str(_config(tmp_path, f"{laws_file}:RaisesLater")),
-            "--duration",
-            "3",
-            "--out",
-            str(out),
-            "--quiet",
-        ],
-        capture_output=True,
-        text=True,
+    r = cli(
+        "run",
+        _config(tmp_path, f"{laws_file}:RaisesLater"),
+        "--duration",
+        3,
+        "--out",
+        out,
+        "--quiet",
         timeout=240,
     )
     assert r.returncode == 1, r.stderr

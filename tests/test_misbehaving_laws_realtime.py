@@ -54,12 +54,18 @@ def _lost(out) -> list[tuple[str, int]]:
     return sorted((e["process"], e["code"]) for e in map(json.loads, lines))
 
 
-@pytest.mark.system
-def test_three_laws_that_exit_or_hang_in_real_time_are_ridden_through_and_each_named(tmp_path):
-    r, wall = fly(tmp_path, "run", "MixedExits", "--realtime")
-    out = tmp_path / "run-MixedExits"
+def _flown(tmp_path, law: str):
+    """A real-time run of ``law`` that ended in one line naming what failed, the swarm flown on:
+    ``(its line, its run directory, its wall time [s])``."""
+    r, wall = fly(tmp_path, "run", law, "--realtime")
     line = the_line(r)
     assert r.returncode == 1 and FLEW_ON in line, r.stderr[-2000:]
+    return line, tmp_path / f"run-{law}", wall
+
+
+@pytest.mark.system
+def test_three_laws_that_exit_or_hang_in_real_time_are_ridden_through_and_each_named(tmp_path):
+    line, out, wall = _flown(tmp_path, "MixedExits")
     for i, name in ((2, "SysExit"), (3, "OsExit"), (4, "Loops")):
         found = re.search(
             rf"controller_{i} exited with code 1 \(its last tick \d+, t=[0-9.]+ s\): controller {i}: error: "
@@ -77,10 +83,7 @@ def test_three_laws_that_exit_or_hang_in_real_time_are_ridden_through_and_each_n
 
 @pytest.mark.system
 def test_a_hoarding_a_slow_and_a_chatty_law_in_real_time(tmp_path):
-    r, wall = fly(tmp_path, "run", "MixedLoads", "--realtime")
-    out = tmp_path / "run-MixedLoads"
-    line = the_line(r)
-    assert r.returncode == 1 and FLEW_ON in line, r.stderr[-2000:]
+    line, out, wall = _flown(tmp_path, "MixedLoads")
     found = re.search(rf"law {law_path('run')}:MixedLoads, follower 2 at t=([0-9.]+) s: ", line)
     assert found and SAYS["Hoards"] in line, line
     lo, _ = failure_window("Hoards")  # ticks a hoarder is late for are skipped, and allocate nothing

@@ -2,15 +2,13 @@
 ``consensus_pd`` fly ``px4_quad_x`` as processes in lockstep exactly as ``sim`` flies it, bit for
 bit, and a fault plan flies it through the ``swarm`` fixture."""
 
-import subprocess
-
 import numpy as np
 import pytest
 import yaml
 
 from swarm_sitl.config.load import load_config, parse_config
 from swarm_sitl.running.sim import run_sim
-from tests.support import CLI, CONFIGS, ROOT
+from tests.support import CONFIGS, ROOT, cli
 
 #: its system tests run in lockstep or ``sim`` only (no wall clock): free to run beside others
 pytestmark = [pytest.mark.system, pytest.mark.lockstep]
@@ -18,21 +16,7 @@ pytestmark = [pytest.mark.system, pytest.mark.lockstep]
 
 def _lockstep_equals_sim(tmp_path, path, duration_s: float) -> None:
     out = tmp_path / "run"
-    r = subprocess.run(
-        [
-            *CLI,
-            "run",
-            str(path),
-            "--duration",
-            str(duration_s),
-            "--out",
-            str(out),
-            "--quiet",
-        ],
-        capture_output=True,
-        text=True,
-        timeout=240,
-    )
+    r = cli("run", path, "--duration", duration_s, "--out", out, "--quiet", timeout=240)
     assert r.returncode == 0, r.stderr + r.stdout
     cfg = load_config(path)
     sim = run_sim(cfg.model_copy(update={"duration_s": duration_s}))

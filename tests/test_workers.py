@@ -80,15 +80,22 @@ def test_real_time_tests_run_once_each_on_a_real_time_worker_in_their_order(n_wo
             assert rt == sorted(rt, key=lambda t: t.rsplit("-", 1)[1])  # in the order collected
 
 
-@pytest.mark.parametrize(("worker", "niced"), [(None, False), ("gw0", False), ("gw1", False), ("gw2", True)])
-def test_only_the_other_workers_lower_their_priority(monkeypatch, worker, niced):
-    calls = []
+def _as_worker(monkeypatch, worker: str | None) -> list[int]:
+    """This process as xdist worker ``worker`` (None: no xdist), never niced yet; the ``nice``
+    calls it then makes, recorded instead of made."""
+    calls: list[int] = []
     monkeypatch.setattr(workers.os, "nice", calls.append)
     monkeypatch.setattr(workers, "_NICED", [])
     if worker is None:
         monkeypatch.delenv("PYTEST_XDIST_WORKER", raising=False)
     else:
         monkeypatch.setenv("PYTEST_XDIST_WORKER", worker)
+    return calls
+
+
+@pytest.mark.parametrize(("worker", "niced"), [(None, False), ("gw0", False), ("gw1", False), ("gw2", True)])
+def test_only_the_other_workers_lower_their_priority(monkeypatch, worker, niced):
+    calls = _as_worker(monkeypatch, worker)
     workers.lower_priority_unless_realtime_worker()
     assert calls == ([workers.OTHERS_NICE] if niced else [])
 
@@ -103,13 +110,7 @@ def test_only_the_other_workers_lower_their_priority(monkeypatch, worker, niced)
     ],
 )
 def test_a_real_time_worker_gives_way_once_it_runs_the_others_tests(monkeypatch, worker, tests, nices):
-    calls = []
-    monkeypatch.setattr(workers.os, "nice", calls.append)
-    monkeypatch.setattr(workers, "_NICED", [])
-    if worker is None:
-        monkeypatch.delenv("PYTEST_XDIST_WORKER", raising=False)
-    else:
-        monkeypatch.setenv("PYTEST_XDIST_WORKER", worker)
+    calls = _as_worker(monkeypatch, worker)
     workers.lower_priority_unless_realtime_worker()
     for realtime in tests:
         workers.before_test(realtime)

@@ -30,20 +30,14 @@ from swarm_sitl.link.transport import LinkError, Transport
 
 
 class VehicleLink:
-    """Controller ``system_id``'s link to its vehicle at ``url`` (``transport.Transport`` says
-    what ``stamp_arrivals``, ``faults`` and ``signing_key`` do)."""
+    """Controller ``system_id``'s link to its vehicle at ``url``; ``transport``: the keywords of
+    ``transport.Transport`` (``stamp_arrivals``, ``faults``, ``signing_key``: it says what each
+    does)."""
 
-    def __init__(
-        self,
-        url: str,
-        system_id: int,
-        stamp_arrivals: bool = True,
-        faults: Any = None,
-        signing_key: bytes | None = None,
-    ):
+    def __init__(self, url: str, system_id: int, **transport: Any):
         self.url = url
         self.system_id = system_id
-        self.transport = Transport(url, system_id, stamp_arrivals, faults, signing_key)
+        self.transport = Transport(url, system_id, **transport)
         self.conn = self.transport.conn
         self.downlink = Downlink(system_id, self.conn.mav, self.transport.whole_datagrams)
         self.setpoints = Setpoints(self.transport, system_id)
