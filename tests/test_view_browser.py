@@ -212,6 +212,17 @@ def _edge_state(driver, edge: str) -> str:
     return driver.execute_script(f"return document.querySelector('tr[data-edge=\"{edge}\"]').dataset.state")
 
 
+def _time_and_edge_state(driver, edge: str) -> tuple[str, str]:
+    """The time the page shows and ``edge``'s state, read in one script: the page cannot draw a
+    frame between the two (its scripts run one at a time), as it can between two WebDriver calls."""
+    return tuple(
+        driver.execute_script(
+            "return [document.getElementById('time').textContent, "
+            f"document.querySelector('tr[data-edge=\"{edge}\"]').dataset.state]"
+        )
+    )
+
+
 def _err_pixels(driver) -> int:
     """Coloured pixels of the error plot (its curves; the frame and labels are grey)."""
     return driver.execute_script(
@@ -302,13 +313,11 @@ def test_a_live_run_in_the_browser_grows_its_error_plot_and_colours_its_cut_edge
         seen: list[tuple[float, str, int, int]] = []  # (time shown, 1->4's state, plot pixels, frames)
         end = time.monotonic() + 60
         while time.monotonic() < end and "ended" not in browser.find_element("id", "message").text:
-            text = browser.find_element("id", "time").text
+            text, state = _time_and_edge_state(browser, "1->4")
             shown = re.search(r"t = ([0-9.]+) s", text)
             if shown:
                 frames = browser.execute_script("return doc.frames.t_s.length")
-                seen.append(
-                    (float(shown.group(1)), _edge_state(browser, "1->4"), _err_pixels(browser), frames)
-                )
+                seen.append((float(shown.group(1)), state, _err_pixels(browser), frames))
                 if 2.5 < seen[-1][0] < 3.5:
                     browser.save_screenshot(str(tmp_path / "view_live_cut_edge.png"))
             time.sleep(0.2)
