@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 import pytest
 
 from swarm_sitl.faults.plan import FaultPlan, tick_of
-from swarm_sitl.faults.processes import LostAircraftError, ProcessFaults
+from swarm_sitl.faults.processes import LostAircraftError, process_faults
 
 pytestmark = pytest.mark.integration
 DT = 0.02
@@ -68,7 +68,9 @@ def sup():
 
 
 def _faults(sup, tmp_path, plan: list[dict], lockstep: bool = False, stop_on_loss: bool = False):
-    pf = ProcessFaults(FaultPlan(seed=1, plan=plan), DT, stop_on_loss, sup, lockstep, tmp_path / "sup.events")
+    pf = process_faults(
+        FaultPlan(seed=1, plan=plan), DT, stop_on_loss, sup, lockstep, tmp_path / "sup.events"
+    )
     pf.set_restart(lambda name, n, resume: ["restart", name, str(n), str(resume)])
     return pf
 

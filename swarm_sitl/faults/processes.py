@@ -67,7 +67,9 @@ class _Action:
 class ProcessFaults:
     """Carries out ``plan``'s process faults on ``processes``, at ticks of ``period_s`` in
     lockstep. The supervisor asks ``planned_exit`` and ``frozen`` whether what it sees is planned.
-    ``stop_on_loss``: a lost vehicle ends the run (``LostAircraftError``)."""
+    ``stop_on_loss``: a lost vehicle ends the run (``LostAircraftError``). What differs between the
+    two clocks is one of each subclass's methods (``LockstepFaults``, ``WallClockFaults``;
+    ``process_faults`` makes the one of a run)."""
 
     def __init__(
         self,
@@ -75,12 +77,10 @@ class ProcessFaults:
         period_s: float,
         stop_on_loss: bool,
         processes: Processes,
-        lockstep: bool,
         events_path: Path,
     ):
         self.sup = processes
         self.stop_on_loss = stop_on_loss
-        self.lockstep = lockstep
         self.events = EventLog(events_path, "supervisor")
         self.incarnation: dict[str, int] = {}
         self.lost: set[int] = set()  #: followers whose vehicle is lost
@@ -110,24 +110,14 @@ class ProcessFaults:
                 self._signal(name, signal.SIGCONT)
                 self._event("process_thawed", name, run_s)
         for a in self._actions:
-            if a.done:
-                continue
-            if self.lockstep:
-                if a.kind != "freeze" or min_step < tick_of(a.at_s, self._dt):
-                    continue
-            elif run_s < a.at_s:
+            if a.done or not self._due(a, run_s, min_step):
                 continue
             a.done = True
             if a.kind == "freeze":
                 assert a.spec.freeze_s is not None
                 self._frozen[a.spec.process] = now + a.spec.freeze_s
                 self._signal(a.spec.process, signal.SIGSTOP)
-                self._event(
-                    "process_frozen",
-                    a.spec.process,
-                    a.at_s if self.lockstep else run_s,
-                    freeze_s=a.spec.freeze_s,
-                )
+                self._event("process_frozen", a.spec.process, self._when(a, run_s), freeze_s=a.spec.freeze_s)
             elif a.kind == "kill":
                 for name in a.spec.victims():
                     self._kill(name, a.spec, run_s)
@@ -139,12 +129,8 @@ class ProcessFaults:
         if child is None:
             return
         child.retired = True
-        # lockstep: a lost aircraft's vehicle, idle since its controller died at the planned tick,
-        # is ended with SIGTERM, so it keeps what it recorded up to the loss (as ``sim`` records it);
-        # no simulated time passes meanwhile. Real time: SIGKILL, a crash.
-        sig = signal.SIGTERM if self.lockstep else signal.SIGKILL
         with contextlib.suppress(ProcessLookupError):
-            os.killpg(child.pid, sig)
+            os.killpg(child.pid, self.KILL)
         self._after_death(name, spec, run_s)
 
     def _after_death(self, name: str, spec: FaultEntry, t_s: float) -> None:
@@ -158,17 +144,13 @@ class ProcessFaults:
         if name.startswith("controller_") and node is not None:
             self.down.add(node)
         if spec.restart_after_s is not None and name == spec.process:
-            if self.lockstep:
-                self._restart(name, spec, spec.from_s + spec.restart_after_s)
-            else:
-                self._actions.append(_Action(spec, t_s + spec.restart_after_s, "restart"))
+            self._restart_later(name, spec, t_s)
 
     def _restart(self, name: str, spec: FaultEntry, t_s: float) -> None:
         assert self._restart_argv is not None and spec.restart_after_s is not None
         n = self.incarnation.get(name, 0) + 1
         self.incarnation[name] = n
-        resume = tick_of(spec.from_s, self._dt) + round(spec.restart_after_s / self._dt)
-        self.sup.spawn(f"{name}.{n}", self._restart_argv(name, n, resume if self.lockstep else 0), True, name)
+        self.sup.spawn(f"{name}.{n}", self._restart_argv(name, n, self._resume_tick(spec)), True, name)
         self._event("process_restarted", name, t_s)
         node = _follower_of(name)
         if node is not None:
@@ -176,24 +158,30 @@ class ProcessFaults:
 
     def planned_exit(self, child: Incarnation, code: int) -> bool:
         """Whether ``child``'s exit with ``code`` is one the plan made (else it is a failure)."""
-        if child.retired:
-            return True
-        if not self.lockstep or code != -signal.SIGKILL:
-            return False
-        for a in self._actions:  # a node that killed itself at its planned tick
-            if a.kind == "kill" and not a.done and child.process in a.spec.victims():
-                a.done = True
-                child.retired = True
-                t_s = tick_of(a.spec.from_s, self._dt) * self._dt
-                self._after_death(child.process, a.spec, t_s)
-                for other in a.spec.victims():  # a lost aircraft: its vehicle goes with it
-                    if other != child.process:
-                        self._kill(other, a.spec, t_s)
-                return True
-        return False
+        return child.retired
 
     def frozen(self, name: str) -> bool:
         return name in self._frozen
+
+    # -- what each clock does -------------------------------------------------------------------
+    #: how a victim is killed
+    KILL = signal.SIGKILL
+
+    def _due(self, a: _Action, run_s: float, min_step: int) -> bool:
+        """Whether action ``a`` is due (``act``'s arguments)."""
+        raise NotImplementedError
+
+    def _when(self, a: _Action, run_s: float) -> float:
+        """The time action ``a``'s event says it happened at [s]."""
+        raise NotImplementedError
+
+    def _restart_later(self, name: str, spec: FaultEntry, t_s: float) -> None:
+        """``name``, killed at ``t_s`` by ``spec``, started again ``restart_after_s`` later."""
+        raise NotImplementedError
+
+    def _resume_tick(self, spec: FaultEntry) -> int:
+        """The tick a process restarted by ``spec`` resumes at (0: the tick the swarm is at)."""
+        raise NotImplementedError
 
     # -- helpers -------------------------------------------------------------------------------
     def _signal(self, name: str, sig: signal.Signals) -> None:
@@ -210,6 +198,81 @@ class ProcessFaults:
             self._signal(name, signal.SIGCONT)
         self._frozen.clear()
         self.events.close()
+
+
+class WallClockFaults(ProcessFaults):
+    """Real time: each action at its run second; a victim killed with SIGKILL, a crash; a restart
+    ``restart_after_s`` after the kill, joining at the tick the swarm's clock is at."""
+
+    def _due(self, a: _Action, run_s: float, min_step: int) -> bool:
+        return run_s >= a.at_s
+
+    def _when(self, a: _Action, run_s: float) -> float:
+        return run_s
+
+    def _restart_later(self, name: str, spec: FaultEntry, t_s: float) -> None:
+        assert spec.restart_after_s is not None
+        self._actions.append(_Action(spec, t_s + spec.restart_after_s, "restart"))
+
+    def _resume_tick(self, spec: FaultEntry) -> int:
+        return 0
+
+
+class LockstepFaults(ProcessFaults):
+    """Lockstep: a kill is the node's own at its planned tick (``planned_exit`` knows it), and its
+    restart is started at once, resuming at its restart tick; a freeze once every live follower has
+    reached its tick; events at the plan's times."""
+
+    #: a lost aircraft's vehicle, idle since its controller died at the planned tick, is ended with
+    #: SIGTERM, so it keeps what it recorded up to the loss (as ``sim`` records it); no simulated
+    #: time passes meanwhile
+    KILL = signal.SIGTERM
+
+    def _due(self, a: _Action, run_s: float, min_step: int) -> bool:
+        return a.kind == "freeze" and min_step >= tick_of(a.at_s, self._dt)
+
+    def _when(self, a: _Action, run_s: float) -> float:
+        return a.at_s
+
+    def _restart_later(self, name: str, spec: FaultEntry, t_s: float) -> None:
+        assert spec.restart_after_s is not None
+        self._restart(name, spec, spec.from_s + spec.restart_after_s)
+
+    def _resume_tick(self, spec: FaultEntry) -> int:
+        assert spec.restart_after_s is not None
+        return tick_of(spec.from_s, self._dt) + round(spec.restart_after_s / self._dt)
+
+    def planned_exit(self, child: Incarnation, code: int) -> bool:
+        """Also a node that killed itself at its planned tick (SIGKILL): its death, its restart,
+        and a lost aircraft's vehicle killed with it."""
+        if child.retired:
+            return True
+        if code != -signal.SIGKILL:
+            return False
+        for a in self._actions:
+            if a.kind == "kill" and not a.done and child.process in a.spec.victims():
+                a.done = True
+                child.retired = True
+                t_s = tick_of(a.spec.from_s, self._dt) * self._dt
+                self._after_death(child.process, a.spec, t_s)
+                for other in a.spec.victims():  # a lost aircraft: its vehicle goes with it
+                    if other != child.process:
+                        self._kill(other, a.spec, t_s)
+                return True
+        return False
+
+
+def process_faults(
+    plan: FaultPlan,
+    period_s: float,
+    stop_on_loss: bool,
+    processes: Processes,
+    lockstep: bool,
+    events_path: Path,
+) -> ProcessFaults:
+    """The plan's process faults for a run of this clock: ``LockstepFaults`` or ``WallClockFaults``."""
+    cls = LockstepFaults if lockstep else WallClockFaults
+    return cls(plan, period_s, stop_on_loss, processes, events_path)
 
 
 def _follower_of(name: str) -> int | None:

@@ -25,7 +25,7 @@ from swarm_sitl.bus import keys as zenoh_keys
 from swarm_sitl.bus.session import publish_hold, publish_start
 from swarm_sitl.config.load import ConfigError
 from swarm_sitl.config.schema import SwarmConfig
-from swarm_sitl.faults.processes import LostAircraftError, ProcessFaults
+from swarm_sitl.faults.processes import LostAircraftError, process_faults
 from swarm_sitl.nodes.assembly import first_tick, reported_vehicle_params
 from swarm_sitl.nodes.law_host import LawError
 from swarm_sitl.rundir.layout import (
@@ -201,7 +201,7 @@ def run_swarm(request: RunRequest) -> RunResult:
     lost: ends.LostLog | None = None
     if cfg.faults.plan:
         events = supervisor_events_path(run_dir)
-        faults = ProcessFaults(cfg.faults, cfg.control_dt_s, cfg.run.stop_on_loss, sup, lockstep, events)
+        faults = process_faults(cfg.faults, cfg.control_dt_s, cfg.run.stop_on_loss, sup, lockstep, events)
         sup.planned_exit = faults.planned_exit
     try:
         # a follower whose vehicle is outside the run (its ``mavlink:``) is reached where it says
