@@ -46,16 +46,16 @@ def run_leader(
     # resume tick (they publish none until it comes), so it may run the window past it until
     # they speak; a status from before its start is gone (a put keeps no history)
     floor = resume_tick - 1 if resume_tick else -1
+
+    def ahead_ok() -> bool:  # (of the tick being run: the clock's)
+        return all(max(bus.progress(j), floor) >= clock.tick - r.lockstep_window for j in out_neighbours)
+
+    def behind() -> str:
+        at = [bus.progress(j) for j in out_neighbours]
+        return f"leader at tick {clock.tick}: followers {out_neighbours} report no progress (at ticks {at})"
+
     for k in range(first, n + 1):
         clock.wait_instant(k, 0.0, [], bus.poll, bus.poll, skip=False)
-
-        def ahead_ok(k: int = k) -> bool:
-            return all(max(bus.progress(j), floor) >= k - r.lockstep_window for j in out_neighbours)
-
-        def behind(k: int = k) -> str:
-            at = [bus.progress(j) for j in out_neighbours]
-            return f"leader at tick {k}: followers {out_neighbours} report no progress (at ticks {at})"
-
         # the window, and the hold (followers held stop reporting progress)
         clock.wait_for(k, ahead_ok, behind, bus.poll, LEADER_POLL_S)
         msg: Message = leader.step(k)
