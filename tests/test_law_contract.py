@@ -93,7 +93,7 @@ def _config(tmp_path: Path, entry: str, params: dict | None = None, **more) -> P
         ("missing_file.py:Law", None, "no such file"),
         ("{laws}:Nope", None, "has no 'Nope'"),
         ("{laws}:not_a_class", None, "is a int, not a class"),
-        ("{laws}:NoStep", None, "has no step(t_s, sample, inbox) method"),
+        ("{laws}:NoStep", None, "does not meet the law contract: no step(t_s, sample, inbox) method"),
         ("{laws}:BadLength", None, "message_length must be an int from 1 to 4096, got 0"),
         ("{laws}:Shadows", None, "record field 'p_W' is one the bench records itself"),
         ("{laws}:WithParams", {"k": -1.0}, "params.k: Input should be greater than 0"),

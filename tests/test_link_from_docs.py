@@ -89,7 +89,9 @@ def test_a_link_model_draws_only_through_its_message_and_is_the_same_every_time(
         ({"entry": "nowhere.py:X"}, "no such file"),
         ({"entry": "LINK:Coin", "params": {"p": 2}}, "params.p: Input should be less than or equal to 1"),
         ({"entry": "LINK:Coin", "params": {}}, "params.p: Field required"),
-        ({"entry": "LINK:NoParams"}, "Params must be a pydantic model"),
+        ({"entry": "LINK:NoParams"}, "does not meet the link-model contract: no Params (a pydantic model"),
+        ({"entry": "LINK:DictParams"}, "Params must be a pydantic model"),
+        ({"entry": "LINK:NoFate"}, "does not meet the link-model contract: no fate(params, message) method"),
     ],
 )
 def test_a_link_model_that_is_not_one_is_one_line_naming_it(tmp_path, model, named):
@@ -103,7 +105,11 @@ def test_a_link_model_that_is_not_one_is_one_line_naming_it(tmp_path, model, nam
         "        return None\n\n"
         "class NoParams:\n"
         "    def fate(self, params, m):\n"
-        "        return None\n"
+        "        return None\n\n"
+        "class DictParams(NoParams):\n"
+        "    Params = dict\n\n"
+        "class NoFate:\n"
+        "    Params = Coin.Params\n"
     )
     model = {**model, "entry": model["entry"].replace("LINK", str(link))}
     data = yaml.safe_load((CONFIGS / "paper.yaml").read_text())

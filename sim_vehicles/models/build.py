@@ -28,6 +28,7 @@ from typing import Any
 
 import numpy as np
 
+from sim_vehicles.common.contract import missing_members, protocol_members
 from sim_vehicles.common.entry import EntryError, declared_params, load_entry, one_line, undeclared_line
 from sim_vehicles.common.state import STATE_SIZE, make_state
 from sim_vehicles.models.vehicle_config import VehicleConfig, VehicleConfigError
@@ -91,22 +92,8 @@ MODELS: dict[str, Callable[[VehicleConfig, np.ndarray, float], VehicleModel]] = 
 }
 
 
-#: what a model built from a user's entry must have (``plant.contract.VehicleModel``)
-CONTRACT = (
-    "params",
-    "dt_s",
-    "step_index",
-    "state",
-    "time_s",
-    "command",
-    "set_command",
-    "advance",
-    "max_rate_rps",
-    "wind",
-    "wind_W",
-    "tunables",
-    "set_param",
-)
+#: what a model built from a user's entry must have: what ``plant.contract.VehicleModel`` declares
+CONTRACT = protocol_members(VehicleModel)
 
 
 def _user_model(spec: VehicleConfig, state0: np.ndarray, dt_s: float) -> VehicleModel:
@@ -130,7 +117,7 @@ def _user_model(spec: VehicleConfig, state0: np.ndarray, dt_s: float) -> Vehicle
         raise VehicleConfigError(
             f"vehicle config: model {spec.model!r}: building it raised {one_line(e)}"
         ) from None
-    missing = [name for name in CONTRACT if not hasattr(vehicle, name)]
+    missing = missing_members(vehicle, VehicleModel)
     if missing:
         raise VehicleConfigError(
             f"vehicle config: model {spec.model!r} does not meet the vehicle contract: "

@@ -16,8 +16,9 @@ from typing import Any
 from pydantic import BaseModel, ValidationError
 
 from sim_vehicles.common import entry as entry_import
+from sim_vehicles.common.contract import missing_members
 from sim_vehicles.common.entry import declared_params, undeclared_line
-from swarm_sitl.laws.contract import MAX_MESSAGE_LENGTH
+from swarm_sitl.laws.contract import MAX_MESSAGE_LENGTH, Law
 
 #: names every follower's recording has whatever the law: a law's record may not reuse them
 RESERVED_NAMES = frozenset(
@@ -56,12 +57,21 @@ def _line(e: BaseException) -> str:
     return entry_import.one_line(e)
 
 
+#: how a missing member of the law contract is named in the one line that says so
+SAID = {"step": "step(t_s, sample, inbox) method", "message_length": "message_length (an int)"}
+
+
 def check_contract(cls: Any, entry: str) -> None:
     """What the contract asks that a class shows before it runs."""
     if not isinstance(cls, type):
         raise LawEntryError(f"entry {entry!r} is a {type(cls).__name__}, not a class")
-    if not callable(getattr(cls, "step", None)):
-        raise LawEntryError(f"entry {entry!r}: class {cls.__name__} has no step(t_s, sample, inbox) method")
+    # what the protocol declares (laws.contract.Law), and its step a method
+    missing = missing_members(cls, Law) or ([] if callable(getattr(cls, "step", None)) else ["step"])
+    if missing:
+        said = ", ".join(SAID.get(name, name) for name in missing)
+        raise LawEntryError(
+            f"entry {entry!r}: class {cls.__name__} does not meet the law contract: no {said}"
+        )
     n = getattr(cls, "message_length", None)
     if type(n) is not int or not 1 <= n <= MAX_MESSAGE_LENGTH:
         raise LawEntryError(

@@ -47,7 +47,7 @@ fate, delays add). A user's acts on the bus's edges (not on a vehicle's MAVLink 
 
 import math
 from dataclasses import dataclass
-from typing import Any, NamedTuple
+from typing import Any, NamedTuple, Protocol
 
 import numpy as np
 from pydantic import (
@@ -60,6 +60,7 @@ from pydantic import (
     model_validator,
 )
 
+from sim_vehicles.common.contract import missing_members
 from sim_vehicles.common.entry import EntryError, declared_params, load_entry, one_line, undeclared_line
 from swarm_sitl.faults.draws import uniform_at, uniforms
 
@@ -150,6 +151,15 @@ def recorded(info: ValidationInfo) -> bool:
     return isinstance(info.context, dict) and bool(info.context.get("recorded"))
 
 
+class LinkModel(Protocol):
+    """The contract of a link model (module docstring): a plug-in is held to what this declares
+    (``sim_vehicles.common.contract``); what it may declare besides is ``DECLARED``."""
+
+    Params: type[BaseModel]
+
+    def fate(self, params: Any, m: MessageOnLink) -> Effect | None: ...
+
+
 class LinkModelError(ValueError):
     """A link-model entry that cannot be flown; one line naming it."""
 
@@ -198,6 +208,10 @@ class ModelEntry(BaseModel):
         return f"{self.entry.rpartition(':')[2]}" + (f" ({shown})" if shown else "")
 
 
+#: how a missing member of the contract is named in the one line that says so
+SAID = {"Params": "Params (a pydantic model of its parameters)", "fate": "fate(params, message) method"}
+
+
 def resolve_link_model(entry: str) -> Any:
     """The class ``entry`` names, imported and held to the contract (module docstring)."""
     try:
@@ -206,11 +220,13 @@ def resolve_link_model(entry: str) -> Any:
         raise LinkModelError(str(e)) from None
     if not isinstance(cls, type):
         raise LinkModelError(f"link model {entry!r} is a {type(cls).__name__}, not a class")
-    params = getattr(cls, "Params", None)
+    missing = missing_members(cls, LinkModel) or ([] if callable(getattr(cls, "fate", None)) else ["fate"])
+    if missing:
+        said = ", ".join(SAID.get(name, name) for name in missing)
+        raise LinkModelError(f"link model {entry!r} does not meet the link-model contract: no {said}")
+    params = cls.Params  # type: ignore[attr-defined]  # (checked present just above)
     if not (isinstance(params, type) and issubclass(params, BaseModel)):
         raise LinkModelError(f"link model {entry!r}: Params must be a pydantic model of its parameters")
-    if not callable(getattr(cls, "fate", None)):
-        raise LinkModelError(f"link model {entry!r}: no fate(params, message) method")
     try:
         cls()
     except Exception as e:
