@@ -93,7 +93,7 @@ def _as_worker(monkeypatch, worker: str | None) -> list[int]:
     return calls
 
 
-@pytest.mark.parametrize(("worker", "niced"), [(None, False), ("gw0", False), ("gw1", False), ("gw2", True)])
+@pytest.mark.parametrize(("worker", "niced"), [(None, False), ("gw0", False), ("gw1", True), ("gw2", True)])
 def test_only_the_other_workers_lower_their_priority(monkeypatch, worker, niced):
     calls = _as_worker(monkeypatch, worker)
     workers.lower_priority_unless_realtime_worker()
@@ -104,7 +104,7 @@ def test_only_the_other_workers_lower_their_priority(monkeypatch, worker, niced)
     ("worker", "tests", "nices"),
     [
         ("gw0", [True, True, False, False], 1),  # its real-time tests, then the others': once
-        ("gw1", [True, True], 0),
+        ("gw0", [True, True], 0),
         ("gw2", [False, False], 1),  # (at its start: ``lower_priority_unless_realtime_worker``)
         (None, [True, False], 0),  # -n 0: one process, nothing niced
     ],

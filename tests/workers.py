@@ -1,18 +1,20 @@
 """Which pytest-xdist worker runs what, and at which priority (``tests/conftest.py`` plugs it in).
 
-The system tests that are not marked ``lockstep`` fly in real time: their processes must get the
-CPU when their clocks say so. Only the first two workers, ``gw0`` and ``gw1``, take them, one at a
-time each, in the order collected, at the normal priority. Every other worker lowers its own
-priority (``nice``) before its first test, and so do the processes its tests start: the unit and
-integration tests and the lockstep system tests take the CPU the real-time runs leave idle (most
-of it: a real-time run mostly waits for its clock) without making a real-time run late. A
-real-time worker with no real-time test left takes the others' work, and gives way as they did
-(at its first such test), so the rest of the run shares the CPU evenly.
+The system tests that are not marked ``lockstep`` fly in real time (and so do the tests marked
+``realtime``): their processes must get the CPU when their clocks say so. Only the first worker,
+``gw0``, takes them, one at a time, in the order collected, at the normal priority. Every other
+worker lowers its own priority (``nice``) before its first test, and so do the processes its tests
+start: the unit and integration tests and the lockstep system tests take the CPU the real-time
+runs leave idle (most of it: a real-time run mostly waits for its clock) without making a
+real-time run late. ``gw0`` with no real-time test left takes the others' work, and gives way as
+they did (at its first such test), so the rest of the run shares the CPU evenly.
 
-So there are two more workers than cores (``-n auto``): on two cores, ``gw0`` and ``gw1`` with
-the real-time flights and two niced workers with the rest. ``PYTEST_XDIST_AUTO_NUM_WORKERS`` sets
-the count, as pytest-xdist documents; ``-n 0`` runs everything in one process at the normal
-priority, and with two workers or fewer no worker is niced.
+One real-time worker, not two: two real-time swarms at once, both at the normal priority, made
+each other late (one swarm's start, a burst of processes, against the other's ticks: a follower
+whose tick came a period late skipped it). So there is one worker more than cores (``-n auto``):
+on two cores, ``gw0`` with the real-time flights and two niced workers with the rest.
+``PYTEST_XDIST_AUTO_NUM_WORKERS`` sets the count, as pytest-xdist documents; ``-n 0`` runs
+everything in one process at the normal priority, and ``-n 1`` everything on ``gw0``.
 """
 
 from __future__ import annotations
@@ -24,14 +26,14 @@ from xdist.scheduler import LoadGroupScheduling
 #: the xdist groups of the system tests that run in real time: ``realtime-0000``, ... (one test each)
 REALTIME_GROUP = "realtime"
 #: the workers that run them, at the normal priority
-REALTIME_WORKERS = ("gw0", "gw1")
+REALTIME_WORKERS = ("gw0",)
 #: how much the other workers lower their priority: under contention a niced process gets about
 #: 110 / 1024 of a normal one's share of a core (Linux CFS weights), so a real-time run is not late
 OTHERS_NICE = 10
 
 
 def worker_count() -> int:
-    """One worker per core plus the two real-time ones, whose flights leave most of a core idle."""
+    """One worker per core plus the real-time one, whose flights leave most of a core idle."""
     pinned = os.environ.get("PYTEST_XDIST_AUTO_NUM_WORKERS")
     if pinned:
         return int(pinned)
