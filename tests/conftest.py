@@ -55,10 +55,6 @@ def pytest_xdist_make_scheduler(config: pytest.Config, log):  # type: ignore[no-
     return workers.RealtimeOnTheirWorkers(config, log)
 
 
-def pytest_configure(config: pytest.Config) -> None:
-    workers.lower_priority_unless_realtime_worker()
-
-
 _COMPILED: list[bool] = []
 
 

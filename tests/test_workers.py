@@ -93,25 +93,19 @@ def _as_worker(monkeypatch, worker: str | None) -> list[int]:
     return calls
 
 
-@pytest.mark.parametrize(("worker", "niced"), [(None, False), ("gw0", False), ("gw1", True), ("gw2", True)])
-def test_only_the_other_workers_lower_their_priority(monkeypatch, worker, niced):
-    calls = _as_worker(monkeypatch, worker)
-    workers.lower_priority_unless_realtime_worker()
-    assert calls == ([workers.OTHERS_NICE] if niced else [])
-
-
 @pytest.mark.parametrize(
     ("worker", "tests", "nices"),
     [
         ("gw0", [True, True, False, False], 1),  # its real-time tests, then the others': once
         ("gw0", [True, True], 0),
-        ("gw2", [False, False], 1),  # (at its start: ``lower_priority_unless_realtime_worker``)
+        ("gw2", [False, False], 1),  # at its first test
+        ("gw2", [True, False], 1),  # real-time tests on it (gw0 shut down): the normal priority for them
         (None, [True, False], 0),  # -n 0: one process, nothing niced
     ],
 )
-def test_a_real_time_worker_gives_way_once_it_runs_the_others_tests(monkeypatch, worker, tests, nices):
+def test_a_worker_gives_way_once_at_its_first_test_that_is_not_real_time(monkeypatch, worker, tests, nices):
     calls = _as_worker(monkeypatch, worker)
-    workers.lower_priority_unless_realtime_worker()
-    for realtime in tests:
+    for k, realtime in enumerate(tests):
         workers.before_test(realtime)
+        assert calls == [workers.OTHERS_NICE] * (nices if not all(tests[: k + 1]) else 0)
     assert calls == [workers.OTHERS_NICE] * nices

@@ -3,7 +3,7 @@
 The system tests that are not marked ``lockstep`` fly in real time (and so do the tests marked
 ``realtime``): their processes must get the CPU when their clocks say so. Only the first worker,
 ``gw0``, takes them, one at a time, in the order collected, at the normal priority. Every other
-worker lowers its own priority (``nice``) before its first test, and so do the processes its tests
+worker lowers its own priority (``nice``) at its first test, and so do the processes its tests
 start: the unit and integration tests and the lockstep system tests take the CPU the real-time
 runs leave idle (most of it: a real-time run mostly waits for its clock) without making a
 real-time run late. ``gw0`` with no real-time test left takes the others' work, and gives way as
@@ -43,13 +43,6 @@ def worker_count() -> int:
 _NICED: list[bool] = []
 
 
-def lower_priority_unless_realtime_worker() -> None:
-    """Called in each worker before its first test: every worker but the real-time ones gives way."""
-    worker = os.environ.get("PYTEST_XDIST_WORKER")
-    if worker is not None and worker not in REALTIME_WORKERS:
-        give_way()
-
-
 def give_way() -> None:
     """This process (and what it starts) lowers its priority to the other workers', once."""
     if not _NICED:
@@ -58,11 +51,14 @@ def give_way() -> None:
 
 
 def before_test(realtime: bool) -> None:
-    """Called before each test in a worker: a real-time worker that comes to a test that is not
-    (it has none left: ``RealtimeOnTheirWorkers`` gives it others only then) gives way as the
-    others did, so the rest of the run shares the CPU evenly instead of starving them."""
-    worker = os.environ.get("PYTEST_XDIST_WORKER")
-    if worker in REALTIME_WORKERS and not realtime:
+    """Called before each test in a worker (not with ``-n 0``): a worker gives way at its first
+    test that does not fly in real time, and keeps the normal priority until then. The other
+    workers so give way at their first test; the real-time one once it has none left
+    (``RealtimeOnTheirWorkers`` gives it others only then), so the rest of the run shares the CPU
+    evenly; and a worker that takes real-time tests because the real-time one is gone (xdist
+    shuts down workers beyond the number of groups, in a run of a few tests) flies them at the
+    normal priority."""
+    if os.environ.get("PYTEST_XDIST_WORKER") is not None and not realtime:
         give_way()
 
 
