@@ -1,4 +1,4 @@
-"""The registry of vehicle models and the one function that builds a vehicle from its spec.
+"""The registry of vehicle models and the one function that builds a vehicle from its config.
 
 ``build_vehicle(spec, system_id)`` is what ``swarm-sitl sim`` flies, what ``python -m
 sim_vehicles`` puts behind its MAVLink endpoint and what the fork server warms up: the same
@@ -44,7 +44,7 @@ from sim_vehicles.plant.wind import WIND_MODELS, WindModel
 
 def vehicle_params(spec: VehicleConfig) -> VehicleParams:
     """What the airframe is, as the plant and the endpoint's parameters take it."""
-    assert spec.max_rate_rps is not None  # (the spec holds the model's default once it is made)
+    assert spec.max_rate_rps is not None  # (the config holds the model's default once it is made)
     return VehicleParams(
         spec.mass_kg, spec.inertia_kgm2, spec.max_thrust_N, spec.g_mps2, spec.max_rate_rps, spec.drag_Ns2pm2
     )

@@ -53,7 +53,7 @@ THRUST_TAU_RANGE_S = (0.0, 1.0)  #: the range of ``THRUST_TAU_S`` [s]
 
 class LaggyVtol:
     def __init__(self, spec: VehicleConfig, state0: np.ndarray, dt_s: float):
-        self.params = vehicle_params(spec)  # the spec's mass, inertia, thrust, gravity, rate limits, drag
+        self.params = vehicle_params(spec)  # the config's mass, inertia, thrust, gravity, rate limits, drag
         self.dt_s = float(dt_s)
         self.step_index = 0
         self.state = np.array(state0, dtype=float)

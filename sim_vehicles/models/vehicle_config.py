@@ -76,7 +76,7 @@ class VehicleConfig:
     max_thrust_N: float = 25.0  #: largest collective thrust; MAVLink thrust 1.0 maps to it [N]
     g_mps2: float = 9.81
     #: commanded body rates are clipped to +- these (PX4's MC_*RATE_MAX) [rad/s; roll, pitch, yaw];
-    #: None: the model's default (``default_max_rate_rps``), which the spec holds once it is made
+    #: None: the model's default (``default_max_rate_rps``), which the config holds once it is made
     max_rate_rps: tuple[float, float, float] | None = None
     drag_Ns2pm2: float = 0.0  #: quadratic drag rho C_d A / 2 [N s^2/m^2] (``plant.wind``)
     l_q: float = 16.0  #: the paper's torque law: attitude-error gain

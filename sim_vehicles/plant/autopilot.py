@@ -91,7 +91,7 @@ class Autopilot:
         #: the wind at the vehicle [m/s; ENU], changed in place (``wind``, at each ``advance``)
         self.wind_W = np.zeros(3)
         self.wind: WindModel | None = None  #: the air it flies in (``plant.wind``); None: still air
-        self.tunables: dict[str, float] = {}  #: none: its gains are the spec's (``l_q``, ``k_q``)
+        self.tunables: dict[str, float] = {}  #: none: its gains are the vehicle config's (``l_q``, ``k_q``)
         self.set_command(AttitudeCommand(q_c=self.state[QUAT].copy(), thrust_N=params.hover_thrust_N))
 
     @property

@@ -11,7 +11,7 @@ model does not follow.
 
 Groups (``Param.group``): ``airframe`` (the config's ``vehicle.params``, not served: a vehicle's
 build is not changed in flight), ``attitude`` and ``rate`` (PX4's, served and set in flight).
-The body-rate limits ``MC_*RATE_MAX`` are the spec's ``max_rate_rps`` (rad/s there, deg/s over
+The body-rate limits ``MC_*RATE_MAX`` are the vehicle config's ``max_rate_rps`` (rad/s there, deg/s over
 MAVLink); their defaults here are what a ``px4_quad_x`` spec without ``max_rate_rps`` gets.
 """
 
@@ -104,7 +104,7 @@ PARAMS: tuple[Param, ...] = (
     Param("MC_YAW_TQ_CUTOFF", 2.0, 0.0, 10.0, "Hz", "rate", _RATE, "yaw torque low-pass cutoff (0: off)"),
 )
 BY_NAME = {p.name: p for p in PARAMS}
-#: the body-rate limits, roll, pitch, yaw [deg/s]: the spec's ``max_rate_rps``, not a gain
+#: the body-rate limits, roll, pitch, yaw [deg/s]: the vehicle config's ``max_rate_rps``, not a gain
 RATE_MAX = ("MC_ROLLRATE_MAX", "MC_PITCHRATE_MAX", "MC_YAWRATE_MAX")
 AIRFRAME = {p.name: float(p.default) for p in PARAMS if p.group == "airframe"}
 #: the gains the controllers' kernels take (``px4_control.GAINS``'s order), with their defaults

@@ -388,7 +388,7 @@ class SwarmConfig(_Strict):
 
     def vehicle_config(self, i: int) -> vehicle_config.VehicleConfig:
         """Follower ``i``'s vehicle, whole (``sim_vehicles.models``): what ``sim`` builds and
-        what the run hands its vehicle process as one file. Each field of the spec comes from the
+        what the run hands its vehicle process as one file. Each field of the vehicle's config comes from the
         ``vehicle:`` key of its name (declared there or taken as it is), or from the section
         ``vehicle_section.SET_ELSEWHERE`` names; none is mapped by hand."""
         v, f = self.vehicle, self.follower(i)
@@ -402,7 +402,7 @@ class SwarmConfig(_Strict):
             elif field.name in given:
                 value = given[field.name]
             else:
-                continue  # the spec's default
+                continue  # the vehicle config's default
             fields[field.name] = spec_value(value, field.type)
         fields["autopilot"] = f.autopilot or v.autopilot  # a follower's own in place of the swarm's
         fields["params"] = {k: float(x) for k, x in v.params.items()}

@@ -1,6 +1,6 @@
 """The ``vehicle:`` and ``wind:`` sections of a config: every follower's airframe, autopilot and
 model, what it reports of its state, and the air it flies in (``schema.SwarmConfig`` holds them;
-``SwarmConfig.vehicle_config`` turns them into each vehicle's spec, ``sim_vehicles.models.vehicle_config``).
+``SwarmConfig.vehicle_config`` turns them into each vehicle's config, ``sim_vehicles.models.vehicle_config``).
 """
 
 import dataclasses
@@ -58,7 +58,7 @@ class WindSection(_Strict):
         return any(self.mean_mps) or self.gust_mps > 0
 
 
-#: the fields of a vehicle's spec the config sets from its other sections, not ``vehicle:``'s:
+#: the fields of a vehicle's config the swarm config sets from its other sections, not ``vehicle:``'s:
 #: each the dotted path it is read from (``FOLLOWER.`` the follower's own section)
 SET_ELSEWHERE: dict[str, str] = {
     "g_mps2": "gravity_mps2",
@@ -71,7 +71,7 @@ SET_ELSEWHERE: dict[str, str] = {
 
 
 def spec_value(value: Any, kind: object) -> Any:
-    """A section's value as the spec's field of type ``kind`` holds it: a section for a nested
+    """A section's value as the vehicle config's field of type ``kind`` holds it: a section for a nested
     spec (``Gusts``, ``SensorNoise``) field by field by name, or None where it is not ``enabled``;
     a list as a tuple; the rest as it is."""
     nested = [t for t in (vehicle_config.Gusts, vehicle_config.SensorNoise) if t.__name__ in str(kind)]
@@ -85,7 +85,7 @@ def spec_value(value: Any, kind: object) -> Any:
 
 class VehicleSection(_Strict):
     """Every follower's vehicle. Besides the keys below, ``vehicle:`` takes any other field of the
-    vehicle's spec (``sim_vehicles/models/vehicle_config.py``) as it is and hands it to the vehicle: a field
+    vehicle's config (``sim_vehicles/models/vehicle_config.py``) as it is and hands it to the vehicle: a field
     added there is a config key with no change here (a key that is neither is an unknown key)."""
 
     model_config = ConfigDict(extra="allow", frozen=True)

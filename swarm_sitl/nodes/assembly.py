@@ -131,5 +131,5 @@ class Uplink:
 
 
 def build_autopilot(cfg: SwarmConfig, i: int) -> VehicleModel:
-    """Follower ``i``'s vehicle, built as its process builds it: from its spec."""
+    """Follower ``i``'s vehicle, built as its process builds it: from its config."""
     return build_vehicle(cfg.vehicle_config(i), i)

@@ -67,7 +67,7 @@ def vehicle_argv(
     gcs_remote: str | None = None,
     host: str = "127.0.0.1",
 ) -> list[str]:
-    """Vehicle ``i``'s command line: what it is goes whole in its spec file
+    """Vehicle ``i``'s command line: what it is goes whole in its config file
     (``RUN_DIR/procs/vehicle_<i>.config.json``, written here), where it listens and writes in flags."""
     spec = vehicle_config_path(run_dir, i)
     spec.parent.mkdir(parents=True, exist_ok=True)
