@@ -221,7 +221,7 @@ class FaultEntry(BaseModel):
     def needs_distance(self) -> bool:
         """Whether a link entry's model reads the distance between sender and receiver
         (``range``, or a model of the user's that says so): its receiver gives it."""
-        return bool(getattr(self.link_how[0], "needs_distance", False))
+        return declared(self.link_how[0], "needs_distance")
 
     @property
     def process(self) -> str:
