@@ -11,6 +11,7 @@ import math
 import select
 import time
 from collections.abc import Callable, Sequence
+from typing import Protocol
 
 from swarm_sitl.bus.codec import HOLD_NONE
 
@@ -23,6 +24,10 @@ HORIZON_LEAD_S = 0.5
 #: lockstep, held: longest block between two looks at the hold (its put wakes a bus's descriptor
 #: at once; the leader has none to block on) [s]
 HELD_BLOCK_S = 0.02
+
+
+class _Outages(Protocol):
+    def outages(self, period_s: float) -> dict[int, list[tuple[int, int | None]]]: ...
 
 
 class RunClock:
@@ -56,6 +61,11 @@ class RunClock:
         """The latest tick another node's message may be of now."""
         raise NotImplementedError
 
+    def horizon_call(self, last_tick: int) -> Callable[[], int]:
+        """``horizon(last_tick)`` as a call of no argument, for a bus that asks it of every
+        estimate and status (``ZenohNodeBus.horizon``)."""
+        return lambda: self.horizon(last_tick)
+
     def now_s(self) -> float:
         """Run seconds: simulated in lockstep, on the wall clock in real time."""
         raise NotImplementedError
@@ -65,9 +75,40 @@ class RunClock:
         (``from_s``, ``until_s``) [s]."""
         raise NotImplementedError
 
+    # -- a fault plan's timing rules (``faults.in_edges``, ``faults.edges``) --------------------
+    #: whether a message's fate is keyed by its tick alone, so a block of ticks' fates can be
+    #: drawn ahead (``faults.fate_table``): in lockstep a message is of its tick's time
+    fates_by_tick: bool
+
+    def planned_outages(self, plan: _Outages) -> dict[int, list[tuple[int, int | None]]]:
+        """The plan's process outages a node's wrappers must know of, per node: (down tick,
+        back tick or None). In lockstep every node plays them; in real time the supervisor does
+        (``faults.processes``), and a node learns of them as they happen."""
+        raise NotImplementedError
+
+    def message_due(self, step: int, t_s: float, left_s: float, delay_s: float) -> tuple[float, bool, float]:
+        """When a message of ``step`` (stamped ``t_s``) is due to be used, in ``now()``'s unit:
+        it left its sender's queue ``left_s`` after its tick (0: no queue) and the plan delays it
+        ``delay_s``. Also whether the queue made it late, and how long after it a duplicate's
+        second copy comes (one period)."""
+        raise NotImplementedError
+
+    def decided_after(self, step: int, own_step: int, own_known: bool) -> bool:
+        """Whether a message of ``step`` that needs the distance to this node waits, undecided,
+        for this node to publish (``own_step``: the step of its newest position, ``own_known``:
+        whether it has one)."""
+        raise NotImplementedError
+
+    def decidable_through(self, own_step: int) -> float:
+        """Once this node has published ``own_step``, the latest step of the messages waiting
+        for its position that can be decided."""
+        raise NotImplementedError
+
 
 class TickTime(RunClock):
     """Lockstep: the tick being run; a message is of the time it was sent for."""
+
+    fates_by_tick = True
 
     def started(self) -> bool:
         return True
@@ -78,15 +119,36 @@ class TickTime(RunClock):
     def horizon(self, last_tick: int) -> int:
         return last_tick  # a neighbour may run far ahead
 
+    def horizon_call(self, last_tick: int) -> Callable[[], int]:
+        return lambda: last_tick  # (a constant: asked of every message)
+
     def now_s(self) -> float:
         return self.tick * self.period_s
 
     def arrival_s(self, sent_for_s: float) -> float:
         return sent_for_s
 
+    def planned_outages(self, plan: _Outages) -> dict[int, list[tuple[int, int | None]]]:
+        return plan.outages(self.period_s)
+
+    def message_due(self, step: int, t_s: float, left_s: float, delay_s: float) -> tuple[float, bool, float]:
+        """A message of step ``s`` is on time at tick ``s + 1`` if it left its queue by then,
+        else at the first tick after; a delay ``d`` adds ``ceil(d / dt)`` ticks."""
+        dt = self.period_s
+        queued = max(0, math.ceil(left_s / dt - 1e-9) - 1) if left_s > 0 else 0
+        return step + 1 + queued + (math.ceil(delay_s / dt - 1e-9) if delay_s > 0 else 0), queued > 0, 1.0
+
+    def decided_after(self, step: int, own_step: int, own_known: bool) -> bool:
+        return step > own_step  # this node's position of the message's own step
+
+    def decidable_through(self, own_step: int) -> float:
+        return own_step
+
 
 class WallTime(RunClock):
     """Real time: run seconds on the wall clock since the start epoch."""
+
+    fates_by_tick = False
 
     def started(self) -> bool:
         return not math.isnan(self.epoch_mono)
@@ -105,6 +167,21 @@ class WallTime(RunClock):
 
     def arrival_s(self, sent_for_s: float) -> float:
         return self.now_s()  # (its arrival: now)
+
+    def planned_outages(self, plan: _Outages) -> dict[int, list[tuple[int, int | None]]]:
+        return {}
+
+    def message_due(self, step: int, t_s: float, left_s: float, delay_s: float) -> tuple[float, bool, float]:
+        """From its arrival (now), or from when it left its queue if that is later, plus the delay."""
+        now = self.now_s()
+        late = left_s > 0 and t_s + left_s > now  # (a budget's: it has left its queue)
+        return (t_s + left_s if late else now) + delay_s, late, self.period_s
+
+    def decided_after(self, step: int, own_step: int, own_known: bool) -> bool:
+        return not own_known  # this node's newest position serves
+
+    def decidable_through(self, own_step: int) -> float:
+        return math.inf
 
 
 class StallError(RuntimeError):

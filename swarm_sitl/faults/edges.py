@@ -68,7 +68,7 @@ class FaultyBus:
         sources = sorted({s for s, d in graph_edges if d == node})
         self.dests = dests = sorted({d for s, d in graph_edges if s == node})
         # lockstep process faults: who is down when, what this node waits for before publishing
-        outages = plan.outages(clock.period_s) if clock.lockstep else {}
+        outages = clock.planned_outages(plan)
         self.outages = {n: o for n, o in outages.items() if n in sources or n in dests}
         self.own_outages = outages.get(node, [])
         self._coming_back = {n for n, o in self.outages.items() if any(back is not None for _, back in o)}

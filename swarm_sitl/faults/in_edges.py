@@ -7,7 +7,8 @@ distance, ``radio_range``) and files it in the node's ``EstimateTable`` when it 
 arrives, and ``sim`` feeds it what its followers publish, so both give every message the same fate
 at the same tick.
 
-Time, for delays and for the plan's ``from_s``/``until_s``:
+Time, for delays and for the plan's ``from_s``/``until_s``, is the run's clock's
+(``bus.clock.RunClock``: ``message_due``, ``arrival_s``), which owns these rules:
 
 - lockstep: a message of step ``s`` is on time at tick ``s + 1``; a delay of ``d`` seconds makes it
   usable from tick ``s + 1 + ceil(d / dt)``; the plan's window is read at the message's own time;
@@ -71,7 +72,7 @@ class InEdges:
         self._fates = {
             s: FateTable(plan.seed, rules, channel_of(s, node), end_s, clock.period_s)
             for s, rules in self.rules.items()
-            if clock.lockstep and batched(rules)
+            if clock.fates_by_tick and batched(rules)
         }
         self._graph_edges = graph_edges
         #: in-neighbours whose messages a link model needs the distance of (``range``'s, ...)
@@ -130,10 +131,16 @@ class InEdges:
             # in-neighbours before it has the swarm's clock): judged once it has it
             self._early.append(m)
             return
-        if src in self._ranged and (m.step > self._own_step if clock.lockstep else self._own_newest is None):
+        if self._waits_for_own(m):
             self._undecided.append(m)  # decided when this node publishes that step (or its first)
             return
         self._decide(m, st)
+
+    def _waits_for_own(self, m: Message) -> bool:
+        """Whether ``m`` needs this node's position and waits, undecided, until it publishes it."""
+        return m.src in self._ranged and self.clock.decided_after(
+            m.step, self._own_step, self._own_newest is not None
+        )
 
     def _plain_fate(self, m: Message, st: EdgeStats) -> bool:
         """In order, an in-edge of ``_tabled``: ``m`` decided here if its fate is on time or a
@@ -168,7 +175,7 @@ class InEdges:
         if self._early and self.clock.started():
             early, self._early = self._early, []
             for m in early:
-                if m.src in self._ranged and self._own_newest is None:
+                if self._waits_for_own(m):
                     self._undecided.append(m)
                 else:
                     self._decide(m)
@@ -232,18 +239,7 @@ class InEdges:
                 st.held -= 1
                 self.table.dropped += counted
                 return
-        due: float
-        if clock.lockstep:
-            # on time at the next tick if it left its queue by then, else at the first tick after
-            queued = max(0, math.ceil(left_s / dt - 1e-9) - 1) if left_s > 0 else 0
-            due = m.step + 1 + queued + (math.ceil(f.delay_s / dt - 1e-9) if f.delay_s > 0 else 0)
-            late = queued > 0
-            again = 1.0
-        else:
-            now = clock.now_s()
-            late = left_s > 0 and m.t_s + left_s > now  # (a budget's: it has left its queue)
-            due = (m.t_s + left_s if late else now) + f.delay_s
-            again = dt
+        due, late, again = clock.message_due(m.step, m.t_s, left_s, f.delay_s)
         if f.delay_s > 0 or late:
             st.delayed += 1
             st.delays_s.append(f.delay_s + (left_s if late else 0.0))
@@ -326,7 +322,7 @@ class InEdges:
             return
         self._own_newest, self._own_step = msg.p_W, msg.step
         if self._undecided:
-            last = msg.step if self.clock.lockstep else math.inf
+            last = self.clock.decidable_through(msg.step)
             now = [m for m in self._undecided if m.step <= last]
             self._undecided = [m for m in self._undecided if m.step > last]
             for m in now:

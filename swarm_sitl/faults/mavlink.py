@@ -23,7 +23,7 @@ from collections.abc import Callable
 from typing import Any
 
 from sim_vehicles.runtime.counter_file import NamedCounts
-from swarm_sitl.bus.clock import RunClock
+from swarm_sitl.bus.clock import RunClock, TickTime, WallTime
 from swarm_sitl.faults.counts import EdgeStats, counts_names
 from swarm_sitl.faults.draws import uniform
 from swarm_sitl.faults.plan import FaultPlan, fate, mavlink_channel
@@ -58,6 +58,15 @@ def _flipped(data: bytes, seed: int, *keys: int) -> bytes:
 
 
 class MavlinkFaults:
+    """The plan's ``mavlink: vehicle`` entries on one vehicle's link; ``MavlinkFaults(plan,
+    vehicle, clock, end_s)`` is the one of ``clock``'s kind (``LockstepMavlinkFaults`` for a
+    ``TickTime``, ``WallMavlinkFaults`` for a ``WallTime``), which owns the timing rules."""
+
+    def __new__(cls, plan: FaultPlan, vehicle: int, clock: RunClock, end_s: float) -> "MavlinkFaults":
+        if cls is MavlinkFaults:
+            cls = next(c for kind, c in _BY_CLOCK.items() if isinstance(clock, kind))
+        return super().__new__(cls)
+
     def __init__(self, plan: FaultPlan, vehicle: int, clock: RunClock, end_s: float):
         self.seed = plan.seed
         self.clock = clock
@@ -70,24 +79,34 @@ class MavlinkFaults:
         #: real time: (due, order, way, data, whether it is a duplicate's second copy)
         self._held: list[tuple[float, int, str, bytes, bool]] = []
         self._order = itertools.count()
-        self._counted_ms = {"up": -1, "down": -1}  #: lockstep: the newest time each way counted
 
+    # -- the clock's rules -----------------------------------------------------------------------
     def _stats(self, way: str, key_ms: int) -> EdgeStats | None:
-        """Where this datagram is counted; None: lockstep, a repeat of a tick's datagram already
-        counted (it meets the same fate, but a corrupted repeat is not passed on again: the
-        receiver's count of bad frames must not depend on how many repeats the load caused)."""
-        if not self.clock.lockstep:
-            return self.stats[way]
-        if key_ms <= self._counted_ms[way]:
-            return None
-        self._counted_ms[way] = key_ms
-        return self.stats[way]
+        """Where this datagram is counted; None: not counted (it meets its fate all the same)."""
+        raise NotImplementedError
+
+    def _up_key(self, stamp_ms: int) -> int:
+        """What a setpoint stamped ``stamp_ms`` draws its fate by."""
+        raise NotImplementedError
+
+    def _step(self, key: int) -> int:
+        """The step a bursty entry's chain is at for a datagram keyed ``key``."""
+        raise NotImplementedError
+
+    def _setpoint_lost(self, stamp_ms: int, clock_only: Callable[[int], None]) -> None:
+        """A setpoint stamped ``stamp_ms`` was lost or corrupted."""
+
+    def _down_key(self, data: bytes) -> tuple[int, float] | None:
+        """What a received datagram draws its fate by, and its time for the plan's windows [s];
+        None: it passes untouched."""
+        raise NotImplementedError
+
+    def _sample_lost(self, key: int) -> None:
+        """A received datagram keyed ``key`` was lost or corrupted."""
 
     def _fate(self, way: str, key: int, t_s: float) -> Any:
-        # a bursty entry's chain moves one step per datagram: per tick in lockstep (keys are ms)
-        step = key // self._period_ms if self.clock.lockstep else key
         rules, channel = self.rules[way], self.channel[way]
-        return fate(self.seed, rules, channel, key, t_s, self.end_s, self.clock.period_s, step)
+        return fate(self.seed, rules, channel, key, t_s, self.end_s, self.clock.period_s, self._step(key))
 
     # -- uplink ----------------------------------------------------------------------------------
     def send(
@@ -95,8 +114,7 @@ class MavlinkFaults:
     ) -> None:
         """Send ``frame`` (a setpoint stamped ``stamp_ms``) through ``write`` as the plan says;
         ``clock_only(ms)`` sends a lockstep clock-only setpoint."""
-        lockstep = self.clock.lockstep
-        key = stamp_ms if lockstep else next(self._order)
+        key = self._up_key(stamp_ms)
         counted = self._stats("up", stamp_ms)
         st = counted or EdgeStats()
         st.received += 1
@@ -106,8 +124,7 @@ class MavlinkFaults:
             if f.corrupt and counted:
                 st.corrupt += 1
                 write(_flipped(frame, self.seed, self.channel["up"], key))
-            if lockstep:
-                clock_only(stamp_ms + self._period_ms)
+            self._setpoint_lost(stamp_ms, clock_only)
             return
         if f.delay_s > 0:
             st.delayed += 1
@@ -123,21 +140,17 @@ class MavlinkFaults:
     # -- downlink --------------------------------------------------------------------------------
     def receive(self, data: bytes) -> bytes | None:
         """The datagram to read now in place of ``data`` (None: none)."""
-        if self.clock.lockstep:
-            ms = sample_ms(data)
-            if ms is None:  # start-up traffic: only the per-tick samples fail in lockstep
-                return data
-            key, t = ms, ms / 1000
-        else:
-            key, t = next(self._order), self.clock.now_s()
+        keyed = self._down_key(data)
+        if keyed is None:
+            return data
+        key, t = keyed
         counted = self._stats("down", key)
         st = counted or EdgeStats()
         st.received += 1
         f = self._fate("down", key, t)
         st.count_fate(bool(f.lost or (f.corrupt and not counted)))
         if f.lost or f.corrupt:
-            if self.clock.lockstep:
-                self.lost_ms = key
+            self._sample_lost(key)
             if f.lost or not counted:
                 return None
             st.corrupt += 1
@@ -193,3 +206,59 @@ class MavlinkFaults:
         """Count both ways in ``counts`` (names from ``counts_names``)."""
         for way, st in self.stats.items():
             st.bind(counts.view(counts_names(f"mavlink {way}")))
+
+
+class LockstepMavlinkFaults(MavlinkFaults):
+    """Lockstep: fates keyed by ``time_boot_ms``, each tick's datagram counted once, a lost
+    setpoint replaced by a clock-only one, a lost sample settled (``lost_ms``)."""
+
+    def __init__(self, plan: FaultPlan, vehicle: int, clock: RunClock, end_s: float):
+        super().__init__(plan, vehicle, clock, end_s)
+        self._counted_ms = {"up": -1, "down": -1}  #: the newest time each way counted
+
+    def _stats(self, way: str, key_ms: int) -> EdgeStats | None:
+        """None: a repeat of a tick's datagram already counted (it meets the same fate, but a
+        corrupted repeat is not passed on again: the receiver's count of bad frames must not
+        depend on how many repeats the load caused)."""
+        if key_ms <= self._counted_ms[way]:
+            return None
+        self._counted_ms[way] = key_ms
+        return self.stats[way]
+
+    def _up_key(self, stamp_ms: int) -> int:
+        return stamp_ms
+
+    def _step(self, key: int) -> int:
+        return key // self._period_ms  # (a bursty chain moves one step per tick; keys are ms)
+
+    def _setpoint_lost(self, stamp_ms: int, clock_only: Callable[[int], None]) -> None:
+        clock_only(stamp_ms + self._period_ms)  # a period the vehicle flies on what it holds
+
+    def _down_key(self, data: bytes) -> tuple[int, float] | None:
+        ms = sample_ms(data)
+        if ms is None:  # start-up traffic: only the per-tick samples fail in lockstep
+            return None
+        return ms, ms / 1000
+
+    def _sample_lost(self, key: int) -> None:
+        self.lost_ms = key
+
+
+class WallMavlinkFaults(MavlinkFaults):
+    """Real time: fates keyed by each datagram's order, every datagram counted, windows read at
+    the wall clock's run time."""
+
+    def _stats(self, way: str, key_ms: int) -> EdgeStats | None:
+        return self.stats[way]
+
+    def _up_key(self, stamp_ms: int) -> int:
+        return next(self._order)
+
+    def _step(self, key: int) -> int:
+        return key
+
+    def _down_key(self, data: bytes) -> tuple[int, float] | None:
+        return next(self._order), self.clock.now_s()
+
+
+_BY_CLOCK: dict[type, type[MavlinkFaults]] = {TickTime: LockstepMavlinkFaults, WallTime: WallMavlinkFaults}

@@ -59,14 +59,6 @@ def _terminate(signum: int, frame: object) -> None:
     raise KeyboardInterrupt
 
 
-def _horizon(clock: RunClock, last_tick: int) -> Callable[[], int]:
-    """The bus's ``horizon``, asked for every estimate and status: ``clock.horizon``, a constant
-    in lockstep."""
-    if clock.lockstep:
-        return lambda: last_tick
-    return lambda: clock.horizon(last_tick)
-
-
 def _session(cfg: SwarmConfig, connect: list[str]) -> Any:
     return open_session(cfg.zenoh, connect, credentials_from_env())
 
@@ -158,7 +150,7 @@ def cmd_controller(cfg: SwarmConfig, args: argparse.Namespace) -> int:
             session = _session(cfg, args.connect)
             mark("zenoh")
             bus = zbus = ZenohNodeBus.of(session, cfg.name, cfg.node_keys(i), cfg.law_class().message_length)
-            zbus.horizon = _horizon(clock, cfg.n_control_steps)
+            zbus.horizon = clock.horizon_call(cfg.n_control_steps)
             if out is not None:
                 zbus.published_file = CounterFile(published_path(out, i, args.incarnation))
                 zbus.tick_file = CounterFile(tick_path(out, node_stem(i, args.incarnation)))
@@ -219,7 +211,7 @@ def cmd_leader(cfg: SwarmConfig, args: argparse.Namespace) -> int:
             mark("zenoh")
             clock = pacer(args.lockstep, cfg.control_dt_s)
             zbus = ZenohNodeBus.of(session, cfg.name, cfg.node_keys(0))
-            zbus.horizon = _horizon(clock, cfg.n_control_steps)
+            zbus.horizon = clock.horizon_call(cfg.n_control_steps)
             if args.out:
                 zbus.published_file = CounterFile(published_path(Path(args.out), 0, args.incarnation))
                 zbus.tick_file = CounterFile(tick_path(Path(args.out), node_stem(0, args.incarnation)))
