@@ -30,11 +30,22 @@ def _sleeps() -> list[str]:
 
 
 def _supervisor(tmp_path: Path) -> Supervisor:
-    sup = Supervisor(tmp_path)
-    sup.completed = lambda c: ends.completed(tmp_path, c)
-    sup.last_tick = lambda c: ends.last_tick(tmp_path, DT, c)
+    sup = Supervisor(tmp_path, rules=ends.RunExits(tmp_path, DT))
     procs_dir(tmp_path).mkdir(parents=True, exist_ok=True)
     return sup
+
+
+class _Frozen:
+    """A fault plan that stopped the processes of ``names`` and killed none."""
+
+    def __init__(self, names: set[str]):
+        self.names = names
+
+    def planned_exit(self, child: object, code: int) -> bool:
+        return False
+
+    def frozen(self, process: str) -> bool:
+        return process in self.names
 
 
 def _ended(sup: Supervisor) -> None:
@@ -108,7 +119,9 @@ def test_a_restarted_node_says_its_last_tick_from_where_it_resumed(tmp_path):
 def test_ridden_through_an_exit_is_recorded_and_the_others_go_on(tmp_path):
     sup = _supervisor(tmp_path)
     lost = ends.LostLog(tmp_path, time.time())
-    sup.ride_through, sup.on_lost = True, lost.add
+    rules = sup.rules
+    assert isinstance(rules, ends.RunExits)
+    rules.lost = lost
     tick = CounterFile(tick_path(tmp_path, "controller_2"))
     try:
         sup.spawn("controller_2", _exits(1), True)
@@ -192,7 +205,7 @@ def test_a_leader_says_its_last_tick_and_tick_0_is_a_tick(tmp_path):
         sup.spawn("leader", _exits(0), True)
         sup.spawn("controller_1", _exits(0), True)
         _ended(sup)
-        assert [sup.last_tick(c) for c in sup.children] == [
+        assert [sup.rules.last_tick(c) for c in sup.children] == [
             "its last tick 0, t=0.000 s",
             "before its first tick",
         ]
@@ -217,11 +230,14 @@ def test_a_child_stopped_by_no_plan_fails_the_run_after_its_grace_and_one_the_pl
         while not victim.stopped():
             assert time.monotonic() < end
             time.sleep(0.02)
-        sup.planned_stop = lambda process: process == "controller_2"
+        frozen = {"controller_2"}
+        rules = sup.rules
+        assert isinstance(rules, ends.RunExits)
+        rules.faults = _Frozen(frozen)
         sup.check()
         time.sleep(STOPPED_GRACE_S + 0.1)
         sup.check()  # the plan stopped it: no failure
-        sup.planned_stop = lambda process: False
+        frozen.clear()
         sup.check()  # seen stopped from now: within its grace
         time.sleep(STOPPED_GRACE_S + 0.1)
         with pytest.raises(RunFailedError, match=r"^controller_2 is stopped \(SIGSTOP or a debugger\)"):

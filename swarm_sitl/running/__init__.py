@@ -1,6 +1,8 @@
 """Running a swarm: in one process (``sim``; a fault plan in it: ``sim_plan``), or as processes
 that are started, supervised and torn down all or nothing (``run``: the whole run;
-``supervisor``: the children; ``ends``: a process that ended early or stopped ticking, named;
+``supervisor``: the children; ``observers``: what the supervisor's loop watches and feeds,
+declared once; ``ends``: a process that ended early or stopped ticking, named, and a run's exit
+rules;
 ``vehicles``: the simulated vehicles; ``hub``: the supervisor's zenoh session and view of the
 bus; ``fork_server``: children forked from one warmed-up process; ``children``: a child's command
 line and environment; ``router_watch``: a client-mode run's zenoh router, lost and back;

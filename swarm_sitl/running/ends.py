@@ -17,13 +17,14 @@
 
 import time
 from pathlib import Path
+from typing import Protocol
 
 from sim_vehicles.runtime.counter_file import read_counter
 from sim_vehicles.runtime.event_log import EventLog
 from swarm_sitl.config.schema import SwarmConfig
 from swarm_sitl.nodes.law_guard import HARD_STOP_S
 from swarm_sitl.rundir.layout import lost_events_path, procs_dir, tick_path
-from swarm_sitl.running.supervisor import Child, RunFailedError
+from swarm_sitl.running.supervisor import Child, ExitRules, RunFailedError
 
 
 def _files(run_dir: Path, child: Child) -> tuple[Path, Path] | None:
@@ -110,3 +111,43 @@ class LostLog:
 
     def close(self) -> None:
         self.events.close()
+
+
+class PlannedExits(Protocol):
+    """What the exit rules ask of a run's process fault plan (``faults.processes``)."""
+
+    def planned_exit(self, child: Child, code: int) -> bool: ...
+
+    def frozen(self, process: str) -> bool: ...
+
+
+class RunExits(ExitRules):
+    """A run's exit rules: a node has completed when its tick file says so, its line names its
+    last tick, the fault plan's kills and freezes are planned (``faults``, once the run has one),
+    and an unplanned exit is ridden through while a lost log is kept (``lost``: real time,
+    ``run.stop_on_loss: false``, once the run has started)."""
+
+    def __init__(self, run_dir: Path, dt_s: float):
+        self.run_dir = run_dir
+        self.dt_s = dt_s
+        self.faults: PlannedExits | None = None
+        self.lost: LostLog | None = None
+
+    def completed(self, child: Child) -> bool:
+        return completed(self.run_dir, child)
+
+    def last_tick(self, child: Child) -> str:
+        return last_tick(self.run_dir, self.dt_s, child)
+
+    def planned_exit(self, child: Child, code: int) -> bool:
+        return self.faults is not None and self.faults.planned_exit(child, code)
+
+    def planned_stop(self, process: str) -> bool:
+        return self.faults is not None and self.faults.frozen(process)
+
+    def ride_through(self) -> bool:
+        return self.lost is not None
+
+    def on_lost(self, child: Child, code: int, line: str) -> None:
+        if self.lost is not None:
+            self.lost.add(child, code, line)

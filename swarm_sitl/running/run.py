@@ -8,6 +8,7 @@ the run ends before it starts. Then the start signal, the fault plan's process f
 while it runs, and every process torn down at the end (``supervisor``).
 """
 
+import contextlib
 import json
 import os
 import sys
@@ -22,10 +23,11 @@ from sim_vehicles.runtime.lifeline import settle_heap
 from sim_vehicles.runtime.secret_file import write_secret
 from swarm_sitl.bus import access as zenoh_access
 from swarm_sitl.bus import keys as zenoh_keys
+from swarm_sitl.bus.hold import LockstepHold
 from swarm_sitl.bus.session import publish_hold, publish_start
 from swarm_sitl.config.load import ConfigError
 from swarm_sitl.config.schema import SwarmConfig
-from swarm_sitl.faults.processes import LostAircraftError, process_faults
+from swarm_sitl.faults.processes import LostAircraftError, ProcessFaults, process_faults
 from swarm_sitl.nodes.assembly import first_tick, reported_vehicle_params
 from swarm_sitl.nodes.law_host import LawError
 from swarm_sitl.rundir.layout import (
@@ -44,13 +46,16 @@ from swarm_sitl.running import ends
 from swarm_sitl.running.children import PARENT_ENV, child_env, module_argv
 from swarm_sitl.running.fork_server import ForkServer
 from swarm_sitl.running.hub import RunMonitor, open_hub
+from swarm_sitl.running.observers import Observer, supervise
 from swarm_sitl.running.router_watch import RouterWatch
 from swarm_sitl.running.sim import run_sim
-from swarm_sitl.running.supervisor import SUPERVISE_EVERY_S, RunFailedError, Supervisor
+from swarm_sitl.running.supervisor import RunFailedError, Supervisor
 from swarm_sitl.running.vehicles import port_lines, signing_key_file, start_vehicles
 from swarm_sitl.view.live import LiveFeed
 
 VIEW_EVERY_S = 0.05  #: how often the page's live feed is given the bus's statuses (20 Hz) [s]
+START_EVERY_S = 0.5  #: how often the start signal is put again, for late subscribers [s]
+PROGRESS_EVERY_S = 0.25  #: how often ``on_progress`` is called [s]
 
 
 def compile_kernels(cfg: SwarmConfig) -> None:
@@ -153,9 +158,7 @@ def run_swarm(request: RunRequest) -> RunResult:
     ports go to ``on_vehicles``) unless ``mavlink`` gives each follower's endpoint. The followers
     in ``external`` get no controller from the run: each one's is the user's, told where to meet
     its vehicle and the bus (``external_controllers``), and the run waits for it as for its own."""
-    cfg, run_dir, lockstep, mavlink = request.cfg, request.run_dir, request.lockstep, request.mavlink
-    on_progress, on_vehicles, external = request.on_progress, request.on_vehicles, request.external
-    base_port = request.base_port
+    cfg, run_dir, lockstep = request.cfg, request.run_dir, request.lockstep
     if lockstep:
         try:
             cfg.faults.check_lockstep()
@@ -169,9 +172,8 @@ def run_swarm(request: RunRequest) -> RunResult:
         raise RunFailedError(f"cannot write {cfg_path} ({e.strerror or e})") from None
     procs_dir(run_dir).mkdir(parents=True, exist_ok=True)
     t_spawn = time.monotonic()
-    sup = Supervisor(run_dir)
-    sup.completed = lambda child: ends.completed(run_dir, child)
-    sup.last_tick = lambda child: ends.last_tick(run_dir, cfg.control_dt_s, child)
+    exits = ends.RunExits(run_dir, cfg.control_dt_s)
+    sup = Supervisor(run_dir, rules=exits)
     try:
         if not cfg.law.is_paper:  # a user's law that cannot take its first tick fails here, named
             for f in cfg.followers:
@@ -188,8 +190,30 @@ def run_swarm(request: RunRequest) -> RunResult:
     except BaseException:  # (the fork server is up: it goes too, now, not when it sees us gone)
         sup.close()
         raise
-    monitor = RunMonitor(session, cfg)
-    hold = request.view.hold if request.view is not None and lockstep else None
+    with contextlib.ExitStack() as closing:  # (what is opened below closes in reverse order)
+        closing.callback(session.close)
+        closing.callback(sup.close)
+        monitor = RunMonitor(session, cfg)
+        closing.callback(monitor.close)
+        return _fly(request, sup, exits, hub, session, monitor, closing, t_spawn)
+    raise AssertionError("unreachable")  # (mypy: ExitStack may swallow an exception)
+
+
+def _fly(
+    request: RunRequest,
+    sup: Supervisor,
+    exits: ends.RunExits,
+    hub: str | None,
+    session: Any,
+    monitor: RunMonitor,
+    closing: contextlib.ExitStack,
+    t_spawn: float,
+) -> RunResult:
+    """``run_swarm`` once its supervisor and the run's bus are up: spawn, start, supervise."""
+    cfg, run_dir, lockstep = request.cfg, request.run_dir, request.lockstep
+    on_progress, view = request.on_progress, request.view
+    cfg_path = run_dir / "config.yaml"
+    hold = view.hold if view is not None and lockstep else None
     if hold is not None:  # the page's pause and step
         hold.put = lambda tick: publish_hold(session, cfg.name, tick)
     router = None
@@ -197,116 +221,129 @@ def run_swarm(request: RunRequest) -> RunResult:
         router = RouterWatch(
             session, cfg.zenoh.connect, EventLog(router_events_path(run_dir), "supervisor"), lockstep
         )
+        closing.callback(router.close)
     faults = None
-    lost: ends.LostLog | None = None
     if cfg.faults.plan:
         events = supervisor_events_path(run_dir)
         faults = process_faults(cfg.faults, cfg.control_dt_s, cfg.run.stop_on_loss, sup, lockstep, events)
-        sup.planned_exit = faults.planned_exit
-    try:
-        # a follower whose vehicle is outside the run (its ``mavlink:``) is reached where it says
-        outside = {f.id: f.mavlink for f in cfg.followers if f.mavlink} if mavlink is None else dict(mavlink)
-        own = [f.id for f in cfg.followers if f.id not in outside]
-        key_file = signing_key_file(cfg, run_dir, own_vehicles=bool(own))
-        endpoints: dict[int, str] = {}
-        if own:
-            endpoints, ground = start_vehicles(sup, cfg, lockstep, base_port, key_file, only=own)
-            if on_vehicles is not None:
-                on_vehicles(port_lines(endpoints, ground))
-        endpoints.update(outside)
-        signing = ["--signing-key-file", str(key_file)] if key_file is not None else []
-        node_args = {"leader": ["leader"]}
-        if external:
-            lines = external_controllers(cfg, run_dir, external, endpoints, hub, sup.env_for)
-            if on_vehicles is not None:
-                on_vehicles(lines)
-        for f in cfg.followers:
-            if f.id in external:
-                continue
-            url = endpoints[f.id]
-            url = "udpout:" + url.removeprefix("udp:") if f.id in own else url
-            # (a vehicle outside signs only if the config gives its key: signing.passphrase_file)
-            signs = signing if f.id in own or cfg.signing.passphrase_file is not None else []
-            node_args[f"controller_{f.id}"] = ["controller", "--id", str(f.id), "--mavlink", url, *signs]
+        closing.callback(faults.close)
+        exits.faults = faults
+    if view is not None:
+        closing.callback(view.finish)
+    node_args, endpoints = _spawn_vehicles(request, sup, hub)
 
-        def argv(process: str, incarnation: int = 0, resume_tick: int = 0) -> list[str]:
-            role, *extra = node_args[process]
-            if incarnation:
-                extra += ["--incarnation", str(incarnation), "--resume-tick", str(resume_tick)]
-            return node_argv(cfg_path, role, lockstep, hub, run_dir, extra)
+    def argv(process: str, incarnation: int = 0, resume_tick: int = 0) -> list[str]:
+        role, *extra = node_args[process]
+        if incarnation:
+            extra += ["--incarnation", str(incarnation), "--resume-tick", str(resume_tick)]
+        return node_argv(cfg_path, role, lockstep, hub, run_dir, extra)
 
-        if faults is not None:
-            faults.set_restart(argv)
-            sup.planned_stop = faults.frozen
-        for process in node_args:
-            sup.spawn(process, argv(process), True)
-        end = time.monotonic() + cfg.run.start_timeout_s
-        while len(monitor.ready) < cfg.n_followers + 1:
-            sup.check()
-            if time.monotonic() > end:
-                missing = sorted(set(range(cfg.n_followers + 1)) - monitor.ready)
-                raise RunFailedError(f"node(s) {missing} not ready within {cfg.run.start_timeout_s:g} s")
-            time.sleep(0.02)
-        startup = time.monotonic() - t_spawn
-        epoch = time.time() + (0.0 if lockstep else 0.5)
-        start_path(run_dir).write_text(json.dumps({"epoch_unix_s": epoch, "lockstep": lockstep}) + "\n")
-        t_start = time.monotonic()
-        next_start_put = 0.0
-        next_progress = 0.0
-        next_view = 0.0
-        if request.view is not None:
-            request.view.started(epoch)
-        watch = None
-        if not lockstep:  # a controller that stops ticking, a run that does not end (ends)
-            watch = ends.TickWatch(cfg, run_dir, time.monotonic() + (epoch - time.time()))
-            if not cfg.run.stop_on_loss:  # an unplanned exit is recorded and ridden through
-                lost = ends.LostLog(run_dir, epoch)
-                sup.ride_through, sup.on_lost = True, lost.add
-        while not sup.finished():
-            if faults is not None:
-                try:
-                    faults.act(time.time() - epoch, monitor.min_step(faults.down | faults.lost))
-                except LostAircraftError as e:
-                    raise RunFailedError(str(e)) from None
-            sup.check()
-            if watch is not None:
-                watch.check(sup.children, time.monotonic())
-            if router is not None:
-                router.check(time.time() - epoch)
-            now = time.monotonic()
-            if now >= next_start_put:  # again and again: a late subscriber still gets it
-                publish_start(session, cfg.name, epoch)
-                next_start_put = now + 0.5
-            if on_progress is not None and now >= next_progress:
-                on_progress(monitor.min_step(), monitor.errors_m())
-                next_progress = now + 0.25
-            if request.view is not None and now >= next_view:
-                down = faults.down | faults.lost if faults is not None else set()
-                statuses = monitor.latest()
-                if hold is not None:
-                    hold.act(statuses, down, now)
-                request.view.update(statuses, monitor.errors_m(), down)
-                next_view = now + VIEW_EVERY_S
-            time.sleep(SUPERVISE_EVERY_S)
-        run_wall = time.monotonic() - t_start
-        if on_progress is not None:
-            on_progress(cfg.n_control_steps, monitor.errors_m())
-        if sup.lost:
-            flew_on = " (the swarm flew on to the end: run.stop_on_loss false)"
-            raise RunFailedError("; ".join(sup.lost) + flew_on)
-        return RunResult(run_wall, startup, endpoints)
-    finally:
-        if request.view is not None:
-            request.view.finish()
-        if lost is not None:
-            lost.close()
-        if faults is not None:
-            faults.close()
-        if router is not None:
-            router.close()
-        monitor.close()
-        sup.close()
-        session.close()
+    if faults is not None:
+        faults.set_restart(argv)
+    for process in node_args:
+        sup.spawn(process, argv(process), True)
+    end = time.monotonic() + cfg.run.start_timeout_s
+    while len(monitor.ready) < cfg.n_followers + 1:
+        sup.check()
+        if time.monotonic() > end:
+            missing = sorted(set(range(cfg.n_followers + 1)) - monitor.ready)
+            raise RunFailedError(f"node(s) {missing} not ready within {cfg.run.start_timeout_s:g} s")
+        time.sleep(0.02)
+    startup = time.monotonic() - t_spawn
+    epoch = time.time() + (0.0 if lockstep else 0.5)
+    start_path(run_dir).write_text(json.dumps({"epoch_unix_s": epoch, "lockstep": lockstep}) + "\n")
+    t_start = time.monotonic()
+    if view is not None:
+        view.started(epoch)
+    observers = []  # what the loop does, in this order, each when due
+    if faults is not None:
+        observers.append(Observer(_acting(faults, monitor)))
+    observers.append(Observer(lambda run_s, now: sup.check()))
+    if not lockstep:  # a controller that stops ticking, a run that does not end (ends)
+        watch = ends.TickWatch(cfg, run_dir, time.monotonic() + (epoch - time.time()))
+        observers.append(Observer(lambda run_s, now: watch.check(sup.children, now)))
+        if not cfg.run.stop_on_loss:  # an unplanned exit is recorded and ridden through
+            exits.lost = ends.LostLog(run_dir, epoch)
+            closing.callback(exits.lost.close)
+    if router is not None:
+        observers.append(Observer(lambda run_s, now: router.check(run_s)))
+    # again and again: a late subscriber still gets it
+    observers.append(Observer(lambda run_s, now: publish_start(session, cfg.name, epoch), START_EVERY_S))
+    if on_progress is not None:
+        observers.append(
+            Observer(lambda run_s, now: on_progress(monitor.min_step(), monitor.errors_m()), PROGRESS_EVERY_S)
+        )
+    if view is not None:
+        observers.append(Observer(_feeding(view, hold, faults, monitor), VIEW_EVERY_S))
+    supervise(sup, observers, epoch)
+    run_wall = time.monotonic() - t_start
+    if on_progress is not None:
+        on_progress(cfg.n_control_steps, monitor.errors_m())
+    if sup.lost:
+        flew_on = " (the swarm flew on to the end: run.stop_on_loss false)"
+        raise RunFailedError("; ".join(sup.lost) + flew_on)
+    return RunResult(run_wall, startup, endpoints)
+
+
+def _spawn_vehicles(
+    request: RunRequest, sup: Supervisor, hub: str | None
+) -> tuple[dict[str, list[str]], dict[int, str]]:
+    """Our vehicles spawned, the outside ones and the external controllers told where to meet:
+    each node's role and arguments (by process name), and each follower's vehicle endpoint."""
+    cfg, run_dir, lockstep, mavlink = request.cfg, request.run_dir, request.lockstep, request.mavlink
+    on_vehicles, external = request.on_vehicles, request.external
+    # a follower whose vehicle is outside the run (its ``mavlink:``) is reached where it says
+    outside = {f.id: f.mavlink for f in cfg.followers if f.mavlink} if mavlink is None else dict(mavlink)
+    own = [f.id for f in cfg.followers if f.id not in outside]
+    key_file = signing_key_file(cfg, run_dir, own_vehicles=bool(own))
+    endpoints: dict[int, str] = {}
+    if own:
+        endpoints, ground = start_vehicles(sup, cfg, lockstep, request.base_port, key_file, only=own)
+        if on_vehicles is not None:
+            on_vehicles(port_lines(endpoints, ground))
+    endpoints.update(outside)
+    signing = ["--signing-key-file", str(key_file)] if key_file is not None else []
+    node_args = {"leader": ["leader"]}
+    if external:
+        lines = external_controllers(cfg, run_dir, external, endpoints, hub, sup.env_for)
+        if on_vehicles is not None:
+            on_vehicles(lines)
+    for f in cfg.followers:
+        if f.id in external:
+            continue
+        url = endpoints[f.id]
+        url = "udpout:" + url.removeprefix("udp:") if f.id in own else url
+        # (a vehicle outside signs only if the config gives its key: signing.passphrase_file)
+        signs = signing if f.id in own or cfg.signing.passphrase_file is not None else []
+        node_args[f"controller_{f.id}"] = ["controller", "--id", str(f.id), "--mavlink", url, *signs]
+    return node_args, endpoints
+
+
+def _acting(faults: ProcessFaults, monitor: RunMonitor) -> Callable[[float, float], None]:
+    """The process fault plan, acting at the run's time on the slowest follower's tick."""
+
+    def act(run_s: float, now: float) -> None:
+        try:
+            faults.act(run_s, monitor.min_step(faults.down | faults.lost))
+        except LostAircraftError as e:
+            raise RunFailedError(str(e)) from None
+
+    return act
+
+
+def _feeding(
+    view: LiveFeed, hold: LockstepHold | None, faults: ProcessFaults | None, monitor: RunMonitor
+) -> Callable[[float, float], None]:
+    """The page's live feed, given the bus's statuses (and the page's hold, acting on them)."""
+
+    def feed(run_s: float, now: float) -> None:
+        down = faults.down | faults.lost if faults is not None else set()
+        statuses = monitor.latest()
+        if hold is not None:
+            hold.act(statuses, down, now)
+        view.update(statuses, monitor.errors_m(), down)
+
+    return feed
 
 
 @dataclass

@@ -4,10 +4,11 @@
 and ``SWARM_SITL_PARENT_PID`` set (children die with it, ``sim_vehicles.runtime.lifeline``),
 forked from the fork server where it has one (``fork_server``). ``check`` raises
 ``RunFailedError`` naming a child that exited before the run's end, with any code (a node that
-exits 0 without having finished its ticks too: ``completed``), unless the fault plan made it
-(``planned_exit``, ``planned_stop``); the line names its code, its last tick (``last_tick``) and
-why, from its log. With ``ride_through`` set such an exit is recorded (``on_lost``) and the run
-flies on without it; ``lost`` keeps the lines. Whatever happens (completion, Ctrl-C, a child
+exits 0 without having finished its ticks too), unless the fault plan made it; the line names its
+code, its last tick and why, from its log. How a run judges its children's exits is one object
+given at construction (``ExitRules``; a run's: ``ends.RunExits``). When the rules ride through
+an unplanned exit, it is recorded (``on_lost``) and the run flies on without it; ``lost`` keeps
+the lines. Whatever happens (completion, Ctrl-C, a child
 failing, an exception here), ``close()`` sends SIGTERM to every child still running, waits, then
 SIGKILLs: no orphan process, no port left bound.
 """
@@ -68,27 +69,46 @@ class Child:
         return lines[-1].strip() if lines else ""
 
 
+class ExitRules:
+    """How a supervisor judges its children's exits. These defaults: an exit 0 of a child that
+    must finish is its end, every other exit fails the run, and the line says no tick."""
+
+    def completed(self, child: Child) -> bool:
+        """Whether a node that exited 0 had done all its ticks (a vehicle: not asked)."""
+        return True
+
+    def planned_exit(self, child: Child, code: int) -> bool:
+        """Whether a child's exit (with its code) is one a fault plan made (``faults.processes``)."""
+        return False
+
+    def planned_stop(self, process: str) -> bool:
+        """Whether a stopped child was stopped by the plan."""
+        return False
+
+    def last_tick(self, child: Child) -> str:
+        """What a child's last tick was, for the line (``""``: unknown)."""
+        return ""
+
+    def ride_through(self) -> bool:
+        """Whether an unplanned exit is recorded and ridden through, not the run's end (real
+        time, ``run.stop_on_loss: false``)."""
+        return False
+
+    def on_lost(self, child: Child, code: int, line: str) -> None:
+        """An exit ridden through, with its line."""
+
+
 @dataclass
 class Supervisor:
     run_dir: Path
     children: list[Child] = field(default_factory=list)
     _logs: list[IO[bytes]] = field(default_factory=list)
-    #: whether a child's exit (with its code) is one a fault plan made (``faults.processes``)
-    planned_exit: Callable[[Child, int], bool] = lambda child, code: False
-    #: whether a stopped child was stopped by the plan
-    planned_stop: Callable[[str], bool] = lambda process: False
+    #: how this supervisor judges its children's exits
+    rules: "ExitRules" = field(default_factory=lambda: ExitRules())
     #: environment a process's children get besides ``child_env()`` (its zenoh credentials)
     env_for: Callable[[str], dict[str, str]] = lambda process: {}
     #: when set, children that run ``python -P -m sim_vehicles|swarm_sitl`` are forked from it
     fork_server: ForkServer | None = None
-    #: whether a node that exited 0 had done all its ticks (a vehicle: not asked)
-    completed: Callable[[Child], bool] = lambda child: True
-    #: what a child's last tick was, for the line (``""``: unknown)
-    last_tick: Callable[[Child], str] = lambda child: ""
-    #: an unplanned exit is recorded and ridden through, not the run's end (real time,
-    #: ``run.stop_on_loss: false``); ``on_lost`` is told of each with its line
-    ride_through: bool = False
-    on_lost: Callable[[Child, int, str], None] = lambda child, code, line: None
     lost: list[str] = field(default_factory=list)  #: the lines of the exits ridden through
 
     def child(self, process: str) -> Child | None:
@@ -141,7 +161,7 @@ class Supervisor:
         for c in self.children:
             if c.retired or c.proc.poll() is not None:
                 continue
-            if not c.stopped() or self.planned_stop(c.process):
+            if not c.stopped() or self.rules.planned_stop(c.process):
                 c.stopped_since = math.inf
                 continue
             c.stopped_since = min(c.stopped_since, now)
@@ -156,21 +176,21 @@ class Supervisor:
             code = c.proc.poll()
             if code is None:
                 continue
-            if code == 0 and c.must_finish and self.completed(c):
+            if code == 0 and c.must_finish and self.rules.completed(c):
                 continue
-            if self.planned_exit(c, code):
+            if self.rules.planned_exit(c, code):
                 continue
             line = self.exit_line(c, code)
-            if not self.ride_through:
+            if not self.rules.ride_through():
                 raise RunFailedError(line)
             c.retired = True
             self.lost.append(line)
-            self.on_lost(c, code, line)
+            self.rules.on_lost(c, code, line)
 
     def exit_line(self, c: Child, code: int) -> str:
         """One line: who exited, with what code, where it was, and why (its log's last line)."""
         why = getattr(c.proc, "error", "") or c.last_line()
-        where = self.last_tick(c)
+        where = self.rules.last_tick(c)
         before = " before the run's end" if code == 0 else ""
         return (
             f"{c.name} exited with code {code}{before}"
@@ -180,7 +200,9 @@ class Supervisor:
 
     def finished(self) -> bool:
         return all(
-            c.proc.poll() == 0 and self.completed(c) for c in self.children if c.must_finish and not c.retired
+            c.proc.poll() == 0 and self.rules.completed(c)
+            for c in self.children
+            if c.must_finish and not c.retired
         )
 
     def close(self) -> None:
