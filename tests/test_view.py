@@ -23,7 +23,7 @@ from swarm_sitl.config.load import with_faults
 from swarm_sitl.rundir.load import RunDirError
 from swarm_sitl.rundir.outputs import write_outputs
 from swarm_sitl.running.sim import run_sim
-from swarm_sitl.view import live
+from swarm_sitl.view import frames, live
 from swarm_sitl.view.layout import MARGIN_PX, NODE_PX, graph_layout, hops_from_leader
 from swarm_sitl.view.replay import DOWN, FRAME_HZ, GRAPH_PX, ReplaySource, replay_document
 from swarm_sitl.view.server import TOKEN_HEADER, ViewError, ViewServer
@@ -92,6 +92,69 @@ def test_a_run_directory_is_the_pages_document_at_20_frames_a_second(cut_run):
     assert json.loads(ReplaySource(doc).document()) == json.loads(json.dumps(doc))  # (strict JSON: no NaN)
     kinds = [e["kind"] for e in doc["events"]]  # (sim writes no events.jsonl: the plan's windows)
     assert kinds == ["fault_start", "fault_end"] and doc["events"][1]["t_s"] == 2.0
+
+
+def _shape(doc: object) -> object:
+    """A document's keys at every level, with a list standing for its length."""
+    if isinstance(doc, dict):
+        return {k: _shape(v) for k, v in doc.items()}
+    return len(doc) if isinstance(doc, list) else type(doc).__name__
+
+
+def _append_columns(to: dict, more: dict) -> None:
+    """The page's merge of new frames (``view.js``'s ``appendColumns``), by name."""
+    for k, v in more.items():
+        if isinstance(v, list):
+            to.setdefault(k, []).extend(v)
+        else:
+            _append_columns(to.setdefault(k, {}), v)
+
+
+@pytest.mark.integration
+def test_the_replay_and_the_live_feed_make_frames_of_the_one_declared_schema(cut_run, tmp_path):
+    cfg, rec, out = cut_run
+    replayed = replay_document(out)["frames"]
+    ticks = np.rint(np.array(replayed["t_s"]) / cfg.control_dt_s).astype(int)
+    feed = live.LiveFeed(cfg, tmp_path, True)
+    grown = frames.no_frames()
+    rng = np.random.default_rng(7)
+    for k in ticks:  # every follower's status at the replay's frame ticks, read in random chunks
+        t = k * cfg.control_dt_s
+        st = {i: Status(i, int(k), t, t, a["p_W"][k]) for i, a in rec.followers.items()}
+        err = {i: float(np.linalg.norm(a["pos_err_m"][k])) for i, a in rec.followers.items()}
+        feed.update(st, err, set())
+        if rng.random() < 0.3:
+            _append_columns(grown, json.loads(feed.frames_since(len(grown["t_s"]), 0))["frames"])
+    _append_columns(grown, json.loads(feed.frames_since(len(grown["t_s"]), 0))["frames"])
+    whole = json.loads(feed.document())["frames"]
+    assert grown == whole  # the page's merge by name rebuilds the document from its pieces
+    assert tuple(whole) == tuple(replayed) == frames.FRAME_COLUMNS
+    for doc in (whole, replayed):
+        assert all(tuple(f) == frames.FOLLOWER_COLUMNS for f in doc["followers"].values())
+    live_shape, replay_shape = _shape(whole), _shape(replayed)
+    assert live_shape["followers"] == replay_shape["followers"]  # (edges: live has the followers' only)
+    assert whole["t_s"] == replayed["t_s"] and whole["followers"] == {
+        i: {**f, "err": whole["followers"][i]["err"]} for i, f in replayed["followers"].items()
+    }
+    for i, f in replayed["followers"].items():  # (the replay's error is recorded, the feed's given)
+        np.testing.assert_allclose(np.array(whole["followers"][i]["err"], float), f["err"], atol=1e-4)
+
+
+@pytest.mark.unit
+def test_the_page_reads_only_the_frame_columns_the_schema_declares():
+    from pathlib import Path
+
+    import swarm_sitl.view
+
+    js = (Path(swarm_sitl.view.__file__).parent / "static" / "view.js").read_text()
+    read = set(re.findall(r"(?:doc\.frames|\bF)\.(\w+)", js))
+    assert read and read <= set(frames.FRAME_COLUMNS), read - set(frames.FRAME_COLUMNS)
+    for column in frames.FOLLOWER_COLUMNS:  # each follower column is drawn
+        assert re.search(rf"\b\w\.{column}\[", js), column
+    with pytest.raises(ValueError, match="a follower's columns are"):
+        frames.follower_columns(p=[], err=[], state=[], extra=[])
+    with pytest.raises(ValueError, match="frame columns are"):
+        frames.frame_columns(t_s=[], leader=[], followers={})
 
 
 @pytest.mark.integration

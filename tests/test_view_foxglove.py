@@ -30,7 +30,7 @@ pytest.importorskip("foxglove", reason="foxglove-sdk is in the test extra")
 
 SUBPROTOCOL = "foxglove.sdk.v1"  #: the SDK's name for Foxglove's WebSocket protocol
 MESSAGE_DATA = struct.Struct("<BIQ")  #: opcode 1, subscription id, log time [ns]; the payload after
-MM = 0.5e-3 + 1e-12  #: the page's frames have positions to the millimetre (``replay._num``)
+MM = 0.5e-3 + 1e-12  #: the page's frames have positions to the millimetre (``frames.num``)
 
 
 class _Client:

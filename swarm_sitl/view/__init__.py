@@ -2,6 +2,8 @@
 and in Foxglove, live (``run --foxglove``).
 
 - ``layout``: the communication graph laid out by hops from the leader, no label on another's;
+- ``frames``: the page's frame document declared once (a frame's fields by name, frames as
+  columns), which the replay, the live feed, the Foxglove stream and the page follow;
 - ``replay``: a run directory as the page's document (frames of the formation, its errors, each
   edge's age, each follower's state; the plan's windows, the events), and its source for the
   server;

@@ -28,7 +28,7 @@ from typing import Any
 
 from swarm_sitl.config.schema import SwarmConfig
 from swarm_sitl.rundir.mcap_export import EVENT, POSE_IN_FRAME, pose_message, timestamp_ns
-from swarm_sitl.view.replay import DOWN, FAILSAFE
+from swarm_sitl.view.frames import DOWN, FAILSAFE, Frame
 
 DEFAULT_PORT = 8765  #: Foxglove's own default for a WebSocket connection
 #: messages queued per client, past which the SDK drops what that client cannot take (a few
@@ -116,27 +116,30 @@ class FoxgloveStream:
         channels = [self._leader, self._edges, self._events, *self._poses.values(), *self._formation.values()]
         return {c.topic() for c in channels if c.has_sinks()}
 
-    def frame(self, frame: dict[str, Any]) -> None:
+    def frame(self, frame: Frame) -> None:
         """One of the feed's frames (``live.LiveFeed.update``'s)."""
-        t = float(frame["t_s"])
+        t = float(frame.t_s) if frame.t_s is not None else math.nan
         ns = timestamp_ns(t)
-        self._log(self._leader, pose_message(t, frame["leader"], None), ns)
-        for key, (p, err, state, t_i) in frame["followers"].items():
+        leader = _known(frame.leader)
+        if leader is not None:
+            self._log(self._leader, pose_message(t, leader, None), ns)
+        for key, at in frame.followers.items():
             i = int(key)
-            t_i = t if t_i is None else float(t_i)  # (down: at the frame's time)
+            t_i = t if at.t_s is None else float(at.t_s)  # (down: at the frame's time)
             if t_i <= self._logged_t.get(i, -math.inf):
                 continue
             self._logged_t[i] = t_i
-            if p[0] is not None:
+            p = _known(at.p)
+            if p is not None:  # (None while it is down)
                 self._log(self._poses[i], pose_message(t_i, p, None), timestamp_ns(t_i))
             formation = {
                 "t_s": t_i,
-                "error_m": err,  # (the feed's: None where it is not finite, ``replay._num``)
-                "down": bool(state & DOWN),
-                "failsafe": bool(state & FAILSAFE),
+                "error_m": at.err,  # (the feed's: None where it is not finite, ``frames.num``)
+                "down": bool(at.state & DOWN),
+                "failsafe": bool(at.state & FAILSAFE),
             }
             self._log(self._formation[i], formation, timestamp_ns(t_i))
-        self._log(self._edges, {"t_s": t, "age_s": frame["ages"]}, ns)
+        self._log(self._edges, {"t_s": t, "age_s": frame.edge_age_s}, ns)
 
     def events(self, events: list[dict[str, Any]]) -> None:
         """Events as the feed reads them (each with its ``t_s``)."""
@@ -150,3 +153,9 @@ class FoxgloveStream:
 
     def close(self) -> None:
         self._server.stop()
+
+
+def _known(p: list[float | None]) -> list[float] | None:
+    """A frame's position, if every coordinate of it is known (finite)."""
+    known = [v for v in p if v is not None]
+    return known if len(known) == len(p) else None

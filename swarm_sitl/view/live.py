@@ -4,7 +4,7 @@ The run's supervisor hands the feed what it already reads (``running.run``): eac
 newest status (its tick, the time of the sample it used, where it is: the status keys), which
 nodes are down, and, every half second, the new lines of the processes' event files. The feed
 makes at most ``replay.FRAME_HZ`` frames a second of simulated time from them, in the document
-``replay`` defines (so the page draws a live run as a finished one), and keeps the newest
+``frames`` declares (so the page draws a live run as a finished one), and keeps the newest
 ``MAX_FRAMES`` (a bounded queue that drops the oldest: a run of hours costs the feed no more than
 ten minutes of frames). The server's threads read it under a lock held only to copy; nothing here
 ever waits for a browser.
@@ -29,13 +29,14 @@ from swarm_sitl.bus.hold import LockstepHold
 from swarm_sitl.config.schema import SwarmConfig
 from swarm_sitl.rundir.events import on_run_clock, parse_events, plan_events
 from swarm_sitl.rundir.layout import procs_dir
-from swarm_sitl.view.replay import DOWN, FAILSAFE, FRAME_HZ, _event_line, _num, static_part
+from swarm_sitl.view.frames import DOWN, FAILSAFE, FollowerAt, Frame, columns, event_line, num, xyz
+from swarm_sitl.view.replay import FRAME_HZ, static_part
 
 
 class Sink(Protocol):
     """Where else the feed's frames and events go as they are made (``foxglove_live``)."""
 
-    def frame(self, frame: dict[str, Any]) -> None: ...
+    def frame(self, frame: Frame) -> None: ...
     def events(self, events: list[dict[str, Any]]) -> None: ...
 
 
@@ -53,7 +54,7 @@ class LiveFeed:
         self._edges = [(s, d) for s, d in cfg.graph_edges() if s != 0]
         self._static = {**static_part(cfg, None), "live": True, "lockstep": lockstep}
         self._lock = threading.Lock()
-        self._frames: deque[dict[str, Any]] = deque(maxlen=MAX_FRAMES)
+        self._frames: deque[Frame] = deque(maxlen=MAX_FRAMES)
         self._dropped = 0  #: frames dropped from the front (the first kept is frame ``_dropped``)
         self._events: list[dict[str, Any]] = []
         self._plan_events = sorted(plan_events(cfg), key=lambda e: e["t_s"])
@@ -89,26 +90,21 @@ class LiveFeed:
             return
         self._last_t = t
         p_r = self._trajectory.derivatives(t)[0]
-        followers: dict[str, Any] = {}
+        followers: dict[str, FollowerAt] = {}
         for i in self._ids:
             s = statuses.get(i)
             state = (DOWN if i in down or s is None else 0) | (FAILSAFE if i in self._failsafe else 0)
             if s is None or i in down:
-                followers[str(i)] = ([None, None, None], None, state, None)
+                followers[str(i)] = FollowerAt([None, None, None], None, state)
                 continue
             err = errors_m.get(i, math.nan)
             # (its own tick's instant: in lockstep the followers' newest statuses are of other ticks)
-            followers[str(i)] = ([_num(v) for v in s.p_W.tolist()], _num(err, 4), state, s.t_s)
+            followers[str(i)] = FollowerAt(xyz(s.p_W.tolist()), num(err, 4), state, s.t_s)
         ages = {}
         for src, dst in self._edges:
             a, b = statuses.get(src), statuses.get(dst)
-            ages[f"{src}->{dst}"] = None if a is None or b is None or src in down else _num(b.t_s - a.t_s, 3)
-        frame = {
-            "t_s": _num(t, 4),
-            "leader": [_num(v) for v in p_r.tolist()],
-            "followers": followers,
-            "ages": ages,
-        }
+            ages[f"{src}->{dst}"] = None if a is None or b is None or src in down else num(b.t_s - a.t_s, 3)
+        frame = Frame(t_s=num(t, 4), leader=xyz(p_r.tolist()), followers=followers, edge_age_s=ages)
         with self._lock:
             if len(self._frames) == MAX_FRAMES:
                 self._dropped += 1
@@ -135,7 +131,7 @@ class LiveFeed:
             elif e["kind"] == "failsafe_exit" and isinstance(v, int):
                 self._failsafe.discard(v)
         if new:
-            lines = [_event_line(e) for e in sorted(new, key=lambda e: e["t_s"])]
+            lines = [event_line(e) for e in sorted(new, key=lambda e: e["t_s"])]
             with self._lock:
                 self._events += lines
             self._to_sinks(lambda s: s.events(lines))
@@ -178,7 +174,7 @@ class LiveFeed:
             {
                 **self._static,
                 "frame0": first,
-                "frames": _columns(frames, self.cfg),
+                "frames": columns(frames, self._ids),
                 "events": events,
                 "done": self.done,
             },
@@ -192,7 +188,7 @@ class LiveFeed:
             frames, events = list(self._frames)[skip:], self._events[event:]
         return json.dumps(
             {
-                "frames": _columns(frames, self.cfg),
+                "frames": columns(frames, self._ids),
                 "events": events,
                 "done": self.done,
                 "rtf": self.rtf,
@@ -209,25 +205,3 @@ class LiveFeed:
         if self.hold is None:
             return 409, "a real-time run flies on the wall clock: pause and step are for a lockstep run"
         return self.hold.control(pause, step)
-
-
-def _columns(frames: list[dict[str, Any]], cfg: SwarmConfig) -> dict[str, Any]:
-    """Frames as the document has them: a list per quantity."""
-    followers = {
-        str(f.id): {
-            "p": [fr["followers"][str(f.id)][0] for fr in frames],
-            "err": [fr["followers"][str(f.id)][1] for fr in frames],
-            "state": [fr["followers"][str(f.id)][2] for fr in frames],
-        }
-        for f in cfg.followers
-    }
-    ages: dict[str, list[Any]] = {}
-    for fr in frames:
-        for k, a in fr["ages"].items():
-            ages.setdefault(k, []).append(a)
-    return {
-        "t_s": [fr["t_s"] for fr in frames],
-        "leader": [fr["leader"] for fr in frames],
-        "followers": followers,
-        "edge_age_s": ages,
-    }

@@ -1,7 +1,7 @@
 """A run directory as the page shows it: ``replay_document``.
 
-The page draws frames of one document (``document``, the same for a finished run and, frame by
-frame, for a live one): at most ``FRAME_HZ`` frames a second of simulated time, each with the
+The page draws frames of one document (declared in ``frames``, the same for a finished run and,
+frame by frame, for a live one): at most ``FRAME_HZ`` frames a second of simulated time, each with the
 leader's reference, every follower's position, formation error and state (flying, down: its
 controller recorded nothing; in failsafe: its vehicle said so), and every edge's age (of the
 newest estimate its receiver had, where the run recorded it: ``in_age_s``, since the edge
@@ -23,13 +23,12 @@ from swarm_sitl.config.load import ConfigError, load_recorded
 from swarm_sitl.config.schema import SwarmConfig
 from swarm_sitl.rundir.events import plan_events, read_events
 from swarm_sitl.rundir.load import RunDirError, load_run
+from swarm_sitl.view.frames import DOWN, FAILSAFE, event_line, follower_columns, frame_columns, no_frames, num
 from swarm_sitl.view.layout import graph_layout
 
 FRAME_HZ = 20.0  #: frames per second of simulated time, at most
 GRAPH_PX = (560, 360)  #: the graph canvas's size on the page [px]
-#: a follower's state in a frame, bits: its controller recorded nothing (killed, not yet back), its
-#: vehicle in its failsafe; 0: flying as asked
-DOWN, FAILSAFE = 1, 2
+__all__ = ["DOWN", "FAILSAFE", "FRAME_HZ", "ReplaySource", "replay_document", "static_part"]
 
 
 def frame_ticks(n_ticks: int, period_s: float) -> np.ndarray:
@@ -39,12 +38,8 @@ def frame_ticks(n_ticks: int, period_s: float) -> np.ndarray:
     return ticks if ticks[-1] == n_ticks - 1 else np.append(ticks, n_ticks - 1)
 
 
-def _num(x: float, digits: int = 3) -> float | None:
-    return round(float(x), digits) if math.isfinite(x) else None
-
-
 def _xyz(a: np.ndarray) -> list[list[float | None]]:
-    return [[_num(v) for v in row] for row in a.tolist()]
+    return [[num(v) for v in row] for row in a.tolist()]
 
 
 def static_part(cfg: SwarmConfig, summary: dict[str, Any] | None) -> dict[str, Any]:
@@ -61,7 +56,7 @@ def static_part(cfg: SwarmConfig, summary: dict[str, Any] | None) -> dict[str, A
             {
                 "src": s,
                 "dst": d,
-                "delivered_frac": _num(delivered / sent) if sent else None,
+                "delivered_frac": num(delivered / sent) if sent else None,
                 "faults": [
                     {"from_s": f.from_s, "until_s": f.until_s or cfg.duration_s, "how": f.how}
                     for f in cfg.faults.plan
@@ -125,19 +120,21 @@ def replay_document(run_dir: str | Path) -> dict[str, Any]:
         state = np.where(recorded, 0, DOWN)
         for start, end in failsafe.get(i, []):
             state[(t[ticks] >= start) & (t[ticks] < end)] |= FAILSAFE
-        followers[str(i)] = {"p": _xyz(p), "err": [_num(e, 4) for e in err.tolist()], "state": state.tolist()}
+        followers[str(i)] = follower_columns(
+            p=_xyz(p), err=[num(e, 4) for e in err.tolist()], state=state.tolist()
+        )
         in_age = a.get("in_age_s")
         sources = [int(s) for s, _ in graph.in_neighbours(i)]
         if in_age is not None and in_age.ndim == 2 and in_age.shape[1] == len(sources):
             for j, s in enumerate(sources):
-                ages[f"{s}->{i}"] = [_num(x, 3) for x in in_age[at, j].tolist()]
-    doc["frames"] = {
-        "t_s": [_num(x, 4) for x in t[ticks].tolist()],
-        "leader": _xyz(rec.leader["p_r"][ticks]),
-        "followers": followers,
-        "edge_age_s": ages,
-    }
-    doc["events"] = [_event_line(e) for e in events]
+                ages[f"{s}->{i}"] = [num(x, 3) for x in in_age[at, j].tolist()]
+    doc["frames"] = frame_columns(
+        t_s=[num(x, 4) for x in t[ticks].tolist()],
+        leader=_xyz(rec.leader["p_r"][ticks]),
+        followers=followers,
+        edge_age_s=ages,
+    )
+    doc["events"] = [event_line(e) for e in events]
     doc["live"] = False
     return doc
 
@@ -159,22 +156,12 @@ def _failsafe_windows(events: list[dict[str, Any]]) -> dict[int, list[tuple[floa
     return out
 
 
-def _event_line(e: dict[str, Any]) -> dict[str, Any]:
-    """An event as the page lists it: its time, kind, source and the rest in one line."""
-    rest = {k: v for k, v in e.items() if k not in ("t_s", "kind", "source", "unix_s")}
-    text = ", ".join(f"{k} {v}" for k, v in rest.items())
-    return {
-        "t_s": _num(float(e["t_s"]), 3),
-        "kind": str(e["kind"]),
-        "source": str(e.get("source", "")),
-        "text": text,
-    }
-
-
 class ReplaySource:
     """A finished run's document, for the server (``server.DocumentSource``): whole at once."""
 
-    NOTHING_MORE = b'{"frames":{"t_s":[],"leader":[],"followers":{},"edge_age_s":{}},"events":[],"done":true}'
+    NOTHING_MORE = json.dumps(
+        {"frames": no_frames(), "events": [], "done": True}, separators=(",", ":")
+    ).encode()
 
     def __init__(self, doc: dict[str, Any]):
         self._bytes = json.dumps(doc, separators=(",", ":"), allow_nan=False).encode()

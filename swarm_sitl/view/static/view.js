@@ -57,6 +57,15 @@ function frameCount() {
   if (!doc.live || following) s.value = cur;
 }
 
+// new frames after the ones we have, column by column, by the names the document declares
+// (swarm_sitl/view/frames.py): a list is a column, an object holds columns by key
+function appendColumns(to, more) {
+  for (const [k, v] of Object.entries(more)) {
+    if (Array.isArray(v)) (to[k] = to[k] || []).push(...v);
+    else appendColumns((to[k] = to[k] || {}), v);
+  }
+}
+
 // live: what came since the frames we have
 async function poll() {
   let more;
@@ -67,14 +76,7 @@ async function poll() {
     setTimeout(poll, 2000);
     return;
   }
-  const f = more.frames, F = doc.frames;
-  F.t_s.push(...f.t_s);
-  F.leader.push(...f.leader);
-  for (const [i, a] of Object.entries(f.followers)) {
-    const b = F.followers[i];
-    b.p.push(...a.p); b.err.push(...a.err); b.state.push(...a.state);
-  }
-  for (const [k, a] of Object.entries(f.edge_age_s)) (F.edge_age_s[k] = F.edge_age_s[k] || []).push(...a);
+  appendColumns(doc.frames, more.frames);
   doc.events.push(...more.events);
   doc.done = more.done;
   el("rtf").textContent = more.rtf ? `${more.rtf.toFixed(1)}x real time` : "";
