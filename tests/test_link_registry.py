@@ -277,3 +277,16 @@ def test_a_users_model_named_by_its_entry_is_swept_and_searched(tmp_path, monkey
     assert len(plans) == 2 and entries  # each plan on every edge, or none (an item on or off)
     assert all(e["model"]["entry"] == f"{tmp_path / 'blackout.py'}:Blackout" for e in entries)
     assert all(0.0 <= e["model"]["params"]["dark"] <= 0.9 for e in entries)
+
+    # a worker elsewhere (a Dask cluster's) has no blackout.py: it flies the shipped copy, to
+    # the same robustness the search recorded
+    from swarm_sitl.falsify.search import load_inputs
+    from swarm_sitl.falsify.workers import Shipment, fly_shipped
+
+    cfg, sp, name = load_inputs(config, space, None, None, 50.0, None, 2, "severity")
+    with open(tmp_path / "f" / "evaluations.csv") as f:
+        row = next(r for r in csv.DictReader(f) if json.loads(r["plan"])["plan"])
+    ship = Shipment.of(cfg, name, sp.user_models())
+    (tmp_path / "blackout.py").rename(tmp_path / "elsewhere.py")
+    r, why = fly_shipped(ship, json.loads(row["plan"]))
+    assert why == "" and r == pytest.approx(float(row["robustness"]), rel=1e-12, abs=1e-12)

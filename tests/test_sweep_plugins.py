@@ -47,14 +47,14 @@ def test_a_campaign_on_dask_ships_the_law_file_and_gives_the_local_rows(tmp_path
     assert [r["failure"] for r in here.rows] == [""]
     assert (tmp_path / "here" / "points" / "plugins" / "my_law.py").is_file()
 
-    real_pack = sweep_module.pack
+    real_pack = sweep_module.pack_with_models
 
-    def pack_then_lose_the_file(base):  # packed: from now on the file exists nowhere
-        shipped = real_pack(base)
+    def pack_then_lose_the_file(base, models):  # packed: from now on the file exists nowhere
+        shipped = real_pack(base, models)
         shutil.rmtree(src)
         return shipped
 
-    monkeypatch.setattr(sweep_module, "pack", pack_then_lose_the_file)
+    monkeypatch.setattr(sweep_module, "pack_with_models", pack_then_lose_the_file)
     elsewhere = tmp_path / "worker_home"
     elsewhere.mkdir()
     cwd = os.getcwd()

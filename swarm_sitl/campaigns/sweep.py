@@ -32,7 +32,7 @@ from swarm_sitl.campaigns.runner import Task, connect, default_jobs, run_dask, r
 from swarm_sitl.campaigns.table import SPEC, TABLE, TableWriter, read_rows, row_key, write_sorted
 from swarm_sitl.config.load import ConfigError, load_config, parse_config, plan_data, with_spec
 from swarm_sitl.config.schema import SwarmConfig
-from swarm_sitl.rundir.plugins import pack
+from swarm_sitl.rundir.plugins import pack_with_models
 
 CAMPAIGN = "campaign.json"
 POINTS = "points"
@@ -182,14 +182,10 @@ def _shipment(base: dict[str, Any], keys: list[str], point_timeout_s: float | No
     """The base's plug-ins and the swept users' link models packed at once (``rundir.plugins``:
     one copy per file, two files of one name told apart)."""
     swept = user_models(keys)
-    plan = base["faults"]["plan"]
-    extra = [{"model": {"entry": absolute_entry(m, Path.cwd())}} for m in swept]
-    packed, files, _ = pack({**base, "faults": {**base["faults"], "plan": [*plan, *extra]}})
-    copies = [f["model"]["entry"] for f in packed["faults"]["plan"][len(plan) :]]
-    packed["faults"] = {**packed["faults"], "plan": packed["faults"]["plan"][: len(plan)]}
-    return Shipment(
-        packed, files, point_timeout_s or default_budget_s(base), dict(zip(swept, copies, strict=True))
-    )
+    here = {m: absolute_entry(m, Path.cwd()) for m in swept}
+    packed, files, copies = pack_with_models(base, list(dict.fromkeys(here.values())))
+    models = {m: copies[here[m]] for m in swept}
+    return Shipment(packed, files, point_timeout_s or default_budget_s(base), models)
 
 
 def default_budget_s(base: dict[str, Any]) -> float:

@@ -183,7 +183,10 @@ def falsify(
     flown = 0
     found = Found(name, 0, base_entries=len(cfg.faults.plan))
     rows: list[dict[str, Any]] = []
-    ev: Local | Dask = Local(jobs, cfg, name) if scheduler is None else Dask(scheduler, cfg, name)
+    models = sp.user_models()  # (shipped to the workers: a cluster's need not have their files)
+    ev: Local | Dask = (
+        Local(jobs, cfg, name, models) if scheduler is None else Dask(scheduler, cfg, name, models)
+    )
     stop = _Stop()
 
     def fly_all(plans: list[dict[str, Any]]) -> list[float]:

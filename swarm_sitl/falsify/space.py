@@ -274,6 +274,12 @@ class Space(BaseModel):
     seeds: list[Annotated[int, Field(ge=0)]] = [0]  #: the plan's seed is one of these
     entries: list[SpaceEntry] = Field(min_length=1)
 
+    def user_models(self) -> list[str]:
+        """The file entries of the users' link models this space searches (absolute, as loaded:
+        ``entries_relative_to``), each once: what a worker elsewhere needs shipped."""
+        named = [e.link_model.entry for e in self.entries if e.link_model is not None]
+        return list(dict.fromkeys(m for m in named if m is not None))
+
     def check_against(self, cfg: SwarmConfig) -> None:
         """An edge not in the graph, or a window past the run: ``ValueError`` naming the entry."""
         graph = set(cfg.graph_edges())

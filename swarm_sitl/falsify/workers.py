@@ -6,8 +6,9 @@ for a seed on any number of cores and on a cluster.
 
 **What a worker takes** (``Shipment``): the config as YAML text with each plug-in file it names
 (a law, a vehicle model, a link model) as bytes beside it (``rundir.plugins.pack``, as ``sweep``
-ships a campaign's runs), never a Python object: a plug-in's class lives in a module its worker
-imports from that file, wherever the worker is.
+ships a campaign's runs), and the files of the users' link models the space searches, never a
+Python object: a plug-in's class lives in a module its worker imports from that file, wherever the
+worker is. A plan naming a searched model by its file on this machine flies the shipped copy.
 
 **A worker that fails is an error, never a robustness** (``WorkerError``: one line naming the
 plan, the worker and its last line): a plan whose flight raised, a config the worker could not
@@ -26,7 +27,8 @@ import multiprocessing
 import os
 import signal
 import tempfile
-from dataclasses import dataclass
+from collections.abc import Sequence
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -55,13 +57,35 @@ class Shipment:
     config_yaml: str
     files: dict[str, bytes]
     name: str
+    #: a searched user's link model: its entry as the space names it (a file of this machine)
+    #: -> the shipped copy's, relative to the unpacked config (``plugins/NAME.py:Class``)
+    models: dict[str, str] = field(default_factory=dict)
 
     @classmethod
-    def of(cls, cfg: SwarmConfig, name: str) -> "Shipment":
-        from swarm_sitl.rundir.plugins import pack
+    def of(cls, cfg: SwarmConfig, name: str, models: Sequence[str] = ()) -> "Shipment":
+        """``cfg`` and its plug-ins, with the files of ``models`` (the space's users' link
+        models, ``Space.user_models``) packed beside them, one copy per file."""
+        from swarm_sitl.rundir.plugins import pack_with_models
 
-        data, files, _ = pack(cfg.data())
-        return cls(yaml.safe_dump(data, sort_keys=False), files, name)
+        packed, files, copies = pack_with_models(cfg.data(), models)
+        return cls(yaml.safe_dump(packed, sort_keys=False), files, name, copies)
+
+    def plan_here(self, plan: dict[str, Any]) -> dict[str, Any]:
+        """``plan`` with each searched user's model named by its copy in this process's unpacked
+        shipment (``unpack``'s directory)."""
+        if not self.models:
+            return plan
+        where = self._where()
+        entries = []
+        for f in plan["plan"]:
+            m = f.get("model")
+            if isinstance(m, dict) and m.get("entry") in self.models:
+                f = {**f, "model": {**m, "entry": str(where / self.models[m["entry"]])}}
+            entries.append(f)
+        return {**plan, "plan": entries}
+
+    def _where(self) -> Path:
+        return Path(tempfile.gettempdir()) / f"swarm-sitl-falsify-{os.getpid()}-{self.digest[:16]}"
 
     @property
     def digest(self) -> str:
@@ -76,7 +100,7 @@ class Shipment:
         shipment, kept for the process's life: a plug-in module stays importable)."""
         from swarm_sitl.config.load import load_config
 
-        where = Path(tempfile.gettempdir()) / f"swarm-sitl-falsify-{os.getpid()}-{self.digest[:16]}"
+        where = self._where()
         for rel, body in self.files.items():
             (where / rel).parent.mkdir(parents=True, exist_ok=True)
             (where / rel).write_bytes(body)
@@ -117,7 +141,7 @@ def _init(ship: Shipment, log_dir: str) -> None:
     fd = os.open(log, os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o600)
     os.dup2(fd, 2)
     os.close(fd)
-    _WORKER.update(log=log, name=ship.name, cfg=None, error=None)
+    _WORKER.update(log=log, name=ship.name, cfg=None, error=None, ship=ship)
     try:
         _WORKER["cfg"] = ship.unpack()
     except Exception as e:
@@ -134,7 +158,7 @@ def _fly(plan: dict[str, Any]) -> tuple[float | None, str]:
     if _WORKER.get("error"):
         return None, f"worker {os.getpid()}: {_WORKER['error']}"
     try:
-        return fly(_WORKER["cfg"], _WORKER["name"], plan, _law_stopped), ""
+        return fly(_WORKER["cfg"], _WORKER["name"], _WORKER["ship"].plan_here(plan), _law_stopped), ""
     except Exception as e:
         return None, f"worker {os.getpid()}: {one_line(e)}"
 
@@ -158,9 +182,9 @@ class Local:
     """Plans flown by ``jobs`` worker processes of this machine (spawned: nothing of this
     process's state but the shipment goes with them)."""
 
-    def __init__(self, jobs: int, cfg: SwarmConfig, name: str):
+    def __init__(self, jobs: int, cfg: SwarmConfig, name: str, models: Sequence[str] = ()):
         self.jobs = jobs
-        self.ship = Shipment.of(cfg, name)
+        self.ship = Shipment.of(cfg, name, models)
         self._logs = tempfile.TemporaryDirectory(prefix="swarm-sitl-falsify-")
         self.log_dir = self._logs.name
         self.ended = 0  #: evaluations that ended their worker (a law held in compiled code)
@@ -231,20 +255,21 @@ def fly_shipped(ship: Shipment, plan: dict[str, Any]) -> tuple[float | None, str
         cfg = _SHIPPED.get(ship.digest)
         if cfg is None:
             cfg = _SHIPPED[ship.digest] = ship.unpack()
-        return fly(cfg, ship.name, plan), ""
+        return fly(cfg, ship.name, ship.plan_here(plan)), ""
     except Exception as e:
         return None, f"Dask worker pid {os.getpid()}: {one_line(e)}"
 
 
 class Dask:
     """Plans flown on a Dask cluster's workers, gathered in the order asked (the study is the same
-    whichever worker ran what). Plug-in files are shipped with the config (``Shipment``)."""
+    whichever worker ran what). Plug-in files, and the searched users' link models, are shipped with
+    the config (``Shipment``)."""
 
-    def __init__(self, address: str, cfg: SwarmConfig, name: str):
+    def __init__(self, address: str, cfg: SwarmConfig, name: str, models: Sequence[str] = ()):
         from swarm_sitl.campaigns.runner import connect
 
         self.client = connect(address)
-        self.ship = Shipment.of(cfg, name)
+        self.ship = Shipment.of(cfg, name, models)
 
     def map(self, plans: list[dict[str, Any]]) -> list[float]:
         futures = [self.client.submit(fly_shipped, self.ship, p, pure=False) for p in plans]

@@ -29,8 +29,11 @@ A built-in also says how a plan entry writes its parameters (``plan_form``):
 - ``delay``: ``delay_s: d`` and the entry's ``jitter_s``;
 - ``params``: the mapping of its ``Params``, ``bursty: {p: 0.05, r: 0.5}``.
 
-Adding a model: its module, its line in ``LINK_MODELS``, and its field in ``plan.FaultEntry`` (the
-plan's schema; ``tests/test_link_registry.py`` names what is missing).
+Adding a model: its module and its line in ``LINK_MODELS``. A plan then names it by its key
+(``plan.FaultEntry`` reads a registered key it has no field for as that model's entry), ``sweep``
+varies it and ``falsify`` searches it (``tests/test_link_registry.py`` registers one at run time
+and does all three). A field in ``plan.FaultEntry`` for the key is optional: the built-ins have
+one, so the config reference (``docs/config.md``) lists them with their types.
 """
 
 from typing import Any

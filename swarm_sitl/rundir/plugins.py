@@ -21,6 +21,7 @@ importable where it flies again (a package, or ``PYTHONPATH``): only the entry's
 import hashlib
 import importlib.util
 import json
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -106,6 +107,20 @@ def pack(data: dict[str, Any]) -> tuple[dict[str, Any], dict[str, bytes], dict[s
         if is_file_entry(entry):
             data = _named(data, what, f"{rel}:{split_entry(entry)[1]}")
     return data, files, manifest
+
+
+def pack_with_models(
+    data: dict[str, Any], models: Sequence[str]
+) -> tuple[dict[str, Any], dict[str, bytes], dict[str, str]]:
+    """``pack(data)`` with the files of ``models`` (users' link models by file entry that no
+    entry of ``data``'s plan names: what a sweep varies or a search searches) packed beside, one
+    copy per file; the third item maps each of ``models`` to its copy's entry."""
+    plan = data["faults"]["plan"]
+    extra = [{"model": {"entry": m}} for m in models]
+    packed, files, _ = pack({**data, "faults": {**data["faults"], "plan": [*plan, *extra]}})
+    copies = [f["model"]["entry"] for f in packed["faults"]["plan"][len(plan) :]]
+    packed["faults"] = {**packed["faults"], "plan": packed["faults"]["plan"][: len(plan)]}
+    return packed, files, dict(zip(models, copies, strict=True))
 
 
 def keep(cfg: Any, run_dir: Path) -> str:
