@@ -290,3 +290,15 @@ def test_a_users_model_named_by_its_entry_is_swept_and_searched(tmp_path, monkey
     (tmp_path / "blackout.py").rename(tmp_path / "elsewhere.py")
     r, why = fly_shipped(ship, json.loads(row["plan"]))
     assert why == "" and r == pytest.approx(float(row["robustness"]), rel=1e-12, abs=1e-12)
+
+
+@pytest.mark.unit
+@pytest.mark.parametrize("key", list(LINK_MODELS))
+def test_every_registered_model_is_in_the_guide_and_the_registrys_table_with_its_module(key):
+    """A model added to the registry is listed where a user looks for the hows (``docs/links.md``)
+    and in the registry's own table, each with the module it lives in."""
+    module = LINK_MODELS[key].__module__.rpartition(".")[2]
+    guide = (support.ROOT / "docs" / "links.md").read_text()
+    table = [ln for ln in (link_models.__doc__ or "").splitlines() if ln.startswith(f"``{key}``")]
+    assert f"`{key}`" in guide and f"`{module}.py`" in guide, (key, module)
+    assert len(table) == 1 and table[0].rstrip().endswith(f"``{module}``"), (key, table)
