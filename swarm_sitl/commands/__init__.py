@@ -6,5 +6,5 @@ share.
 ``controller`` and ``leader`` are the node processes' own (``nodes.arguments``).
 
 May import: sim_vehicles, laws, bus, faults, config, rundir, link, nodes, running, bench, campaigns,
-falsify, view.
+falsify, view, ros2.
 """

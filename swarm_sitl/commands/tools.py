@@ -202,9 +202,26 @@ def cmd_export(args: argparse.Namespace) -> int:
     run_dir = Path(args.run_dir)
     if not (run_dir / "config.yaml").is_file():
         raise RunDirError(f"{run_dir}: not a run directory (no config.yaml)")
+    if args.ros2:
+        return _export_ros2(run_dir, args)
     out = Path(args.out) if args.out else run_dir / "run.mcap"
     counts = write_mcap(run_dir, out)
     print(f"{out}: {sum(counts.values())} messages on {len(counts)} channels")
+    return 0
+
+
+def _export_ros2(run_dir: Path, args: argparse.Namespace) -> int:
+    """``export --ros2``: the run as a rosbag2 directory (``ros2.bag``)."""
+    from swarm_sitl.ros2.bag import BagError, write_bag
+    from swarm_sitl.ros2.names import RosNameError
+    from swarm_sitl.ros2.types import Ros2TypesError
+
+    out = Path(args.out) if args.out else run_dir / "rosbag2"
+    try:
+        counts = write_bag(run_dir, out, args.namespace, args.distro)
+    except (BagError, RosNameError, Ros2TypesError) as e:
+        raise CliError(str(e)) from None
+    print(f"{out}: a rosbag2 (MCAP) of {sum(counts.values())} messages on {len(counts)} topics")
     return 0
 
 
@@ -286,5 +303,14 @@ def add_export(sub: Any) -> None:
     """``swarm-sitl export``: a run directory as one MCAP file."""
     ex = sub.add_parser("export", help="write a run directory as one MCAP file (Foxglove opens it)")
     ex.add_argument("run_dir")
-    ex.add_argument("--out", help="the MCAP file (default RUN_DIR/run.mcap)")
+    ex.add_argument("--out", help="the MCAP file (default RUN_DIR/run.mcap; with --ros2: RUN_DIR/rosbag2)")
+    ex.add_argument(
+        "--ros2",
+        action="store_true",
+        help="instead: a rosbag2 directory (MCAP storage, CDR, type hashes) of the run's ROS 2 topics",
+    )
+    ex.add_argument("--namespace", default="/swarm", help="with --ros2: the topics' namespace (/swarm)")
+    ex.add_argument(
+        "--distro", choices=("jazzy", "humble"), default="jazzy", help="with --ros2: whose type definitions"
+    )
     ex.set_defaults(func=cmd_export)

@@ -31,6 +31,7 @@ import numpy as np
 from mcap.writer import Writer
 
 from swarm_sitl.config.load import load_recorded
+from swarm_sitl.rundir.events import read_events
 from swarm_sitl.rundir.load import load_run
 
 _VEC = {"type": "object", "properties": {k: {"type": "number"} for k in "xyz"}}
@@ -153,15 +154,8 @@ def write_mcap(run_dir: str | Path, path: str | Path) -> dict[str, int]:
                 else:  # another law's message is its own: not recorded as such
                     break
                 put(f"/edge/{src}/{dst}", "estimate", t, est)
-        events = run_dir / "events.jsonl"
-        if events.is_file():
-            for line in events.read_text().splitlines():
-                try:
-                    e = json.loads(line)
-                except ValueError:
-                    continue
-                if isinstance(e, dict) and isinstance(e.get("t_s"), int | float):
-                    put("/events", "event", float(e["t_s"]), e)
+        for e in read_events(run_dir / "events.jsonl"):
+            put("/events", "event", float(e["t_s"]), e)
         w.finish()
     return counts
 

@@ -1,0 +1,11 @@
+"""A run as ROS 2 sees it, with no ROS installed: names, rmw_zenoh's wire layout, message types.
+
+- ``names``: the ROS 2 name rules, and where a run's topics are (one namespace per vehicle);
+- ``wire``: rmw_zenoh's layout: a topic's data key, the liveliness tokens of a node and of a
+  publisher (with its QoS), a publication's 33-byte attachment;
+- ``types``: the message types a run uses (ROS 2's and ours, ``msg/*.msg``), their type hashes
+  (RIHS01) and CDR encoding, through ``rosbags``' type store;
+- ``bag``: a run directory as a rosbag2 file (MCAP storage): ``swarm-sitl export RUN_DIR --ros2``.
+
+May import: sim_vehicles.common, bus, config, rundir.
+"""
