@@ -14,8 +14,8 @@ from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 
 from swarm_sitl.ros2 import types
-from swarm_sitl.ros2.bag import write_bag
 from swarm_sitl.rundir.outputs import write_outputs
+from swarm_sitl.rundir.ros2_bag import write_bag
 from swarm_sitl.running.sim import run_sim
 from tests.support import config
 

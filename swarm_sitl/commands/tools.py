@@ -211,10 +211,10 @@ def cmd_export(args: argparse.Namespace) -> int:
 
 
 def _export_ros2(run_dir: Path, args: argparse.Namespace) -> int:
-    """``export --ros2``: the run as a rosbag2 directory (``ros2.bag``)."""
-    from swarm_sitl.ros2.bag import BagError, write_bag
+    """``export --ros2``: the run as a rosbag2 directory (``rundir.ros2_bag``)."""
     from swarm_sitl.ros2.names import RosNameError
     from swarm_sitl.ros2.types import Ros2TypesError
+    from swarm_sitl.rundir.ros2_bag import BagError, write_bag
 
     out = Path(args.out) if args.out else run_dir / "rosbag2"
     try:

@@ -5,5 +5,5 @@ with one-line errors (``load``; a run directory's without importing its plug-ins
 swarm's config (``generator``, ``swarm-sitl new``) and the reference of every key (``reference``,
 ``docs/config.md``).
 
-May import: sim_vehicles.common, sim_vehicles.plant, sim_vehicles.models, laws, bus, faults, specs.
+May import: sim_vehicles.common, sim_vehicles.plant, sim_vehicles.models, laws, bus, faults, specs, ros2.
 """

@@ -4,8 +4,10 @@
 - ``wire``: rmw_zenoh's layout: a topic's data key, the liveliness tokens of a node and of a
   publisher (with its QoS), a publication's 33-byte attachment;
 - ``types``: the message types a run uses (ROS 2's and ours, ``msg/*.msg``), their type hashes
-  (RIHS01) and CDR encoding, through ``rosbags``' type store;
-- ``bag``: a run directory as a rosbag2 file (MCAP storage): ``swarm-sitl export RUN_DIR --ros2``.
+  (RIHS01) and CDR encoding, through ``rosbags``' type store.
 
-May import: sim_vehicles.common, bus, config, rundir.
+What uses them: ``rundir.ros2_bag`` (a run directory as a rosbag2 file) and the config's ``ros2:``
+section.
+
+May import: nothing of ours.
 """

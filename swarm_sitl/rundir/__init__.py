@@ -8,7 +8,7 @@
 - ``requirements``: the run held to its config's ``spec:`` (each requirement's robustness);
 - ``metrics``: the summary's figures (``settling``: when an error settles); ``rejoins``:
   whether the followers came back after a planned restart; ``plots``: the figures as PNG;
-  ``mcap_export``: MCAP;
+  ``mcap_export``: MCAP; ``ros2_bag``: a rosbag2 of the run's ROS 2 topics (``export --ros2``);
 - ``outputs``: the run directory written from what was recorded; ``whole_files``: each file
   written whole or not at all; ``provenance``: what made the run (versions, plug-ins' hashes,
   seeds), in its summary; ``plugins``: the plug-ins' files kept in the run directory, so it reads
@@ -16,5 +16,5 @@
 
 Compute, record, plot: nothing here runs a swarm.
 
-May import: sim_vehicles.common, sim_vehicles.runtime, laws, faults, config, specs.
+May import: sim_vehicles.common, sim_vehicles.runtime, laws, faults, config, specs, ros2.
 """
