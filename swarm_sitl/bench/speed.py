@@ -219,6 +219,27 @@ def compare_trees(cfg_path: str, other: Path, pairs: int) -> int:
     return 0
 
 
+_RUN_WALL = re.compile(r"simulated in ([0-9.]+) s wall")
+
+
+def cpu_now() -> tuple[float, float]:
+    """This process's children's CPU and its own, to take a run's CPU as a difference (``ended``)."""
+    c = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return c.ru_utime + c.ru_stime, time.process_time()
+
+
+def ended(returncode: int, printed: str, stderr: str, cpu0: tuple[float, float]) -> tuple[float, float]:
+    """A ``run`` that has ended: its run phase's wall time as the CLI printed it, and the CPU of
+    every process since ``cpu0`` (``cpu_now`` before it started); ``RunFailedError`` (its last
+    line) if it failed."""
+    found = _RUN_WALL.search(printed)
+    if returncode != 0 or found is None:
+        last = (stderr.strip().splitlines() or [""])[-1]
+        raise RunFailedError(f"run exited with code {returncode}: {last}")
+    children, own = cpu_now()
+    return float(found.group(1)), children - cpu0[0] + own - cpu0[1]
+
+
 def print_pairs(what: str, a: tuple[str, list[float]], b: tuple[str, list[float]], ratio: str) -> None:
     """Two series of alternated runs (``(name, seconds)``), their bests, medians and ratios."""
     (na, xa), (nb, xb) = a, b

@@ -11,21 +11,18 @@ within 5 % of the run without a page.
 
 import json
 import re
-import resource
 import shutil
 import signal
 import subprocess
 import tempfile
 import threading
-import time
 import urllib.request
 from pathlib import Path
 
-from swarm_sitl.bench.speed import print_pairs
+from swarm_sitl.bench.speed import cpu_now, ended, print_pairs
 from swarm_sitl.running.children import child_env, module_argv
 from swarm_sitl.running.supervisor import RunFailedError
 
-_RUN_WALL = re.compile(r"simulated in ([0-9.]+) s wall")
 _URL = re.compile(r"http://[0-9.]+:\d+/")
 POLL_S = 0.2  #: how often the page asks for new frames (view.js: POLL_MS)
 
@@ -51,8 +48,7 @@ def _run(cfg_path: str, out: Path, page: str | None, profile: Path) -> tuple[flo
     """One lockstep run (``page``: None, ``chromium`` or ``client``): its run phase's wall time
     and the CPU seconds of every process it took, the page's own included. ``profile``: the
     browser's, made by the untimed first run and used by every other (as a user's browser has one)."""
-    cpu0 = resource.getrusage(resource.RUSAGE_CHILDREN)
-    t_cpu0 = time.process_time()
+    cpu0 = cpu_now()
     argv = [*module_argv("swarm_sitl"), "run", cfg_path, "--quiet", "--out", str(out)]
     if page is not None:
         argv += ["--view", "0"]
@@ -97,13 +93,7 @@ def _run(cfg_path: str, out: Path, page: str | None, profile: Path) -> tuple[flo
         raise RunFailedError(
             f"the page ({page}) did not load: {answered.group(0) if answered else stderr[-200:]}"
         )
-    found = _RUN_WALL.search(first + stdout)
-    if proc.returncode != 0 or found is None:
-        last = (stderr.strip().splitlines() or [""])[-1]
-        raise RunFailedError(f"run exited with code {proc.returncode}: {last}")
-    cpu1 = resource.getrusage(resource.RUSAGE_CHILDREN)
-    cpu = (cpu1.ru_utime + cpu1.ru_stime) - (cpu0.ru_utime + cpu0.ru_stime) + time.process_time() - t_cpu0
-    return float(found.group(1)), cpu
+    return ended(proc.returncode, first + stdout, stderr, cpu0)
 
 
 def view_cost(cfg_path: str, pairs: int) -> int:

@@ -81,5 +81,35 @@ def on_run_clock(e: dict[str, Any], epoch_unix_s: float | None) -> dict[str, Any
     return e
 
 
+class EventTail:
+    """The processes' event files of a running run (``*.events`` in ``directory``), read as they
+    grow: each ``read`` gives the complete lines written since the last, put on the run's clock
+    (``epoch_unix_s``, once the run has started: a vehicle stamps its events with the UNIX time)."""
+
+    def __init__(self, directory: Path):
+        self.directory = directory
+        self.epoch_unix_s: float | None = None
+        self._offsets: dict[Path, int] = {}
+
+    def read(self) -> list[dict[str, Any]]:
+        new: list[dict[str, Any]] = []
+        for path in sorted(self.directory.glob("*.events")):
+            new += self._tail(path)
+        return new
+
+    def _tail(self, path: Path) -> list[dict[str, Any]]:
+        at = self._offsets.get(path, 0)
+        try:
+            with path.open("rb") as f:
+                f.seek(at)
+                chunk = f.read()
+        except OSError:
+            return []
+        end = chunk.rfind(b"\n") + 1
+        self._offsets[path] = at + end
+        text = chunk[:end].decode(errors="replace")
+        return [on_run_clock(e, self.epoch_unix_s) for e in parse_events(text)]
+
+
 def write_events(path: Path, events: list[dict[str, Any]]) -> None:
     write_text_whole(path, "".join(json.dumps(e, sort_keys=True) + "\n" for e in events))

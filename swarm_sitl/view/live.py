@@ -27,7 +27,7 @@ from typing import Any, Protocol
 from swarm_sitl.bus.codec import Status
 from swarm_sitl.bus.hold import LockstepHold
 from swarm_sitl.config.schema import SwarmConfig
-from swarm_sitl.rundir.events import on_run_clock, parse_events, plan_events
+from swarm_sitl.rundir.events import EventTail, plan_events
 from swarm_sitl.rundir.layout import procs_dir
 from swarm_sitl.view.frames import DOWN, FAILSAFE, FollowerAt, Frame, columns, event_line, num, xyz
 from swarm_sitl.view.replay import FRAME_HZ, static_part
@@ -58,10 +58,9 @@ class LiveFeed:
         self._dropped = 0  #: frames dropped from the front (the first kept is frame ``_dropped``)
         self._events: list[dict[str, Any]] = []
         self._plan_events = sorted(plan_events(cfg), key=lambda e: e["t_s"])
-        self._offsets_read: dict[Path, int] = {}
+        self._tail = EventTail(procs_dir(run_dir))
         self._failsafe: set[int] = set()
         self._next_events = 0.0
-        self._epoch_unix_s: float | None = None
         self._wall0: float | None = None
         self._last_t = -math.inf
         self.rtf: float | None = None
@@ -75,7 +74,7 @@ class LiveFeed:
     # -- fed by the supervisor -------------------------------------------------------------------
     def started(self, epoch_unix_s: float) -> None:
         """The run's start signal went out (its epoch: vehicles stamp their events with it)."""
-        self._epoch_unix_s = epoch_unix_s
+        self._tail.epoch_unix_s = epoch_unix_s
         self._wall0 = time.monotonic()
 
     def update(self, statuses: dict[int, Status], errors_m: dict[int, float], down: set[int]) -> None:
@@ -122,8 +121,7 @@ class LiveFeed:
         new: list[dict[str, Any]] = []
         while self._plan_events and self._plan_events[0]["t_s"] <= self._last_t:
             new.append(self._plan_events.pop(0))
-        for path in sorted(procs_dir(self.run_dir).glob("*.events")):
-            new += self._tail(path)
+        new += self._tail.read()
         for e in new:
             v = e.get("vehicle")
             if e["kind"] == "failsafe_enter" and isinstance(v, int):
@@ -145,21 +143,6 @@ class LiveFeed:
             except Exception as e:
                 self.sinks.remove(sink)
                 self.sink_errors.append(f"{type(sink).__name__}: {type(e).__name__}: {e}")
-
-    def _tail(self, path: Path) -> list[dict[str, Any]]:
-        """The complete lines ``path`` has had since it was last read (a vehicle's events are
-        stamped with the UNIX time: put on the run's clock)."""
-        at = self._offsets_read.get(path, 0)
-        try:
-            with path.open("rb") as f:
-                f.seek(at)
-                chunk = f.read()
-        except OSError:
-            return []
-        end = chunk.rfind(b"\n") + 1
-        self._offsets_read[path] = at + end
-        text = chunk[:end].decode(errors="replace")
-        return [on_run_clock(e, self._epoch_unix_s) for e in parse_events(text)]
 
     def finish(self) -> None:
         self._next_events = 0.0
