@@ -29,15 +29,17 @@ def _swarm(graph: str, kills: bool):
 
 def _expected(cfg, node: int, watch: bool) -> dict[str, set[str]]:
     """What node ``node`` may do, from the edge list: publish its out-edges (and a follower its own
-    status), subscribe to its in-edges, start and hold; the leader follows its out-neighbours' status;
-    with kills in the plan every node follows its out-neighbours' status and liveliness."""
+    status and state), subscribe to its in-edges, start and hold; the leader follows its
+    out-neighbours' status; with kills in the plan every node follows its out-neighbours' status
+    and liveliness."""
     s = cfg.name
     edges = [(e.src, e.dst) for e in cfg.build_graph().edges]
     ins = sorted({a for a, b in edges if b == node})
     outs = sorted({b for a, b in edges if a == node})
     watched = outs if (watch or node == 0) else []
     alive_of = set(ins) | (set(outs) if watch else set())
-    puts = {zk.edge(s, node, d) for d in outs} | ({zk.status(s, node)} if node > 0 else set())
+    own = {zk.status(s, node), zk.state(s, node)} if node > 0 else set()
+    puts = {zk.edge(s, node, d) for d in outs} | own
     subs = {zk.edge(s, a, node) for a in ins} | {zk.status(s, f) for f in watched}
     subs |= {zk.start(s), zk.hold(s)}
     alive = {zk.alive(s, a) for a in alive_of}
@@ -93,10 +95,25 @@ def test_every_nodes_grants_are_exactly_what_its_edges_and_the_plan_need(graph, 
         assert granted == _expected(cfg, node, kills), (graph, kills, node)
 
 
-def test_a_followers_status_is_granted_to_it_alone():
+@pytest.mark.parametrize("ros2", [None, 0, 7])
+def test_a_followers_status_and_state_are_granted_to_it_alone_and_ros2_reads_only_its_domain(ros2):
     cfg = _swarm("layered", kills=True)
-    ac = access_control(cfg.name, [cfg.node_keys(n) for n in range(N + 1)])
+    ac = access_control(cfg.name, [cfg.node_keys(n) for n in range(N + 1)], ros2)
     for f in range(1, N + 1):
-        key = zk.status(cfg.name, f)
-        putters = [r["id"] for r in ac["rules"] if "put" in r["messages"] and key in r["key_exprs"]]
-        assert putters == [f"{user(f)}_put"], (f, putters)
+        for key in (zk.status(cfg.name, f), zk.state(cfg.name, f)):
+            putters = [r["id"] for r in ac["rules"] if "put" in r["messages"] and key in r["key_exprs"]]
+            assert putters == [f"{user(f)}_put"], (f, putters)
+    ros2_rules = {
+        r["id"]
+        for p in ac["policies"]
+        if "ros2" in p["subjects"]
+        for r in ac["rules"]
+        if r["id"] in p["rules"]
+    }
+    if ros2 is None:
+        assert not ros2_rules and all("ros2" not in s["usernames"] for s in ac["subjects"])
+        return
+    for r in ac["rules"]:
+        if r["id"] in ros2_rules:  # never a key of the swarm's, and only its domain's
+            assert all(k.startswith((f"{ros2}/", f"@ros2_lv/{ros2}/")) for k in r["key_exprs"]), r
+            assert r["flows"] == ["egress"] or "put" not in r["messages"], r  # it never writes

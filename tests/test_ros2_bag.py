@@ -4,9 +4,6 @@ messages are the recorded arrays (poses bit for bit, each odometry's twist the b
 by a rotation written here), each topic's type hash in the bag's metadata, ``/clock`` at every
 tick; and the CLI's errors are one line."""
 
-import subprocess
-import sys
-
 import numpy as np
 import pytest
 import yaml
@@ -17,7 +14,7 @@ from swarm_sitl.ros2 import types
 from swarm_sitl.rundir.outputs import write_outputs
 from swarm_sitl.rundir.ros2_bag import write_bag
 from swarm_sitl.running.sim import run_sim
-from tests.support import config
+from tests.support import cli, config
 
 pytestmark = pytest.mark.integration
 
@@ -117,12 +114,12 @@ def test_the_bags_metadata_names_each_topics_type_and_hash_and_rosbags_reads_it(
 
 def test_the_cli_writes_the_bag_and_says_its_errors_in_one_line(bag, tmp_path):
     _, _, d, _ = bag
-    cli = [sys.executable, "-m", "swarm_sitl", "export", str(d / "run"), "--ros2"]
-    ok = subprocess.run([*cli, "--out", str(tmp_path / "b")], capture_output=True, text=True, timeout=120)
+    args = ("export", d / "run", "--ros2")
+    ok = cli(*args, "--out", tmp_path / "b", timeout=120)
     assert ok.returncode == 0 and "a rosbag2 (MCAP) of" in ok.stdout, ok.stderr
     for extra, said in (
-        (["--out", str(tmp_path / "b")], "exists (rosbag2 writes a new directory)"),
-        (["--out", str(tmp_path / "c"), "--namespace", "/9lives"], "does not start with a digit"),
+        (["--out", tmp_path / "b"], "exists (rosbag2 writes a new directory)"),
+        (["--out", tmp_path / "c", "--namespace", "/9lives"], "does not start with a digit"),
     ):
-        r = subprocess.run([*cli, *extra], capture_output=True, text=True, timeout=120)
+        r = cli(*args, *extra, timeout=120)
         assert r.returncode == 2 and r.stderr.count("\n") == 1 and said in r.stderr, r.stderr

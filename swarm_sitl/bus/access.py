@@ -6,9 +6,15 @@ and every node is a client of it. The router authenticates each session by user 
 (zenoh's ``usrpwd``: a session without them, or with wrong ones, is refused at connect) and its
 access control (default deny) lets node ``i`` (user ``node_<i>``; 0 is the leader):
 
-- put on its out-edges ``edge/<i>/<d>`` and on its ``status/<i>``; declare its ``alive/<i>``;
+- put on its out-edges ``edge/<i>/<d>``, on its ``status/<i>`` and ``state/<i>``; declare its
+  ``alive/<i>``;
 - subscribe to its in-edges ``edge/<s>/<i>``, to ``start`` and ``hold``, and to the status and
   liveliness of the nodes it watches (the leader paces itself on its out-neighbours; a fault plan's watchers);
+
+A run with ``ros2:`` on admits ROS 2 nodes too, as user ``ros2`` (``ROS2_USER``; its password in
+the run directory, ``rundir.layout.zenoh_ros2_password_path``): read-only on the ROS 2 domain's
+keys (``ros2_rules``: subscribe to ``<domain>/**``, declare and follow liveliness tokens under
+``@ros2_lv/<domain>/**``), and nothing of ``swarm/**``, which it can neither read nor write.
 
 and nothing else: a put on another node's edge or on ``start``, a subscription to another node's
 in-edge or to a wildcard, is dropped by zenoh itself. Only the supervisor's own session, inside
@@ -81,7 +87,7 @@ def _rules(swarm: str, k: NodeKeys) -> dict[str, list[str]]:
     """Ingress rights of a node: key expressions by message kind."""
     puts = [zenoh_keys.edge(swarm, k.node, d) for d in k.out_dests]
     if k.node > 0:
-        puts.append(zenoh_keys.status(swarm, k.node))
+        puts += [zenoh_keys.status(swarm, k.node), zenoh_keys.state(swarm, k.node)]
     subs = [zenoh_keys.edge(swarm, s, k.node) for s in k.in_sources]
     subs += [zenoh_keys.status(swarm, f) for f in k.watch_status]
     subs += [zenoh_keys.start(swarm), zenoh_keys.hold(swarm)]
@@ -96,11 +102,44 @@ def _rules(swarm: str, k: NodeKeys) -> dict[str, list[str]]:
     return {kind: keys for kind, keys in rules.items() if keys}
 
 
-def access_control(swarm: str, nodes: list[NodeKeys]) -> dict[str, Any]:
+ROS2_USER = "ros2"  #: the user ROS 2 nodes join a run's router as (a run with ``ros2:`` on)
+
+
+def ros2_rules(domain_id: int) -> list[dict[str, Any]]:
+    """What user ``ROS2_USER`` may do: read the ROS 2 topics of ``domain_id`` and take part in
+    its graph's discovery (its own nodes' liveliness tokens), and nothing else."""
+    data, graph = f"{domain_id}/**", f"@ros2_lv/{domain_id}/**"
+    return [
+        {
+            "id": "ros2_egress",
+            "messages": ["put", "liveliness_token", "declare_liveliness_subscriber", "reply"],
+            "flows": ["egress"],
+            "permission": "allow",
+            "key_exprs": [data, graph],
+        },
+        {
+            "id": "ros2_ingress",
+            "messages": ["declare_subscriber"],
+            "flows": ["ingress"],
+            "permission": "allow",
+            "key_exprs": [data],
+        },
+        {
+            "id": "ros2_graph",
+            "messages": ["liveliness_token", "declare_liveliness_subscriber", "liveliness_query"],
+            "flows": ["ingress"],
+            "permission": "allow",
+            "key_exprs": [graph],
+        },
+    ]
+
+
+def access_control(swarm: str, nodes: list[NodeKeys], ros2_domain: int | None = None) -> dict[str, Any]:
     """The router's ``access_control`` section for swarm ``swarm`` of ``nodes`` (the leader's keys
     and each follower's): default deny; each node's ingress limited to its keys (``_rules``);
     egress (what the router forwards to a node) to the swarm's keys, of which a node receives only
-    what it subscribed to."""
+    what it subscribed to. ``ros2_domain``: ROS 2 nodes admitted as ``ROS2_USER`` on that
+    domain, read-only (``ros2_rules``)."""
     rules: list[dict[str, Any]] = [
         {
             "id": "egress",
@@ -135,6 +174,11 @@ def access_control(swarm: str, nodes: list[NodeKeys]) -> dict[str, Any]:
             )
         subjects.append({"id": user(node), "usernames": [user(node)]})
         policies.append({"rules": ["egress", *ids], "subjects": [user(node)]})
+    if ros2_domain is not None:
+        extra = ros2_rules(ros2_domain)
+        rules += extra
+        subjects.append({"id": ROS2_USER, "usernames": [ROS2_USER]})
+        policies.append({"rules": [r["id"] for r in extra], "subjects": [ROS2_USER]})
     return {
         "enabled": True,
         "default_permission": "deny",
@@ -144,9 +188,16 @@ def access_control(swarm: str, nodes: list[NodeKeys]) -> dict[str, Any]:
     }
 
 
-def write_credentials(n_followers: int, path: Path) -> dict[int, str]:
+def write_credentials(n_followers: int, path: Path, ros2_password_path: Path | None = None) -> dict[int, str]:
     """A fresh random password for each node of a swarm of ``n_followers``, and the router's
-    dictionary of them at ``path`` (``user:password`` lines, readable by this user only)."""
+    dictionary of them at ``path`` (``user:password`` lines, readable by this user only).
+    ``ros2_password_path``: ``ROS2_USER`` too, its password alone in that file (for the ROS 2
+    user's one line, ``docs/ros2.md``)."""
     passwords = {n: secrets.token_hex(16) for n in range(n_followers + 1)}
-    write_secret(path, "".join(f"{user(n)}:{pw}\n" for n, pw in passwords.items()))
+    lines = [f"{user(n)}:{pw}\n" for n, pw in passwords.items()]
+    if ros2_password_path is not None:
+        ros2 = secrets.token_hex(16)
+        write_secret(ros2_password_path, ros2 + "\n")
+        lines.append(f"{ROS2_USER}:{ros2}\n")
+    write_secret(path, "".join(lines))
     return passwords

@@ -8,6 +8,9 @@
   ``message_length`` from a follower); float64, so nothing is rounded and lockstep runs equal
   ``sim``; the CRC-32 of the bytes before it, so a corrupted message is dropped, not flown
 - status: ``u8 version, u16 follower, u32 step, f64 t_s, f64 sample_t_s, 3 x f64 p_W``
+- state (a run with ``ros2:`` on): ``u8 version, u16 follower, u32 step, f64 t_s, 3 x f64 p_W,
+  3 x f64 v_W, 4 x f64 q_WB, 3 x f64 omega_B, u16 n, n x f64 values``: the vehicle as the
+  controller sampled it at that tick, and the message it sent its out-neighbours then
 - start: ``u8 version, f64 epoch_unix_s`` (real time: tick 0 happens at this instant)
 - hold: ``u8 version, i64 tick`` (lockstep: a node that has finished a tick at or past it waits
   for a later one; ``HOLD_NONE``: no hold, -1: every node stops after the tick it is on)
@@ -29,6 +32,7 @@ VERSION = 4
 _HEAD = struct.Struct("<BHId3dH")  #: a message's version, src, step, t_s, p_W and value count
 _CRC = 4
 _STATUS = struct.Struct("<BHIdd3d")
+_STATE = struct.Struct("<BHId3d3d4d3dH")  #: and then ``n`` float64
 _START = struct.Struct("<Bd")
 _HOLD = struct.Struct("<Bq")
 HOLD_NONE = 2**62  #: the hold that holds nothing (every tick of any run is below it)
@@ -127,6 +131,41 @@ def encode_status(s: Status) -> bytes:
 def decode_status(data: bytes) -> Status:
     f = _check(data, _STATUS, "status", 3)
     return Status(f[1], f[2], f[3], f[4], np.array(f[5:8]))
+
+
+class State(NamedTuple):
+    """Follower ``follower``'s vehicle as its controller sampled it at tick ``step``."""
+
+    follower: int
+    step: int
+    t_s: float  #: the tick's time [s]
+    p_W: np.ndarray  #: position [m; ENU]
+    v_W: np.ndarray  #: velocity [m/s; ENU]
+    q_WB: np.ndarray  #: attitude, body to world, [w, x, y, z]
+    omega_B: np.ndarray  #: body rates [rad/s; FLU] (NaN: not reported yet)
+    values: np.ndarray  #: the message it sent its out-neighbours at that tick (float64)
+
+
+def encode_state(s: State) -> bytes:
+    vectors = (np.asarray(v, dtype=float).tolist() for v in (s.p_W, s.v_W, s.q_WB, s.omega_B))
+    values = np.asarray(s.values, dtype="<f8")
+    head = _STATE.pack(VERSION, s.follower, s.step, s.t_s, *(x for v in vectors for x in v), len(values))
+    return head + values.tobytes()
+
+
+def decode_state(data: bytes) -> State:
+    """``PayloadError`` for a payload that is not a state; its rates may be NaN (not yet known),
+    everything else is finite."""
+    n = int.from_bytes(data[_STATE.size - 2 : _STATE.size], "little") if len(data) >= _STATE.size else 0
+    if len(data) != _STATE.size + 8 * n:
+        raise PayloadError(f"state payload has {len(data)} bytes, expected {_STATE.size + 8 * n}")
+    values = np.frombuffer(data, dtype="<f8", offset=_STATE.size).copy()
+    if not np.all(np.isfinite(values)):
+        raise PayloadError("state payload has a non-finite value")
+    f = _check(data[: _STATE.size], _STATE, "state", 3, 11)
+    return State(
+        f[1], f[2], f[3], np.array(f[4:7]), np.array(f[7:10]), np.array(f[10:14]), np.array(f[14:17]), values
+    )
 
 
 def encode_start(epoch_unix_s: float) -> bytes:

@@ -75,6 +75,10 @@ def cmd_bench(args: argparse.Namespace) -> int:
             from swarm_sitl.bench.view_cost import view_cost
 
             return view_cost(args.config, args.repeats)
+        if args.ros2:
+            from swarm_sitl.bench.ros2_cost import ros2_cost
+
+            return ros2_cost(args.config, args.repeats)
         if args.against:
             from swarm_sitl.bench.speed import compare_trees
 
@@ -104,6 +108,12 @@ def add_bench(sub: Any) -> None:
         action="store_true",
         help="instead: the lockstep run without and with a page open on it (run --view), alternated "
         "--repeats times",
+    )
+    b.add_argument(
+        "--ros2",
+        action="store_true",
+        help="instead: the lockstep run without and with its ROS 2 face (run --ros2) and a ROS 2 reader on "
+        "every topic, alternated --repeats times",
     )
     b.add_argument(
         "--sim-plan",

@@ -259,6 +259,8 @@ def cmd_run(args: argparse.Namespace) -> int:
         args.faults,
     )
     check_base_port(cfg, args.base_port)
+    if args.ros2:  # the run on ROS 2 topics (docs/ros2.md), as the config's ros2: section says
+        cfg = cfg.model_copy(update={"ros2": cfg.ros2.model_copy(update={"enabled": True})})
     external = check_external(cfg, args.external, args.realtime)
     run_dir = run_dir_of(args.out, cfg, "run")
     view = None if args.view is None else (args.view_host, args.view)
@@ -416,6 +418,12 @@ def add_run(sub: Any) -> None:
         metavar="PORT",
         help="stream it to Foxglove: its WebSocket protocol on 127.0.0.1:PORT (default "
         f"{FOXGLOVE_PORT}; 0: a free one), the page's frames on the MCAP export's topics",
+    )
+    r.add_argument(
+        "--ros2",
+        action="store_true",
+        help="republish the run on ROS 2 topics through its router, in rmw_zenoh's layout, for ROS 2 "
+        "nodes to read (its ros2: section says the domain, namespace, distro and rate; docs/ros2.md)",
     )
     r.add_argument(
         "--view-host",

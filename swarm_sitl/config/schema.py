@@ -36,6 +36,7 @@ from swarm_sitl.laws.graph import Graph, GraphError
 from swarm_sitl.laws.paper_gains import PaperGains
 from swarm_sitl.laws.trajectories import FigureEight, Helix, Line, Trajectory
 from swarm_sitl.laws.zou_meng import ZouMengParams
+from swarm_sitl.ros2.names import RosNameError, check_namespace
 from swarm_sitl.specs.requirement import Requirement, SpecError
 
 #: the default law: the paper's (``laws.zou_meng``)
@@ -206,6 +207,28 @@ class SigningSection(_Strict):
     passphrase_file: str | None = None
 
 
+class Ros2Section(_Strict):
+    """The run on ROS 2 topics (``docs/ros2.md``): the supervisor republishes it in rmw_zenoh's
+    layout on the run's router, for ROS 2 nodes to read (``running.ros2_face``)."""
+
+    enabled: bool = False  #: republish the run on ROS 2 topics (``run --ros2`` turns it on)
+    domain_id: Annotated[int, Field(ge=0, le=232)] = 0  #: the ROS 2 domain (``ROS_DOMAIN_ID``)
+    namespace: str = "/swarm"  #: the topics' namespace: ``<namespace>/follower_<i>/pose``, ...
+    #: whose message definitions and type hashes (Humble's rmw_zenoh has no type hashes)
+    distro: Literal["jazzy", "humble"] = "jazzy"
+    #: how often the newest of each topic is republished [Hz, wall clock]: in lockstep the run's
+    #: simulated time goes faster than the wall's, and ROS 2 sees it at this rate
+    rate_hz: Annotated[float, Field(gt=0, le=1000)] = 20.0
+
+    @field_validator("namespace")
+    @classmethod
+    def _ros2_name(cls, ns: str) -> str:
+        try:
+            return check_namespace(ns)
+        except RosNameError as e:
+            raise ValueError(str(e)) from None
+
+
 class RunSection(_Strict):
     """Limits of a multi-process run (wall-clock seconds)."""
 
@@ -275,6 +298,7 @@ class SwarmConfig(_Strict):
     law: LawSection = LawSection()  #: the followers' control law
     zenoh: ZenohSection = ZenohSection()  #: the bus between the processes
     signing: SigningSection = SigningSection()  #: MAVLink 2 signing of the vehicle links
+    ros2: Ros2Section = Ros2Section()  #: the run on ROS 2 topics (off by default)
     run: RunSection = RunSection()  #: limits and pacing of a multi-process run
     faults: FaultPlan = FaultPlan()  #: what fails, how and when (``faults``)
     wind: WindSection = WindSection()  #: the air the vehicles fly in (still by default)

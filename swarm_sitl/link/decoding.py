@@ -23,6 +23,7 @@ import numpy as np
 from pymavlink.dialects.v20 import common as mav
 
 from sim_vehicles.mavlink import decoder, frames, tick_frames
+from sim_vehicles.mavlink.enu_ned import flu_to_frd
 from sim_vehicles.mavlink.px4_profile import AUTOPILOT
 from sim_vehicles.mavlink.wire_format import SAMPLE_P, SAMPLE_Q, SAMPLE_V, sample_from_fields
 
@@ -121,6 +122,13 @@ class Downlink:
             self.params[m.param_id] = float(m.param_value)
         elif t == "COMMAND_ACK":
             self.acks[m.command] = m.result
+
+    def rates_B(self) -> np.ndarray:
+        """The body rates of the newest ATTITUDE_QUATERNION [rad/s, FLU]; NaN before one."""
+        a = self._attq
+        if len(a) < 8:
+            return np.full(3, math.nan)
+        return flu_to_frd(np.array(a[5:8], dtype=float))  # (FRD -> FLU: the same sign flips)
 
     def _sample_part(self, is_position: bool, fields: tuple, arrival: float) -> None:
         if is_position:

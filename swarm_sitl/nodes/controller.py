@@ -26,6 +26,7 @@ Every tick is written to ``procs/controller_<i>.rows`` (``row_log``) as it happe
 import math
 import sys
 import time
+from collections.abc import Callable
 from typing import NamedTuple
 
 import numpy as np
@@ -36,7 +37,7 @@ from sim_vehicles.runtime.event_log import EventLog
 from sim_vehicles.runtime.lifeline import mark, settle_heap
 from sim_vehicles.runtime.row_log import RowLog
 from swarm_sitl.bus.clock import StallError, sleep_until, wait_until, wall_epoch_to_monotonic
-from swarm_sitl.bus.codec import Message, Status
+from swarm_sitl.bus.codec import Message, State, Status
 from swarm_sitl.bus.estimates import newest_for_tick
 from swarm_sitl.bus.node_bus import NodeBus
 from swarm_sitl.config.schema import RunSection, SwarmConfig
@@ -334,9 +335,11 @@ def run_controller(
     clock: Pacer | None = None,
     events: EventLog | None = None,
     resume_tick: int = 0,
+    states: Callable[[State], None] | None = None,
 ) -> NodeReport:
     """Follower ``i``'s loop; ``clock`` is where the run is for ``bus``'s wrappers (it is set
-    here), ``events`` takes what the follower sees happen (lost and regained neighbours).
+    here), ``events`` takes what the follower sees happen (lost and regained neighbours),
+    ``states`` its vehicle's state with each status (a run with ``ros2:`` on).
     ``resume_tick``: a controller restarted by a fault plan in lockstep takes its vehicle up at
     this tick (its clock moved there first, through the gap it flew on its own), with a fresh
     state, like tick 0. In real time a controller joins at the tick the swarm's clock is at
@@ -366,7 +369,7 @@ def run_controller(
         )
         law.guard = guard
     try:
-        return _loop(cfg, i, link, bus, rows, clock, resume_tick, law, io, inbox_of)
+        return _loop(cfg, i, link, bus, rows, clock, resume_tick, law, io, inbox_of, states)
     finally:
         if guard is not None:
             guard.close()
@@ -391,6 +394,7 @@ def _loop(
     law: HostedLaw,
     io: "_LockstepInputs | _WallInputs",
     inbox_of: NeighbourInbox,
+    states: Callable[[State], None] | None = None,
 ) -> NodeReport:
     """``run_controller``'s ticks, its law built and warmed up: one loop for both clocks (the
     clock paces the ticks, ``pacing``; the inputs read what a tick of that clock flies on)."""
@@ -434,6 +438,8 @@ def _loop(
         held = clock.held(k)
         if held or k % r.status_every == 0 or k == n or k == io.first:
             bus.publish_status(Status(i, k, t, sample_t, p))
+            if states is not None:  # (a run with ros2: on: what its ROS 2 face republishes)
+                states(State(i, k, t, p, v, q, link.downlink.rates_B(), step.message))
         io.finished(k, t, sample_t, p)
         if held and k < n:
             clock.hold_after(k, io.read, io.fds, link.send_heartbeat_if_due)

@@ -23,8 +23,10 @@ from sim_vehicles.runtime.counter_file import CounterFile, NamedCounts
 from sim_vehicles.runtime.event_log import EventLog
 from sim_vehicles.runtime.lifeline import batch_scheduling, hold_on, mark, process_figures, profiled
 from sim_vehicles.runtime.row_log import RowLog
+from swarm_sitl.bus import keys as zenoh_keys
 from swarm_sitl.bus.access import credentials_from_env
 from swarm_sitl.bus.clock import RunClock, StallError
+from swarm_sitl.bus.codec import State, encode_state
 from swarm_sitl.bus.node_bus import NodeBus, ZenohNodeBus
 from swarm_sitl.bus.session import error_line, open_session
 from swarm_sitl.config.load import ConfigError, load_config, with_duration
@@ -57,6 +59,16 @@ EXIT_USAGE = 2
 
 def _terminate(signum: int, frame: object) -> None:
     raise KeyboardInterrupt
+
+
+def _state_out(session: Any, cfg: SwarmConfig, i: int) -> Callable[[State], None]:
+    """Where follower ``i``'s vehicle state goes with each status (a run with ``ros2:`` on): its
+    ``state`` key, dropped rather than waited for when the link is congested (no run waits for
+    what ROS 2 sees)."""
+    pub = session.declare_publisher(
+        zenoh_keys.state(cfg.name, i), congestion_control=zenoh.CongestionControl.DROP
+    )
+    return lambda s: pub.put(encode_state(s))
 
 
 def _session(cfg: SwarmConfig, connect: list[str]) -> Any:
@@ -170,7 +182,10 @@ def cmd_controller(cfg: SwarmConfig, args: argparse.Namespace) -> int:
                     x.keep_counts(counts)
             node_bus: NodeBus = zbus if faulty is None else faulty
             bus = node_bus
-            rep = run_controller(cfg, i, link, node_bus, args.lockstep, rows, clock, events, args.resume_tick)
+            states = _state_out(session, cfg, i) if cfg.ros2.enabled else None
+            rep = run_controller(
+                cfg, i, link, node_bus, args.lockstep, rows, clock, events, args.resume_tick, states
+            )
             if out is not None:
                 _write_stats(
                     controller_stats_path(out, i, args.incarnation),

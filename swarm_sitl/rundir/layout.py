@@ -183,6 +183,17 @@ def zenoh_users_path(run_dir: Path) -> Path:
     return run_dir / "zenoh_users.txt"
 
 
+def ros2_join_path(run_dir: Path) -> Path:
+    """A run with ``ros2:`` on: how a ROS 2 node joins it (``ros2_join.json``: the router's
+    endpoint, the user, its password's file, the domain, and the one line for a shell)."""
+    return run_dir / "ros2_join.json"
+
+
+def zenoh_ros2_password_path(run_dir: Path) -> Path:
+    """A run with ``ros2:`` on: the password of the router's ROS 2 user, alone (mode 0600)."""
+    return run_dir / "zenoh_ros2_password.txt"
+
+
 #: bytes a vehicle's .tlog takes per control tick (its setpoint, its sample and the slower streams,
 #: each with an 8-byte timestamp): measured on the paper run, 300 rounds it up
 TLOG_BYTES_PER_TICK = 300

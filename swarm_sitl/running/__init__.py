@@ -8,7 +8,7 @@ bus; ``fork_server``: children forked from one warmed-up process; ``children``: 
 line and environment; ``router_watch``: a client-mode run's zenoh router, lost and back;
 ``first_compile``: every compiled kernel of a fresh install, once, on two processes;
 ``vehicle_relay``: a plan's MAVLink faults at a vehicle's port, for a controller the bench does
-not run).
+not run; ``ros2_face``: the run on ROS 2 topics, through the supervisor's session).
 
-May import: sim_vehicles, laws, bus, faults, config, rundir, link, nodes, view.
+May import: sim_vehicles, laws, bus, faults, config, rundir, link, nodes, view, ros2.
 """

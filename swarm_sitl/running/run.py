@@ -47,6 +47,7 @@ from swarm_sitl.running.children import PARENT_ENV, child_env, module_argv
 from swarm_sitl.running.fork_server import ForkServer
 from swarm_sitl.running.hub import RunMonitor, open_hub
 from swarm_sitl.running.observers import Observer, supervise
+from swarm_sitl.running.ros2_face import Ros2Face, write_ros2_join
 from swarm_sitl.running.router_watch import RouterWatch
 from swarm_sitl.running.sim import run_sim
 from swarm_sitl.running.supervisor import RunFailedError, Supervisor
@@ -230,6 +231,13 @@ def _fly(
         exits.faults = faults
     if view is not None:
         closing.callback(view.finish)
+    face = None
+    if cfg.ros2.enabled:  # the run on ROS 2 topics, through this session
+        face = Ros2Face(session, cfg, run_dir)
+        closing.callback(face.close)
+        line = write_ros2_join(cfg, hub, run_dir)
+        if request.on_vehicles is not None:
+            request.on_vehicles([line])
     node_args, endpoints = _spawn_vehicles(request, sup, hub)
 
     def argv(process: str, incarnation: int = 0, resume_tick: int = 0) -> list[str]:
@@ -275,10 +283,15 @@ def _fly(
         )
     if view is not None:
         observers.append(Observer(_feeding(view, hold, faults, monitor), VIEW_EVERY_S))
+    if face is not None:
+        face.started(epoch)
+        observers.append(Observer(face.act, 1.0 / cfg.ros2.rate_hz))
     supervise(sup, observers, epoch)
     run_wall = time.monotonic() - t_start
     if on_progress is not None:
         on_progress(cfg.n_control_steps, monitor.errors_m())
+    if face is not None and face.error is not None:
+        print(f"swarm-sitl: {face.error} (the run flew on)", file=sys.stderr)
     if sup.lost:
         flew_on = " (the swarm flew on to the end: run.stop_on_loss false)"
         raise RunFailedError("; ".join(sup.lost) + flew_on)
