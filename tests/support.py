@@ -209,3 +209,31 @@ def cli_in_process(*args: object) -> tuple[int, str, str]:
         for s, h in saved.items():
             signal.signal(s, h)
     return code, out.getvalue(), err.getvalue()
+
+
+# -- ROS 2 ------------------------------------------------------------------------------------------
+def msg_files(ros_type: str) -> dict[str, str]:
+    """The ``.msg`` text of ``ros_type`` and of each type it uses, by type name, split out of the
+    definition rosbag2 stores (``MSG: pkg/Name`` sections; ROS 2's own files, as rosbags ships them)."""
+    import re
+
+    from swarm_sitl.ros2 import types
+
+    parts = re.split(r"\n=+\n", types.message_definition(ros_type))
+    files = {ros_type: parts[0]}
+    for part in parts[1:]:
+        head, _, body = part.partition("\n")
+        pkg, name = head.removeprefix("MSG: ").strip().split("/")
+        files[f"{pkg}/msg/{name}"] = body
+    return files
+
+
+def msg_dir(root: Path, ros_types: list[str]) -> Path:
+    """``root`` holding the ``.msg`` files of ``ros_types`` as a ROS 2 package tree
+    (``<pkg>/msg/<Name>.msg``: where zenoh-ros2-sdk's registry looks, instead of fetching them)."""
+    for ros_type in ros_types:
+        for t, body in msg_files(ros_type).items():
+            pkg, _, name = t.split("/")
+            (root / pkg / "msg").mkdir(parents=True, exist_ok=True)
+            (root / pkg / "msg" / f"{name}.msg").write_text(body)
+    return root

@@ -110,7 +110,9 @@ def test_a_followers_status_and_state_are_granted_to_it_alone_and_ros2_reads_onl
         for r in ac["rules"]
         if r["id"] in p["rules"]
     }
-    if ros2 is None:
+    nodes = {r for p in ac["policies"] for s in p["subjects"] if s.startswith("node_") for r in p["rules"]}
+    assert all(k.startswith("swarm/") for r in ac["rules"] if r["id"] in nodes for k in r["key_exprs"])
+    if ros2 is None:  # (a node's user sees nothing of ROS 2; one flown by a ROS 2 node: test_ros2_controller)
         assert not ros2_rules and all("ros2" not in s["usernames"] for s in ac["subjects"])
         return
     for r in ac["rules"]:

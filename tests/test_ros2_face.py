@@ -19,7 +19,7 @@ import zenoh
 from swarm_sitl.bus.codec import PayloadError, State, decode_state, encode_state
 from swarm_sitl.ros2 import types, wire
 from swarm_sitl.running.sim import run_sim
-from tests.support import CONFIGS, config, start_cli
+from tests.support import CONFIGS, config, msg_dir, start_cli
 
 
 @pytest.mark.unit
@@ -46,24 +46,6 @@ def test_a_state_payload_round_trips_and_bad_bytes_are_one_line(seed):
             decode_state(encode_state(bad))
 
 
-def _messages_dir(tmp_path):
-    """The ``.msg`` files of the types the client reads, laid out as its registry looks for them
-    (``<pkg>/msg/<Name>.msg``), split out of the definitions ROS 2 ships (rosbags' copy)."""
-    root = tmp_path / "msgs"
-    text = types.message_definition(types.POSE_STAMPED)
-    parts = re.split(r"\n=+\n", text)
-    files = {types.POSE_STAMPED: parts[0]}
-    for part in parts[1:]:
-        head, _, body = part.partition("\n")
-        pkg, name = head.removeprefix("MSG: ").strip().split("/")
-        files[f"{pkg}/msg/{name}"] = body
-    for ros_type, body in files.items():
-        pkg, _, name = ros_type.split("/")
-        (root / pkg / "msg").mkdir(parents=True, exist_ok=True)
-        (root / pkg / "msg" / f"{name}.msg").write_text(body)
-    return root, files
-
-
 @pytest.mark.system
 @pytest.mark.lockstep
 def test_a_ros2_client_reads_a_lockstep_run_through_its_router_and_the_run_equals_sim(tmp_path, monkeypatch):
@@ -82,20 +64,21 @@ def test_a_ros2_client_reads_a_lockstep_run_through_its_router_and_the_run_equal
     from zenoh_ros2_sdk import ROS2Subscriber
     from zenoh_ros2_sdk.message_registry import get_registry
 
-    root, _ = _messages_dir(tmp_path)
-    get_registry(str(root))
+    get_registry(str(msg_dir(tmp_path / "msgs", [types.POSE_STAMPED])))
     monkeypatch.setenv("ZENOH_CONFIG_OVERRIDE", override)
-    poses: list = []
+    poses: dict[int, list] = {i: [] for i in range(1, 5)}
     host, port = join["endpoint"].removeprefix("tcp/").split(":")
-    sub = ROS2Subscriber(
-        "/swarm/follower_1/pose",
-        types.POSE_STAMPED,
-        poses.append,
-        node_name="reader",
-        router_ip=host,
-        router_port=int(port),
-    )
-    assert sub.type_hash == types.type_hash(types.POSE_STAMPED)  # its own hash of the .msg text
+    subs = [
+        ROS2Subscriber(
+            f"/swarm/follower_{i}/pose",
+            types.POSE_STAMPED,
+            poses[i].append,
+            router_ip=host,
+            router_port=int(port),
+        )
+        for i in range(1, 5)
+    ]
+    assert {s.type_hash for s in subs} == {types.type_hash(types.POSE_STAMPED)}  # its own, from the .msg text
     # a raw session as the same user: the graph, the attachments, and swarm/** shut to it
     conf = zenoh.Config()
     for key, value in (("mode", "client"), ("connect/endpoints", [join["endpoint"]]),
@@ -104,10 +87,18 @@ def test_a_ros2_client_reads_a_lockstep_run_through_its_router_and_the_run_equal
         conf.insert_json5(key, json.dumps(value))
     raw, writer = zenoh.open(conf), zenoh.open(conf)
     attachments: list[bytes] = []
-    raw.declare_subscriber("0/clock/**", lambda s: attachments.append(s.attachment.to_bytes()))
+    clock: list[bytes] = []
+
+    def on_clock(s) -> None:
+        attachments.append(s.attachment.to_bytes())
+        clock.append(s.payload.to_bytes())
+
+    raw.declare_subscriber("0/clock/**", on_clock)
     leaked: list[str] = []
     raw.declare_subscriber("swarm/**", lambda s: leaked.append(str(s.key_expr)))
     writer.put("swarm/paper/edge/0/1", b"\x04" + bytes(200))  # refused by the router (below)
+    clock_key = wire.data_key(0, "/clock", types.CLOCK, types.type_hash(types.CLOCK))
+    writer.put(clock_key, b"forged")  # and a put on a face's topic is refused too (below)
     tokens = []
     while not tokens and run.poll() is None:
         tokens = [str(r.ok.key_expr) for r in raw.liveliness().get("@ros2_lv/0/**", timeout=1) if r.ok]
@@ -122,6 +113,14 @@ def test_a_ros2_client_reads_a_lockstep_run_through_its_router_and_the_run_equal
     assert node == wire.node_token(0, zid, 0, "/swarm", "swarm_sitl")
     face = [t for t in tokens if t.split("/")[2] == zid]
     assert len(face) == 1 + 2 + 2 * (1 + 4) + 5  # node, clock, events, pose+odom x5, five edges
+    listed = {
+        (wire.demangle(t.split("/")[9]), t.split("/")[10]) for t in face if "/MP/" in t
+    }  # (topic, type)
+    topics = {("/clock", types.CLOCK), ("/swarm/events", types.STRING)}
+    topics |= {(f"/swarm/{who}/{w}", ty) for who in ["leader", *(f"follower_{i}" for i in range(1, 5))]
+               for w, ty in (("pose", types.POSE_STAMPED), ("odom", types.ODOMETRY))}  # fmt: skip
+    topics |= {(f"/swarm/edge/from_{s}/to_{d}", types.ESTIMATE) for s, d in config("paper").graph_edges()}
+    assert listed == {(t, wire.dds_type_name(ty)) for t, ty in topics}  # exactly the face's topics and types
     topic, h = "/swarm/follower_1/pose", types.type_hash(types.POSE_STAMPED)
     ours = (0, zid, 0)
     expected = {
@@ -134,17 +133,23 @@ def test_a_ros2_client_reads_a_lockstep_run_through_its_router_and_the_run_equal
     assert attachments and all(len(a) == 33 for a in attachments)
     seqs = [wire.Attachment.unpack(a).sequence for a in attachments]
     assert seqs == sorted(seqs) and len({wire.Attachment.unpack(a).gid for a in attachments}) == 1
+    # /clock: the run's simulated time, forward, in whole ticks (the forged put never came)
+    ticks = [
+        (c.clock.sec * 10**9 + c.clock.nanosec) / 1e7 for c in (types.decode(b, types.CLOCK) for b in clock)
+    ]
+    assert ticks == sorted(set(ticks)) and all(abs(k - round(k)) < 1e-6 for k in ticks)
     assert leaked == []  # nothing of swarm/** reaches the ROS 2 user
     stats = json.loads((out / "procs" / "controller_1.stats.json").read_text())
     assert stats["report"]["dropped_payloads"] == 0  # and its put on an edge reached no node
     # what the client read is the vehicle's state at the stamp's tick as its controller sampled it:
     # the recorded truth in LOCAL_POSITION_NED's float32, bit for bit
-    rec = np.load(out / "follower_1.npz")
-    assert poses, "the client read nothing"
-    for m in poses:
-        k = round((m.header.stamp.sec + m.header.stamp.nanosec * 1e-9) / 0.01)
-        pos = m.pose.position
-        assert [pos.x, pos.y, pos.z] == rec["p_W"][k].astype(np.float32).astype(float).tolist()
+    for i, read in poses.items():
+        rec = np.load(out / f"follower_{i}.npz")
+        assert read, f"the client read nothing of follower {i}"
+        for m in read:
+            k = round((m.header.stamp.sec + m.header.stamp.nanosec * 1e-9) / 0.01)
+            pos = m.pose.position
+            assert [pos.x, pos.y, pos.z] == rec["p_W"][k].astype(np.float32).astype(float).tolist()
     # and the run is sim's, bit for bit
     sim = run_sim(config("paper").model_copy(update={"duration_s": 12.0}))
     for i, s in sim.followers.items():

@@ -14,6 +14,7 @@ from zenoh_ros2_sdk.utils import compute_type_hash_from_msg
 
 from swarm_sitl.ros2 import types, wire
 from swarm_sitl.ros2.names import RosNameError, RunTopics, check_token, check_topic
+from tests.support import msg_files
 
 pytestmark = pytest.mark.unit
 
@@ -70,16 +71,9 @@ def test_a_types_hash_is_the_one_ros2_publishes(ros_type):
 
 
 def _dependencies(ros_type: str) -> tuple[str, dict[str, str]]:
-    """The ``.msg`` text of ``ros_type`` and of each type it uses, split out of rosbag2's
-    concatenated definition (``MSG: pkg/Name`` headers)."""
-    text = types.message_definition(ros_type)
-    parts = re.split(r"\n=+\n", text)
-    deps = {}
-    for part in parts[1:]:
-        head, _, body = part.partition("\n")
-        pkg, name = head.removeprefix("MSG: ").strip().split("/")
-        deps[f"{pkg}/msg/{name}"] = body
-    return parts[0], deps
+    """The ``.msg`` text of ``ros_type``, and of each type it uses by name."""
+    files = msg_files(ros_type)
+    return files.pop(ros_type), files
 
 
 @pytest.mark.parametrize(

@@ -134,12 +134,61 @@ def ros2_rules(domain_id: int) -> list[dict[str, Any]]:
     ]
 
 
-def access_control(swarm: str, nodes: list[NodeKeys], ros2_domain: int | None = None) -> dict[str, Any]:
+def _allow(rule_id: str, messages: list[str], flow: str, keys: list[str]) -> dict[str, Any]:
+    return {"id": rule_id, "messages": messages, "flows": [flow], "permission": "allow", "key_exprs": keys}
+
+
+def ros2_controller_user(follower: int) -> str:
+    """The user the ROS 2 node flying follower ``follower`` joins as (``ros2.controllers``)."""
+    return f"ros2_controller_{follower}"
+
+
+def ros2_controller_rules(
+    domain_id: int, follower: int, control: str, sources: list[int]
+) -> dict[str, list[dict[str, Any]]]:
+    """What the bridge of follower ``follower`` (its controller process, ``node_<i>``) and the
+    ROS 2 node flying it may do on the domain's keys under ``control`` (the follower's
+    ``<ns>/follower_<i>/control`` without its leading ``/``): the bridge puts ``odom`` and
+    ``from_<s>`` for each of its in-neighbours ``sources`` and reads ``setpoint`` and
+    ``message``; the node the other way round, and only there. Both take part in the graph's
+    discovery."""
+    base, graph = f"{domain_id}/{control}", f"@ros2_lv/{domain_id}/**"
+    ours = [f"{base}/odom/**", *(f"{base}/from_{s}/**" for s in sources)]
+    theirs = [f"{base}/setpoint/**", f"{base}/message/**"]
+    discovery = ["liveliness_token", "declare_liveliness_subscriber", "liveliness_query"]
+
+    def grants(who: str, puts: list[str], reads: list[str]) -> list[dict[str, Any]]:
+        return [
+            _allow(f"{who}_ros2_put", ["put"], "ingress", puts),
+            _allow(f"{who}_ros2_sub", ["declare_subscriber"], "ingress", reads),
+            _allow(f"{who}_ros2_graph", discovery, "ingress", [graph]),
+            _allow(f"{who}_ros2_data", ["put", "reply"], "egress", reads),  # what it reads, to it
+            # who subscribes to what it puts: without it its publishers would send nothing
+            _allow(f"{who}_ros2_interest", ["declare_subscriber"], "egress", puts),
+            _allow(
+                f"{who}_ros2_seen",
+                ["liveliness_token", "declare_liveliness_subscriber", "reply"],
+                "egress",
+                [graph],
+            ),
+        ]
+
+    node, user_ = user(follower), ros2_controller_user(follower)
+    return {node: grants(node, ours, theirs), user_: grants(user_, theirs, ours)}
+
+
+def access_control(
+    swarm: str,
+    nodes: list[NodeKeys],
+    ros2_domain: int | None = None,
+    ros2_controls: dict[int, str] | None = None,
+) -> dict[str, Any]:
     """The router's ``access_control`` section for swarm ``swarm`` of ``nodes`` (the leader's keys
     and each follower's): default deny; each node's ingress limited to its keys (``_rules``);
     egress (what the router forwards to a node) to the swarm's keys, of which a node receives only
     what it subscribed to. ``ros2_domain``: ROS 2 nodes admitted as ``ROS2_USER`` on that
-    domain, read-only (``ros2_rules``)."""
+    domain, read-only (``ros2_rules``); ``ros2_controls``: per follower flown by a ROS 2 node, its
+    control topics' prefix (``ros2_controller_rules``)."""
     rules: list[dict[str, Any]] = [
         {
             "id": "egress",
@@ -179,6 +228,18 @@ def access_control(swarm: str, nodes: list[NodeKeys], ros2_domain: int | None = 
         rules += extra
         subjects.append({"id": ROS2_USER, "usernames": [ROS2_USER]})
         policies.append({"rules": [r["id"] for r in extra], "subjects": [ROS2_USER]})
+        sources = {k.node: k.in_sources for k in nodes}
+        for follower, control in (ros2_controls or {}).items():
+            granting = ros2_controller_rules(ros2_domain, follower, control, sources[follower])
+            for who, granted in granting.items():
+                rules += granted
+                ids = [r["id"] for r in granted]
+                mine = [p for p in policies if p["subjects"] == [who]]
+                if mine:  # (one policy per subject: a second one for it is not read)
+                    mine[0]["rules"] += ids
+                else:
+                    subjects.append({"id": who, "usernames": [who]})
+                    policies.append({"rules": ids, "subjects": [who]})
     return {
         "enabled": True,
         "default_permission": "deny",
@@ -188,7 +249,12 @@ def access_control(swarm: str, nodes: list[NodeKeys], ros2_domain: int | None = 
     }
 
 
-def write_credentials(n_followers: int, path: Path, ros2_password_path: Path | None = None) -> dict[int, str]:
+def write_credentials(
+    n_followers: int,
+    path: Path,
+    ros2_password_path: Path | None = None,
+    ros2_controllers: dict[int, Path] | None = None,
+) -> dict[int, str]:
     """A fresh random password for each node of a swarm of ``n_followers``, and the router's
     dictionary of them at ``path`` (``user:password`` lines, readable by this user only).
     ``ros2_password_path``: ``ROS2_USER`` too, its password alone in that file (for the ROS 2
@@ -199,5 +265,9 @@ def write_credentials(n_followers: int, path: Path, ros2_password_path: Path | N
         ros2 = secrets.token_hex(16)
         write_secret(ros2_password_path, ros2 + "\n")
         lines.append(f"{ROS2_USER}:{ros2}\n")
+    for follower, password_path in (ros2_controllers or {}).items():  # each alone in its file
+        pw = secrets.token_hex(16)
+        write_secret(password_path, pw + "\n")
+        lines.append(f"{ros2_controller_user(follower)}:{pw}\n")
     write_secret(path, "".join(lines))
     return passwords

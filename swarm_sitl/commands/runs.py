@@ -30,6 +30,7 @@ from swarm_sitl.commands.common import (
     run_dir_of,
     summary_lines,
 )
+from swarm_sitl.commands.run_options import check_external, with_ros2
 from swarm_sitl.commands.view import DEFAULT_PORT, port_number, serve, stream_to_foxglove
 from swarm_sitl.config.load import with_duration, with_faults, with_seed, with_spec
 from swarm_sitl.config.schema import SwarmConfig
@@ -259,8 +260,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         args.faults,
     )
     check_base_port(cfg, args.base_port)
-    if args.ros2:  # the run on ROS 2 topics (docs/ros2.md), as the config's ros2: section says
-        cfg = cfg.model_copy(update={"ros2": cfg.ros2.model_copy(update={"enabled": True})})
+    cfg = with_ros2(cfg, args.ros2, args.ros2_controller, args.realtime)
     external = check_external(cfg, args.external, args.realtime)
     run_dir = run_dir_of(args.out, cfg, "run")
     view = None if args.view is None else (args.view_host, args.view)
@@ -268,25 +268,6 @@ def cmd_run(args: argparse.Namespace) -> int:
     return _run_and_record(
         cfg, run_dir, not args.realtime, args.quiet, None, "run", args.base_port, external, view, foxglove
     )
-
-
-def check_external(cfg: SwarmConfig, ids: list[int], realtime: bool) -> tuple[int, ...]:
-    """``--external`` ids, checked against the config and the fault plan."""
-    if not ids:
-        return ()
-    if not realtime:
-        raise CliError("--external needs --realtime (a lockstep controller steps its vehicle's clock itself)")
-    known = {f.id for f in cfg.followers}
-    for i in ids:
-        if i not in known:
-            raise CliError(f"--external {i}: no follower {i} in {cfg.name} (followers {sorted(known)})")
-        if any(e.controller == i for e in cfg.faults.plan):
-            raise CliError(
-                f"--external {i}: the fault plan acts on controller {i}, which this run does not start"
-            )
-    if len(set(ids)) != len(ids):
-        raise CliError(f"--external: an id given twice ({ids})")
-    return tuple(sorted(ids))
 
 
 def cmd_controllers(args: argparse.Namespace) -> int:
@@ -424,6 +405,15 @@ def add_run(sub: Any) -> None:
         action="store_true",
         help="republish the run on ROS 2 topics through its router, in rmw_zenoh's layout, for ROS 2 "
         "nodes to read (its ros2: section says the domain, namespace, distro and rate; docs/ros2.md)",
+    )
+    r.add_argument(
+        "--ros2-controller",
+        type=int,
+        action="append",
+        default=[],
+        metavar="I",
+        help="follower I is flown by a ROS 2 node, not by the law (--realtime; implies --ros2): it reads "
+        "its vehicle and in-neighbours and writes its setpoint and message as ROS 2 topics (docs/ros2.md)",
     )
     r.add_argument(
         "--view-host",

@@ -27,6 +27,7 @@ from sim_vehicles.models.build import check as model_check
 from swarm_sitl.bus.access import NodeKeys, node_keys
 from swarm_sitl.bus.session import ZenohSection
 from swarm_sitl.config.law_entry import resolve, validate_params
+from swarm_sitl.config.ros2_section import Ros2Section
 from swarm_sitl.config.seeds import STREAMS, derive_seeds, stream_seed, without_derived_seeds
 from swarm_sitl.config.vehicle_section import SET_ELSEWHERE, VehicleSection, WindSection, spec_value
 from swarm_sitl.faults.link_model import recorded
@@ -36,7 +37,6 @@ from swarm_sitl.laws.graph import Graph, GraphError
 from swarm_sitl.laws.paper_gains import PaperGains
 from swarm_sitl.laws.trajectories import FigureEight, Helix, Line, Trajectory
 from swarm_sitl.laws.zou_meng import ZouMengParams
-from swarm_sitl.ros2.names import RosNameError, check_namespace
 from swarm_sitl.specs.requirement import Requirement, SpecError
 
 #: the default law: the paper's (``laws.zou_meng``)
@@ -207,28 +207,6 @@ class SigningSection(_Strict):
     passphrase_file: str | None = None
 
 
-class Ros2Section(_Strict):
-    """The run on ROS 2 topics (``docs/ros2.md``): the supervisor republishes it in rmw_zenoh's
-    layout on the run's router, for ROS 2 nodes to read (``running.ros2_face``)."""
-
-    enabled: bool = False  #: republish the run on ROS 2 topics (``run --ros2`` turns it on)
-    domain_id: Annotated[int, Field(ge=0, le=232)] = 0  #: the ROS 2 domain (``ROS_DOMAIN_ID``)
-    namespace: str = "/swarm"  #: the topics' namespace: ``<namespace>/follower_<i>/pose``, ...
-    #: whose message definitions and type hashes (Humble's rmw_zenoh has no type hashes)
-    distro: Literal["jazzy", "humble"] = "jazzy"
-    #: how often the newest of each topic is republished [Hz, wall clock]: in lockstep the run's
-    #: simulated time goes faster than the wall's, and ROS 2 sees it at this rate
-    rate_hz: Annotated[float, Field(gt=0, le=1000)] = 20.0
-
-    @field_validator("namespace")
-    @classmethod
-    def _ros2_name(cls, ns: str) -> str:
-        try:
-            return check_namespace(ns)
-        except RosNameError as e:
-            raise ValueError(str(e)) from None
-
-
 class RunSection(_Strict):
     """Limits of a multi-process run (wall-clock seconds)."""
 
@@ -373,6 +351,11 @@ class SwarmConfig(_Strict):
                 raise ValueError(str(e)) from None
         if len({r.name for r in self.spec}) != len(self.spec):
             raise ValueError("spec: two requirements of one name")
+        for i in self.ros2.controllers:
+            if i not in ids:
+                raise ValueError(f"ros2.controllers: no follower {i} (followers 1..{n})")
+        if len(set(self.ros2.controllers)) != len(self.ros2.controllers):
+            raise ValueError(f"ros2.controllers: a follower named twice ({self.ros2.controllers})")
         if recorded(info):
             return self
         try:  # the model and its parameters, as the vehicles will be built (cheap: no kernel runs)

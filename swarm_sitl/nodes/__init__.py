@@ -5,7 +5,7 @@
   ending or flooding the process that hosts it (``sim`` too);
 - ``controller``: follower i's loop: its vehicle over MAVLink, its neighbours over the bus, one
   loop for both clocks; ``neighbour_inbox``: which neighbour estimates a tick uses (riding
-  through silent ones);
+  through silent ones); ``ros2_controller``: a follower flown by a ROS 2 node, in the law's place;
 - ``leader``: node 0, the reference, on the wall clock or a window ahead of the followers;
 - ``pacing``: the two clocks the loops run on (``Lockstep``, ``WallClock``): the first tick,
   waiting for tick k and its lateness, the hold, the end; each is also the node's ``RunClock``;
@@ -14,5 +14,5 @@
   written; ``arguments``: its command line, shared with ``swarm-sitl controller|leader``.
 
 May import: sim_vehicles.common, sim_vehicles.mavlink, sim_vehicles.plant, sim_vehicles.models,
-sim_vehicles.runtime, laws, bus, faults, config, rundir, link.
+sim_vehicles.runtime, laws, bus, faults, config, rundir, link, ros2.
 """

@@ -27,7 +27,7 @@ import math
 import sys
 import time
 from collections.abc import Callable
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -43,11 +43,12 @@ from swarm_sitl.bus.node_bus import NodeBus
 from swarm_sitl.config.schema import RunSection, SwarmConfig
 from swarm_sitl.laws.contract import VehicleSample
 from swarm_sitl.link.vehicle_link import VehicleLink
-from swarm_sitl.nodes.assembly import build_law
+from swarm_sitl.nodes.assembly import build_law, law_context
 from swarm_sitl.nodes.law_guard import LawGuard, max_output_bytes
 from swarm_sitl.nodes.law_host import HostedLaw, LawError, warm_up
 from swarm_sitl.nodes.neighbour_inbox import NeighbourInbox
 from swarm_sitl.nodes.pacing import Lockstep, Pacer, pacer
+from swarm_sitl.nodes.ros2_controller import Ros2Controller
 from swarm_sitl.rundir.recording import command_parts
 
 RESEND_AFTER_S = 0.25
@@ -336,10 +337,13 @@ def run_controller(
     events: EventLog | None = None,
     resume_tick: int = 0,
     states: Callable[[State], None] | None = None,
+    ros2_session: Any = None,
 ) -> NodeReport:
     """Follower ``i``'s loop; ``clock`` is where the run is for ``bus``'s wrappers (it is set
     here), ``events`` takes what the follower sees happen (lost and regained neighbours),
-    ``states`` its vehicle's state with each status (a run with ``ros2:`` on).
+    ``states`` its vehicle's state with each status (a run with ``ros2:`` on). A follower of
+    ``ros2.controllers`` is flown by a ROS 2 node through ``ros2_session`` (``ros2_controller``),
+    in place of the law.
     ``resume_tick``: a controller restarted by a fault plan in lockstep takes its vehicle up at
     this tick (its clock moved there first, through the gap it flew on its own), with a fresh
     state, like tick 0. In real time a controller joins at the tick the swarm's clock is at
@@ -351,7 +355,11 @@ def run_controller(
     clock.attach(bus, r.stall_timeout_s)
     events = EventLog(None, f"controller_{i}") if events is None else events
     link.connect(r.start_timeout_s, cfg.vehicle.mass_kg, cfg.gravity_mps2)
-    law = build_law(cfg, i, link.mass_kg, link.full_thrust_N)
+    if i in cfg.ros2.controllers:
+        ctx = law_context(cfg, i, link.mass_kg, link.full_thrust_N)
+        law = HostedLaw(Ros2Controller(ctx, ros2_session, cfg.ros2, cfg.law_class()), i, "ros2")
+    else:
+        law = build_law(cfg, i, link.mass_kg, link.full_thrust_N)
     sources = [s for s, _ in cfg.build_graph().in_neighbours(i)]
     inputs = _LockstepInputs if isinstance(clock, Lockstep) else _WallInputs
     io = inputs(who, i, link, bus, sources, dt)

@@ -183,8 +183,9 @@ def cmd_controller(cfg: SwarmConfig, args: argparse.Namespace) -> int:
             node_bus: NodeBus = zbus if faulty is None else faulty
             bus = node_bus
             states = _state_out(session, cfg, i) if cfg.ros2.enabled else None
+            flown = session if i in cfg.ros2.controllers else None  # (by a ROS 2 node: its bridge's)
             rep = run_controller(
-                cfg, i, link, node_bus, args.lockstep, rows, clock, events, args.resume_tick, states
+                cfg, i, link, node_bus, args.lockstep, rows, clock, events, args.resume_tick, states, flown
             )
             if out is not None:
                 _write_stats(

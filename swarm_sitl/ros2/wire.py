@@ -42,6 +42,11 @@ def mangle(name: str) -> str:
     return name.replace("/", "%") if name else "%"
 
 
+def demangle(name: str) -> str:
+    """A name as a liveliness token has it, back (``%`` -> ``/``; a lone ``%``: empty)."""
+    return "" if name == "%" else name.replace("%", "/")
+
+
 def data_key(domain_id: int, topic: str, ros_type: str, type_hash: str) -> str:
     """The key a topic's messages are put on."""
     return f"{domain_id}/{topic.lstrip('/')}/{dds_type_name(ros_type)}/{type_hash}"

@@ -189,6 +189,11 @@ def ros2_join_path(run_dir: Path) -> Path:
     return run_dir / "ros2_join.json"
 
 
+def zenoh_ros2_controller_password_path(run_dir: Path, follower: int) -> Path:
+    """The password of the user the ROS 2 node flying ``follower`` joins as, alone (mode 0600)."""
+    return run_dir / f"zenoh_ros2_controller_{follower}_password.txt"
+
+
 def zenoh_ros2_password_path(run_dir: Path) -> Path:
     """A run with ``ros2:`` on: the password of the router's ROS 2 user, alone (mode 0600)."""
     return run_dir / "zenoh_ros2_password.txt"

@@ -16,7 +16,12 @@ from swarm_sitl.bus import keys as zenoh_keys
 from swarm_sitl.bus.codec import Status, decode_status, decode_waiting
 from swarm_sitl.bus.session import error_line, open_router, open_session, router_runtime
 from swarm_sitl.config.schema import SwarmConfig
-from swarm_sitl.rundir.layout import zenoh_ros2_password_path, zenoh_users_path
+from swarm_sitl.nodes.ros2_controller import control_topic
+from swarm_sitl.rundir.layout import (
+    zenoh_ros2_controller_password_path,
+    zenoh_ros2_password_path,
+    zenoh_users_path,
+)
 from swarm_sitl.running.supervisor import RunFailedError, Supervisor
 
 
@@ -124,14 +129,18 @@ def _open_hub(cfg: SwarmConfig, run_dir: Path, sup: Supervisor) -> tuple[str | N
         return hub, open_session(cfg.zenoh.model_copy(update={"listen": [hub]}))
     listen = [_with_free_port(e) for e in cfg.zenoh.listen]
     ros2 = zenoh_ros2_password_path(run_dir) if cfg.ros2.enabled else None
-    passwords = zenoh_access.write_credentials(cfg.n_followers, zenoh_users_path(run_dir), ros2)
+    flown = {i: zenoh_ros2_controller_password_path(run_dir, i) for i in cfg.ros2.controllers}
+    passwords = zenoh_access.write_credentials(cfg.n_followers, zenoh_users_path(run_dir), ros2, flown)
+    controls = {i: control_topic(cfg.ros2.namespace, i, "").strip("/") for i in cfg.ros2.controllers}
     sup.env_for = lambda process: zenoh_access.credentials_env(process, passwords)
     nodes = [cfg.node_keys(n) for n in range(cfg.n_followers + 1)]
     with router_runtime():
         router = open_router(
             listen,
             str(zenoh_users_path(run_dir)),
-            zenoh_access.access_control(cfg.name, nodes, cfg.ros2.domain_id if cfg.ros2.enabled else None),
+            zenoh_access.access_control(
+                cfg.name, nodes, cfg.ros2.domain_id if cfg.ros2.enabled else None, controls
+            ),
         )
     return listen[0].replace("/0.0.0.0:", "/127.0.0.1:"), router
 

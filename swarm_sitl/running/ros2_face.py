@@ -35,13 +35,19 @@ import zenoh
 
 from sim_vehicles.common.quaternion import rotate_inverse
 from swarm_sitl.bus import keys as zenoh_keys
-from swarm_sitl.bus.access import ROS2_USER
+from swarm_sitl.bus.access import ROS2_USER, ros2_controller_user
 from swarm_sitl.bus.codec import PayloadError, State, decode_state
 from swarm_sitl.config.schema import SwarmConfig
+from swarm_sitl.nodes.ros2_controller import control_topic
 from swarm_sitl.ros2 import types, wire
 from swarm_sitl.ros2.names import RunTopics
 from swarm_sitl.rundir.events import EventTail
-from swarm_sitl.rundir.layout import procs_dir, ros2_join_path, zenoh_ros2_password_path
+from swarm_sitl.rundir.layout import (
+    procs_dir,
+    ros2_join_path,
+    zenoh_ros2_controller_password_path,
+    zenoh_ros2_password_path,
+)
 
 NODE = "swarm_sitl"  #: the face's node name, in the run's namespace
 RING = 4  #: samples of each key kept between two looks (only the newest is republished)
@@ -235,6 +241,14 @@ def write_ros2_join(cfg: SwarmConfig, hub: str | None, run_dir: Path) -> str:
     join: dict[str, Any] = {"endpoint": hub, "domain_id": r.domain_id, "namespace": r.namespace}
     if hub is not None and cfg.zenoh.mode == "router":
         join |= {"user": ROS2_USER, "password_file": str(zenoh_ros2_password_path(run_dir))}
+        join["controllers"] = {  # who flies which follower, and only that one
+            str(i): {
+                "user": ros2_controller_user(i),
+                "password_file": str(zenoh_ros2_controller_password_path(run_dir, i)),
+                "topics": control_topic(r.namespace, i, "*"),
+            }
+            for i in r.controllers
+        }
     ros2_join_path(run_dir).write_text(json.dumps({**join, "line": line}, indent=1) + "\n")
     return line
 

@@ -1,0 +1,176 @@
+"""A follower flown by a ROS 2 node (``run --ros2-controller I``): its controller process runs
+this in place of the law, so the vehicle link, the fault plan, the bus and the recording are
+those of any other follower.
+
+``Ros2Controller`` keeps the law's contract (``laws.contract.Law``): at each tick it publishes, on
+ROS 2 topics in rmw_zenoh's layout (``ros2.wire``) under ``<ns>/follower_<i>/control/``, the
+vehicle as sampled (``odom``, ``nav_msgs/msg/Odometry``; frame ``world`` ENU, the twist in the
+body frame) and each in-neighbour's newest message (``from_<s>``,
+``swarm_sitl_msgs/msg/Estimate``), and it gives back what the ROS 2 node last published:
+``setpoint`` (``swarm_sitl_msgs/msg/AttitudeSetpoint``), sent to the vehicle as
+SET_ATTITUDE_TARGET, and ``message`` (``Estimate``), sent on the follower's out-edges. So the
+node's answer to tick k flies from tick k + 1 on (one control period late, as a controller on
+another machine would be). Until its first setpoint the vehicle is held level at hover thrust,
+and until its first message the out-neighbours get zeros. A setpoint or message that does not
+decode, or has the wrong length or a non-finite value, is dropped and counted (``dropped``).
+Real time: the run's clock does not wait for the node.
+"""
+
+import math
+import time
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+import zenoh
+
+from sim_vehicles.common.command import AttitudeCommand
+from sim_vehicles.common.quaternion import rotate_inverse
+from swarm_sitl.laws.contract import LawContext, LawOutput, Received, VehicleSample
+from swarm_sitl.ros2 import types, wire
+
+NODE = "swarm_sitl_follower_{i}"  #: the bridge's node name
+SETPOINT = "swarm_sitl_msgs/msg/AttitudeSetpoint"
+
+
+def control_topic(namespace: str, i: int, what: str) -> str:
+    """Where follower ``i``'s ROS 2 controller meets the run: ``odom``, ``from_<s>`` (the run
+    publishes them), ``setpoint``, ``message`` (the node does)."""
+    return f"{namespace.rstrip('/')}/follower_{i}/control/{what}"
+
+
+class Ros2Controller:
+    """Follower ``ctx.follower_id``'s law, whose step is a ROS 2 node's (module docstring)."""
+
+    record_fields: Mapping[str, int] = {}  # (the instance's: the swarm's law's, recorded as NaN)
+    message_length: int = 0  # (the instance's: the swarm's law's)
+
+    def __init__(self, ctx: LawContext, session: Any, r: Any, law: Any):
+        """``r``: the config's ``ros2:`` section; ``law``: the swarm's law class, whose message
+        length and record fields this keeps (the record: NaN, the law is the node's)."""
+        domain_id, namespace, distro = r.domain_id, r.namespace, r.distro
+        self.ctx, self.distro = ctx, distro
+        self.message_length = message_length = int(law.message_length)
+        self.record_fields = dict(law.record_fields)
+        self._record = np.full(sum(self.record_fields.values()), math.nan)
+        i = ctx.follower_id
+        self.dropped = 0
+        zid = str(session.info.zid())
+        node = NODE.format(i=i)
+        self._T = types.store(distro).types
+        self._tokens = [
+            session.liveliness().declare_token(wire.node_token(domain_id, zid, 0, namespace, node))
+        ]
+        self._pubs: dict[str, tuple[Any, bytes, str, list[int]]] = {}
+        outs = [("odom", types.ODOMETRY)] + [(f"from_{s}", types.ESTIMATE) for s in ctx.in_neighbours]
+        for n, (what, ros_type) in enumerate(outs, start=1):
+            topic, h = control_topic(namespace, i, what), types.type_hash(ros_type, distro)
+            token = wire.publisher_token(
+                domain_id, zid, 0, n, namespace, node, topic, ros_type, h, wire.Qos()
+            )
+            self._tokens.append(session.liveliness().declare_token(token))
+            pub = session.declare_publisher(wire.data_key(domain_id, topic, ros_type, h))
+            self._pubs[what] = (pub, wire.gid(token), ros_type, [0])
+        self._subs = {}
+        for n, (what, ros_type) in enumerate(
+            (("setpoint", SETPOINT), ("message", types.ESTIMATE)), start=len(outs) + 1
+        ):
+            topic, h = control_topic(namespace, i, what), types.type_hash(ros_type, distro)
+            token = wire.publisher_token(
+                domain_id, zid, 0, n, namespace, node, topic, ros_type, h, wire.Qos(), kind=wire.SUBSCRIPTION
+            )
+            self._tokens.append(session.liveliness().declare_token(token))
+            key = wire.data_key(domain_id, topic, ros_type, h)
+            self._subs[what] = (session.declare_subscriber(key, zenoh.handlers.RingChannel(1)), ros_type)
+        hover = ctx.mass_kg * ctx.gravity_mps2
+        self._command = AttitudeCommand(np.array([1.0, 0.0, 0.0, 0.0]), hover)
+        self._message = np.zeros(message_length)
+
+    def step(self, t_s: float, sample: VehicleSample, inbox: Mapping[int, Received]) -> LawOutput:
+        self._take()
+        stamp = self._stamp(t_s)
+        T = self._T
+        w, x, y, z = (float(c) for c in sample.q_WB)
+        pose = T["geometry_msgs/msg/Pose"](
+            position=self._vec("geometry_msgs/msg/Point", sample.p_W),
+            orientation=T["geometry_msgs/msg/Quaternion"](x=x, y=y, z=z, w=w),
+        )
+        v_body = rotate_inverse(np.asarray(sample.q_WB, dtype=float), np.asarray(sample.v_W, dtype=float))
+        twist = T["geometry_msgs/msg/Twist"](
+            linear=self._vec("geometry_msgs/msg/Vector3", v_body),
+            angular=self._vec("geometry_msgs/msg/Vector3", np.zeros(3)),
+        )
+        unknown = np.zeros(36)
+        unknown[21] = unknown[28] = unknown[35] = -1.0  # (its body rates are not in the sample)
+        odom = T[types.ODOMETRY](
+            header=T["std_msgs/msg/Header"](stamp=stamp, frame_id="world"),
+            child_frame_id=f"follower_{self.ctx.follower_id}",
+            pose=T["geometry_msgs/msg/PoseWithCovariance"](pose=pose, covariance=np.zeros(36)),
+            twist=T["geometry_msgs/msg/TwistWithCovariance"](twist=twist, covariance=unknown),
+        )
+        for s, r in inbox.items():
+            est = T[types.ESTIMATE](
+                stamp=self._stamp(r.t_s),
+                src=s,
+                dst=self.ctx.follower_id,
+                step=round(r.t_s / self.ctx.control_dt_s),
+                sender_position=self._vec("geometry_msgs/msg/Point", np.zeros(3)),
+                values=np.asarray(r.values, dtype=float),
+            )
+            self._put(f"from_{s}", est)
+        self._put("odom", odom)
+        return LawOutput(self._command, self._message, self._record)
+
+    def _take(self) -> None:
+        """The node's newest setpoint and message, if any came since the last tick."""
+        sub, ros_type = self._subs["setpoint"]
+        sample = sub.try_recv()
+        if sample is not None:
+            try:
+                m = types.decode(sample.payload.to_bytes(), ros_type, self.distro)
+                q = np.array([m.orientation.w, m.orientation.x, m.orientation.y, m.orientation.z])
+                rates = np.array([m.body_rate.x, m.body_rate.y, m.body_rate.z])
+                n = float(np.linalg.norm(q))
+                if not (
+                    np.all(np.isfinite(q))
+                    and np.all(np.isfinite(rates))
+                    and math.isfinite(m.thrust_n)
+                    and n > 0.5
+                ):
+                    raise ValueError("not a finite attitude, rate and thrust")
+                self._command = AttitudeCommand(q / n, float(m.thrust_n), rates)
+            except Exception:
+                self.dropped += 1
+        sub, ros_type = self._subs["message"]
+        sample = sub.try_recv()
+        if sample is not None:
+            try:
+                values = np.asarray(
+                    types.decode(sample.payload.to_bytes(), ros_type, self.distro).values, dtype=float
+                )
+                if values.shape != (self.message_length,) or not np.all(np.isfinite(values)):
+                    raise ValueError("not the law's message")
+                self._message = values
+            except Exception:
+                self.dropped += 1
+
+    def _put(self, what: str, message: Any) -> None:
+        pub, gid, ros_type, count = self._pubs[what]
+        count[0] += 1
+        attachment = wire.Attachment(count[0], time.time_ns(), gid).pack()
+        pub.put(types.encode(message, ros_type, self.distro), attachment=attachment)
+
+    def _stamp(self, t_s: float) -> Any:
+        ns = max(0, round(t_s * 1e9))
+        return self._T["builtin_interfaces/msg/Time"](sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
+
+    def _vec(self, name: str, v: np.ndarray) -> Any:
+        return self._T[name](x=float(v[0]), y=float(v[1]), z=float(v[2]))
+
+    def close(self) -> None:
+        for sub, _ in self._subs.values():
+            sub.undeclare()
+        for pub, *_ in self._pubs.values():
+            pub.undeclare()
+        for token in self._tokens:
+            token.undeclare()

@@ -1,0 +1,80 @@
+"""A follower flown by a ROS 2 node (``run --ros2-controller 4 --realtime``): the node, written
+here with ``zenoh-ros2-sdk`` only (no code of ours on its wire), joins the run's router as the user
+the run names for follower 4, reads its vehicle's odometry and its in-neighbours' messages as ROS 2
+topics, runs the paper's law on them and publishes its setpoint and its own message. Follower 4
+reaches the formation, the commands its vehicle flew are the node's, and the node's rights are its
+follower's control topics alone."""
+
+import json
+
+import numpy as np
+import pytest
+
+from swarm_sitl.bus.access import access_control, ros2_controller_user
+from swarm_sitl.nodes.ros2_controller import SETPOINT
+from swarm_sitl.ros2 import types
+from tests.support import CONFIGS, ROOT, config, msg_dir, start_cli
+
+
+@pytest.mark.unit
+@pytest.mark.parametrize("flown", [[1], [2, 4]])
+def test_a_ros2_controllers_user_writes_only_its_followers_setpoint_and_message(flown):
+    cfg = config("paper")
+    controls = {i: f"swarm/follower_{i}/control" for i in flown}
+    ac = access_control(cfg.name, [cfg.node_keys(n) for n in range(5)], 0, controls)
+    for i in flown:
+        who = ros2_controller_user(i)
+        granted = {r for p in ac["policies"] if who in p["subjects"] for r in p["rules"]}
+        puts = [
+            k
+            for r in ac["rules"]
+            if r["id"] in granted and "put" in r["messages"] and "ingress" in r["flows"]
+            for k in r["key_exprs"]
+        ]
+        assert sorted(puts) == [
+            f"0/swarm/follower_{i}/control/message/**",
+            f"0/swarm/follower_{i}/control/setpoint/**",
+        ]
+        node = {r for p in ac["policies"] if f"node_{i}" in p["subjects"] for r in p["rules"]}
+        node_puts = {
+            k
+            for r in ac["rules"]
+            if r["id"] in node and "put" in r["messages"] and "ingress" in r["flows"]
+            for k in r["key_exprs"]
+        }
+        froms = {f"0/swarm/follower_{i}/control/from_{s}/**" for s, _ in cfg.build_graph().in_neighbours(i)}
+        assert node_puts >= {f"0/swarm/follower_{i}/control/odom/**", *froms}
+
+
+@pytest.mark.system
+def test_the_examples_ros2_node_flies_follower_4_into_the_formation(tmp_path, monkeypatch):
+    import importlib.util
+
+    from zenoh_ros2_sdk.session import ZenohSession
+
+    spec = importlib.util.spec_from_file_location("ros2_controller", ROOT / "examples" / "ros2_controller.py")
+    assert spec is not None and spec.loader is not None
+    example = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(example)
+    cfg = config("paper")
+    out = tmp_path / "run"
+    monkeypatch.setattr(ZenohSession, "_instance", None)  # (its own session, as the node's user)
+    monkeypatch.setenv("ZENOH_CONFIG_OVERRIDE", "")  # (the example sets it)
+    plan = tmp_path / "plan.yaml"  # beside our controllers, under an edge fault into its follower
+    plan.write_text(json.dumps({"seed": 3, "plan": [{"edge": [1, 4], "loss": 0.3}]}))
+    flags = ("--realtime", "--ros2-controller", 4, "--duration", 14, "--quiet", "--faults", plan)
+    run = start_cli("run", CONFIGS / "paper.yaml", *flags, "--out", out)
+    sent = example.fly(out, 4, msg_dir(tmp_path / "msgs", [types.ODOMETRY, types.ESTIMATE, SETPOINT]))
+    stdout, stderr = run.communicate(timeout=120)
+    assert run.returncode == 0, stderr + stdout
+    assert sent > 1000  # it answered most of the 1400 ticks
+    a = np.load(out / "follower_4.npz")
+    err = np.linalg.norm(a["pos_err_m"], axis=1)
+    assert np.nanmax(err[a["t_s"] > 10.0]) < 0.05, np.nanmax(err[a["t_s"] > 10.0])
+    flown = a["thrust_N"][np.isfinite(a["thrust_N"])]
+    hover = flown[0]  # the bridge's, before the node's first setpoint
+    assert hover == pytest.approx(cfg.vehicle.mass_kg * cfg.gravity_mps2, rel=1e-6)
+    assert np.mean(flown != hover) > 0.9  # then the node's thrusts (computed: never that one exactly)
+    edge = json.loads((out / "summary.json").read_text())["links"]["1->4"]
+    assert 0.2 < edge["lost"] / edge["received"] < 0.4  # the plan's loss, on the bridge's in-edge
+    assert np.all(np.isnan(a["p_hat"]))  # and the law's internals are the node's: not recorded here
