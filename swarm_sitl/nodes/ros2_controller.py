@@ -6,7 +6,8 @@ those of any other follower.
 ROS 2 topics in rmw_zenoh's layout (``ros2.wire``) under ``<ns>/follower_<i>/control/``, the
 vehicle as sampled (``odom``, ``nav_msgs/msg/Odometry``; frame ``world`` ENU, the twist in the
 body frame) and each in-neighbour's newest message (``from_<s>``,
-``swarm_sitl_msgs/msg/Estimate``), and it gives back what the ROS 2 node last published:
+``swarm_sitl_msgs/msg/Estimate``; its ``sender_position`` is zero: a law's inbox has the values and
+their time, not where they came from), and it gives back what the ROS 2 node last published:
 ``setpoint`` (``swarm_sitl_msgs/msg/AttitudeSetpoint``), sent to the vehicle as
 SET_ATTITUDE_TARGET, and ``message`` (``Estimate``), sent on the follower's out-edges. So the
 node's answer to tick k flies from tick k + 1 on (one control period late, as a controller on
@@ -28,9 +29,11 @@ from sim_vehicles.common.command import AttitudeCommand
 from sim_vehicles.common.quaternion import rotate_inverse
 from swarm_sitl.laws.contract import LawContext, LawOutput, Received, VehicleSample
 from swarm_sitl.ros2 import types, wire
+from swarm_sitl.ros2.messages import Messages
 
 NODE = "swarm_sitl_follower_{i}"  #: the bridge's node name
 SETPOINT = "swarm_sitl_msgs/msg/AttitudeSetpoint"
+_NO_RATES = np.full(3, math.nan)
 
 
 def control_topic(namespace: str, i: int, what: str) -> str:
@@ -57,7 +60,7 @@ class Ros2Controller:
         self.dropped = 0
         zid = str(session.info.zid())
         node = NODE.format(i=i)
-        self._T = types.store(distro).types
+        self._m = Messages(distro)
         self._tokens = [
             session.liveliness().declare_token(wire.node_token(domain_id, zid, 0, namespace, node))
         ]
@@ -88,37 +91,13 @@ class Ros2Controller:
 
     def step(self, t_s: float, sample: VehicleSample, inbox: Mapping[int, Received]) -> LawOutput:
         self._take()
-        stamp = self._stamp(t_s)
-        T = self._T
-        w, x, y, z = (float(c) for c in sample.q_WB)
-        pose = T["geometry_msgs/msg/Pose"](
-            position=self._vec("geometry_msgs/msg/Point", sample.p_W),
-            orientation=T["geometry_msgs/msg/Quaternion"](x=x, y=y, z=z, w=w),
-        )
+        m, i = self._m, self.ctx.follower_id
+        pose = m.pose(sample.p_W, sample.q_WB)
         v_body = rotate_inverse(np.asarray(sample.q_WB, dtype=float), np.asarray(sample.v_W, dtype=float))
-        twist = T["geometry_msgs/msg/Twist"](
-            linear=self._vec("geometry_msgs/msg/Vector3", v_body),
-            angular=self._vec("geometry_msgs/msg/Vector3", np.zeros(3)),
-        )
-        unknown = np.zeros(36)
-        unknown[21] = unknown[28] = unknown[35] = -1.0  # (its body rates are not in the sample)
-        odom = T[types.ODOMETRY](
-            header=T["std_msgs/msg/Header"](stamp=stamp, frame_id="world"),
-            child_frame_id=f"follower_{self.ctx.follower_id}",
-            pose=T["geometry_msgs/msg/PoseWithCovariance"](pose=pose, covariance=np.zeros(36)),
-            twist=T["geometry_msgs/msg/TwistWithCovariance"](twist=twist, covariance=unknown),
-        )
         for s, r in inbox.items():
-            est = T[types.ESTIMATE](
-                stamp=self._stamp(r.t_s),
-                src=s,
-                dst=self.ctx.follower_id,
-                step=round(r.t_s / self.ctx.control_dt_s),
-                sender_position=self._vec("geometry_msgs/msg/Point", np.zeros(3)),
-                values=np.asarray(r.values, dtype=float),
-            )
-            self._put(f"from_{s}", est)
-        self._put("odom", odom)
+            step = round(r.t_s / self.ctx.control_dt_s)
+            self._put(f"from_{s}", m.estimate(r.t_s, s, i, step, np.zeros(3), r.values))
+        self._put("odom", m.odometry(t_s, f"follower_{i}", pose, v_body, _NO_RATES))  # (not in the sample)
         return LawOutput(self._command, self._message, self._record)
 
     def _take(self) -> None:
@@ -159,13 +138,6 @@ class Ros2Controller:
         count[0] += 1
         attachment = wire.Attachment(count[0], time.time_ns(), gid).pack()
         pub.put(types.encode(message, ros_type, self.distro), attachment=attachment)
-
-    def _stamp(self, t_s: float) -> Any:
-        ns = max(0, round(t_s * 1e9))
-        return self._T["builtin_interfaces/msg/Time"](sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
-
-    def _vec(self, name: str, v: np.ndarray) -> Any:
-        return self._T[name](x=float(v[0]), y=float(v[1]), z=float(v[2]))
 
     def close(self) -> None:
         for sub, _ in self._subs.values():

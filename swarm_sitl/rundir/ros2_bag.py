@@ -27,64 +27,16 @@ import numpy as np
 from sim_vehicles.common.quaternion import rotate_inverse
 from swarm_sitl.config.load import load_recorded
 from swarm_sitl.ros2 import types
+from swarm_sitl.ros2.messages import Messages
 from swarm_sitl.ros2.names import RunTopics
 from swarm_sitl.rundir.events import read_events
 from swarm_sitl.rundir.load import load_run
 
-WORLD = "world"
 ESTIMATE_FIELDS = ("p_hat", "v_hat", "a_hat", "a_hat_dot")  #: the paper's message, in its order
 
 
 class BagError(RuntimeError):
     """The bag cannot be written (one line: where, and why)."""
-
-
-def _stamp(st: Any, t_s: float) -> Any:
-    ns = max(0, round(t_s * 1e9))
-    return st.types["builtin_interfaces/msg/Time"](sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
-
-
-class _Messages:
-    """The run's messages, built from ``distro``'s type store."""
-
-    def __init__(self, distro: str):
-        self.st = st = types.store(distro)
-        T = st.types
-        self.Header, self.Pose, self.Point = (
-            T["std_msgs/msg/Header"],
-            T["geometry_msgs/msg/Pose"],
-            T["geometry_msgs/msg/Point"],
-        )
-        self.Quaternion, self.Vector3 = T["geometry_msgs/msg/Quaternion"], T["geometry_msgs/msg/Vector3"]
-        self.PoseStamped, self.Odometry = T[types.POSE_STAMPED], T[types.ODOMETRY]
-        self.PoseCov, self.Twist = T["geometry_msgs/msg/PoseWithCovariance"], T["geometry_msgs/msg/Twist"]
-        self.TwistCov, self.Clock = T["geometry_msgs/msg/TwistWithCovariance"], T[types.CLOCK]
-        self.String, self.Estimate = T[types.STRING], T[types.ESTIMATE]
-        self.no_covariance = np.zeros(36)
-
-    def pose(self, p: np.ndarray, q_wxyz: np.ndarray | None) -> Any:
-        w, x, y, z = (1.0, 0.0, 0.0, 0.0) if q_wxyz is None else (float(v) for v in q_wxyz)
-        return self.Pose(
-            position=self.Point(x=float(p[0]), y=float(p[1]), z=float(p[2])),
-            orientation=self.Quaternion(x=x, y=y, z=z, w=w),
-        )
-
-    def header(self, t_s: float, frame: str = WORLD) -> Any:
-        return self.Header(stamp=_stamp(self.st, t_s), frame_id=frame)
-
-    def vec(self, v: np.ndarray) -> Any:
-        return self.Vector3(x=float(v[0]), y=float(v[1]), z=float(v[2]))
-
-    def odometry(self, t_s: float, child: str, pose: Any, v_body: np.ndarray, omega_body: np.ndarray) -> Any:
-        return self.Odometry(
-            header=self.header(t_s),
-            child_frame_id=child,
-            pose=self.PoseCov(pose=pose, covariance=self.no_covariance),
-            twist=self.TwistCov(
-                twist=self.Twist(linear=self.vec(v_body), angular=self.vec(omega_body)),
-                covariance=self.no_covariance,
-            ),
-        )
 
 
 def write_bag(
@@ -100,7 +52,7 @@ def write_bag(
     rec = load_run(run_dir)
     cfg = load_recorded(run_dir)
     topics = RunTopics(ns)
-    m = _Messages(distro)
+    m = Messages(distro)
     counts: dict[str, int] = {}
     with Writer(out, version=9, storage_plugin=StoragePlugin.MCAP) as w:
         connections: dict[str, Any] = {}
@@ -111,7 +63,7 @@ def write_bag(
                 c = connections[topic] = w.add_connection(
                     topic,
                     ros_type,
-                    typestore=m.st,
+                    typestore=types.store(distro),
                     rihs01=types.type_hash(ros_type, distro) if distro in types.TYPE_HASHED else None,
                 )
             w.write(c, max(0, round(t_s * 1e9)), types.encode(message, ros_type, distro))
@@ -121,9 +73,9 @@ def write_bag(
         zero = np.zeros(3)
         for k in _finite(L["t_s"]):
             t = float(L["t_s"][k])
-            put(topics.clock, types.CLOCK, t, m.Clock(clock=_stamp(m.st, t)))
+            put(topics.clock, types.CLOCK, t, m.clock(t))
             pose = m.pose(L["p_r"][k], None)
-            put(topics.leader("pose"), types.POSE_STAMPED, t, m.PoseStamped(header=m.header(t), pose=pose))
+            put(topics.leader("pose"), types.POSE_STAMPED, t, m.pose_stamped(t, pose))
             put(topics.leader("odom"), types.ODOMETRY, t, m.odometry(t, "leader", pose, L["v_r"][k], zero))
         for i, a in sorted(rec.followers.items()):
             for k in _finite(a["t_s"]):
@@ -136,7 +88,7 @@ def write_bag(
                     topics.follower(i, "pose"),
                     types.POSE_STAMPED,
                     t,
-                    m.PoseStamped(header=m.header(t), pose=pose),
+                    m.pose_stamped(t, pose),
                 )
                 v_body = np.asarray(rotate_inverse(np.asarray(q, float), np.asarray(a["v_W"][k], float)))
                 odom = m.odometry(t, f"follower_{i}", pose, v_body, a["omega_B"][k])
@@ -156,18 +108,11 @@ def write_bag(
                     p = a["p_W"][k]
                 if not np.all(np.isfinite(values)):
                     continue
-                est = m.Estimate(
-                    stamp=_stamp(m.st, t),
-                    src=src,
-                    dst=dst,
-                    step=int(k),
-                    sender_position=m.Point(x=float(p[0]), y=float(p[1]), z=float(p[2])),
-                    values=np.asarray(values, dtype=float),
-                )
+                est = m.estimate(t, src, dst, int(k), p, values)
                 put(topics.edge(src, dst), types.ESTIMATE, t, est)
         for e in read_events(run_dir / "events.jsonl"):
             if math.isfinite(e["t_s"]):
-                put(topics.events(), types.STRING, float(e["t_s"]), m.String(data=json.dumps(e)))
+                put(topics.events(), types.STRING, float(e["t_s"]), m.string(json.dumps(e)))
     return counts
 
 

@@ -40,6 +40,7 @@ from swarm_sitl.bus.codec import PayloadError, State, decode_state
 from swarm_sitl.config.schema import SwarmConfig
 from swarm_sitl.nodes.ros2_controller import control_topic
 from swarm_sitl.ros2 import types, wire
+from swarm_sitl.ros2.messages import Messages
 from swarm_sitl.ros2.names import RunTopics
 from swarm_sitl.rundir.events import EventTail
 from swarm_sitl.rundir.layout import (
@@ -93,9 +94,7 @@ class Ros2Face:
         self.topics = RunTopics(r.namespace)
         self.dropped = 0  #: payloads on the bus that did not decode
         self.error: str | None = None  #: what ended the face (one line), if anything did
-        st = types.store(r.distro)
-        T = st.types
-        self._T = T
+        self._m = Messages(r.distro)
         self._node = session.liveliness().declare_token(
             wire.node_token(r.domain_id, self.zid, 0, r.namespace, NODE)
         )
@@ -152,7 +151,7 @@ class Ros2Face:
                 self._put(self.topics.edge(i, dst), self._estimate(dst, s))
         self._leader()
         for e in self._events.read():
-            self._put(self.topics.events(), self._T[types.STRING](data=json.dumps(e)))
+            self._put(self.topics.events(), self._m.string(json.dumps(e)))
 
     def _leader(self) -> None:
         """``/clock``, the leader's reference and its edges, at the slowest follower's newest tick."""
@@ -162,7 +161,7 @@ class Ros2Face:
         if slowest.step <= self._last_clock:
             return
         self._last_clock, t = slowest.step, slowest.t_s
-        self._put(self.topics.clock, self._T[types.CLOCK](clock=self._stamp(t)))
+        self._put(self.topics.clock, self._m.clock(t))
         d = self._trajectory.derivatives(t)
         ref = State(0, slowest.step, t, d[0], d[1], _IDENTITY, np.zeros(3), np.concatenate(d[:4]))
         self._vehicle("leader", self.topics.leader("pose"), self.topics.leader("odom"), ref)
@@ -182,48 +181,16 @@ class Ros2Face:
     def _put(self, topic: str, message: Any) -> None:
         self._pubs[topic].put(message, self.distro)
 
-    def _stamp(self, t_s: float) -> Any:
-        ns = max(0, round(t_s * 1e9))
-        return self._T["builtin_interfaces/msg/Time"](sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
-
-    def _vec(self, name: str, v: np.ndarray) -> Any:
-        return self._T[name](x=float(v[0]), y=float(v[1]), z=float(v[2]))
-
     def _vehicle(self, child: str, pose_topic: str, odom_topic: str, s: State) -> None:
-        T = self._T
-        w, x, y, z = (float(c) for c in s.q_WB)
-        pose = T["geometry_msgs/msg/Pose"](
-            position=self._vec("geometry_msgs/msg/Point", s.p_W),
-            orientation=T["geometry_msgs/msg/Quaternion"](x=x, y=y, z=z, w=w),
-        )
-        header = T["std_msgs/msg/Header"](stamp=self._stamp(s.t_s), frame_id="world")
-        self._put(pose_topic, T[types.POSE_STAMPED](header=header, pose=pose))
+        m = self._m
+        pose = m.pose(s.p_W, s.q_WB)
+        self._put(pose_topic, m.pose_stamped(s.t_s, pose))
         v_body = rotate_inverse(np.asarray(s.q_WB, dtype=float), np.asarray(s.v_W, dtype=float))
-        unknown = np.zeros(36)
-        if not np.all(np.isfinite(s.omega_B)):  # (rates not reported yet: said by the covariance)
-            unknown[21] = unknown[28] = unknown[35] = -1.0
-        twist = T["geometry_msgs/msg/Twist"](
-            linear=self._vec("geometry_msgs/msg/Vector3", v_body),
-            angular=self._vec("geometry_msgs/msg/Vector3", np.nan_to_num(s.omega_B, nan=0.0)),
-        )
-        odom = T[types.ODOMETRY](
-            header=header,
-            child_frame_id=child,
-            pose=T["geometry_msgs/msg/PoseWithCovariance"](pose=pose, covariance=np.zeros(36)),
-            twist=T["geometry_msgs/msg/TwistWithCovariance"](twist=twist, covariance=unknown),
-        )
-        self._put(odom_topic, odom)
+        self._put(odom_topic, m.odometry(s.t_s, child, pose, v_body, s.omega_B))
 
     def _estimate(self, dst: int, s: State) -> Any:
         """What ``s``'s node sent ``dst`` at its tick (``s.values``)."""
-        return self._T[types.ESTIMATE](
-            stamp=self._stamp(s.t_s),
-            src=s.follower,
-            dst=dst,
-            step=s.step,
-            sender_position=self._vec("geometry_msgs/msg/Point", s.p_W),
-            values=np.asarray(s.values, dtype=float),
-        )
+        return self._m.estimate(s.t_s, s.follower, dst, s.step, s.p_W, s.values)
 
     def close(self) -> None:
         for sub in self._states.values():
