@@ -18,7 +18,6 @@ Real time: the run's clock does not wait for the node.
 """
 
 import math
-import time
 from collections.abc import Mapping
 from typing import Any
 
@@ -30,6 +29,7 @@ from sim_vehicles.common.quaternion import rotate_inverse
 from swarm_sitl.laws.contract import LawContext, LawOutput, Received, VehicleSample
 from swarm_sitl.ros2 import types, wire
 from swarm_sitl.ros2.messages import Messages
+from swarm_sitl.ros2.publisher import Publisher
 
 NODE = "swarm_sitl_follower_{i}"  #: the bridge's node name
 SETPOINT = "swarm_sitl_msgs/msg/AttitudeSetpoint"
@@ -64,16 +64,21 @@ class Ros2Controller:
         self._tokens = [
             session.liveliness().declare_token(wire.node_token(domain_id, zid, 0, namespace, node))
         ]
-        self._pubs: dict[str, tuple[Any, bytes, str, list[int]]] = {}
         outs = [("odom", types.ODOMETRY)] + [(f"from_{s}", types.ESTIMATE) for s in ctx.in_neighbours]
-        for n, (what, ros_type) in enumerate(outs, start=1):
-            topic, h = control_topic(namespace, i, what), types.type_hash(ros_type, distro)
-            token = wire.publisher_token(
-                domain_id, zid, 0, n, namespace, node, topic, ros_type, h, wire.Qos()
+        self._pubs = {
+            what: Publisher(
+                session,
+                domain_id,
+                zid,
+                namespace,
+                node,
+                n,
+                control_topic(namespace, i, what),
+                ros_type,
+                distro,
             )
-            self._tokens.append(session.liveliness().declare_token(token))
-            pub = session.declare_publisher(wire.data_key(domain_id, topic, ros_type, h))
-            self._pubs[what] = (pub, wire.gid(token), ros_type, [0])
+            for n, (what, ros_type) in enumerate(outs, start=1)
+        }
         self._subs = {}
         for n, (what, ros_type) in enumerate(
             (("setpoint", SETPOINT), ("message", types.ESTIMATE)), start=len(outs) + 1
@@ -134,15 +139,12 @@ class Ros2Controller:
                 self.dropped += 1
 
     def _put(self, what: str, message: Any) -> None:
-        pub, gid, ros_type, count = self._pubs[what]
-        count[0] += 1
-        attachment = wire.Attachment(count[0], time.time_ns(), gid).pack()
-        pub.put(types.encode(message, ros_type, self.distro), attachment=attachment)
+        self._pubs[what].put(message)
 
     def close(self) -> None:
         for sub, _ in self._subs.values():
             sub.undeclare()
-        for pub, *_ in self._pubs.values():
-            pub.undeclare()
+        for pub in self._pubs.values():
+            pub.close()
         for token in self._tokens:
             token.undeclare()

@@ -26,7 +26,6 @@ counted (``dropped``); an error in it is said once and ends the face, never the 
 """
 
 import json
-import time
 from pathlib import Path
 from typing import Any
 
@@ -42,6 +41,7 @@ from swarm_sitl.nodes.ros2_controller import control_topic
 from swarm_sitl.ros2 import types, wire
 from swarm_sitl.ros2.messages import Messages
 from swarm_sitl.ros2.names import RunTopics
+from swarm_sitl.ros2.publisher import Publisher
 from swarm_sitl.rundir.events import EventTail
 from swarm_sitl.rundir.layout import (
     procs_dir,
@@ -52,35 +52,7 @@ from swarm_sitl.rundir.layout import (
 
 NODE = "swarm_sitl"  #: the face's node name, in the run's namespace
 RING = 4  #: samples of each key kept between two looks (only the newest is republished)
-QOS = wire.Qos(depth=10)
 _IDENTITY = np.array([1.0, 0.0, 0.0, 0.0])
-
-
-class _Publisher:
-    """One ROS 2 publisher: its data key, its liveliness token, its GID and its count."""
-
-    def __init__(self, face: "Ros2Face", topic: str, ros_type: str, entity_id: int):
-        r = face.cfg.ros2
-        h = types.type_hash(ros_type, r.distro)
-        self.ros_type = ros_type
-        token = wire.publisher_token(
-            r.domain_id, face.zid, 0, entity_id, r.namespace, NODE, topic, ros_type, h, QOS
-        )
-        self.gid = wire.gid(token)
-        self.sequence = 0
-        self.token = face.session.liveliness().declare_token(token)
-        self.pub = face.session.declare_publisher(
-            wire.data_key(r.domain_id, topic, ros_type, h), congestion_control=zenoh.CongestionControl.DROP
-        )
-
-    def put(self, message: Any, distro: str) -> None:
-        self.sequence += 1
-        attachment = wire.Attachment(self.sequence, time.time_ns(), self.gid).pack()
-        self.pub.put(types.encode(message, self.ros_type, distro), attachment=attachment)
-
-    def close(self) -> None:
-        self.pub.undeclare()
-        self.token.undeclare()
 
 
 class Ros2Face:
@@ -98,7 +70,7 @@ class Ros2Face:
         self._node = session.liveliness().declare_token(
             wire.node_token(r.domain_id, self.zid, 0, r.namespace, NODE)
         )
-        self._pubs: dict[str, _Publisher] = {}
+        self._pubs: dict[str, Publisher] = {}
         wanted = [(self.topics.clock, types.CLOCK), (self.topics.events(), types.STRING)]
         wanted += [
             (self.topics.leader(w), t) for w, t in (("pose", types.POSE_STAMPED), ("odom", types.ODOMETRY))
@@ -109,7 +81,9 @@ class Ros2Face:
         self._edges = cfg.graph_edges()
         wanted += [(self.topics.edge(s, d), types.ESTIMATE) for s, d in self._edges]
         for n, (topic, ros_type) in enumerate(wanted, start=1):
-            self._pubs[topic] = _Publisher(self, topic, ros_type, n)
+            self._pubs[topic] = Publisher(
+                session, r.domain_id, self.zid, r.namespace, NODE, n, topic, ros_type, r.distro
+            )
         ring = zenoh.handlers.RingChannel
         self._states = {
             f.id: session.declare_subscriber(zenoh_keys.state(cfg.name, f.id), ring(RING))
@@ -179,7 +153,7 @@ class Ros2Face:
         return newest
 
     def _put(self, topic: str, message: Any) -> None:
-        self._pubs[topic].put(message, self.distro)
+        self._pubs[topic].put(message)
 
     def _vehicle(self, child: str, pose_topic: str, odom_topic: str, s: State) -> None:
         m = self._m
