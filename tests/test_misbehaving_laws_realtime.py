@@ -18,7 +18,7 @@ from swarm_sitl.rundir.load import load_run
 from tests import misbehaving_laws as laws
 from tests import support
 from tests.misbehaving_runs import (
-    DURATION_S,
+    LOADS_DURATION_S,
     MAX_OUTPUT_MB,
     SAYS,
     bound_s,
@@ -59,7 +59,9 @@ def _flown(tmp_path, law: str):
     ``(its line, its run directory, its wall time [s])``."""
     r, wall = fly(tmp_path, "run", law, "--realtime")
     line = the_line(r)
-    assert r.returncode == 1 and FLEW_ON in line, r.stderr[-2000:]
+    log = tmp_path / f"run-{law}" / "logs" / "controller_2.log"
+    said = log.read_text()[-1000:] if log.is_file() else "(no log)"
+    assert r.returncode == 1 and FLEW_ON in line, (r.stderr[-2000:], r.stdout[-3000:], said)
     return line, tmp_path / f"run-{law}", wall
 
 
@@ -87,15 +89,15 @@ def test_a_hoarding_a_slow_and_a_chatty_law_in_real_time(tmp_path):
     found = re.search(rf"law {law_path('run')}:MixedLoads, follower 2 at t=([0-9.]+) s: ", line)
     assert found and SAYS["Hoards"] in line, line
     lo, _ = failure_window("Hoards")  # ticks a hoarder is late for are skipped, and allocate nothing
-    assert lo <= float(found[1]) <= DURATION_S + late_s(2), line
+    assert lo <= float(found[1]) <= LOADS_DURATION_S + late_s(2), line
     assert _lost(out) == [("controller_2", 1)]
     report = json.loads((out / "summary.json").read_text())["inputs"]["3"]  # 50 ms a tick
-    ticks = DURATION_S / 0.01
+    ticks = LOADS_DURATION_S / 0.01
     assert report["late_ticks"] >= 0.5 * ticks and report["max_late_s"] >= laws.SLOW_S, report
     log = (out / "logs" / "controller_4.log").read_text()
     assert MAX_OUTPUT_MB * 1e6 <= len(log) < MAX_OUTPUT_MB * 1e6 + 2000, len(log)
     _flew_on(out)
-    assert wall < bound_s("Slow") + DURATION_S, wall
+    assert wall < bound_s("Slow") + LOADS_DURATION_S, wall
     assert not processes_mentioning(str(out))
 
 

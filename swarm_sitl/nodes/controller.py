@@ -415,7 +415,7 @@ def _loop(
     k = io.first
     while k <= n:
         t = k * dt + phase
-        at, lateness = clock.wait_instant(k, phase, io.tick_fds, io.read_link, io.read)
+        at, lateness = clock.wait_instant(k, phase, io.tick_fds, io.read_link, io.read, last=n)
         if at != k:  # a whole period behind: skip to the current tick
             k = at
             continue

@@ -7,10 +7,11 @@ are written once against them and never ask which clock runs.
   page's pause or single step: ``held``, ``hold_after``); at the end the bus drains, so every
   receiver has every estimate before the session closes.
 - ``WallClock``: a tick comes at its instant on the wall clock, ``epoch + k dt + phase``
-  (``wait_instant``); one that starts a whole period late is skipped to the current tick and
-  counted, and so is one whose output goes out after the next tick's instant (``out_at``); a node
-  started again mid-run joins at the tick the swarm's clock is at (``first_tick``); at the end a
-  node lingers until the others' last tick is surely done.
+  (``wait_instant``); one that starts a whole period late is skipped to the current tick (never
+  past the run's last tick, which is flown however late) and counted, and so is one whose output
+  goes out after the next tick's instant (``out_at``); a node started again mid-run joins at the
+  tick the swarm's clock is at (``first_tick``); at the end a node lingers until the others' last
+  tick is surely done.
 
 Each is also the node's ``RunClock`` (what the fault wrappers read: the tick in lockstep, run
 seconds in real time): ``pacer(lockstep, period_s)`` makes one before the node's bus (whose
@@ -67,7 +68,14 @@ class Lockstep(_Pacer, TickTime):
         return resume_tick
 
     def wait_instant(
-        self, k: int, phase_s: float, fds: Sequence[int], read: Reader, read_at: Reader, skip: bool = True
+        self,
+        k: int,
+        phase_s: float,
+        fds: Sequence[int],
+        read: Reader,
+        read_at: Reader,
+        skip: bool = True,
+        last: int | None = None,
     ) -> tuple[int, float]:
         """``(the tick to run, its lateness [s])``: here ``k``, never late (its inputs pace it:
         the node waits for them)."""
@@ -129,12 +137,20 @@ class WallClock(_Pacer, WallTime):
         return join_tick(time.monotonic(), self.epoch_mono, phase_s, self.period_s, lead_s)
 
     def wait_instant(
-        self, k: int, phase_s: float, fds: Sequence[int], read: Reader, read_at: Reader, skip: bool = True
+        self,
+        k: int,
+        phase_s: float,
+        fds: Sequence[int],
+        read: Reader,
+        read_at: Reader,
+        skip: bool = True,
+        last: int | None = None,
     ) -> tuple[int, float]:
         """Sleep until tick ``k``'s instant, ``read()`` as ``fds`` wake it, then ``read_at()``
         (what is read at the tick only); ``(k, its lateness [s])``. A whole period behind it is
         counted late and, with ``skip``, the tick given is the one to skip to (those between
-        counted too)."""
+        counted too), never past ``last`` (the run's last tick is flown however late: every node
+        reports the end)."""
         self.tick = k
         sleep_until(self.epoch_mono + k * self.period_s + phase_s, fds, read)
         read_at()
@@ -145,7 +161,9 @@ class WallClock(_Pacer, WallTime):
             self.late += 1
             return k, lateness
         skip_to = int((time.monotonic() - self.epoch_mono - phase_s) / self.period_s)
-        self.late += skip_to - k
+        if last is not None:
+            skip_to = min(skip_to, max(last, k))
+        self.late += max(skip_to - k, 1)  # (the last tick, flown late, is counted once)
         return skip_to, lateness
 
     def wait_for(
