@@ -237,3 +237,28 @@ def msg_dir(root: Path, ros_types: list[str]) -> Path:
             (root / pkg / "msg").mkdir(parents=True, exist_ok=True)
             (root / pkg / "msg" / f"{name}.msg").write_text(body)
     return root
+
+
+def ros2_user_session(run_dir: Path, timeout: float = 60.0) -> Any:
+    """A raw zenoh session that joins a running run's router as its ROS 2 user (``ros2``), from
+    its ``ros2_join.json`` (waited for up to ``timeout``)."""
+    import json
+
+    import zenoh
+
+    join_file = run_dir / "ros2_join.json"
+    end = time.monotonic() + timeout
+    while not join_file.is_file() and time.monotonic() < end:
+        time.sleep(0.01)
+    join = json.loads(join_file.read_text())
+    conf = zenoh.Config()
+    password = Path(join["password_file"]).read_text().strip()
+    for key, value in (
+        ("mode", "client"),
+        ("connect/endpoints", [join["endpoint"]]),
+        ("scouting/multicast/enabled", False),
+        ("transport/auth/usrpwd/user", join["user"]),
+        ("transport/auth/usrpwd/password", password),
+    ):
+        conf.insert_json5(key, json.dumps(value))
+    return zenoh.open(conf)

@@ -110,9 +110,24 @@ def test_a_followers_status_and_state_are_granted_to_it_alone_and_ros2_reads_onl
         for r in ac["rules"]
         if r["id"] in p["rules"]
     }
-    nodes = {r for p in ac["policies"] for s in p["subjects"] if s.startswith("node_") for r in p["rules"]}
-    assert all(k.startswith("swarm/") for r in ac["rules"] if r["id"] in nodes for k in r["key_exprs"])
-    if ros2 is None:  # (a node's user sees nothing of ROS 2; one flown by a ROS 2 node: test_ros2_controller)
+
+    def outside(who: str) -> list[dict]:  # its rules on keys not of the swarm's
+        mine = {r for p in ac["policies"] if who in p["subjects"] for r in p["rules"]}
+        return [
+            r
+            for r in ac["rules"]
+            if r["id"] in mine and not all(k.startswith("swarm/") for k in r["key_exprs"])
+        ]
+
+    assert all(outside(user(f)) == [] for f in range(1, N + 1))  # (none flown by a ROS 2 node here)
+    clock = [
+        k
+        for r in outside(user(0))
+        if "put" in r["messages"] and r["flows"] == ["ingress"]
+        for k in r["key_exprs"]
+    ]
+    assert clock == ([] if ros2 is None else [f"{ros2}/clock/**"])  # the leader puts /clock, and only it
+    if ros2 is None:  # (a node's user sees nothing of ROS 2)
         assert not ros2_rules and all("ros2" not in s["usernames"] for s in ac["subjects"])
         return
     for r in ac["rules"]:

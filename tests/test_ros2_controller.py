@@ -9,11 +9,12 @@ import json
 
 import numpy as np
 import pytest
+import zenoh
 
 from swarm_sitl.bus.access import access_control, ros2_controller_user
 from swarm_sitl.nodes.ros2_controller import SETPOINT
 from swarm_sitl.ros2 import types
-from tests.support import CONFIGS, ROOT, config, msg_dir, start_cli
+from tests.support import CONFIGS, ROOT, config, msg_dir, ros2_user_session, start_cli
 
 
 @pytest.mark.unit
@@ -64,9 +65,17 @@ def test_the_examples_ros2_node_flies_follower_4_into_the_formation(tmp_path, mo
     plan.write_text(json.dumps({"seed": 3, "plan": [{"edge": [1, 4], "loss": 0.3}]}))
     flags = ("--realtime", "--ros2-controller", 4, "--duration", 14, "--quiet", "--faults", plan)
     run = start_cli("run", CONFIGS / "paper.yaml", *flags, "--out", out)
+    reader = ros2_user_session(out)  # the read-only ROS 2 user, on the whole domain (ros2 topic echo)
+    heard = reader.declare_subscriber("0/**", zenoh.handlers.FifoChannel(1_000_000))
     sent = example.fly(out, 4, msg_dir(tmp_path / "msgs", [types.ODOMETRY, types.ESTIMATE, SETPOINT]))
     stdout, stderr = run.communicate(timeout=120)
     assert run.returncode == 0, stderr + stdout
+    topics = set()
+    while (sample := heard.try_recv()) is not None:
+        topics.add("/".join(str(sample.key_expr).split("/")[1:-2]))
+    reader.close()
+    # it reads the bridge's topics, the node's and the leader's clock by its one wildcard
+    assert {"clock", "swarm/follower_4/control/odom", "swarm/follower_4/control/setpoint"} <= topics
     a = np.load(out / "follower_4.npz")
     kept = np.isfinite(a["t_s"]) & np.isfinite(a["thrust_N"])  # (ticks recorded)
     flown, t, err = a["thrust_N"][kept], a["t_s"][kept], np.linalg.norm(a["pos_err_m"][kept], axis=1)

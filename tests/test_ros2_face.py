@@ -19,7 +19,7 @@ import zenoh
 from swarm_sitl.bus.codec import PayloadError, State, decode_state, encode_state
 from swarm_sitl.ros2 import types, wire
 from swarm_sitl.running.sim import run_sim
-from tests.support import CONFIGS, config, msg_dir, start_cli
+from tests.support import CONFIGS, config, msg_dir, ros2_user_session, start_cli
 
 
 @pytest.mark.unit
@@ -80,12 +80,7 @@ def test_a_ros2_client_reads_a_lockstep_run_through_its_router_and_the_run_equal
     ]
     assert {s.type_hash for s in subs} == {types.type_hash(types.POSE_STAMPED)}  # its own, from the .msg text
     # a raw session as the same user: the graph, the attachments, and swarm/** shut to it
-    conf = zenoh.Config()
-    for key, value in (("mode", "client"), ("connect/endpoints", [join["endpoint"]]),
-                       ("scouting/multicast/enabled", False), ("transport/auth/usrpwd/user", "ros2"),
-                       ("transport/auth/usrpwd/password", password)):  # fmt: skip
-        conf.insert_json5(key, json.dumps(value))
-    raw, writer = zenoh.open(conf), zenoh.open(conf)
+    raw, writer = ros2_user_session(out), ros2_user_session(out)
     attachments: list[bytes] = []
     clock: list[bytes] = []
 
@@ -99,8 +94,10 @@ def test_a_ros2_client_reads_a_lockstep_run_through_its_router_and_the_run_equal
     writer.put("swarm/paper/edge/0/1", b"\x04" + bytes(200))  # refused by the router (below)
     clock_key = wire.data_key(0, "/clock", types.CLOCK, types.type_hash(types.CLOCK))
     writer.put(clock_key, b"forged")  # and a put on a face's topic is refused too (below)
-    tokens = []
-    while not tokens and run.poll() is None:
+    tokens: list[str] = []
+    nodes = ("/NN/%/%swarm/swarm_sitl", "/NN/%/%swarm/swarm_sitl_clock")  # the face's, the leader's
+    clock_pub = "/MP/%/%swarm/swarm_sitl_clock/%clock/"  # (declared after its node)
+    while not all(any(n in t for t in tokens) for n in (*nodes, clock_pub)) and run.poll() is None:
         tokens = [str(r.ok.key_expr) for r in raw.liveliness().get("@ros2_lv/0/**", timeout=1) if r.ok]
     stdout, stderr = run.communicate(timeout=300)
     raw.close()
@@ -108,15 +105,15 @@ def test_a_ros2_client_reads_a_lockstep_run_through_its_router_and_the_run_equal
     assert run.returncode == 0, stderr + stdout
 
     # the graph: the face's node and one publisher per topic, as wire writes them, and the reader
-    node = next(t for t in tokens if t.endswith("/NN/%/%swarm/swarm_sitl"))
+    node = next(t for t in tokens if t.endswith(nodes[0]))
     zid = node.split("/")[2]
     assert node == wire.node_token(0, zid, 0, "/swarm", "swarm_sitl")
     face = [t for t in tokens if t.split("/")[2] == zid]
-    assert len(face) == 1 + 2 + 2 * (1 + 4) + 5  # node, clock, events, pose+odom x5, five edges
+    assert len(face) == 1 + 1 + 2 * (1 + 4) + 5  # node, events, pose+odom x5, five edges
     listed = {
         (wire.demangle(t.split("/")[9]), t.split("/")[10]) for t in face if "/MP/" in t
     }  # (topic, type)
-    topics = {("/clock", types.CLOCK), ("/swarm/events", types.STRING)}
+    topics = {("/swarm/events", types.STRING)}
     topics |= {(f"/swarm/{who}/{w}", ty) for who in ["leader", *(f"follower_{i}" for i in range(1, 5))]
                for w, ty in (("pose", types.POSE_STAMPED), ("odom", types.ODOMETRY))}  # fmt: skip
     topics |= {(f"/swarm/edge/from_{s}/to_{d}", types.ESTIMATE) for s, d in config("paper").graph_edges()}
@@ -129,15 +126,20 @@ def test_a_ros2_client_reads_a_lockstep_run_through_its_router_and_the_run_equal
     }
     assert len(expected & set(face)) == 1
     assert any("/MS/" in t and "%swarm%follower_1%pose" in t for t in tokens if t not in face)
-    # every put's attachment: 33 bytes, its sequence counting up, one GID
+    # /clock: the leader's node and publisher, and every tick of the run's simulated time in
+    # order, each dt after the one before (the forged put never came)
+    leader = next(t for t in tokens if t.endswith(nodes[1]))
+    published = [t for t in tokens if t.split("/")[2] == leader.split("/")[2] and "/MP/" in t]
+    assert [(wire.demangle(t.split("/")[9]), t.split("/")[10]) for t in published] == [
+        ("/clock", wire.dds_type_name(types.CLOCK))
+    ]
+    ns = [c.clock.sec * 10**9 + c.clock.nanosec for c in (types.decode(b, types.CLOCK) for b in clock)]
+    assert ns == [round(k * 0.01 * 1e9) for k in range(1201)]
+    # every put's attachment: 33 bytes, its sequence counting each put, its publisher's GID
     assert attachments and all(len(a) == 33 for a in attachments)
     seqs = [wire.Attachment.unpack(a).sequence for a in attachments]
-    assert seqs == sorted(seqs) and len({wire.Attachment.unpack(a).gid for a in attachments}) == 1
-    # /clock: the run's simulated time, forward, in whole ticks (the forged put never came)
-    ticks = [
-        (c.clock.sec * 10**9 + c.clock.nanosec) / 1e7 for c in (types.decode(b, types.CLOCK) for b in clock)
-    ]
-    assert ticks == sorted(set(ticks)) and all(abs(k - round(k)) < 1e-6 for k in ticks)
+    assert seqs == list(range(1, len(seqs) + 1))
+    assert {wire.Attachment.unpack(a).gid for a in attachments} == {wire.gid(published[0])}
     assert leaked == []  # nothing of swarm/** reaches the ROS 2 user
     stats = json.loads((out / "procs" / "controller_1.stats.json").read_text())
     assert stats["report"]["dropped_payloads"] == 0  # and its put on an edge reached no node
@@ -196,7 +198,6 @@ def test_the_face_republishes_each_state_drops_bad_bytes_and_an_error_ends_it_no
     time.sleep(0.2)
     assert face.dropped == 1 and face.error is None
     topics = {
-        "clock",
         "swarm/leader/pose",
         "swarm/leader/odom",
         "swarm/edge/from_0/to_1",
@@ -221,3 +222,29 @@ def test_the_face_republishes_each_state_drops_bad_bytes_and_an_error_ends_it_no
     assert face.error == "the ROS 2 face stopped: RuntimeError: a broken encoder"
     face.act(2.0, 2.0)  # said once; the face is closed, and its caller (the run) goes on
     session.close()
+
+
+@pytest.mark.unit
+def test_the_join_file_is_whole_or_absent_for_a_script_that_polls_for_it(tmp_path, monkeypatch):
+    """A write cut short half way (a signal, a full disk) leaves no ``ros2_join.json`` at all: a
+    ROS 2 user's script that waits for it never reads half of it."""
+    from pathlib import Path
+
+    from swarm_sitl.running.ros2_face import write_ros2_join
+
+    cfg = config("paper").model_copy(
+        update={"ros2": config("paper").ros2.model_copy(update={"enabled": True})}
+    )
+    real = Path.write_text
+
+    def half_then_cut(self, text, *a, **kw):
+        real(self, text[: len(text) // 2], *a, **kw)
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(Path, "write_text", half_then_cut)
+    with pytest.raises(KeyboardInterrupt):
+        write_ros2_join(cfg, "tcp/127.0.0.1:7447", tmp_path)
+    monkeypatch.undo()
+    assert list(tmp_path.iterdir()) == []
+    line = write_ros2_join(cfg, "tcp/127.0.0.1:7447", tmp_path)
+    assert json.loads((tmp_path / "ros2_join.json").read_text())["line"] == line

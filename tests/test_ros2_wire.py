@@ -8,11 +8,14 @@ import random
 import re
 
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from zenoh_ros2_sdk.attachment import Attachment as SdkAttachment
 from zenoh_ros2_sdk.qos import QosDurability, QosProfile, QosReliability
 from zenoh_ros2_sdk.utils import compute_type_hash_from_msg
 
 from swarm_sitl.ros2 import types, wire
+from swarm_sitl.ros2.messages import Messages, clock_cdr
 from swarm_sitl.ros2.names import RosNameError, RunTopics, check_token, check_topic
 from tests.support import msg_files
 
@@ -157,3 +160,13 @@ def test_every_topic_of_a_run_is_a_legal_ros2_name_and_they_are_distinct(n):
     assert all(check_topic(x) == x for x in names)
     with pytest.raises(RosNameError):
         RunTopics("/swarm/4")
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.floats(0.0, 2.0**31 - 1.0, allow_nan=False) | st.integers(0, 10**7).map(lambda k: k * 0.01))
+def test_the_leaders_clock_bytes_are_rosbags_cdr_of_the_same_clock(t_s):
+    """``clock_cdr`` packs by hand what the leader puts every tick: the CDR ``rosbags`` encodes for
+    the same ``Clock``, over any time a run can reach (ticks of 10 ms among them)."""
+    assert clock_cdr(t_s) == types.encode(Messages().clock(t_s), types.CLOCK)
+    back = types.decode(clock_cdr(t_s), types.CLOCK).clock
+    assert back.sec * 10**9 + back.nanosec == round(t_s * 1e9)

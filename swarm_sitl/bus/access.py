@@ -14,7 +14,9 @@ access control (default deny) lets node ``i`` (user ``node_<i>``; 0 is the leade
 A run with ``ros2:`` on admits ROS 2 nodes too, as user ``ros2`` (``ROS2_USER``; its password in
 the run directory, ``rundir.layout.zenoh_ros2_password_path``): read-only on the ROS 2 domain's
 keys (``ros2_rules``: subscribe to ``<domain>/**``, declare and follow liveliness tokens under
-``@ros2_lv/<domain>/**``), and nothing of ``swarm/**``, which it can neither read nor write.
+``@ros2_lv/<domain>/**``), and nothing of ``swarm/**``, which it can neither read nor write. The
+leader puts ``/clock`` there (``ros2_clock_rules``), and a follower a ROS 2 node flies meets it
+on its own control topics (``ros2_controller_rules``).
 
 and nothing else: a put on another node's edge or on ``start``, a subscription to another node's
 in-edge or to a wildcard, is dropped by zenoh itself. Only the supervisor's own session, inside
@@ -143,6 +145,25 @@ def ros2_controller_user(follower: int) -> str:
     return f"ros2_controller_{follower}"
 
 
+def _ros2_grants(who: str, domain_id: int, puts: list[str], reads: list[str]) -> list[dict[str, Any]]:
+    """What ``who`` may do on a ROS 2 domain's keys: put on ``puts``, subscribe to ``reads``,
+    take part in the graph's discovery (its liveliness tokens); and what the router forwards to
+    it: what it reads, the domain's subscriptions (without them its publishers would send
+    nothing; the whole domain's, since a reader's ``<domain>/**`` is not within one topic's
+    keys), and the graph."""
+    graph = f"@ros2_lv/{domain_id}/**"
+    discovery = ["liveliness_token", "declare_liveliness_subscriber", "liveliness_query"]
+    granted = [
+        ("put", ["put"], "ingress", puts),
+        ("sub", ["declare_subscriber"], "ingress", reads),
+        ("graph", discovery, "ingress", [graph]),
+        ("data", ["put", "reply"], "egress", reads),
+        ("interest", ["declare_subscriber"], "egress", [f"{domain_id}/**"] if puts else []),
+        ("seen", ["liveliness_token", "declare_liveliness_subscriber", "reply"], "egress", [graph]),
+    ]
+    return [_allow(f"{who}_ros2_{name}", m, flow, keys) for name, m, flow, keys in granted if keys]
+
+
 def ros2_controller_rules(
     domain_id: int, follower: int, control: str, sources: list[int]
 ) -> dict[str, list[dict[str, Any]]]:
@@ -152,29 +173,19 @@ def ros2_controller_rules(
     ``from_<s>`` for each of its in-neighbours ``sources`` and reads ``setpoint`` and
     ``message``; the node the other way round, and only there. Both take part in the graph's
     discovery."""
-    base, graph = f"{domain_id}/{control}", f"@ros2_lv/{domain_id}/**"
+    base = f"{domain_id}/{control}"
     ours = [f"{base}/odom/**", *(f"{base}/from_{s}/**" for s in sources)]
     theirs = [f"{base}/setpoint/**", f"{base}/message/**"]
-    discovery = ["liveliness_token", "declare_liveliness_subscriber", "liveliness_query"]
-
-    def grants(who: str, puts: list[str], reads: list[str]) -> list[dict[str, Any]]:
-        return [
-            _allow(f"{who}_ros2_put", ["put"], "ingress", puts),
-            _allow(f"{who}_ros2_sub", ["declare_subscriber"], "ingress", reads),
-            _allow(f"{who}_ros2_graph", discovery, "ingress", [graph]),
-            _allow(f"{who}_ros2_data", ["put", "reply"], "egress", reads),  # what it reads, to it
-            # who subscribes to what it puts: without it its publishers would send nothing
-            _allow(f"{who}_ros2_interest", ["declare_subscriber"], "egress", puts),
-            _allow(
-                f"{who}_ros2_seen",
-                ["liveliness_token", "declare_liveliness_subscriber", "reply"],
-                "egress",
-                [graph],
-            ),
-        ]
-
     node, user_ = user(follower), ros2_controller_user(follower)
-    return {node: grants(node, ours, theirs), user_: grants(user_, theirs, ours)}
+    return {
+        node: _ros2_grants(node, domain_id, ours, theirs),
+        user_: _ros2_grants(user_, domain_id, theirs, ours),
+    }
+
+
+def ros2_clock_rules(domain_id: int) -> dict[str, list[dict[str, Any]]]:
+    """The leader (``node_0``) puts ``/clock`` (``nodes.ros2_clock``) and nothing else of ROS 2."""
+    return {user(0): _ros2_grants(user(0), domain_id, [f"{domain_id}/clock/**"], [])}
 
 
 def access_control(
@@ -229,8 +240,10 @@ def access_control(
         subjects.append({"id": ROS2_USER, "usernames": [ROS2_USER]})
         policies.append({"rules": [r["id"] for r in extra], "subjects": [ROS2_USER]})
         sources = {k.node: k.in_sources for k in nodes}
+        grantings = [ros2_clock_rules(ros2_domain)]
         for follower, control in (ros2_controls or {}).items():
-            granting = ros2_controller_rules(ros2_domain, follower, control, sources[follower])
+            grantings.append(ros2_controller_rules(ros2_domain, follower, control, sources[follower]))
+        for granting in grantings:
             for who, granted in granting.items():
                 rules += granted
                 ids = [r["id"] for r in granted]

@@ -7,6 +7,7 @@
   loop for both clocks; ``neighbour_inbox``: which neighbour estimates a tick uses (riding
   through silent ones); ``ros2_controller``: a follower flown by a ROS 2 node, in the law's place;
 - ``leader``: node 0, the reference, on the wall clock or a window ahead of the followers;
+  ``ros2_clock``: its ``/clock`` on ROS 2, every tick (a run with ``ros2:`` on);
 - ``pacing``: the two clocks the loops run on (``Lockstep``, ``WallClock``): the first tick,
   waiting for tick k and its lateness, the hold, the end; each is also the node's ``RunClock``;
 - ``entry``: the process entry (``python -m swarm_sitl.nodes controller|leader``, ``__main__``):

@@ -41,6 +41,7 @@ from swarm_sitl.nodes.controller import run_controller
 from swarm_sitl.nodes.law_host import LawError
 from swarm_sitl.nodes.leader import run_leader
 from swarm_sitl.nodes.pacing import pacer
+from swarm_sitl.nodes.ros2_clock import Ros2Clock
 from swarm_sitl.rundir.layout import (
     controller_columns,
     controller_events_path,
@@ -222,9 +223,12 @@ def cmd_leader(cfg: SwarmConfig, args: argparse.Namespace) -> int:
     def body() -> str:
         session = None
         bus: Any = None
+        ros2_clock = None
         try:
             session = _session(cfg, args.connect)
             mark("zenoh")
+            if cfg.ros2.enabled:
+                ros2_clock = Ros2Clock(session, cfg.ros2)
             clock = pacer(args.lockstep, cfg.control_dt_s)
             zbus = ZenohNodeBus.of(session, cfg.name, cfg.node_keys(0))
             zbus.horizon = clock.horizon_call(cfg.n_control_steps)
@@ -233,7 +237,8 @@ def cmd_leader(cfg: SwarmConfig, args: argparse.Namespace) -> int:
                 zbus.tick_file = CounterFile(tick_path(Path(args.out), node_stem(0, args.incarnation)))
             node_bus: NodeBus = _faulty_bus(cfg, zbus, 0, clock, args.resume_tick) or zbus
             bus = node_bus
-            rep = run_leader(cfg, node_bus, args.lockstep, outs, clock, args.resume_tick)
+            published = None if ros2_clock is None else ros2_clock.tick
+            rep = run_leader(cfg, node_bus, args.lockstep, outs, clock, args.resume_tick, published)
             if args.out:
                 _write_stats(
                     leader_stats_path(Path(args.out), args.incarnation),
@@ -241,7 +246,7 @@ def cmd_leader(cfg: SwarmConfig, args: argparse.Namespace) -> int:
                 )
             return f"leader: {rep.ticks} ticks published to {outs}, {rep.late_ticks} late"
         finally:
-            for thing in (bus, session):
+            for thing in (bus, ros2_clock, session):
                 if thing is not None:
                     thing.close()
 

@@ -6,6 +6,8 @@ say where they are), so a follower never has an unbounded backlog; and no furthe
 supervisor's hold (``clock.wait_while_held``: a page's pause), which it obeys as a follower does.
 """
 
+from collections.abc import Callable
+
 from sim_vehicles.runtime.lifeline import settle_heap
 from swarm_sitl.bus.clock import wall_epoch_to_monotonic
 from swarm_sitl.bus.codec import Message
@@ -30,10 +32,12 @@ def run_leader(
     out_neighbours: list[int],
     clock: Pacer | None = None,
     resume_tick: int = 0,
+    published: Callable[[float], None] | None = None,
 ) -> NodeReport:
     """Node 0: the reference at every tick, on the wall clock or a window ahead of the followers
     (``pacing``: one loop for both clocks). ``resume_tick``: a leader restarted by a fault plan
-    resumes there in lockstep; in real time it joins at the tick the swarm's clock is at."""
+    resumes there in lockstep; in real time it joins at the tick the swarm's clock is at.
+    ``published(t_s)``: told of each tick's time once its reference is out (``ros2_clock``)."""
     r = cfg.run
     clock = pacer(lockstep, cfg.control_dt_s) if clock is None else clock
     clock.attach(bus, r.stall_timeout_s)
@@ -60,5 +64,7 @@ def run_leader(
         clock.wait_for(k, ahead_ok, behind, bus.poll, LEADER_POLL_S)
         msg: Message = leader.step(k)
         bus.publish(msg)
+        if published is not None:
+            published(msg.t_s)
     clock.end(n, 0.0)
     return NodeReport(n + 1 - first, clock.late, 0.0, 0, bus.dropped)

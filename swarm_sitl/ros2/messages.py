@@ -2,6 +2,7 @@
 arrays (ENU world, FLU body, SI; quaternions ``[w, x, y, z]``), for the rosbag2 export, the face of
 a running swarm and the bridge of a follower a ROS 2 node flies."""
 
+import struct
 from typing import Any
 
 import numpy as np
@@ -9,6 +10,7 @@ import numpy as np
 from swarm_sitl.ros2 import types
 
 WORLD = "world"  #: the frame every pose is in (ENU)
+_CDR_LE = b"\x00\x01\x00\x00"  #: the encapsulation header of little-endian plain CDR
 _RATES = (21, 28, 35)  #: the twist covariance's angular diagonal (row-major 6 x 6)
 
 
@@ -23,8 +25,8 @@ class Messages:
 
     def stamp(self, t_s: float) -> Any:
         """``builtin_interfaces/Time`` of ``t_s`` (simulated seconds from the run's start)."""
-        ns = max(0, round(t_s * 1e9))
-        return self.T["builtin_interfaces/msg/Time"](sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
+        sec, nanosec = stamp_ns(t_s)
+        return self.T["builtin_interfaces/msg/Time"](sec=sec, nanosec=nanosec)
 
     def point(self, v: Any) -> Any:
         return self.T["geometry_msgs/msg/Point"](x=float(v[0]), y=float(v[1]), z=float(v[2]))
@@ -78,3 +80,15 @@ class Messages:
 
     def string(self, text: str) -> Any:
         return self.T[types.STRING](data=text)
+
+
+def stamp_ns(t_s: float) -> tuple[int, int]:
+    """``(sec, nanosec)`` of ``t_s`` as ``builtin_interfaces/Time`` holds it."""
+    ns = max(0, round(t_s * 1e9))
+    return ns // 1_000_000_000, ns % 1_000_000_000
+
+
+def clock_cdr(t_s: float) -> bytes:
+    """The CDR of ``Messages.clock(t_s)`` without building the message (the leader puts one every
+    tick): the header, ``int32 sec``, ``uint32 nanosec``."""
+    return struct.pack("<4siI", _CDR_LE, *stamp_ns(t_s))

@@ -40,9 +40,13 @@ class Publisher:
         )
 
     def put(self, message: Any) -> None:
+        self.put_cdr(types.encode(message, self.ros_type, self.distro))
+
+    def put_cdr(self, payload: bytes) -> None:
+        """A message of this publisher's type, in CDR already."""
         self.sequence += 1
         attachment = wire.Attachment(self.sequence, time.time_ns(), self.gid).pack()
-        self.pub.put(types.encode(message, self.ros_type, self.distro), attachment=attachment)
+        self.pub.put(payload, attachment=attachment)
 
     def close(self) -> None:
         self.pub.undeclare()

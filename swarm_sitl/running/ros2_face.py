@@ -4,15 +4,15 @@ The supervisor's own zenoh session (the run's router, by default) republishes th
 rmw_zenoh's layout (``ros2.wire``), so a ROS 2 node with ``rmw_zenoh_cpp`` that joins the router
 sees a node ``swarm_sitl`` and its publishers (``ros2 topic list``) and reads their messages:
 
-- ``/clock`` (``rosgraph_msgs/msg/Clock``): the slowest follower's newest tick, so ROS tools
-  run with ``use_sim_time``;
 - each follower's ``pose`` and ``odom``, from the state its controller puts with each status
   (``bus.codec.State``: position, velocity, attitude, body rates; the odometry's twist in the
   body frame, as REP-105 has it);
-- the leader's ``pose`` and ``odom``: its reference at the clock's time (the trajectory the
-  leader flies, as the supervisor's formation readout reads it);
+- the leader's ``pose`` and ``odom``: its reference at the slowest follower's tick (the
+  trajectory the leader flies, as the supervisor's formation readout reads it);
 - each edge's newest message (``swarm_sitl_msgs/msg/Estimate``): what its sender's state says it
   sent (the leader's: its reference and derivatives), and the run's ``events``.
+
+``/clock`` is the leader's (``nodes.ros2_clock``): it steps by ``dt``, every tick.
 
 Each publisher has its liveliness token (its QoS: reliable, volatile, keep last 10) and its GID,
 each put its 33-byte attachment (sequence number, source time, GID) and the type hashes of the
@@ -49,6 +49,7 @@ from swarm_sitl.rundir.layout import (
     zenoh_ros2_controller_password_path,
     zenoh_ros2_password_path,
 )
+from swarm_sitl.rundir.whole_files import write_text_whole
 
 NODE = "swarm_sitl"  #: the face's node name, in the run's namespace
 RING = 4  #: samples of each key kept between two looks (only the newest is republished)
@@ -71,7 +72,7 @@ class Ros2Face:
             wire.node_token(r.domain_id, self.zid, 0, r.namespace, NODE)
         )
         self._pubs: dict[str, Publisher] = {}
-        wanted = [(self.topics.clock, types.CLOCK), (self.topics.events(), types.STRING)]
+        wanted = [(self.topics.events(), types.STRING)]
         wanted += [
             (self.topics.leader(w), t) for w, t in (("pose", types.POSE_STAMPED), ("odom", types.ODOMETRY))
         ]
@@ -92,7 +93,7 @@ class Ros2Face:
         self._newest: dict[int, State] = {}
         self._trajectory = cfg.trajectory()
         self._events = EventTail(procs_dir(run_dir))
-        self._last_clock = -1
+        self._last_tick = -1
         self._outs: dict[int, list[int]] = {}
         for src, dst in self._edges:
             self._outs.setdefault(src, []).append(dst)
@@ -128,14 +129,13 @@ class Ros2Face:
             self._put(self.topics.events(), self._m.string(json.dumps(e)))
 
     def _leader(self) -> None:
-        """``/clock``, the leader's reference and its edges, at the slowest follower's newest tick."""
+        """The leader's reference and its edges, at the slowest follower's newest tick."""
         if len(self._newest) < len(self._states):
             return
         slowest = min(self._newest.values(), key=lambda s: s.step)
-        if slowest.step <= self._last_clock:
+        if slowest.step <= self._last_tick:
             return
-        self._last_clock, t = slowest.step, slowest.t_s
-        self._put(self.topics.clock, self._m.clock(t))
+        self._last_tick, t = slowest.step, slowest.t_s
         d = self._trajectory.derivatives(t)
         ref = State(0, slowest.step, t, d[0], d[1], _IDENTITY, np.zeros(3), np.concatenate(d[:4]))
         self._vehicle("leader", self.topics.leader("pose"), self.topics.leader("odom"), ref)
@@ -190,7 +190,8 @@ def write_ros2_join(cfg: SwarmConfig, hub: str | None, run_dir: Path) -> str:
             }
             for i in r.controllers
         }
-    ros2_join_path(run_dir).write_text(json.dumps({**join, "line": line}, indent=1) + "\n")
+    # whole or absent: a ROS 2 user's script polls for it while the run starts
+    write_text_whole(ros2_join_path(run_dir), json.dumps({**join, "line": line}, indent=1) + "\n")
     return line
 
 
