@@ -48,6 +48,14 @@ CASES = {
         lambda d: d.update(run={"lockstep_window": 5, "status_every": 10}),
         "lockstep_window (5) must exceed status_every (10)",
     ),
+    "duration past time_boot_ms": (
+        lambda d: d.update(duration_s=1e300),
+        "duration_s (1e+300) cannot be flown: MAVLink's time_boot_ms (uint32 ms) wraps after 4294967.295 s",
+    ),
+    "control rate past 1 ms ticks": (
+        lambda d: d["rates"].update(control_hz=2000, attitude_hz=4000),
+        "rates.control_hz: Input should be less than or equal to 1000",
+    ),
     "zenoh mode": (
         lambda d: d.update(zenoh={"mode": "mesh"}),
         "zenoh.mode: Input should be 'router', 'peer' or 'client'",
@@ -207,17 +215,33 @@ def test_any_config_file_gives_one_line_never_a_traceback(tmp_path, capsys, data
     assert err.startswith("swarm-sitl: error: ")
 
 
-@pytest.mark.parametrize("duration", ["inf", "-inf", "nan", "0", "-3", "1e400", "abc", ""])
-def test_any_duration_gives_one_error_line(capsys, duration):
+@pytest.mark.parametrize("command", ["run", "sim"])
+@pytest.mark.parametrize(
+    "duration", ["inf", "-inf", "nan", "0", "-3", "1e400", "1e300", "4294968", "abc", ""]
+)
+def test_any_duration_gives_one_error_line(tmp_path, capsys, duration, command):
     """Refused before anything starts: our one line, or argparse's usage and its one line."""
     try:
-        code = main(["run", str(CONFIGS / "paper.yaml"), f"--duration={duration}"])
+        code = main(
+            [command, str(CONFIGS / "paper.yaml"), f"--duration={duration}", "--out", str(tmp_path / "r")]
+        )
     except SystemExit as e:  # argparse's own refusal of a non-number
         code = e.code
     err = capsys.readouterr().err
     assert code == 2 and "Traceback" not in err
     errors = [line for line in err.splitlines() if "error:" in line]
     assert len(errors) == 1 and "--duration" in errors[0], err
+    assert not (tmp_path / "r").exists()
+
+
+def test_the_longest_duration_is_the_last_ms_time_boot_ms_can_stamp(paper_cfg):
+    """``duration_s`` up to ``(2**32 - 1)`` ms, MAVLink's uint32 ``time_boot_ms``, and not a float past."""
+    from swarm_sitl.config.load import ConfigError, with_duration
+
+    longest = (2**32 - 1) / 1000
+    assert with_duration(paper_cfg, longest).n_control_steps == round(longest * paper_cfg.rates.control_hz)
+    with pytest.raises(ConfigError, match="cannot be flown"):
+        with_duration(paper_cfg, float(np.nextafter(longest, np.inf)))
 
 
 def test_router_refuses_a_bad_endpoint_or_users_file_in_one_line(capsys, tmp_path):

@@ -95,8 +95,14 @@ class LeaderSection(_Strict):
     trajectory: Annotated[HelixSection | FigureEightSection | LineSection, Field(discriminator="type")]
 
 
+#: MAVLink's ``time_boot_ms`` is a uint32 count of ms: a run's ticks are stamped with it
+MAX_STAMP_MS = 2**32 - 1
+
+
 class RatesSection(_Strict):
-    control_hz: Positive  #: position loop / estimator exchange rate
+    #: position loop / estimator exchange rate; at most 1000 Hz: each tick's MAVLink messages are
+    #: stamped (and its faults drawn, and a lockstep vehicle stepped) by their whole ms
+    control_hz: Annotated[float, Field(gt=0, le=1000)]
     attitude_hz: Positive  #: attitude loop and plant integration rate
     estimator_substeps: Annotated[int, Field(ge=1, le=1000)] = 10  #: RK4 steps per control period
 
@@ -336,6 +342,11 @@ class SwarmConfig(_Strict):
             self.build_graph()
         except GraphError as e:
             raise ValueError(f"graph: {e}") from None
+        if self.duration_s * 1000 > MAX_STAMP_MS:
+            raise ValueError(
+                f"duration_s ({self.duration_s:g}) cannot be flown: MAVLink's time_boot_ms (uint32 ms) "
+                f"wraps after {MAX_STAMP_MS / 1000:.3f} s (49.7 days)"
+            )
         self.faults.check_against(self.graph_edges(), n, self.duration_s)
         if self.wind.enabled and self.vehicle.drag_Ns2pm2 == 0:
             raise ValueError("wind: the air pushes a vehicle through its drag: set vehicle.drag_Ns2pm2 > 0")
