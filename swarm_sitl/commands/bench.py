@@ -71,6 +71,18 @@ def cmd_bench(args: argparse.Namespace) -> int:
             if not Path(args.sim_plan).is_file():
                 raise CliError(f"--sim-plan {args.sim_plan}: no such file")
             return run_plan_cost(args.config, args.sim_plan, args.repeats)
+        if args.sim_memory:
+            from swarm_sitl.bench.sim_memory import sim_memory
+
+            try:
+                durations = [float(x) for x in args.sim_memory.split(",")]
+            except ValueError:
+                raise CliError(
+                    f"--sim-memory takes durations in s like 60,3600, got {args.sim_memory!r}"
+                ) from None
+            if not durations or not all(0 < d < math.inf for d in durations):
+                raise CliError(f"--sim-memory: durations must be > 0 s, got {args.sim_memory!r}")
+            return sim_memory(args.config, durations)
         if args.view:
             from swarm_sitl.bench.view_cost import view_cost
 
@@ -119,6 +131,11 @@ def add_bench(sub: Any) -> None:
         "--sim-plan",
         metavar="FILE",
         help="instead: sim of --config without and with this fault plan, alternated --repeats times",
+    )
+    b.add_argument(
+        "--sim-memory",
+        metavar="S,S,...",
+        help="instead: sim of --config for each of these durations [s], its peak resident memory",
     )
     b.add_argument(
         "--scale",

@@ -34,9 +34,9 @@ from swarm_sitl.commands.run_options import check_external, with_ros2
 from swarm_sitl.commands.view import DEFAULT_PORT, port_number, serve, stream_to_foxglove
 from swarm_sitl.config.load import with_duration, with_faults, with_seed, with_spec
 from swarm_sitl.config.schema import SwarmConfig
-from swarm_sitl.rundir.layout import expected_run_bytes
+from swarm_sitl.rundir.layout import expected_run_bytes, sim_spool_dir
 from swarm_sitl.rundir.metrics import bound_failures
-from swarm_sitl.rundir.outputs import write_outputs
+from swarm_sitl.rundir.outputs import write_spooled_outputs
 from swarm_sitl.rundir.rejoins import rejoin_lines
 from swarm_sitl.rundir.whole_files import WriteError
 from swarm_sitl.view.foxglove_live import DEFAULT_PORT as FOXGLOVE_PORT
@@ -45,9 +45,11 @@ from swarm_sitl.view.live import LiveFeed
 
 def _write_sim(cfg: SwarmConfig, rec: Any, run_dir: Path) -> dict:
     try:
-        return write_outputs(cfg, rec, run_dir)
-    except WriteError as e:  # sim's recording is in memory only: nothing to rebuild it from
-        raise CliError(f"{e}; sim keeps its recording in memory only, so run it again once it fits") from None
+        return write_spooled_outputs(cfg, rec, run_dir)
+    except WriteError as e:  # sim's rows are spooled only until written: nothing rebuilds them
+        raise CliError(
+            f"{e}; sim keeps its rows only until it writes them, so run it again once it fits"
+        ) from None
 
 
 def cmd_sim(args: argparse.Namespace) -> int:
@@ -58,9 +60,14 @@ def cmd_sim(args: argparse.Namespace) -> int:
     except ValueError as e:
         raise CliError(f"sim flies a plan as lockstep does: {e}") from None
     from swarm_sitl.running.first_compile import compile_once
-    from swarm_sitl.running.sim import SimFailedError, run_sim  # the run machinery: 0.12 s (module doc)
+    from swarm_sitl.running.sim import (
+        SimFailedError,
+        run_sim_spooled,
+    )  # the run machinery: 0.12 s (module doc)
 
     run_dir = run_dir_of(args.out, cfg, "sim")
+    spool = sim_spool_dir(run_dir)  # its rows, a block at a time, until they are written
+    shutil.rmtree(spool, ignore_errors=True)
     compile_once(
         cfg, (lambda line: None) if args.quiet else lambda line: print(line, file=sys.stderr, flush=True)
     )
@@ -79,7 +86,7 @@ def cmd_sim(args: argparse.Namespace) -> int:
 
     try:
         if args.quiet:
-            rec = run_sim(cfg, law_output=law_log, on_hard_stop=hard_stop)
+            rec = run_sim_spooled(cfg, spool, law_output=law_log, on_hard_stop=hard_stop)
         else:
             with tqdm(total=n + 1, unit="tick", desc=f"sim {cfg.name}", mininterval=0.25, leave=False) as bar:
                 stride = max(1, (n + 1) // 100)
@@ -88,17 +95,27 @@ def cmd_sim(args: argparse.Namespace) -> int:
                     if k % stride == 0 or k == n:
                         bar.update(k + 1 - bar.n)
 
-                rec = run_sim(cfg, progress=progress, law_output=law_log, on_hard_stop=hard_stop)
+                rec = run_sim_spooled(
+                    cfg, spool, progress=progress, law_output=law_log, on_hard_stop=hard_stop
+                )
     except SimFailedError as e:
-        _write_sim(cfg, e.recording, run_dir)
+        try:
+            _write_sim(cfg, e.recording, run_dir)
+        finally:
+            shutil.rmtree(spool, ignore_errors=True)
         print(f"swarm-sitl: error: {e} (what was recorded is in {run_dir})", file=sys.stderr)
         return EXIT_FAILED
+    except BaseException:  # (Ctrl-C: nothing is written, and its spool goes too)
+        shutil.rmtree(spool, ignore_errors=True)
+        raise
     finally:
         if law_log is not None:
             law_log.close()
     wall = time.monotonic() - t0
-
-    summary = _write_sim(cfg, rec, run_dir)
+    try:
+        summary = _write_sim(cfg, rec, run_dir)
+    finally:
+        shutil.rmtree(spool, ignore_errors=True)
     print(
         f"sim {cfg.name}: {cfg.duration_s:g} s simulated in {wall:.2f} s wall "
         f"({cfg.duration_s / wall:.1f}x real time) -> {run_dir}"

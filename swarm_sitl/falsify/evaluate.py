@@ -72,5 +72,6 @@ def evaluate(
     try:
         rec = run_sim(flown, on_hard_stop=on_hard_stop)
     except SimFailedError as e:  # the law failed: judged on what it recorded (NaN after: violated)
+        assert isinstance(e.recording, Recording)  # (run_sim's: in memory)
         rec = e.recording
     return robustness_of(flown, rec, name)

@@ -1,7 +1,8 @@
 """The run directory: what a run writes, and everything that reads it afterwards.
 
 - ``layout``: where each file is, and the columns of the rows the processes write;
-- ``recording``: the arrays of a run in memory (``Recording``) and writing them;
+- ``recording``: the arrays of a run in memory (``Recording``) and writing them; ``spool``: a
+  run's rows on disk a block at a time, and its arrays written from there (``sim``'s flat memory);
 - ``events``: what happened, merged from every process and the plan;
 - ``merge``: the processes' raw records into a ``Recording``, and the summary's per-edge counts;
 - ``load``: a run directory read back;

@@ -211,3 +211,9 @@ def expected_run_bytes(n_ticks: int, n_followers: int, record_fields: Mapping[st
     row = 8 * len(controller_columns(record_fields))
     per_tick = 2 * row + 8 * len(TRUTH_COLUMNS) + TLOG_BYTES_PER_TICK
     return n_ticks * n_followers * per_tick
+
+
+def sim_spool_dir(run_dir: Path) -> Path:
+    """``sim``'s rows, spooled a block at a time until its arrays are written (``spool``);
+    removed then."""
+    return run_dir / ".spool"

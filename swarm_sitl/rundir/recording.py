@@ -39,10 +39,10 @@ writes ``logs/``, ``tlogs/`` and ``procs/`` (each process's own rows, as they ha
 import io
 import json
 import zipfile
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -105,22 +105,58 @@ class FollowerSeries:
         np.concatenate(command_parts(command), out=self.command[k])
         self.record[k] = record
 
+    #: what the rows are kept in, one array each (``spool`` writes each to its own file)
+    GROUPS = ("t_s", "sample_t_s", "vehicle", "command", "record", "in_age_s")
+
     def arrays(self) -> dict[str, np.ndarray]:
-        x, c, r = self.vehicle, self.command, self.record
-        out = {
-            "t_s": self.t_s,
-            "sample_t_s": self.sample_t_s,
-            "p_W": x[:, POS],
-            "v_W": x[:, VEL],
-            "q_WB": x[:, QUAT],
-            "omega_B": x[:, RATE],
-            "in_age_s": self.in_age_s,
-        }
-        for name, at in layout(COMMAND_FIELDS).items():
-            out[name] = c[:, at.start] if name == "thrust_N" else c[:, at]
-        for name, at in layout(self.record_fields).items():
-            out[name] = r[:, at.start] if self.record_fields[name] == 1 else r[:, at]
-        return out
+        return series_arrays({g: getattr(self, g) for g in self.GROUPS}, self.record_fields)
+
+
+class Series(Protocol):
+    """What a run records a follower's rows through, tick by tick, in order: ``FollowerSeries``
+    in memory, ``spool.SpooledSeries`` on disk."""
+
+    def record_vehicle(
+        self, k: int, t_s: float, state: np.ndarray, sample_t_s: float | None = None
+    ) -> None: ...
+
+    def record_controller(
+        self,
+        k: int,
+        command: AttitudeCommand,
+        record: np.ndarray,
+        in_age_s: np.ndarray | list[float] | None = None,
+    ) -> None: ...
+
+
+#: makes follower ``i``'s series: ``(i, n_rows, record_fields, n_in)``
+SeriesMaker = Callable[[int, int, Mapping[str, int], int], Series]
+
+
+def in_memory(i: int, n_rows: int, record_fields: Mapping[str, int], n_in: int) -> FollowerSeries:
+    """The ``SeriesMaker`` of a recording kept in memory."""
+    return FollowerSeries(n_rows, record_fields, n_in)
+
+
+def series_arrays(
+    groups: Mapping[str, np.ndarray], record_fields: Mapping[str, int]
+) -> dict[str, np.ndarray]:
+    """A follower's named series (module docstring) from its rows' ``FollowerSeries.GROUPS``."""
+    x, c, r = groups["vehicle"], groups["command"], groups["record"]
+    out = {
+        "t_s": groups["t_s"],
+        "sample_t_s": groups["sample_t_s"],
+        "p_W": x[:, POS],
+        "v_W": x[:, VEL],
+        "q_WB": x[:, QUAT],
+        "omega_B": x[:, RATE],
+        "in_age_s": groups["in_age_s"],
+    }
+    for name, at in layout(COMMAND_FIELDS).items():
+        out[name] = c[:, at.start] if name == "thrust_N" else c[:, at]
+    for name, at in layout(record_fields).items():
+        out[name] = r[:, at.start] if record_fields[name] == 1 else r[:, at]
+    return out
 
 
 @dataclass
@@ -168,12 +204,19 @@ def leader_series(trajectory: Trajectory, t_s: np.ndarray) -> dict[str, np.ndarr
 
 def save_npz(path: Path, arrays: dict[str, np.ndarray]) -> None:
     """``numpy.savez`` with fixed member dates, so the same arrays give the same bytes (numpy
-    stamps each member with the time of writing); ``numpy.load`` reads it as any .npz."""
+    stamps each member with the time of writing), each in C order (as ``spool.NpzBlocks`` writes
+    them a block at a time; numpy would keep a Fortran-ordered view so); ``numpy.load`` reads it
+    as any .npz."""
     with whole(path) as tmp, zipfile.ZipFile(tmp, "w", zipfile.ZIP_STORED, allowZip64=True) as z:
         for name, a in arrays.items():
             buf = io.BytesIO()
-            np.lib.format.write_array(buf, np.asanyarray(a), allow_pickle=False)
-            z.writestr(zipfile.ZipInfo(f"{name}.npy", date_time=(1980, 1, 1, 0, 0, 0)), buf.getvalue())
+            np.lib.format.write_array(buf, np.ascontiguousarray(a), allow_pickle=False)
+            z.writestr(npz_member(name), buf.getvalue())
+
+
+def npz_member(name: str) -> zipfile.ZipInfo:
+    """The zip entry of array ``name`` in a run's .npz, dated as ``save_npz`` dates it."""
+    return zipfile.ZipInfo(f"{name}.npy", date_time=(1980, 1, 1, 0, 0, 0))
 
 
 def write_run(run_dir: Path, config_yaml: str, rec: Recording, summary: dict) -> None:

@@ -13,8 +13,9 @@ A law that fails (``nodes.law_host.LawError``) ends the run there: ``SimFailedEr
 recorded up to it.
 """
 
-from collections.abc import Callable
-from typing import IO
+from collections.abc import Callable, Mapping
+from pathlib import Path
+from typing import IO, Any, TypeVar
 
 import numpy as np
 
@@ -35,14 +36,17 @@ from swarm_sitl.laws.contract import Received, VehicleSample
 from swarm_sitl.nodes.assembly import Uplink, build_law, build_leader, reported_vehicle_params
 from swarm_sitl.nodes.law_guard import LawGuard, max_output_bytes
 from swarm_sitl.nodes.law_host import LawError
-from swarm_sitl.rundir.recording import FollowerSeries, Recording, leader_series
+from swarm_sitl.rundir.recording import Recording, SeriesMaker, in_memory, leader_series
+from swarm_sitl.rundir.spool import SpooledRecording, SpooledSeries
 from swarm_sitl.running.sim_plan import PlannedSwarm
+
+R = TypeVar("R", Recording, SpooledRecording)
 
 
 class SimFailedError(LawError):
     """A law failed mid-run; ``recording`` is what the run recorded before (NaN after)."""
 
-    def __init__(self, error: LawError, recording: Recording):
+    def __init__(self, error: LawError, recording: "Recording | SpooledRecording"):
         super().__init__(str(error))
         self.recording = recording
 
@@ -70,13 +74,60 @@ def run_sim(
     law_output: IO[str] | None = None,
     on_hard_stop: Callable[[str, Recording], None] | None = None,
 ) -> Recording:
-    """Run ``n_steps`` control periods (default: the config's duration); rows 0..n_steps.
+    """Run ``n_steps`` control periods (default: the config's duration); rows 0..n_steps, in
+    memory.
 
     A user's law runs guarded (``nodes.law_guard``): a step past ``run.tick_timeout_s``, memory
     past ``law.max_memory_mb``, ``sys.exit`` and ``os._exit`` each end the run with
     ``SimFailedError``; what it prints goes to ``law_output`` (None: where it would), bounded by
     ``law.max_output_mb``. A step that cannot be stopped (compiled code) ends the process after
     ``on_hard_stop`` is given its line and what was recorded."""
+
+    def recording(series: Mapping[int, Any], events: list[dict[str, Any]]) -> Recording:
+        n_rows = next(iter(series.values())).n
+        t_s = np.arange(n_rows) * cfg.control_dt_s
+        offsets = {i: np.asarray(cfg.follower(i).offset_m, dtype=float) for i in series}
+        trajectory = cfg.trajectory()
+        return Recording(
+            leader_series(trajectory, t_s), {i: s.arrays() for i, s in series.items()}, offsets, events
+        ).with_errors(trajectory)  # (a tick that carries an older sample: the reference at its time)
+
+    return _fly(cfg, n_steps, progress, law_output, on_hard_stop, in_memory, recording)
+
+
+def run_sim_spooled(
+    cfg: SwarmConfig,
+    spool_dir: Path,
+    progress: Callable[[int], None] | None = None,
+    law_output: IO[str] | None = None,
+    on_hard_stop: Callable[[str, SpooledRecording], None] | None = None,
+) -> SpooledRecording:
+    """``run_sim`` of the config's duration with its rows spooled to ``spool_dir`` a block at a
+    time (``rundir.spool``): memory that does not grow with the duration. The arrays
+    ``rundir.outputs.write_spooled_outputs`` writes from it are ``run_sim``'s, byte for byte."""
+
+    def make(i: int, n_rows: int, record_fields: Mapping[str, int], n_in: int) -> SpooledSeries:
+        return SpooledSeries(spool_dir / str(i), n_rows, record_fields, n_in)
+
+    def recording(series: Mapping[int, Any], events: list[dict[str, Any]]) -> SpooledRecording:
+        offsets = {i: np.asarray(cfg.follower(i).offset_m, dtype=float) for i in series}
+        closed = {i: s.close() for i, s in series.items()}
+        return SpooledRecording(spool_dir, closed, offsets, cfg.control_dt_s, events)
+
+    return _fly(cfg, None, progress, law_output, on_hard_stop, make, recording)
+
+
+def _fly(
+    cfg: SwarmConfig,
+    n_steps: int | None,
+    progress: Callable[[int], None] | None,
+    law_output: IO[str] | None,
+    on_hard_stop: Callable[[str, R], None] | None,
+    make_series: SeriesMaker,
+    finish: Callable[[Mapping[int, Any], list[dict[str, Any]]], R],
+) -> R:
+    """``run_sim``'s loop: each follower's rows recorded through ``make_series``, and ``finish``
+    making what was recorded of them (and of the plan's events) at the end or at a failure."""
     n = cfg.n_control_steps if n_steps is None else n_steps
     ids = [f.id for f in cfg.followers]
     graph = cfg.build_graph()
@@ -84,7 +135,7 @@ def run_sim(
     sources = {i: graph.in_neighbours(i) for i in ids}
     # a fault plan: the followers, their laws and vehicles as lockstep runs them under it
     # (``sim_plan``); without one, those of this loop
-    planned = PlannedSwarm(cfg, n, sample_through_wire) if cfg.faults.plan else None
+    planned = PlannedSwarm(cfg, n, sample_through_wire, make_series) if cfg.faults.plan else None
     laws = {} if planned else {i: build_law(cfg, i, *reported_vehicle_params(cfg)) for i in ids}
     specs = (
         {} if planned else {i: cfg.vehicle_config(i) for i in ids}
@@ -93,7 +144,7 @@ def run_sim(
     series = (
         planned.series
         if planned
-        else {i: FollowerSeries(n + 1, laws[i].law.record_fields, len(sources[i])) for i in ids}
+        else {i: make_series(i, n + 1, laws[i].law.record_fields, len(sources[i])) for i in ids}
     )
     max_thrust = cfg.vehicle.max_thrust_N
     uplinks = {i: Uplink(cfg, i) for i in specs}  # each setpoint as its vehicle takes it
@@ -102,14 +153,9 @@ def run_sim(
     latest: dict[int, Message] = {}
     sensors = {i: sensor_model(specs[i], i) for i in specs}  # (None: the true state is sampled)
 
-    def recording() -> Recording:
-        t_s = np.arange(n + 1) * dt
-        offsets = {i: np.asarray(cfg.follower(i).offset_m, dtype=float) for i in ids}
-        trajectory = cfg.trajectory()
+    def recording() -> R:
         events = sorted(planned.events, key=lambda e: e["t_s"]) if planned is not None else []
-        return Recording(
-            leader_series(trajectory, t_s), {i: s.arrays() for i, s in series.items()}, offsets, events
-        ).with_errors(trajectory)  # (a tick that carries an older sample: the reference at its time)
+        return finish(series, events)
 
     def heard(i: int) -> list[tuple[int, Message]]:
         return [(s, latest[s]) for s, _ in sources[i] if s in latest]

@@ -56,7 +56,7 @@ from swarm_sitl.nodes.controller import FORGET_EVERY
 from swarm_sitl.nodes.law_guard import LawGuard
 from swarm_sitl.nodes.law_host import HostedLaw
 from swarm_sitl.nodes.neighbour_inbox import NeighbourInbox
-from swarm_sitl.rundir.recording import FollowerSeries
+from swarm_sitl.rundir.recording import Series, SeriesMaker, in_memory
 
 Sampler = Callable[[float, np.ndarray], VehicleSample]
 
@@ -171,8 +171,8 @@ class _Follower:
 class PlannedSwarm:
     """The followers, their vehicles and what the plan does to them, tick by tick."""
 
-    def __init__(self, cfg: SwarmConfig, n: int, sample: Sampler):
-        """``n``: the run's last tick; ``series``: what it records, rows 0..n."""
+    def __init__(self, cfg: SwarmConfig, n: int, sample: Sampler, make_series: SeriesMaker = in_memory):
+        """``n``: the run's last tick; ``series``: what it records, rows 0..n (``make_series``)."""
         cfg.faults.check_lockstep()
         self.cfg = cfg
         self.plan = plan = cfg.faults
@@ -210,8 +210,8 @@ class PlannedSwarm:
         #: the nodes whose in-edges a plan entry acts on (the others file what comes as it comes)
         self.faulty = {i for i in self.ids if any(plan.on_edge(s, i, self.edges) for s in self.sources[i])}
         self.followers: dict[int, _Follower | None] = {i: self._incarnation(i, 0) for i in self.ids}
-        self.series = {
-            i: FollowerSeries(n + 1, f.law.law.record_fields, len(self.sources[i]))
+        self.series: dict[int, Series] = {
+            i: make_series(i, n + 1, f.law.law.record_fields, len(self.sources[i]))
             for i, f in self.followers.items()
             if f is not None
         }
