@@ -16,7 +16,7 @@ from swarm_sitl.config.generator import generate
 from swarm_sitl.config.load import load_config, parse_config, with_spec
 from swarm_sitl.falsify.evaluate import evaluate, requirement_config
 from swarm_sitl.falsify.search import assert_no_counterexample, falsify
-from swarm_sitl.falsify.shrink import RESOLUTION, shrink
+from swarm_sitl.falsify.shrink import RESOLUTION, held_below, shrink
 from swarm_sitl.falsify.space import cost, expand
 from tests.support import CLI, CONFIGS, cli, cli_in_process
 
@@ -149,27 +149,29 @@ ENTRIES = [[0, 1], [0, 2], [0, 3], [1, 4], [2, 4]]
 
 
 @pytest.mark.unit
-@settings(max_examples=40, deadline=None)
+@settings(max_examples=60, deadline=None)
 @given(
     losses=st.lists(st.floats(0.05, 1.0), min_size=5, max_size=5),
     a=st.sampled_from(range(5)),
     b=st.sampled_from(range(5)),
-    threshold=st.floats(0.1, 0.9),
+    thresholds=st.lists(st.floats(0.1, 0.9), min_size=3, max_size=3),
     seeds=st.lists(st.integers(0, 5), min_size=1, max_size=3, unique=True),
 )
-def test_shrinking_finds_the_known_minimal_plan(losses, a, b, threshold, seeds):
-    """A requirement broken exactly when edges A and B are both faulty and A loses at least
-    ``threshold``, by any seed: shrinking keeps A and B only, lowers A's loss to within 1/128 of
-    the threshold from above and B's to the bottom, and each entry left is needed."""
+def test_shrinking_finds_the_known_minimal_plan(losses, a, b, thresholds, seeds):
+    """A requirement broken exactly when edges A and B are both faulty and A loses at least the
+    plan's seed's threshold (each seed its own): shrinking keeps A and B only, lowers A's loss
+    to within 1/128 above the least threshold of any seed the space allows, with a seed that
+    breaks there (not only the plan's own), B's to the bottom, and each entry left is needed."""
     if a == b:
         b = (a + 1) % 5
-    losses[a] = max(losses[a], threshold + 0.05)
+    threshold = dict(zip(seeds, thresholds, strict=False))
+    losses[a] = max(losses[a], max(threshold.values()) + 0.05)
     plan = {"seed": seeds[0], "plan": [{"edge": e, "loss": p} for e, p in zip(ENTRIES, losses, strict=True)]}
 
     def robustness(p: dict) -> float:
         on = {tuple(f["edge"]): f["loss"] for f in p["plan"]}
         if tuple(ENTRIES[a]) in on and tuple(ENTRIES[b]) in on:
-            return threshold - on[tuple(ENTRIES[a])]
+            return threshold[p["seed"]] - on[tuple(ENTRIES[a])]
         return 1.0
 
     flown: list[dict] = []
@@ -182,11 +184,42 @@ def test_shrinking_finds_the_known_minimal_plan(losses, a, b, threshold, seeds):
     assert spent == len(flown)
     kept = {tuple(f["edge"]): f["loss"] for f in found["plan"]}
     assert set(kept) == {tuple(ENTRIES[a]), tuple(ENTRIES[b])}
-    assert r == robustness(found) and r < 0
-    assert threshold < kept[tuple(ENTRIES[a])] <= threshold + 1 / RESOLUTION + 1e-12
+    assert r == robustness(found) and r < 0 and found["seed"] in seeds
+    least = min(threshold.values())  # where *a* seed breaks
+    assert least < kept[tuple(ENTRIES[a])] <= least + 1 / RESOLUTION + 1e-12
     assert kept[tuple(ENTRIES[b])] <= 1 / RESOLUTION + 1e-12
     for j in range(len(found["plan"])):  # minimal: without any one entry it holds
         assert robustness({**found, "plan": found["plan"][:j] + found["plan"][j + 1 :]}) >= 0
+
+
+@pytest.mark.unit
+@settings(max_examples=100, deadline=None)
+@given(
+    held=st.lists(
+        st.tuples(st.integers(0, 2), st.floats(0.0, 1.0), st.sampled_from([False, False, True])),
+        min_size=2,
+        max_size=12,
+    ),  # (seed, loss, another edge faulty too): several a seed, as a search leaves them
+    seeds=st.lists(st.integers(0, 2), max_size=3, unique=True),
+    own=st.integers(0, 2),
+    ours=st.floats(0.1, 1.0),
+)
+def test_the_severity_held_below_is_the_mildest_of_every_seeds_worst_hold(held, seeds, own, ours):
+    """Where bisection may start: for every seed the space allows (and the plan's own), the most
+    severe value below the plan's at which the same plan otherwise held; the mildest of those,
+    or None while any seed has none. Plans that differ elsewhere say nothing."""
+
+    def plan(seed, loss, other):
+        entries = [{"edge": [0, 1], "loss": loss}] + ([{"edge": [1, 2], "loss": 0.5}] if other else [])
+        return {"seed": seed, "plan": entries}
+
+    plans = [plan(s, v, other) for s, v, other in held]
+    got = held_below(plan(own, ours, False), 0, ("loss",), plans, seeds, 0.0)
+    tops = {}
+    for s in {*seeds, own}:
+        below = [v for t, v, other in held if t == s and v < ours and not other]
+        tops[s] = max(below) if below else None
+    assert got == (None if None in tops.values() else min(tops.values()))
 
 
 @pytest.mark.system
