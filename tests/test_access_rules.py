@@ -120,13 +120,14 @@ def test_a_followers_status_and_state_are_granted_to_it_alone_and_ros2_reads_onl
         ]
 
     assert all(outside(user(f)) == [] for f in range(1, N + 1))  # (none flown by a ROS 2 node here)
+    leader = outside(user(0))
     clock = [
-        k
-        for r in outside(user(0))
-        if "put" in r["messages"] and r["flows"] == ["ingress"]
-        for k in r["key_exprs"]
+        k for r in leader if "put" in r["messages"] and r["flows"] == ["ingress"] for k in r["key_exprs"]
     ]
     assert clock == ([] if ros2 is None else [f"{ros2}/clock/**"])  # the leader puts /clock, and only it
+    # and sees nothing of ROS 2: no data, no reply, no other node's token (only who subscribes)
+    assert {m for r in leader if r["flows"] == ["egress"] for m in r["messages"]} <= {"declare_subscriber"}
+    assert {m for r in leader for m in r["messages"]} <= {"put", "liveliness_token", "declare_subscriber"}
     if ros2 is None:  # (a node's user sees nothing of ROS 2)
         assert not ros2_rules and all("ros2" not in s["usernames"] for s in ac["subjects"])
         return

@@ -145,21 +145,24 @@ def ros2_controller_user(follower: int) -> str:
     return f"ros2_controller_{follower}"
 
 
-def _ros2_grants(who: str, domain_id: int, puts: list[str], reads: list[str]) -> list[dict[str, Any]]:
+def _ros2_grants(
+    who: str, domain_id: int, puts: list[str], reads: list[str], follows_graph: bool = True
+) -> list[dict[str, Any]]:
     """What ``who`` may do on a ROS 2 domain's keys: put on ``puts``, subscribe to ``reads``,
-    take part in the graph's discovery (its liveliness tokens); and what the router forwards to
-    it: what it reads, the domain's subscriptions (without them its publishers would send
-    nothing; the whole domain's, since a reader's ``<domain>/**`` is not within one topic's
-    keys), and the graph."""
+    declare its liveliness tokens and, ``follows_graph``, follow the graph's; and what the router
+    forwards to it: what it reads, the domain's subscriptions (without them its publishers would
+    send nothing; the whole domain's, since a reader's ``<domain>/**`` is not within one
+    topic's keys), and, ``follows_graph``, the graph."""
     graph = f"@ros2_lv/{domain_id}/**"
     discovery = ["liveliness_token", "declare_liveliness_subscriber", "liveliness_query"]
+    seen = ["liveliness_token", "declare_liveliness_subscriber", "reply"]
     granted = [
         ("put", ["put"], "ingress", puts),
         ("sub", ["declare_subscriber"], "ingress", reads),
-        ("graph", discovery, "ingress", [graph]),
+        ("graph", discovery if follows_graph else ["liveliness_token"], "ingress", [graph]),
         ("data", ["put", "reply"], "egress", reads),
         ("interest", ["declare_subscriber"], "egress", [f"{domain_id}/**"] if puts else []),
-        ("seen", ["liveliness_token", "declare_liveliness_subscriber", "reply"], "egress", [graph]),
+        ("seen", seen, "egress", [graph] if follows_graph else []),
     ]
     return [_allow(f"{who}_ros2_{name}", m, flow, keys) for name, m, flow, keys in granted if keys]
 
@@ -184,8 +187,9 @@ def ros2_controller_rules(
 
 
 def ros2_clock_rules(domain_id: int) -> dict[str, list[dict[str, Any]]]:
-    """The leader (``node_0``) puts ``/clock`` (``nodes.ros2_clock``) and nothing else of ROS 2."""
-    return {user(0): _ros2_grants(user(0), domain_id, [f"{domain_id}/clock/**"], [])}
+    """The leader (``node_0``) puts ``/clock`` (``nodes.ros2_clock``) and declares its node's and
+    publisher's tokens, and sees nothing of ROS 2: no topic, no other node of the graph."""
+    return {user(0): _ros2_grants(user(0), domain_id, [f"{domain_id}/clock/**"], [], follows_graph=False)}
 
 
 def access_control(
