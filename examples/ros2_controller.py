@@ -8,8 +8,10 @@ topics).
 It joins the run's router as the user the run names for follower 4 (``RUN_DIR/ros2_join.json``),
 reads its vehicle's odometry and its in-neighbours' messages on ``/swarm/follower_4/control/*``,
 runs the paper's law (any law of the contract would do: ``docs/laws.md``) and publishes its
-attitude setpoint and its own message there, until the run ends. ``tests/test_ros2_controller.py``
-runs this file.
+attitude setpoint and its own message there, stamped with the odometry's stamp, until the run
+ends. In real time it answers once it has heard every in-neighbour; a lockstep run (``run``
+without ``--realtime``, ``"lockstep"`` in ``ros2_join.json``) waits for its answer to each
+odometry, from the first on. ``tests/test_ros2_controller.py`` runs this file.
 """
 
 import json
@@ -22,13 +24,14 @@ from pathlib import Path
 import numpy as np
 
 
-def fly(run_dir: Path, i: int, msgs: Path | None = None) -> int:
+def fly(run_dir: Path, i: int, msgs: Path | None = None, answers: list | None = None) -> int:
     """Fly follower ``i`` of the run writing ``run_dir`` until it ends; returns the setpoints sent.
-    ``msgs``: a folder of ``.msg`` files for the client's registry (it fetches ROS 2's otherwise)."""
+    ``msgs``: a folder of ``.msg`` files for the client's registry (it fetches ROS 2's otherwise);
+    ``answers``: if given, each setpoint's ``(t_s, thrust_N)`` is appended to it."""
     while not (run_dir / "ros2_join.json").is_file():
         time.sleep(0.01)
     join = json.loads((run_dir / "ros2_join.json").read_text())
-    me = join["controllers"][str(i)]
+    me, lockstep = join["controllers"][str(i)], join["lockstep"]
     password = Path(me["password_file"]).read_text().strip()
     auth = "transport/auth/usrpwd"
     os.environ["ZENOH_CONFIG_OVERRIDE"] = (
@@ -76,8 +79,8 @@ def fly(run_dir: Path, i: int, msgs: Path | None = None) -> int:
                 [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
             ]
         )
-        if set(inbox) != set(sources):
-            return  # (not yet heard from every in-neighbour)
+        if not lockstep and set(inbox) != set(sources):
+            return  # (real time: not yet heard from every in-neighbour; lockstep waits for each answer)
         sample = VehicleSample(t, np.array([p.x, p.y, p.z]), R @ np.array([v.x, v.y, v.z]), q)
         step = law.step(t, sample, {s: r._replace(age_s=t - r.t_s) for s, r in inbox.items()})
         c, stamp = step.command, m.header.stamp
@@ -96,6 +99,8 @@ def fly(run_dir: Path, i: int, msgs: Path | None = None) -> int:
             values=np.asarray(step.message, dtype=float),
         )
         sent[0] += 1
+        if answers is not None:
+            answers.append((t, float(c.thrust_N)))
 
     subs = [ROS2Subscriber(f"{base}/odom", "nav_msgs/msg/Odometry", on_odom, **where)]
     subs += [
@@ -105,7 +110,7 @@ def fly(run_dir: Path, i: int, msgs: Path | None = None) -> int:
     # until the run has written itself (or its odometry has stopped for 5 s: a run that failed)
     while not (run_dir / "summary.json").is_file() and time.monotonic() < last[0] + 5:
         time.sleep(0.1)
-    for s in subs:
+    for s in [*subs, setpoint, message]:
         s.close()
     return sent[0]
 

@@ -262,3 +262,14 @@ def ros2_user_session(run_dir: Path, timeout: float = 60.0) -> Any:
     ):
         conf.insert_json5(key, json.dumps(value))
     return zenoh.open(conf)
+
+
+def fresh_ros2_client(monkeypatch: Any) -> None:
+    """``zenoh-ros2-sdk`` as a new process has it: its session and its message registry are
+    process-wide singletons (the registry keeps the first folder of ``.msg`` files it is given),
+    so each test that uses it starts them again."""
+    from zenoh_ros2_sdk import message_registry
+    from zenoh_ros2_sdk.session import ZenohSession
+
+    monkeypatch.setattr(ZenohSession, "_instance", None)
+    monkeypatch.setattr(message_registry, "_registry", None)

@@ -19,7 +19,7 @@ import zenoh
 from swarm_sitl.bus.codec import PayloadError, State, decode_state, encode_state
 from swarm_sitl.ros2 import types, wire
 from swarm_sitl.running.sim import run_sim
-from tests.support import CONFIGS, config, msg_dir, ros2_user_session, start_cli
+from tests.support import CONFIGS, config, fresh_ros2_client, msg_dir, ros2_user_session, start_cli
 
 
 @pytest.mark.unit
@@ -64,6 +64,7 @@ def test_a_ros2_client_reads_a_lockstep_run_through_its_router_and_the_run_equal
     from zenoh_ros2_sdk import ROS2Subscriber
     from zenoh_ros2_sdk.message_registry import get_registry
 
+    fresh_ros2_client(monkeypatch)
     get_registry(str(msg_dir(tmp_path / "msgs", [types.POSE_STAMPED])))
     monkeypatch.setenv("ZENOH_CONFIG_OVERRIDE", override)
     poses: dict[int, list] = {i: [] for i in range(1, 5)}
@@ -102,6 +103,8 @@ def test_a_ros2_client_reads_a_lockstep_run_through_its_router_and_the_run_equal
     stdout, stderr = run.communicate(timeout=300)
     raw.close()
     writer.close()
+    for sub in subs:
+        sub.close()
     assert run.returncode == 0, stderr + stdout
 
     # the graph: the face's node and one publisher per topic, as wire writes them, and the reader

@@ -6,12 +6,11 @@ from swarm_sitl.commands.common import CliError
 from swarm_sitl.config.schema import SwarmConfig
 
 
-def with_ros2(cfg: SwarmConfig, on: bool, flown: list[int], realtime: bool) -> SwarmConfig:
+def with_ros2(cfg: SwarmConfig, on: bool, flown: list[int]) -> SwarmConfig:
     """``--ros2`` (the run on ROS 2 topics, as the config's ``ros2:`` says) and each
-    ``--ros2-controller I`` (follower I flown by a ROS 2 node; real time), checked."""
+    ``--ros2-controller I`` (follower I flown by a ROS 2 node; in lockstep it answers each tick),
+    checked."""
     controllers = [*cfg.ros2.controllers, *flown]
-    if controllers and not realtime:
-        raise CliError("--ros2-controller needs --realtime (the run's clock does not wait for a ROS 2 node)")
     if not (on or controllers):
         return cfg
     known = {f.id for f in cfg.followers}

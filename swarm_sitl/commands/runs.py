@@ -277,7 +277,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         args.faults,
     )
     check_base_port(cfg, args.base_port)
-    cfg = with_ros2(cfg, args.ros2, args.ros2_controller, args.realtime)
+    cfg = with_ros2(cfg, args.ros2, args.ros2_controller)
     external = check_external(cfg, args.external, args.realtime)
     run_dir = run_dir_of(args.out, cfg, "run")
     view = None if args.view is None else (args.view_host, args.view)
@@ -429,8 +429,9 @@ def add_run(sub: Any) -> None:
         action="append",
         default=[],
         metavar="I",
-        help="follower I is flown by a ROS 2 node, not by the law (--realtime; implies --ros2): it reads "
-        "its vehicle and in-neighbours and writes its setpoint and message as ROS 2 topics (docs/ros2.md)",
+        help="follower I is flown by a ROS 2 node, not by the law (implies --ros2): it reads its vehicle "
+        "and in-neighbours and writes its setpoint and message as ROS 2 topics; in lockstep it answers "
+        "each tick (docs/ros2.md)",
     )
     r.add_argument(
         "--view-host",

@@ -22,7 +22,8 @@ class Ros2Section(BaseModel):
     #: how often the newest of each topic is republished [Hz, wall clock]: in lockstep the run's
     #: simulated time goes faster than the wall's, and ROS 2 sees it at this rate
     rate_hz: Annotated[float, Field(gt=0, le=1000)] = 20.0
-    #: followers flown by a ROS 2 node, not by the law (``run --ros2-controller I``, real time):
+    #: followers flown by a ROS 2 node, not by the law (``run --ros2-controller I``; in lockstep
+    #: the node answers each tick):
     #: each node joins as user ``ros2_controller_<i>`` and may write only its follower's
     #: ``<namespace>/follower_<i>/control/setpoint`` and ``message`` (``docs/ros2.md``)
     controllers: list[Annotated[int, Field(ge=1)]] = []

@@ -357,7 +357,8 @@ def run_controller(
     link.connect(r.start_timeout_s, cfg.vehicle.mass_kg, cfg.gravity_mps2)
     if i in cfg.ros2.controllers:
         ctx = law_context(cfg, i, link.mass_kg, link.full_thrust_N)
-        law = HostedLaw(Ros2Controller(ctx, ros2_session, cfg.ros2, cfg.law_class()), i, "ros2")
+        within = (r.start_timeout_s, r.tick_timeout_s) if clock.lockstep else None  # (its answers)
+        law = HostedLaw(Ros2Controller(ctx, ros2_session, cfg.ros2, cfg.law_class(), within), i, "ros2")
     else:
         law = build_law(cfg, i, link.mass_kg, link.full_thrust_N)
     sources = [s for s, _ in cfg.build_graph().in_neighbours(i)]

@@ -175,11 +175,13 @@ class Ros2Face:
         self._states, self._pubs = {}, {}
 
 
-def write_ros2_join(cfg: SwarmConfig, hub: str | None, run_dir: Path) -> str:
-    """``RUN_DIR/ros2_join.json``: how a ROS 2 node joins this run; returns its one line."""
+def write_ros2_join(cfg: SwarmConfig, hub: str | None, run_dir: Path, lockstep: bool = False) -> str:
+    """``RUN_DIR/ros2_join.json``: how a ROS 2 node joins this run (and whether the run waits for
+    a ROS 2 controller's answer to each tick: ``lockstep``); returns its one line."""
     r = cfg.ros2
     line = ros2_join_line(cfg, hub, run_dir)
     join: dict[str, Any] = {"endpoint": hub, "domain_id": r.domain_id, "namespace": r.namespace}
+    join["lockstep"] = lockstep
     if hub is not None and cfg.zenoh.mode == "router":
         join |= {"user": ROS2_USER, "password_file": str(zenoh_ros2_password_path(run_dir))}
         join["controllers"] = {  # who flies which follower, and only that one

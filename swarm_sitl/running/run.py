@@ -235,7 +235,7 @@ def _fly(
     if cfg.ros2.enabled:  # the run on ROS 2 topics, through this session
         face = Ros2Face(session, cfg, run_dir)
         closing.callback(face.close)
-        line = write_ros2_join(cfg, hub, run_dir)
+        line = write_ros2_join(cfg, hub, run_dir, lockstep)
         if request.on_vehicles is not None:
             request.on_vehicles([line])
     node_args, endpoints = _spawn_vehicles(request, sup, hub)
