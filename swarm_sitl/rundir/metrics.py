@@ -79,6 +79,11 @@ class FollowerFigures:
         return f
 
 
+def uz_floor(gains: dict[str, float] | None, g_mps2: float) -> float | None:
+    """The paper's floor of ``u_z``, ``g - k_gamma - 2 k_eta`` (None for another law)."""
+    return None if gains is None else g_mps2 - gains["k_gamma"] - 2 * gains["k_eta"]
+
+
 def follower_figures(
     gains: dict[str, float] | None,
     mass_kg: float,
@@ -92,7 +97,7 @@ def follower_figures(
         return FollowerFigures(settle_from_s, max_thrust_N, None)
     k_eta, k_gamma = gains["k_eta"], gains["k_gamma"]
     bound = mass_kg * (g_mps2 + 2 * np.sqrt(3) * k_eta + np.sqrt(3) * k_gamma)
-    return FollowerFigures(settle_from_s, bound, g_mps2 - k_gamma - 2 * k_eta)
+    return FollowerFigures(settle_from_s, bound, uz_floor(gains, g_mps2))
 
 
 def summarize(
@@ -110,14 +115,13 @@ def summarize(
         i: follower_figures(gains, mass_kg[i], g_mps2, settle_from_s, max_thrust_N).add(full).result()
         for i, full in rec.followers.items()
     }
-    uz_floor = None if gains is None else g_mps2 - gains["k_gamma"] - 2 * gains["k_eta"]
-    return swarm_summary(per, uz_floor, settle_from_s)
+    return swarm_summary(per, uz_floor(gains, g_mps2), settle_from_s)
 
 
-def swarm_summary(per: dict[int, dict[str, Any]], uz_floor: float | None, settle_from_s: float) -> dict:
+def swarm_summary(per: dict[int, dict[str, Any]], floor: float | None, settle_from_s: float) -> dict:
     """The summary of the followers' figures ``per`` (``FollowerFigures.result``): each, and the
-    swarm's worst."""
-    paper = uz_floor is not None
+    swarm's worst; ``floor``: the paper's floor of ``u_z`` (``uz_floor``)."""
+    paper = floor is not None
     worst: dict[str, Any] = {
         "final_pos_err_m": 0.0,
         "peak_pos_err_after_settle_m": None,  # None: no follower recorded past settle_from_s
@@ -144,7 +148,7 @@ def swarm_summary(per: dict[int, dict[str, Any]], uz_floor: float | None, settle
         for key in ("time_to_0.1m_s", "time_to_0.01m_s"):
             worst[key] = None if f[key] is None or worst[key] is None else max(worst[key], f[key])
     if paper:
-        worst["u_z_floor_mps2"] = uz_floor
+        worst["u_z_floor_mps2"] = floor
     worst["settle_from_s"] = settle_from_s
     out["swarm"] = worst
     return out

@@ -18,7 +18,7 @@ from swarm_sitl.config.schema import SwarmConfig
 from swarm_sitl.rundir.events import write_events
 from swarm_sitl.rundir.load import load_run
 from swarm_sitl.rundir.merge import inputs_and_links, run_events, vehicle_refusals
-from swarm_sitl.rundir.metrics import follower_figures, summarize, swarm_summary
+from swarm_sitl.rundir.metrics import follower_figures, summarize, swarm_summary, uz_floor
 from swarm_sitl.rundir.plugins import keep, manifest_of
 from swarm_sitl.rundir.provenance import provenance
 from swarm_sitl.rundir.recording import Recording, leader_series, write_run
@@ -88,8 +88,7 @@ def write_spooled_outputs(cfg: SwarmConfig, rec: SpooledRecording, run_dir: Path
             if n == 0:
                 leader.add(series)
         per[i] = figures.result()
-    uz_floor = None if gains is None else cfg.gravity_mps2 - gains["k_gamma"] - 2 * gains["k_eta"]
-    summary = swarm_summary(per, uz_floor, cfg.run.settle_s)
+    summary = swarm_summary(per, uz_floor(gains, cfg.gravity_mps2), cfg.run.settle_s)
     config_text = keep(cfg, run_dir)
     summary["provenance"] = provenance(cfg, manifest_of(run_dir))
     run_dir.mkdir(parents=True, exist_ok=True)
