@@ -47,14 +47,20 @@ def test_a_ros2_controllers_user_writes_only_its_followers_setpoint_and_message(
         assert node_puts >= {f"0/swarm/follower_{i}/control/odom/**", *froms}
 
 
-@pytest.mark.system
-def test_the_examples_ros2_node_flies_follower_4_into_the_formation(tmp_path, monkeypatch):
+def _example():
+    """``examples/ros2_controller.py``, imported as the user runs it (it is no module of ours)."""
     import importlib.util
 
     spec = importlib.util.spec_from_file_location("ros2_controller", ROOT / "examples" / "ros2_controller.py")
     assert spec is not None and spec.loader is not None
     example = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(example)
+    return example
+
+
+@pytest.mark.system
+def test_the_examples_ros2_node_flies_follower_4_into_the_formation(tmp_path, monkeypatch):
+    example = _example()
     cfg = config("paper")
     out = tmp_path / "run"
     fresh_ros2_client(monkeypatch)  # (its own session, as the node's user, and its own .msg files)
@@ -107,14 +113,9 @@ def test_in_lockstep_the_node_answers_every_tick_and_its_answer_flies_at_that_ti
     """The same node, a lockstep run: the bridge waits for its answer to each tick's odometry, so
     every tick's recorded thrust is the node's answer to that very tick, the followers it does
     not feed (4 has no out-edge) are sim's bit for bit, and follower 4 reaches the formation."""
-    import importlib.util
-
     from swarm_sitl.running.sim import run_sim
 
-    spec = importlib.util.spec_from_file_location("ros2_controller", ROOT / "examples" / "ros2_controller.py")
-    assert spec is not None and spec.loader is not None
-    example = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(example)
+    example = _example()
     fresh_ros2_client(monkeypatch)
     monkeypatch.setenv("ZENOH_CONFIG_OVERRIDE", "")
     out, dur = tmp_path / "run", 8.0
