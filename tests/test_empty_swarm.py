@@ -28,6 +28,7 @@ def test_its_messages_are_the_size_of_a_signed_runs():
 
 
 @pytest.mark.system
+@pytest.mark.lockstep
 def test_the_empty_paper_swarm_runs_every_tick_in_lockstep(paper_cfg):
     """Every vehicle answers every setpoint and every controller takes every payload of each
     in-neighbour up to its last tick (the one of the last tick may come after it stops)."""

@@ -278,9 +278,20 @@ def test_a_minimal_counterexample_on_a_ring_of_six_replays_as_processes(tmp_path
         assert evaluate(cfg, name, rest) >= 0, rest
     written = yaml.safe_load(found.counterexample.read_text())
     assert written == json.loads(json.dumps(found.plan))
-    # the helper a user's test calls fails with the counterexample's path
+
+
+@pytest.mark.system
+def test_the_helper_a_users_test_calls_fails_naming_the_counterexample_only_within_its_cost(tmp_path):
+    """``assert_no_counterexample``: a plan that breaks the requirement at a cost within
+    ``max_cost`` fails the caller's test naming the plan's file (which replays it); the same
+    search allowed a lower ``max_cost`` than the plan it finds passes and returns what it found."""
+    space, spec = _estimate_space(tmp_path)
+    args = {"space": space, "spec": spec, "budget": 2, "duration_s": 4.0, "jobs": 1}
     with pytest.raises(AssertionError, match=str(tmp_path / "helper" / "counterexamples")):
-        assert_no_counterexample(config, tmp_path / "helper", max_cost=1e9, spec=spec, budget=2, jobs=1)
+        assert_no_counterexample(PAPER, tmp_path / "helper", max_cost=1e9, **args)
+    found = assert_no_counterexample(PAPER, tmp_path / "cheaper", max_cost=0.0, **args)
+    assert found.plan is not None and found.cost > 0.0 and found.robustness < 0
+    assert yaml.safe_load(found.counterexample.read_text()) == json.loads(json.dumps(found.plan))
 
 
 def _estimate_space(tmp_path):

@@ -71,6 +71,7 @@ def test_a_ground_station_gets_its_own_streams_and_changes_only_them():
         proc.wait(timeout=10)
 
 
+@pytest.mark.lockstep
 def test_a_watcher_on_the_ground_station_port_leaves_a_lockstep_run_unchanged(tmp_path, paper_cfg):
     cfg = yaml.safe_load((CONFIGS / "paper.yaml").read_text())
     cfg["duration_s"] = 6.0

@@ -159,6 +159,7 @@ def _spawn(args: list[str], cwd) -> subprocess.Popen:
 
 
 @pytest.mark.system
+@pytest.mark.lockstep  # (refused before anything flies)
 def test_a_misspelled_parameter_is_one_line_exit_2_from_check_sim_and_run(tmp_path):
     """The two cases of issue 46 as a user met them: a link model's ``duty: 0.3`` and the guide's
     vehicle's ``THRUST_TAU: 0.3``, each refused by ``check``, ``sim`` and ``run`` before anything
@@ -265,6 +266,7 @@ def _write(tmp_path, data: dict):
 
 
 @pytest.mark.system
+@pytest.mark.lockstep  # (nothing flies)
 def test_new_writes_a_config_for_a_model_with_a_required_parameter_given_on_the_command_line(tmp_path):
     """``new --vehicle`` for a model whose ``Params`` has a required field: without it, one line
     naming it and the flag that gives it; with ``--vehicle-param``, a config whose

@@ -108,6 +108,7 @@ def test_real_time_rides_through_a_router_restart(tmp_path):
         assert after.sum() > 100 and np.nanmax(err[after]) < BOUND_M, (i, np.nanmax(err[after]))
 
 
+@pytest.mark.lockstep
 def test_lockstep_ends_in_one_line_naming_the_router(tmp_path):
     port = _free_tcp_port()
     out = tmp_path / "ls"

@@ -103,6 +103,7 @@ def test_a_pymavlink_controller_sees_the_planned_loss_on_its_link(tmp_path):
     assert "mavlink 1 up" in stdout and 2 not in {int(k.split()[1]) for k in links}  # only 1 is relayed
 
 
+@pytest.mark.lockstep  # (refused before anything flies)
 def test_vehicles_faults_refuses_what_it_cannot_do(tmp_path):
     plan = tmp_path / "plan.yaml"
     plan.write_text(yaml.safe_dump({"plan": [{"edge": [0, 1], "loss": 0.5}]}))
