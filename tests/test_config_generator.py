@@ -166,11 +166,20 @@ def test_bench_scale_writes_its_table_with_consistent_figures(tmp_path, capsys):
     nodes = r["cpu_vehicles"] + r["cpu_controllers"] + r["cpu_leader"]
     assert r["cpu_main_threads"] + r["cpu_other_threads"] == pytest.approx(nodes, rel=0.15)
     assert 0 < r["cpu_other_threads"] < r["cpu_main_threads"]
-    split = {row["kind"]: row for row in csv.DictReader((tmp_path / "split.csv").read_text().splitlines())}
+    split = {row["kind"]: row for row in csv.DictReader((tmp_path / "split2.csv").read_text().splitlines())}
     for kind, row in split.items():
         assert sum(float(v) for k, v in row.items() if k != "kind") == pytest.approx(1.0, abs=1e-3), kind
     assert float(split["vehicle"]["zenoh"]) == 0.0 < float(split["vehicle"]["MAVLink"])  # no zenoh there
     assert float(split["leader"]["MAVLink"]) == 0.0 < float(split["leader"]["zenoh"])  # no vehicle link
     assert float(split["controller"]["MAVLink"]) > 0 and float(split["controller"]["zenoh"]) > 0
+    # beyond the floor: the run's CPU is the empty swarm's, sim's and the gap's, all measured
+    gap = {g["kind"]: g for g in csv.DictReader((tmp_path / "gap.csv").read_text().splitlines())}
+    assert set(gap) == {"vehicle", "controller", "leader", "router", "total"}
+    total = {k: float(v) for k, v in gap["total"].items() if k != "kind"}
+    assert total["empty"] == pytest.approx(r["empty_cpu_per_sim_s"], rel=1e-6)
+    assert total["sim"] == pytest.approx(r["sim_cpu_per_sim_s"], rel=1e-6)
+    assert total["run"] == pytest.approx(r["cpu_per_sim_s"], rel=0.15)  # (threads against processes)
+    assert total["gap"] == pytest.approx(total["run"] - total["empty"] - total["sim"], abs=1e-6)
     out = capsys.readouterr().out
     assert "scale.csv" in out and "where the CPU goes at 2 followers" in out
+    assert "beyond the floor at 2 followers" in out and "the gap is: " in out

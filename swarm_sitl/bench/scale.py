@@ -22,9 +22,11 @@ and written to ``OUT/scale.csv`` and ``OUT/scale.png``:
   costs beyond the bare transport and the laws; 1 would be nothing);
 - the nodes' run-phase CPU split between their main threads (the loops) and their other threads
   (zenoh's runtime), exact per thread;
-- with ``--split N``: the N-follower run again with every process profiled, and each process
-  kind's main-thread CPU by activity (physics and laws, MAVLink, zenoh, waking up, logs, the loop;
-  ``cost_split``), printed and written to ``OUT/split.csv``;
+- with ``--split N,...``: each of these N-follower runs again with every process profiled, and
+  each process kind's main-thread CPU by activity (physics and laws, MAVLink, zenoh, waking up,
+  logs, the loop; ``cost_split``), printed and written to ``OUT/splitN.csv``; with ``--empty`` as
+  well, what the run spends beyond the empty swarm's and ``sim``'s, per kind and activity
+  (``cpu_gap``), printed and written to ``OUT/gap.csv``;
 - where a controller's start-up goes (medians over controllers, ``sim_vehicles.runtime.lifeline.mark``):
   ``main`` (interpreter and imports), ``zenoh`` (session opened), ``ready`` (MAVLink link, vehicle
   parameters, kernels loaded, subscriptions declared), and the last vehicle's age at ready.
@@ -48,6 +50,7 @@ import numpy as np
 import yaml
 
 from swarm_sitl.bench.cost_split import ACTIVITIES, activity_split
+from swarm_sitl.bench.cpu_gap import NODE_KINDS, print_gap, write_gap
 from swarm_sitl.bench.empty_swarm import EmptySwarmError, measure_empty
 from swarm_sitl.bench.speed import late_ticks, sim_in_process_s
 from swarm_sitl.config.generator import generate
@@ -80,6 +83,10 @@ COLUMNS = (
     "ctrl_zenoh_s",
     "ctrl_ready_s",
     "vehicle_ready_s",
+    # per process kind, CPU s per simulated s: the nodes' main and other threads (run phase), and
+    # the empty swarm's processes of that kind (the router: the supervisor's counterpart)
+    *(f"{t}_{k}" for k in NODE_KINDS for t in ("main", "other")),
+    *(f"empty_{k}" for k in (*NODE_KINDS, "router")),
 )
 
 
@@ -140,6 +147,7 @@ def measure(
     all_cpu = sup_cpu + sum(per_kind.values()) * duration_s
     ctrl = kinds["controller"]
     empty_x = empty_cpu = math.nan
+    empty_kinds = dict.fromkeys((*NODE_KINDS, "router"), math.nan)
     if empty:
         try:
             e = measure_empty(cfg, cfg.n_control_steps)
@@ -147,7 +155,14 @@ def measure(
             print(f"{n:>3} {err}", flush=True)
         else:
             empty_x, empty_cpu = duration_s / e.wall_s, e.cpu_total_s / duration_s
+            named = {"vehicle": "vehicles", "controller": "controllers"}  # (EmptyRun's keys)
+            empty_kinds = {k: e.cpu_s[named.get(k, k)] / duration_s for k in empty_kinds}
     threads = {t: _run_phase(kinds, f"{t}_s") / duration_s for t in ("main_thread", "other_threads")}
+    by_kind = {
+        f"{t}_{k}": _run_phase({k: kinds[k]}, f"{thread}_s") / duration_s
+        for k in NODE_KINDS
+        for t, thread in (("main", "main_thread"), ("other", "other_threads"))
+    }
     return {
         "followers": n,
         "edges": len(cfg.graph.edges),
@@ -174,6 +189,8 @@ def measure(
             (p["marks"]["ready"]["age_s"] for p in kinds["vehicle"] if "ready" in p.get("marks", {})),
             default=float("nan"),
         ),
+        **by_kind,
+        **{f"empty_{k}": v for k, v in empty_kinds.items()},
     }
 
 
@@ -276,11 +293,12 @@ def run_scale(
     out: Path | None,
     start: str = "fork",
     realtime_s: float = 0.0,
-    split_n: int = 0,
+    splits: list[int] | None = None,
     empty: bool = False,
 ) -> int:
     """Lockstep for every N, then (``realtime_s`` > 0) real time for every N up to the first that
-    saturates the machine, then (``split_n`` > 0) where the CPU goes at ``split_n`` followers."""
+    saturates the machine, then where the CPU goes at each N of ``splits`` (with ``empty``: beyond
+    the empty swarm's and ``sim``'s, ``cpu_gap``)."""
     out = out or Path("runs") / f"bench-scale-{time.strftime('%Y%m%d-%H%M%S')}"
     out.mkdir(parents=True, exist_ok=True)
     print(
@@ -346,7 +364,8 @@ def run_scale(
             w = csv.DictWriter(f, fieldnames=["followers", "late_share", "out_median_ms", "out_p99_ms"])
             w.writeheader()
             w.writerows(realtime)
-    if split_n > 0:
+    gaps: list[dict[str, Any]] = []
+    for split_n in splits or []:
         try:
             split = measure_split(split_n, duration_s, runs, start)
         except RunFailedError as e:
@@ -354,7 +373,11 @@ def run_scale(
             print(f"{split_n:>3} the profiled run failed: {e}", flush=True)
         else:
             row = next((r for r in rows if r["followers"] == split_n), None)
-            _print_split(split_n, split, row, out / "split.csv")
+            _print_split(split_n, split, row, out / f"split{split_n}.csv")
+            if row is not None and empty and not math.isnan(row["empty_x"]):
+                gaps.extend(print_gap(row, split))
+    if gaps:
+        write_gap(gaps, out / "gap.csv")
     with open(out / "scale.csv", "w", newline="") as f:
         w = csv.DictWriter(f, fieldnames=COLUMNS)
         w.writeheader()

@@ -54,15 +54,19 @@ def cmd_bench(args: argparse.Namespace) -> int:
             if not ns or min(ns) < 1 or max(ns) > 254:
                 raise CliError(f"--scale: follower counts must be 1..254, got {args.scale!r}")
             out = Path(args.out) if args.out else None
-            if args.split is not None and args.split not in ns:
-                raise CliError(f"--split {args.split}: not one of the --scale counts {args.scale}")
+            try:
+                splits = [int(x) for x in args.split.split(",")] if args.split is not None else []
+            except ValueError:
+                raise CliError(f"--split takes follower counts like 16,64, got {args.split!r}") from None
+            if any(n not in ns for n in splits):
+                raise CliError(f"--split {args.split}: not among the --scale counts {args.scale}")
             return run_scale(
                 ns,
                 args.scale_duration,
                 out,
                 args.scale_start,
                 args.scale_realtime,
-                args.split or 0,
+                splits,
                 args.empty,
             )
         if args.sim_plan:
@@ -152,9 +156,9 @@ def add_bench(sub: Any) -> None:
     )
     b.add_argument(
         "--split",
-        type=int,
-        metavar="N",
-        help="--scale: also profile the N-follower run and print where each process kind's CPU goes",
+        metavar="N,N,...",
+        help="--scale: also profile these runs and print where each process kind's CPU goes "
+        "(with --empty: beyond the empty swarm's and sim's)",
     )
     b.add_argument(
         "--empty",
