@@ -9,6 +9,8 @@ import time
 from pathlib import Path
 
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from sim_vehicles.runtime.counter_file import CounterFile
 from swarm_sitl.nodes.law_guard import HARD_STOP_S
@@ -283,3 +285,30 @@ def test_a_controller_stuck_at_its_first_tick_is_named_and_one_that_never_ticked
         for t in ticks:
             t.close()
         sup.close()
+
+
+@settings(max_examples=100, deadline=None)
+@given(
+    st.lists(
+        st.tuples(
+            st.sampled_from(["controller", "vehicle", "leader"]),
+            st.integers(1, 254),
+            st.text(alphabet=st.characters(blacklist_categories=("Cc", "Cs")), max_size=60),
+        ),
+        max_size=40,
+    )
+)
+def test_the_exits_ridden_through_are_one_line_naming_every_process_and_the_first_whole(exits):
+    """However many processes are lost (32 followers on too small a machine lose a dozen), the
+    run's last line is one line: the first ``WHOLE_LOST`` exits whole, then how many more and every
+    one's process by name; no more text than those and the names."""
+    lost = [f"{kind}_{i} exited with code 1 (its last tick 7): {why}" for kind, i, why in exits]
+    line = ends.lost_line(lost)
+    assert "\n" not in line
+    whole = lost[: ends.WHOLE_LOST]
+    assert line.startswith("; ".join(whole))
+    rest = lost[ends.WHOLE_LOST :]
+    names = [x.split(" ", 1)[0] for x in rest]
+    if rest:
+        assert f"and {len(rest)} more lost: {', '.join(names)} " in line
+    assert len(line) <= len("; ".join(whole)) + sum(len(n) + 2 for n in names) + 80

@@ -12,7 +12,8 @@
   still going that long after its duration ends, naming who has not finished.
 - ``LostLog``: the exits ridden through (real time, ``run.stop_on_loss: false``), as
   ``process_lost`` events in ``procs/lost.events`` (``rundir.merge`` reads them into the run's
-  events).
+  events); ``lost_line``: the run's last line of them, the first ``WHOLE_LOST`` whole and the rest
+  by name (32 followers on too small a machine lose a dozen controllers, each with the same advice).
 """
 
 import time
@@ -111,6 +112,23 @@ class LostLog:
 
     def close(self) -> None:
         self.events.close()
+
+
+#: of the exits ridden through, how many the run's last line gives whole (the rest by name: each
+#: whole line is a ``process_lost`` event of the run)
+WHOLE_LOST = 2
+
+
+def lost_line(lost: list[str]) -> str:
+    """The exits ridden through (each ``"<process> exited with code ..."``) in one line: the first
+    ``WHOLE_LOST`` whole, then how many more and their processes' names."""
+    if len(lost) <= WHOLE_LOST:
+        return "; ".join(lost)
+    rest = [line.split(" ", 1)[0] for line in lost[WHOLE_LOST:]]
+    return (
+        "; ".join(lost[:WHOLE_LOST])
+        + f"; and {len(rest)} more lost: {', '.join(rest)} (each line is a process_lost event of the run)"
+    )
 
 
 class PlannedExits(Protocol):

@@ -294,7 +294,7 @@ def _fly(
         print(f"swarm-sitl: {face.error} (the run flew on)", file=sys.stderr)
     if sup.lost:
         flew_on = " (the swarm flew on to the end: run.stop_on_loss false)"
-        raise RunFailedError("; ".join(sup.lost) + flew_on)
+        raise RunFailedError(ends.lost_line(sup.lost) + flew_on)
     return RunResult(run_wall, startup, endpoints)
 
 
