@@ -3,6 +3,7 @@ is the boolean verdict (over random traces and formulas), its values are rtamt's
 monitor), interval edges are exact, a bad requirement is one line naming it, and a run's verdicts
 land in its summary and its exit code."""
 
+import itertools
 import json
 import math
 import subprocess
@@ -30,7 +31,7 @@ from swarm_sitl.specs.formula import (
     parse,
 )
 from swarm_sitl.specs.requirement import parse_over
-from swarm_sitl.specs.robustness import robustness
+from swarm_sitl.specs.robustness import robustness, verdict
 from tests.support import CLI, CONFIGS, config
 
 N = 12  #: samples of a random trace
@@ -51,17 +52,22 @@ def _interval() -> st.SearchStrategy:
     )
 
 
-def _formulas() -> st.SearchStrategy:
+def _any_interval() -> st.SearchStrategy:
+    """Windows anywhere: one sample wide, reaching past a trace's end, or starting past it."""
+    return st.tuples(st.integers(0, N + 2), st.one_of(st.integers(0, N + 4), st.just(None))).filter(
+        lambda ab: ab[1] is None or ab[0] <= ab[1]
+    )
+
+
+def _formulas(interval=_interval) -> st.SearchStrategy:
     def extend(inner):
         return st.one_of(
             st.builds(Not, inner),
             st.builds(And, inner, inner),
             st.builds(Or, inner, inner),
             st.builds(Implies, inner, inner),
-            st.builds(lambda ab, f: Always(ab[0], END if ab[1] is None else ab[1], f), _interval(), inner),
-            st.builds(
-                lambda ab, f: Eventually(ab[0], END if ab[1] is None else ab[1], f), _interval(), inner
-            ),
+            st.builds(lambda ab, f: Always(ab[0], END if ab[1] is None else ab[1], f), interval(), inner),
+            st.builds(lambda ab, f: Eventually(ab[0], END if ab[1] is None else ab[1], f), interval(), inner),
         )
 
     return st.recursive(_atoms(), extend, max_leaves=5)
@@ -94,18 +100,18 @@ def _holds(node, sig: dict, k: int) -> bool:
     return any(_holds(node.arg, sig, j) for j in window)
 
 
-def _text(node) -> str:
-    """A formula as rtamt writes it (``end``: the last sample)."""
+def _text(node, n: int = N) -> str:
+    """A formula as rtamt writes it (``end``: the last sample of ``n``)."""
     if isinstance(node, Atom):
         return f"({node.signal} {node.op} {node.value:g})"
     if isinstance(node, Not):
-        return f"(not {_text(node.arg)})"
+        return f"(not {_text(node.arg, n)})"
     if isinstance(node, And | Or | Implies):
         op = {And: "and", Or: "or", Implies: "implies"}[type(node)]
-        return f"({_text(node.left)} {op} {_text(node.right)})"
-    end = N - 1 if math.isinf(node.end_s) else int(node.end_s)
+        return f"({_text(node.left, n)} {op} {_text(node.right, n)})"
+    end = n - 1 if math.isinf(node.end_s) else int(node.end_s)
     op = "always" if isinstance(node, Always) else "eventually"
-    return f"({op}[{int(node.start_s)},{end}] {_text(node.arg)})"
+    return f"({op}[{int(node.start_s)},{end}] {_text(node.arg, n)})"
 
 
 @pytest.mark.unit
@@ -128,6 +134,66 @@ def test_the_robustness_is_rtamts_at_every_sample(f, x, y):
     theirs = np.array([v for _, v in spec.evaluate({"time": list(range(N)), "x": list(x), "y": list(y)})])
     ours = robustness(f, {"x": x, "y": y}, 1.0)
     assert np.array_equal(np.isinf(theirs), np.isinf(ours)) and np.allclose(theirs, ours, atol=1e-12)
+
+
+def _rtamt(f, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    spec = rtamt.StlDiscreteTimeSpecification()
+    spec.declare_var("x", "float")
+    spec.declare_var("y", "float")
+    spec.spec = _text(f, len(x))
+    spec.parse()
+    got = spec.evaluate({"time": list(range(len(x))), "x": x.tolist(), "y": y.tolist()})
+    return np.array([v for _, v in got], dtype=float)
+
+
+@pytest.mark.unit
+@given(st.data())
+def test_on_traces_of_any_length_and_windows_anywhere_the_robustness_is_the_verdict_and_rtamts(data):
+    """Not only twelve samples and windows inside them: a trace of any length (one sample
+    included), windows one sample wide, past the trace's end or starting past it, and samples
+    given as integers. The sign is the boolean verdict at every sample (half-integer samples: no
+    ties), the values are rtamt's (integer samples, ties included), and ``verdict`` is the first."""
+    n = data.draw(st.one_of(st.integers(1, 3), st.integers(1, N)), label="samples")  # (short ones often)
+    f = data.draw(_formulas(_any_interval), label="formula")
+    ints = st.lists(st.integers(-4, 3), min_size=n, max_size=n).map(np.array)
+    x, y = data.draw(ints, label="x"), data.draw(ints, label="y")
+    half = {"x": x + 0.5, "y": y + 0.5}
+    r = robustness(f, half, 1.0)
+    assert r.shape == (n,)
+    for k in range(n):
+        assert (r[k] > 0) == _holds(f, half, k), (k, r[k])
+    assert verdict(f, half, 1.0) == r[0]
+    ours = robustness(f, {"x": x, "y": y}, 1.0)
+    assert ours.dtype == float
+    if n == 1:  # (rtamt's offline monitor cannot take a trace of one sample: an UnboundLocalError)
+        return
+    theirs = _rtamt(f, x, y)
+    assert np.array_equal(np.isinf(theirs), np.isinf(ours))
+    assert np.array_equal(np.sign(theirs), np.sign(ours)) and np.allclose(theirs, ours, atol=1e-12)
+
+
+@pytest.mark.unit
+def test_every_window_on_every_short_trace_is_the_extreme_of_the_samples_inside_it():
+    """Exhaustively, on traces of one to four samples (every sign pattern): ``always[a, b]`` and
+    ``eventually[a, b]`` of an atom, for every window from one sample wide to past the trace's end
+    and starting past it, are the min and max of the atom's robustness over the samples the window
+    holds (brute force), +inf and -inf where it holds none; their negations, the opposite."""
+    for n in range(1, 5):
+        for signs in itertools.product((-1.5, 2.5), repeat=n):
+            x = np.array(signs)
+            atom = Atom("x", ">", 0.0)
+            for a in range(n + 2):
+                for b in [*range(a, n + 3), None]:
+                    for op, pick, none in ((Always, min, math.inf), (Eventually, max, -math.inf)):
+                        f = op(a, END if b is None else b, atom)
+                        got = robustness(f, {"x": x}, 1.0)
+                        last = n - 1 if b is None else b
+                        want = [
+                            pick([x[j] for j in range(k + a, k + last + 1) if j < n], default=none)
+                            for k in range(n)
+                        ]
+                        assert got.tolist() == want, (n, signs, a, b, op.__name__)
+                        assert robustness(Not(f), {"x": x}, 1.0).tolist() == [-v for v in want]
 
 
 @pytest.mark.unit
