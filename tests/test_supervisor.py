@@ -311,4 +311,6 @@ def test_the_exits_ridden_through_are_one_line_naming_every_process_and_the_firs
     names = [x.split(" ", 1)[0] for x in rest]
     if rest:
         assert f"and {len(rest)} more lost: {', '.join(names)} " in line
+    else:  # (a handful: each whole, nothing added)
+        assert line == "; ".join(whole)
     assert len(line) <= len("; ".join(whole)) + sum(len(n) + 2 for n in names) + 80

@@ -115,8 +115,8 @@ class LostLog:
 
 
 #: of the exits ridden through, how many the run's last line gives whole (the rest by name: each
-#: whole line is a ``process_lost`` event of the run)
-WHOLE_LOST = 2
+#: whole line is a ``process_lost`` event of the run): every controller of the paper's swarm
+WHOLE_LOST = 4
 
 
 def lost_line(lost: list[str]) -> str:
