@@ -6,6 +6,7 @@ land in its summary and its exit code."""
 import itertools
 import json
 import math
+import re
 import subprocess
 from typing import Any
 
@@ -17,6 +18,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from swarm_sitl.config.load import ConfigError, parse_config
+from swarm_sitl.laws.graph import Graph
 from swarm_sitl.rundir.requirements import failsafe_signal
 from swarm_sitl.specs.formula import (
     END,
@@ -30,7 +32,7 @@ from swarm_sitl.specs.formula import (
     Or,
     parse,
 )
-from swarm_sitl.specs.requirement import parse_over
+from swarm_sitl.specs.requirement import Requirement, SpecError, parse_over
 from swarm_sitl.specs.robustness import robustness, verdict
 from tests.support import CLI, CONFIGS, config
 
@@ -275,6 +277,97 @@ def test_what_a_requirement_ranges_over_on_the_graph():
     assert parse_over("edges into 4").members(g, ids) == [(1, 4), (2, 4)]
     assert parse_over("edges out of 0").members(g, ids) == [(0, 1), (0, 2), (0, 3)]
     assert parse_over("edge 2->4").members(g, ids) == parse_over("edge 2 -> 4").members(g, ids) == [(2, 4)]
+
+
+@pytest.mark.unit
+@given(st.text(max_size=30), st.integers(1, 254), st.integers(0, 254))
+def test_an_over_it_does_not_know_is_refused_naming_forms_that_each_parse(text, i, k):
+    """A user's ``over:`` that is no form is refused by a line that lists the forms; each form it
+    lists, its letters made numbers, is one ``parse_over`` takes (the line is a user's guide)."""
+    try:
+        parse_over(text)
+        return  # (a form after all)
+    except ValueError as e:
+        said = str(e)
+    forms = re.findall(r"'([^']+)'", said.rsplit(" is not ", 1)[1])  # (after what the user wrote)
+    assert len(forms) == 9, said
+    for form in forms:
+        parse_over(form.replace("I", str(i)).replace("K", str(k)).replace("S", str(k)).replace("D", str(i)))
+
+
+@st.composite
+def _graphs(draw):
+    """A directed graph on the leader 0 and followers 1..n that the estimator takes (a spanning
+    tree from the leader, drawn, and any other edges): what ``members`` is asked of, not only the
+    paper's."""
+    n = draw(st.integers(1, 7))
+    tree = {(draw(st.integers(0, d - 1)), d) for d in range(1, n + 1)}
+    pairs = [(a, b) for a in range(n + 1) for b in range(1, n + 1) if a != b]
+    edges = sorted(tree | set(draw(st.lists(st.sampled_from(pairs), max_size=len(pairs)))))
+    return n, Graph.from_edges(n, edges), edges
+
+
+def _reach(edges: list[tuple[int, int]], hops: int) -> set[int]:
+    """The nodes within ``hops`` edges of the leader, by repeated relaxation (an independent
+    reading of 'within H hops')."""
+    near = {0}
+    for _ in range(hops):
+        near |= {d for s, d in edges if s in near}
+    return near
+
+
+@pytest.mark.unit
+@given(_graphs(), st.integers(0, 8), st.integers(0, 8), st.integers(0, 4))
+def test_every_form_of_over_ranges_over_what_its_words_say_on_any_graph(graph, i, j, hops):
+    """On random graphs (the one unit test before used the paper's only), each ``over`` form's
+    members are those of its definition, and ``check_against`` refuses exactly the members a graph
+    does not have, naming the range it has."""
+    n, g, edges = graph
+    ids = list(range(1, n + 1))
+    assert parse_over("followers").members(g, ids) == ids
+    assert parse_over(f"follower {i}").members(g, ids) == [i]
+    assert parse_over("pairs").members(g, ids) == list(itertools.combinations(ids, 2))
+    assert parse_over(f"followers within {hops} hops").members(g, ids) == sorted(_reach(edges, hops) - {0})
+    assert parse_over(f"in-neighbours of {i}").members(g, ids) == sorted(s for s, d in edges if d == i and s)
+    assert sorted(parse_over("edges").members(g, ids)) == edges
+    assert sorted(parse_over(f"edges into {i}").members(g, ids)) == [e for e in edges if e[1] == i]
+    assert sorted(parse_over(f"edges out of {j}").members(g, ids)) == [e for e in edges if e[0] == j]
+    assert parse_over(f"edge {j} -> {i}").members(g, ids) == ([(j, i)] if (j, i) in edges else [])
+    for over, formula, fits, says in (
+        (
+            f"edges into {i}",
+            "always (age_s < 1)",
+            any(d == i for _, d in edges),
+            f"no edge into {i} in the graph",
+        ),
+        (
+            f"edges out of {j}",
+            "always (age_s < 1)",
+            any(s == j for s, _ in edges),
+            f"no edge out of {j} in the graph",
+        ),
+        (f"follower {i}", "always (pos_err_m < 1)", i in ids, f"no follower {i} (followers 1..{n})"),
+        (f"in-neighbours of {i}", "always (pos_err_m < 1)", i in ids, f"no follower {i} (followers 1..{n})"),
+    ):
+        req = Requirement(name="r", over=over, formula=formula)
+        if fits:
+            req.check_against(ids, 10.0, edges)
+        else:
+            with pytest.raises(SpecError) as e:
+                req.check_against(ids, 10.0, edges)
+            assert says in str(e.value), (over, str(e.value))
+
+
+@pytest.mark.unit
+@given(st.integers(1, 600))
+def test_a_formula_that_first_looks_at_or_after_the_runs_end_is_refused_and_just_before_it_is_not(tenths):
+    """``always[a, end]`` on a run of ``a`` seconds looks first at its last instant's end: refused;
+    a tenth of a second shorter, or a run a tenth longer, fits."""
+    a = tenths / 10
+    req = Requirement(name="late", formula=f"always[{a:g}, end] (pos_err_m < 1)")
+    with pytest.raises(SpecError, match=f"first looks at {a:g} s, after the run's end"):
+        req.check_against([1], a, None)
+    req.check_against([1], a + 0.1, None)
 
 
 def _edge_robustness(plan: dict, formula: str, over: str, duration_s: float = 8.0) -> tuple[dict, Any]:
