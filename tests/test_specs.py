@@ -116,6 +116,16 @@ def _text(node, n: int = N) -> str:
     return f"({op}[{int(node.start_s)},{end}] {_text(node.arg, n)})"
 
 
+def _rtamt(f, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    spec = rtamt.StlDiscreteTimeSpecification()
+    spec.declare_var("x", "float")
+    spec.declare_var("y", "float")
+    spec.spec = _text(f, len(x))
+    spec.parse()
+    got = spec.evaluate({"time": list(range(len(x))), "x": x.tolist(), "y": y.tolist()})
+    return np.array([v for _, v in got], dtype=float)
+
+
 @pytest.mark.unit
 @given(_formulas(), _TRACES, _TRACES)
 def test_the_sign_of_the_robustness_is_the_boolean_verdict_at_every_sample(f, x, y):
@@ -128,24 +138,9 @@ def test_the_sign_of_the_robustness_is_the_boolean_verdict_at_every_sample(f, x,
 @pytest.mark.unit
 @given(_formulas(), _TRACES, _TRACES)
 def test_the_robustness_is_rtamts_at_every_sample(f, x, y):
-    spec = rtamt.StlDiscreteTimeSpecification()
-    spec.declare_var("x", "float")
-    spec.declare_var("y", "float")
-    spec.spec = _text(f)
-    spec.parse()
-    theirs = np.array([v for _, v in spec.evaluate({"time": list(range(N)), "x": list(x), "y": list(y)})])
+    theirs = _rtamt(f, x, y)
     ours = robustness(f, {"x": x, "y": y}, 1.0)
     assert np.array_equal(np.isinf(theirs), np.isinf(ours)) and np.allclose(theirs, ours, atol=1e-12)
-
-
-def _rtamt(f, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    spec = rtamt.StlDiscreteTimeSpecification()
-    spec.declare_var("x", "float")
-    spec.declare_var("y", "float")
-    spec.spec = _text(f, len(x))
-    spec.parse()
-    got = spec.evaluate({"time": list(range(len(x))), "x": x.tolist(), "y": y.tolist()})
-    return np.array([v for _, v in got], dtype=float)
 
 
 @pytest.mark.unit
