@@ -343,3 +343,36 @@ def test_the_summary_reads_any_table_an_interrupted_campaign_leaves_empty_includ
     assert point.startswith("breaking point: ") and key in point
     for v in (held, broke):
         assert v is None or f"{v:g}" in point
+
+
+@pytest.mark.integration
+@pytest.mark.parametrize("after", [1, 2, 3])
+def test_an_interrupt_just_after_a_row_reaches_the_disk_keeps_every_row_written(tmp_path, monkeypatch, after):
+    """Ctrl-C or SIGTERM can land between a run's row reaching the table and anything after it; the
+    campaign then writes its table again, sorted, from what it holds. Every row that reached the
+    disk is still there (CI once lost the only one), whichever row the interrupt follows. The
+    runs are stood in for: each point's metrics come at once."""
+    from swarm_sitl.campaigns import sweep as sweep_module
+    from swarm_sitl.campaigns.point import METRICS
+
+    def quick(tasks, jobs):
+        for t in tasks:
+            yield t, {m: ("" if m == "failure" else 0.0) for m in METRICS} | {"passed": 1}
+
+    written: list[dict] = []
+    add = TableWriter.add
+
+    def add_then_interrupted(self, row):
+        add(self, row)
+        written.append(row)
+        if len(written) == after:
+            raise KeyboardInterrupt  # (the signal's handler raises it here, after the write)
+
+    monkeypatch.setattr(sweep_module, "run_local", quick)
+    monkeypatch.setattr(TableWriter, "add", add_then_interrupted)
+    out = tmp_path / "c"
+    c = sweep_module.sweep(_config(tmp_path), ["link.loss=0:0.3:0.1"], out=out, seeds=1, jobs=1)
+    assert c.interrupted is not None
+    kept = read_rows(out / "table.csv", ["link.loss"])
+    assert len(kept) == len(written) == after
+    assert sorted(r["link.loss"] for r in kept) == sorted(r["link.loss"] for r in written)

@@ -372,8 +372,10 @@ def _run(
         for task, metrics in runs:
             row = {**by_key[task.key], **metrics}
             judge([row], campaign.bound_m)
-            writer.add(row)
+            # in memory first: an interrupt (Ctrl-C, SIGTERM) just after the row reaches the disk
+            # must not lose it when the table is written again sorted from memory (``sweep``)
             campaign.rows.append(row)
+            writer.add(row)
             bar.update(1)
 
 
