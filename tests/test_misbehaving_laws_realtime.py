@@ -70,13 +70,16 @@ def test_three_laws_that_exit_or_hang_in_real_time_are_ridden_through_and_each_n
     line, out, wall = _flown(tmp_path, "MixedExits")
     for i, name in ((2, "SysExit"), (3, "OsExit"), (4, "Loops")):
         found = re.search(
-            rf"controller_{i} exited with code 1 \(its last tick \d+, t=[0-9.]+ s\): controller {i}: error: "
-            rf"law {law_path('run')}:MixedExits, follower {i} at t=([0-9.]+) s: ",
+            rf"controller_{i} exited with code 1 \(its last tick \d+, t=([0-9.]+) s\): "
+            rf"controller {i}: error: law {law_path('run')}:MixedExits, follower {i} at t=([0-9.]+) s: ",
             line,
         )
         assert found and SAYS[name] in line[found.end() :].split(";")[0], (name, line)
-        lo, hi = failure_window(name)
-        assert lo <= float(found[1]) <= hi + late_s(i), line
+        lo, _ = failure_window(name)
+        # at the first tick it flew from the law's failure on: the tick it flew before was earlier
+        # (a loaded machine may skip ticks: the first flown from 0.5 s can be a few periods on,
+        # as CI saw once, 0.527 s after ticks 49-51 were skipped)
+        assert float(found[1]) < lo <= float(found[2]), line
     assert _lost(out) == [("controller_2", 1), ("controller_3", 1), ("controller_4", 1)]
     _flew_on(out)
     assert wall < bound_s("Loops"), wall
