@@ -130,12 +130,13 @@ class Ros2Controller:
 
     def _await(self, t_s: float) -> None:
         """Lockstep: until the node's setpoint and message stamped ``t_s`` have come."""
+        assert self.answer_within_s is not None  # (called in lockstep only)
         stamp = stamp_ns(t_s)
-        first, later = self.answer_within_s or (math.inf, math.inf)
+        first, later = self.answer_within_s
         within = first if self._answered == 0 else later
         end = time.monotonic() + within
         got = {"setpoint": False, "message": False}
-        while not all(got.values()):
+        while True:
             for what, done in got.items():
                 if not done:
                     got[what] = self._take_one(what, stamp)

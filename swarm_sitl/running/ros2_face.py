@@ -180,8 +180,12 @@ def write_ros2_join(cfg: SwarmConfig, hub: str | None, run_dir: Path, lockstep: 
     a ROS 2 controller's answer to each tick: ``lockstep``); returns its one line."""
     r = cfg.ros2
     line = ros2_join_line(cfg, hub, run_dir)
-    join: dict[str, Any] = {"endpoint": hub, "domain_id": r.domain_id, "namespace": r.namespace}
-    join["lockstep"] = lockstep
+    join: dict[str, Any] = {
+        "endpoint": hub,
+        "domain_id": r.domain_id,
+        "namespace": r.namespace,
+        "lockstep": lockstep,
+    }
     if hub is not None and cfg.zenoh.mode == "router":
         join |= {"user": ROS2_USER, "password_file": str(zenoh_ros2_password_path(run_dir))}
         join["controllers"] = {  # who flies which follower, and only that one
