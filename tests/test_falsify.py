@@ -5,6 +5,8 @@ counterexample on a generated ring of six followers that a lockstep run of proce
 import json
 import signal
 import subprocess
+import tempfile
+from pathlib import Path
 
 import pytest
 import yaml
@@ -222,8 +224,19 @@ def test_the_severity_held_below_is_the_mildest_of_every_seeds_worst_hold(held, 
     assert got == (None if None in tops.values() else min(tops.values()))
 
 
+def _left_in(tmp: Path) -> list[str]:
+    """What a search left in ``tmp``, its processes' temporary directory, after it ended."""
+    return sorted(p.name for p in tmp.iterdir() if p.name.startswith("swarm-sitl"))
+
+
 @pytest.mark.system
-def test_the_same_seed_writes_the_same_front_on_any_cores_and_on_dask(tmp_path):
+def test_the_same_seed_writes_the_same_front_on_any_cores_and_on_dask(tmp_path, monkeypatch):
+    """... and each search, its workers' unpacked configs with it, leaves nothing in the
+    temporary directory (a worker's directory was once left there for good, one per worker)."""
+    tmp = tmp_path / "tmp"
+    tmp.mkdir()
+    monkeypatch.setenv("TMPDIR", str(tmp))
+    monkeypatch.setattr(tempfile, "tempdir", None)  # (this process's: read from TMPDIR again)
     (tmp_path / "space.yaml").write_text(
         yaml.safe_dump({"seeds": [0, 1], "entries": [{"edges": "each", "loss": [0.5, 1.0]}]})
     )
@@ -240,6 +253,7 @@ def test_the_same_seed_writes_the_same_front_on_any_cores_and_on_dask(tmp_path):
         assert r.returncode in (0, 3), r.stderr + r.stdout
         assert "per minute" in r.stdout
         fronts.append((out / "front.csv").read_bytes())
+        assert _left_in(tmp) == []
         assert (out / "robustness_cost.png").stat().st_size > 0 and (out / "edges.png").is_file()
     assert fronts[0] == fronts[1]
     from distributed import LocalCluster
@@ -250,6 +264,7 @@ def test_the_same_seed_writes_the_same_front_on_any_cores_and_on_dask(tmp_path):
             duration_s=4.0, budget=8, confirm=False, scheduler=c.scheduler_address, say=lambda s: None,
         )  # fmt: skip
     assert (tmp_path / "dask" / "front.csv").read_bytes() == fronts[0]  # on a cluster: the same
+    assert _left_in(tmp) == []  # (a Dask worker's: removed as its process ended)
     rows = fronts[0].decode().splitlines()
     assert len(rows) >= 3  # a header and plans that trade cost against robustness
     assert any(",1," in r for r in rows[1:]) and any(",0," in r for r in rows[1:])  # some break it
@@ -360,11 +375,15 @@ def test_a_search_resumes_its_study_and_ctrl_c_keeps_what_was_found(tmp_path):
 
 
 @pytest.mark.system
-def test_a_law_that_ends_its_worker_is_a_violation_and_the_pool_goes_on(tmp_path):
+def test_a_law_that_ends_its_worker_is_a_violation_and_the_pool_goes_on(tmp_path, monkeypatch):
     """A user's law held in compiled code when it hears nobody (``HeldWhenDeaf``): a cut of the
     edge 0 -> 1 longer than the staleness ends its worker process (its guard's hard stop). In a
     batch, each such plan is found (flown again one at a time), counted as a violation, and the
-    pool is made again for the next plans."""
+    pool is made again for the next plans. The ended workers' files go with the evaluator."""
+    tmp = tmp_path / "tmp"
+    tmp.mkdir()
+    monkeypatch.setenv("TMPDIR", str(tmp))
+    monkeypatch.setattr(tempfile, "tempdir", None)
     from swarm_sitl.falsify.workers import NO_ROBUSTNESS, Local
     from tests.misbehaving_runs import LAWS_FILE
 
@@ -390,6 +409,7 @@ def test_a_law_that_ends_its_worker_is_a_violation_and_the_pool_goes_on(tmp_path
         assert ev.map([cut(0.6), cut(0.5)]) == [held, evaluate(cfg, name, cut(0.5))]  # the pool made again
     finally:
         ev.close()
+    assert _left_in(tmp) == []
 
 
 #: a user's link model in a file: every message lost outside the first ``on_fraction`` of each

@@ -18,6 +18,7 @@ saying so, and that plan is a violation (``NO_ROBUSTNESS``), as a law that raise
 batch is flown again one plan at a time, each in a process of its own, to find which.
 """
 
+import atexit
 import concurrent.futures
 import concurrent.futures.process
 import hashlib
@@ -25,6 +26,7 @@ import json
 import math
 import multiprocessing
 import os
+import shutil
 import signal
 import tempfile
 from collections.abc import Sequence
@@ -47,6 +49,10 @@ STOPPED = ".stopped"  #: beside a worker's log: its law's guard ended it (the gu
 class WorkerError(RuntimeError):
     """A worker could not fly a plan (it raised, or its process died): one line naming the plan,
     the worker and the worker's last line. The search stops without a verdict."""
+
+
+#: this process's unpacked shipments' directories, by digest (``Shipment.unpack``)
+_UNPACKED: dict[str, Path] = {}
 
 
 @dataclass(frozen=True)
@@ -85,7 +91,7 @@ class Shipment:
         return {**plan, "plan": entries}
 
     def _where(self) -> Path:
-        return Path(tempfile.gettempdir()) / f"swarm-sitl-falsify-{os.getpid()}-{self.digest[:16]}"
+        return _UNPACKED[self.digest]
 
     @property
     def digest(self) -> str:
@@ -95,12 +101,22 @@ class Shipment:
             h.update(rel.encode() + b"\0" + self.files[rel])
         return h.hexdigest()
 
-    def unpack(self) -> SwarmConfig:
+    def unpack(self, under: str | None = None) -> SwarmConfig:
         """The config, its plug-ins written beside it in a directory of this process's (one per
-        shipment, kept for the process's life: a plug-in module stays importable)."""
+        shipment, kept for the process's life: a plug-in module stays importable). It is made in
+        ``under`` (the search's own temporary directory, removed when the search ends, whichever
+        way its workers ended), else in a temporary directory removed when this process exits
+        (a Dask worker's)."""
         from swarm_sitl.config.load import load_config
 
-        where = self._where()
+        where = _UNPACKED.get(self.digest)
+        if where is None:
+            if under is not None:
+                where = Path(under) / f"shipment-{os.getpid()}-{self.digest[:16]}"
+            else:
+                where = Path(tempfile.mkdtemp(prefix="swarm-sitl-shipment-"))
+                atexit.register(shutil.rmtree, where, True)
+            _UNPACKED[self.digest] = where
         for rel, body in self.files.items():
             (where / rel).parent.mkdir(parents=True, exist_ok=True)
             (where / rel).write_bytes(body)
@@ -143,7 +159,7 @@ def _init(ship: Shipment, log_dir: str) -> None:
     os.close(fd)
     _WORKER.update(log=log, name=ship.name, cfg=None, error=None, ship=ship)
     try:
-        _WORKER["cfg"] = ship.unpack()
+        _WORKER["cfg"] = ship.unpack(log_dir)
     except Exception as e:
         _WORKER["error"] = f"its config did not load: {one_line(e)}"
 
