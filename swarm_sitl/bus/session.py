@@ -96,14 +96,24 @@ def router_runtime() -> Iterator[None]:
         os.environ.pop(RUNTIME_ENV, None)
 
 
-def open_router(listen: list[str], users_file: str, access_control: dict[str, Any]) -> zenoh.Session:
-    """The run's router (``zenoh.mode: router``): it authenticates every session against
-    ``users_file`` (``user:password`` lines) and applies ``access_control`` to what they send and
-    receive (``access``). Its own puts and subscriptions are local, not subject to it."""
+def _router_config(listen: list[str]) -> zenoh.Config:
+    """A router on ``listen``, found by nobody's multicast, that opens at once: zenoh's
+    ``scouting/delay`` (500 ms by default) holds a session's open while it scouts for peers, and
+    a router that is only listened to has none to find (it was half a second of every run's
+    start)."""
     c = zenoh.Config()
     c.insert_json5("mode", json.dumps("router"))
     c.insert_json5("listen/endpoints", json.dumps(listen))
     c.insert_json5("scouting/multicast/enabled", "false")
+    c.insert_json5("scouting/delay", "0")
+    return c
+
+
+def open_router(listen: list[str], users_file: str, access_control: dict[str, Any]) -> zenoh.Session:
+    """The run's router (``zenoh.mode: router``): it authenticates every session against
+    ``users_file`` (``user:password`` lines) and applies ``access_control`` to what they send and
+    receive (``access``). Its own puts and subscriptions are local, not subject to it."""
+    c = _router_config(listen)
     c.insert_json5("transport/auth/usrpwd", json.dumps({"dictionary_file": users_file}))
     c.insert_json5("access_control", json.dumps(access_control))
     return zenoh.open(c)
@@ -112,10 +122,7 @@ def open_router(listen: list[str], users_file: str, access_control: dict[str, An
 def open_plain_router(listen: list[str], users_file: str | None = None) -> zenoh.Session:
     """A router for a swarm over several hosts (``swarm-sitl router``): no access control, and
     authentication against ``users_file`` if given (``user:password`` lines)."""
-    c = zenoh.Config()
-    c.insert_json5("mode", json.dumps("router"))
-    c.insert_json5("listen/endpoints", json.dumps(listen))
-    c.insert_json5("scouting/multicast/enabled", "false")
+    c = _router_config(listen)
     if users_file:
         c.insert_json5("transport/auth/usrpwd", json.dumps({"dictionary_file": users_file}))
     return zenoh.open(c)
