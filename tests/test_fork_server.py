@@ -1,7 +1,10 @@
-"""The fork server starts processes as Popen would: their own pid, session, log, exit code."""
+"""The fork server starts processes as Popen would: their own pid, session, log, exit code; forked
+from its supervisor, it is the same server and runs nothing of the supervisor's."""
 
+import json
 import os
 import signal
+import subprocess
 import sys
 import time
 from pathlib import Path
@@ -10,17 +13,23 @@ import pytest
 
 from swarm_sitl.running.children import PARENT_ENV, child_env, module_argv
 from swarm_sitl.running.fork_server import ForkServer
+from tests.support import CONFIGS, cli_ok
 
+#: (no wall clock to the millisecond here: generous timeouts only, so beside other tests)
 pytestmark = [
     pytest.mark.system,
+    pytest.mark.lockstep,
     pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the fork server is Linux only"),
 ]
 
 
-@pytest.fixture
-def server(tmp_path):
+@pytest.fixture(params=["interpreter", "here"])
+def server(tmp_path, request):
+    """A server started as a new interpreter, or forked from this process (as ``swarm-sitl run``
+    forks its own): every test below holds for both."""
     env = {**child_env(), PARENT_ENV: str(os.getpid())}
-    s = ForkServer(module_argv("swarm_sitl.running.fork_server"), env, tmp_path / "server.log")
+    argv = module_argv("swarm_sitl.running.fork_server")
+    s = ForkServer(argv, env, tmp_path / "server.log", here=request.param == "here")
     yield s
     s.close()
 
@@ -95,3 +104,64 @@ def test_requests_are_pipelined_and_answered_in_order(server, tmp_path):
     assert len({k.pid for k in kids}) == 10
     for i in range(10):
         assert f"--id must be 1..255, got {256 + i}" in (tmp_path / f"{i}.log").read_text()
+
+
+#: a supervisor in a fresh interpreter (one thread, no zenoh): its server forked from it, then
+#: whether it could fork with a thread more, and with a zenoh runtime once opened
+HERE_SCRIPT = """
+import atexit, json, os, sys, tempfile, threading
+from pathlib import Path
+from swarm_sitl.running.run import start_fork_server
+from swarm_sitl.running.fork_server import can_fork_here
+from swarm_sitl.running.children import child_env
+
+out = Path(sys.argv[1])
+atexit.register(lambda: open(out / "exits", "a").write(str(os.getpid()) + " "))
+keep = tempfile.TemporaryDirectory(dir=out)  # its finalizer removes it: the supervisor's only
+fresh = can_fork_here()
+server = start_fork_server(out / "paper.yaml", out, here=True)
+bad = server.spawn("sim_vehicles", ["--id", "0"], child_env(), out / "bad.log")
+seen = dict(fresh=fresh, here=type(server.proc).__name__, code=bad.wait(timeout=60), me=os.getpid(),
+            title=Path(f"/proc/{server.proc.pid}/cmdline").read_bytes().decode(errors="replace"))
+server.close()
+seen.update(ended=server.proc.returncode, kept=Path(keep.name).is_dir())
+t = threading.Thread(target=threading.Event().wait, args=(2,))
+t.start()
+seen["threaded"] = can_fork_here()
+t.join()
+import zenoh
+zenoh.open(zenoh.Config()).close()
+seen["zenohed"] = can_fork_here()
+print(json.dumps(seen))
+"""
+
+
+def test_a_server_forked_from_its_supervisor_runs_none_of_the_supervisors_exit_work(tmp_path):
+    """A supervisor of one thread forks its server (``swarm-sitl run``'s way): the server warms up
+    on the config, serves, ends with code 0 when told, and the supervisor's exit handler and its
+    temporary directory's finalizer ran in the supervisor only, once. With one Python thread
+    more, or a zenoh runtime once opened (its threads outlive the session), it may not fork."""
+    config = tmp_path / "paper.yaml"
+    config.write_text((Path(__file__).resolve().parents[1] / "configs" / "paper.yaml").read_text())
+    r = subprocess.run(
+        [sys.executable, "-c", HERE_SCRIPT, str(tmp_path)], capture_output=True, text=True, timeout=120
+    )
+    assert r.returncode == 0, r.stderr
+    seen = json.loads(r.stdout.strip().splitlines()[-1])
+    assert seen["fresh"] and seen["here"] == "_ServerHere" and seen["code"] == 2
+    assert "swarm_sitl.running.fork_server" in seen["title"] and str(config) in seen["title"]
+    assert seen["ended"] == 0 and seen["kept"]
+    assert (tmp_path / "exits").read_text().split() == [str(seen["me"])]
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith("tmp")]  # gone, by its owner
+    assert "--id must be 1..255, got 0" in (tmp_path / "bad.log").read_text()
+    assert not seen["threaded"] and not seen["zenohed"]
+
+
+@pytest.mark.parametrize("quiet", [[], ["--quiet"]])
+def test_swarm_sitl_run_forks_its_server_from_itself_with_or_without_its_progress_bar(tmp_path, quiet):
+    """The CLI's process opens no zenoh session and starts no thread before its run (its progress
+    bar has no monitor thread), so its fork server is forked from it, not a new interpreter."""
+    out = tmp_path / "run"
+    cli_ok("run", CONFIGS / "paper.yaml", "--duration", "0.5", "--out", out, *quiet)
+    log = (out / "logs" / "fork_server.log").read_text().splitlines()
+    assert log and log[0].startswith("fork server: forked from its supervisor (pid "), log[:3]

@@ -124,6 +124,14 @@ def cmd_sim(args: argparse.Namespace) -> int:
     return held_to_bound(bound_failures(summary, cfg.run.max_formation_error_m))
 
 
+class _Bar(tqdm):
+    """tqdm without its monitor thread: the bar is updated from the supervisor's loop, and a thread
+    in the supervisor's process would keep it from forking the run's fork server from itself
+    (``running.fork_server``: half a second of the run's start-up)."""
+
+    monitor_interval = 0
+
+
 class _RunProgress:
     """A progress bar over ticks with each follower's formation error from its status messages."""
 
@@ -131,7 +139,7 @@ class _RunProgress:
         self.cfg = cfg
         self.bar: Any = None
         if not quiet:
-            self.bar = tqdm(
+            self.bar = _Bar(
                 total=cfg.n_control_steps + 1, unit="tick", desc=label, mininterval=0.25, leave=False
             )
 
@@ -217,7 +225,18 @@ def _run_and_record(
     progress = _RunProgress(cfg, f"{kind} {cfg.name} ({clock})", quiet)
     try:
         out = record_run(
-            RunRequest(cfg, run_dir, lockstep, mavlink, base_port, external, progress, progress.note, feed)
+            RunRequest(
+                cfg,
+                run_dir,
+                lockstep,
+                mavlink,
+                base_port,
+                external,
+                progress,
+                progress.note,
+                feed,
+                fork_here=True,  # (this process opens its first zenoh session in the run)
+            )
         )
     finally:
         progress.close()

@@ -20,6 +20,16 @@ Protocol (pipes between the supervisor and the server, one JSON object per line)
 The server is forked before any zenoh session exists in it (zenoh's runtime starts with the first
 session, and a fork does not carry threads), and it dies with the supervisor (``hold_on``), its
 children with it. Linux only (``os.fork`` with ``prctl``); elsewhere ``run.start: spawn`` is used.
+
+**Where the server comes from.** ``ForkServer(argv, ...)`` starts it as a new interpreter
+(``python -m swarm_sitl.running.fork_server CONFIG``). ``ForkServer(..., here=True)`` forks it
+from the calling process instead, when that is safe (``can_fork_here``: one thread, and the
+caller vouches that no zenoh session was ever opened in it, as ``swarm-sitl run`` can): the
+server then starts with what the caller has imported (numpy, numba, pydantic, the config's
+modules: half a second of a run's start-up and of its CPU, paid once instead of twice). Either
+way it is the same server: the same protocol, session, log, environment and title
+(``fork_server`` on its command line), and it ends with ``os._exit``, running none of the
+caller's exit handlers.
 """
 
 import contextlib
@@ -31,10 +41,11 @@ import shlex
 import signal
 import subprocess
 import sys
+import threading
 import time
 import traceback
 from pathlib import Path
-from typing import IO, Any
+from typing import IO, Any, NoReturn
 
 from setproctitle import setproctitle
 
@@ -174,6 +185,111 @@ def serve(config_path: str | None) -> int:
     return 0
 
 
+def can_fork_here() -> bool:
+    """Whether this process may fork a server from itself (``ForkServer(..., here=...)``): it
+    runs one Python thread, and no native thread but those named as it is (a C library's pool,
+    numpy's BLAS: they are made to survive a fork). A fork carries only the calling thread:
+    another's locks would stay held in the copy, and a zenoh runtime (its threads are named
+    ``acc-0``, ``net-0``, ...) would be a husk. That no zenoh session was ever opened in this
+    process is the caller's to vouch for all the same."""
+    if not sys.platform.startswith("linux") or threading.active_count() != 1:
+        return False
+    try:
+        names = {Path(f"/proc/self/task/{t}/comm").read_text() for t in os.listdir("/proc/self/task")}
+    except OSError:
+        return False
+    return len(names) == 1
+
+
+def _serve_here(argv: list[str], env: dict[str, str], fds: tuple[int, int, int]) -> NoReturn:
+    """In a server forked from its supervisor: become what its command line ``argv`` with ``env``
+    would be (``fds``: its stdin, stdout and stderr), serve, and end without running anything of
+    the supervisor's (its exit handlers, its objects' finalizers)."""
+    code = 1
+    try:
+        os.setsid()
+        for target, fd in enumerate(fds):
+            os.dup2(fd, target)
+        for fd in _open_fds():  # (as Popen's close_fds: the children inherit only their own)
+            if fd > 2:
+                with contextlib.suppress(OSError):
+                    os.close(fd)
+        sys.stdin = open(0, closefd=False)  # noqa: SIM115
+        sys.stdout = open(1, "w", buffering=1, closefd=False)  # noqa: SIM115
+        sys.stderr = open(2, "w", buffering=1, closefd=False)  # noqa: SIM115
+        for sig in (signal.SIGTERM, signal.SIGHUP, signal.SIGCHLD):
+            signal.signal(sig, signal.SIG_DFL)
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+        setproctitle(" ".join(shlex.quote(a) for a in argv))
+        os.environ.clear()
+        os.environ.update(env)
+        random.seed()
+        args = argv[len(module_argv(__name__)) :]
+        sys.argv = [__name__, *args]
+        print(f"fork server: forked from its supervisor (pid {os.getppid()})", file=sys.stderr)
+        code = main(args)
+    except SystemExit as e:
+        code = e.code if isinstance(e.code, int) else (0 if e.code is None else 1)
+    except BaseException:
+        with contextlib.suppress(Exception):
+            traceback.print_exc()
+    finally:
+        with contextlib.suppress(Exception):
+            sys.stdout.flush()
+            sys.stderr.flush()
+        os._exit(code & 0xFF if code >= 0 else 1)
+
+
+def _open_fds() -> list[int]:
+    try:
+        return [int(x) for x in os.listdir("/proc/self/fd")]
+    except OSError:
+        return list(range(3, 256))
+
+
+class _ServerHere:
+    """The part of ``subprocess.Popen`` ``ForkServer`` uses, for a server forked here."""
+
+    def __init__(self, argv: list[str], env: dict[str, str], log_fd: int):
+        r_in, self._w_in = os.pipe()
+        self._r_out, w_out = os.pipe()
+        for stream in (sys.stdout, sys.stderr):  # (else the copy's buffers would be written twice)
+            with contextlib.suppress(Exception):
+                stream.flush()
+        self.pid = os.fork()
+        if self.pid == 0:
+            _serve_here(argv, env, (r_in, w_out, log_fd))
+        os.close(r_in)
+        os.close(w_out)
+        self.stdin: IO[bytes] | None = open(self._w_in, "wb")  # noqa: SIM115  (closed by ForkServer)
+        self.stdout: IO[bytes] | None = open(self._r_out, "rb", buffering=0)  # noqa: SIM115
+        self.returncode: int | None = None
+
+    def poll(self) -> int | None:
+        if self.returncode is None:
+            try:
+                pid, status = os.waitpid(self.pid, os.WNOHANG)
+            except ChildProcessError:
+                pid, status = self.pid, 0
+            if pid:
+                self.returncode = -os.WTERMSIG(status) if os.WIFSIGNALED(status) else os.WEXITSTATUS(status)
+        return self.returncode
+
+    def wait(self, timeout: float | None = None) -> int:
+        end = None if timeout is None else time.monotonic() + timeout
+        while self.poll() is None:
+            if end is not None and time.monotonic() > end:
+                raise subprocess.TimeoutExpired(f"fork server {self.pid}", timeout or 0.0)
+            time.sleep(0.005)
+        assert self.returncode is not None
+        return self.returncode
+
+    def kill(self) -> None:
+        if self.poll() is None:
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(self.pid, signal.SIGKILL)
+
+
 class ForkedProcess:
     """The part of ``subprocess.Popen`` the supervisor uses, for a child of the fork server.
 
@@ -214,16 +330,30 @@ class ForkedProcess:
 class ForkServer:
     """The supervisor's side: start the server, ask it for children, learn when they end."""
 
-    def __init__(self, argv: list[str], env: dict[str, str], log_path: Path, timeout_s: float = 120.0):
+    def __init__(
+        self,
+        argv: list[str],
+        env: dict[str, str],
+        log_path: Path,
+        timeout_s: float = 120.0,
+        here: bool = False,
+    ):
+        """``argv``: the server's command line (``module_argv`` of this module, then its config if
+        any); ``here``: fork it from this process instead of starting it (module docstring), which
+        the caller has checked with ``can_fork_here``: ``argv`` is then its title and arguments."""
         self._log = open(log_path, "wb")  # noqa: SIM115  (closed in close())
-        self.proc = subprocess.Popen(
-            argv,
-            stdin=subprocess.PIPE,
-            stdout=subprocess.PIPE,
-            stderr=self._log,
-            env=env,
-            start_new_session=True,
-        )
+        self.proc: subprocess.Popen[bytes] | _ServerHere
+        if here:
+            self.proc = _ServerHere(argv, env, self._log.fileno())
+        else:
+            self.proc = subprocess.Popen(
+                argv,
+                stdin=subprocess.PIPE,
+                stdout=subprocess.PIPE,
+                stderr=self._log,
+                env=env,
+                start_new_session=True,
+            )
         self._buf = b""
         self._pending: list[ForkedProcess] = []  #: asked for, pid not yet answered, in order
         self._children: dict[int, ForkedProcess] = {}

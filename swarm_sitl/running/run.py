@@ -44,7 +44,7 @@ from swarm_sitl.rundir.plugins import keep as keep_plugins
 from swarm_sitl.rundir.whole_files import WriteError
 from swarm_sitl.running import ends
 from swarm_sitl.running.children import PARENT_ENV, child_env, module_argv
-from swarm_sitl.running.fork_server import ForkServer
+from swarm_sitl.running.fork_server import ForkServer, can_fork_here
 from swarm_sitl.running.hub import RunMonitor, open_hub
 from swarm_sitl.running.observers import Observer, supervise
 from swarm_sitl.running.ros2_face import Ros2Face, write_ros2_join
@@ -67,13 +67,17 @@ def compile_kernels(cfg: SwarmConfig) -> None:
     settle_heap()
 
 
-def start_fork_server(cfg_path: Path, run_dir: Path) -> ForkServer:
+def start_fork_server(cfg_path: Path, run_dir: Path, here: bool = False) -> ForkServer:
     """A fork server (``fork_server``) that has imported everything and loaded the kernels of
-    ``cfg_path`` (compiling them on a fresh install), its errors in ``logs/fork_server.log``."""
+    ``cfg_path`` (compiling them on a fresh install), its errors in ``logs/fork_server.log``;
+    ``here``: forked from this process where ``fork_server.can_fork_here`` (the caller vouches
+    that it never opened a zenoh session), else a new interpreter."""
     log_dir = run_dir / "logs"
     log_dir.mkdir(parents=True, exist_ok=True)
     env = {**child_env(), PARENT_ENV: str(os.getpid()), "PYTHONUNBUFFERED": "1"}
     argv = [*module_argv("swarm_sitl.running.fork_server"), str(cfg_path)]
+    if here and can_fork_here():
+        return ForkServer(argv, env, log_dir / "fork_server.log", here=True)
     return ForkServer(argv, env, log_dir / "fork_server.log")
 
 
@@ -152,6 +156,9 @@ class RunRequest:
     on_vehicles: Callable[[list[str]], None] | None = None
     #: the page's live feed (``run --view``), given what the supervisor reads as the run goes
     view: LiveFeed | None = None
+    #: the caller's process never opened a zenoh session (``swarm-sitl run``'s): the run's fork
+    #: server may be forked from it (``start_fork_server``)
+    fork_here: bool = False
 
 
 def run_swarm(request: RunRequest) -> RunResult:
@@ -180,7 +187,8 @@ def run_swarm(request: RunRequest) -> RunResult:
             for f in cfg.followers:
                 first_tick(cfg, f.id, *reported_vehicle_params(cfg))
         if uses_fork_server(cfg):
-            sup.fork_server = start_fork_server(cfg_path, run_dir)  # it compiles or loads the kernels
+            # it compiles or loads the kernels
+            sup.fork_server = start_fork_server(cfg_path, run_dir, request.fork_here)
         else:
             compile_kernels(cfg)
     except LawError as e:
