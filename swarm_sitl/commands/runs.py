@@ -31,6 +31,7 @@ from swarm_sitl.commands.common import (
     summary_lines,
 )
 from swarm_sitl.commands.run_options import check_external, with_ros2
+from swarm_sitl.commands.run_progress import RunProgress
 from swarm_sitl.commands.view import DEFAULT_PORT, port_number, serve, stream_to_foxglove
 from swarm_sitl.config.load import with_duration, with_faults, with_seed, with_spec
 from swarm_sitl.config.schema import SwarmConfig
@@ -124,56 +125,6 @@ def cmd_sim(args: argparse.Namespace) -> int:
     return held_to_bound(bound_failures(summary, cfg.run.max_formation_error_m))
 
 
-class _Bar(tqdm):
-    """tqdm without its monitor thread: the bar is updated from the supervisor's loop, and a thread
-    in the supervisor's process would keep it from forking the run's fork server from itself
-    (``running.fork_server``: half a second of the run's start-up)."""
-
-    monitor_interval = 0
-
-
-class _RunProgress:
-    """A progress bar over ticks with each follower's formation error from its status messages."""
-
-    def __init__(self, cfg: SwarmConfig, label: str, quiet: bool):
-        self.cfg = cfg
-        self.bar: Any = None
-        if not quiet:
-            self.bar = _Bar(
-                total=cfg.n_control_steps + 1, unit="tick", desc=label, mininterval=0.25, leave=False
-            )
-
-    def __call__(self, step: int, errors_m: dict[int, float]) -> None:
-        if self.bar is None:
-            return
-        if step + 1 > self.bar.n:
-            self.bar.update(step + 1 - self.bar.n)
-        if errors_m:
-            worst = max(errors_m, key=lambda i: errors_m[i])
-            shown = (
-                " ".join(f"{i}:{e:.3f}" for i, e in sorted(errors_m.items()))
-                if len(errors_m) <= 6
-                else f"max {errors_m[worst]:.3f} (#{worst})"
-            )
-            self.bar.set_postfix_str(f"|p-p_r-d| m {shown}", refresh=False)
-
-    def note(self, lines: list[str]) -> None:
-        """Lines printed above the bar (the vehicles' ports, as they come up); with ``--quiet``
-        only what a user must act on (``run --external``)."""
-        if self.bar is not None:
-            for line in lines:
-                self.bar.write(line)
-        else:
-            for line in lines:
-                if "(--external)" in line:
-                    print(line)
-        sys.stdout.flush()  # a pipe's reader (a script waiting for the ports) gets them now
-
-    def close(self) -> None:
-        if self.bar is not None:
-            self.bar.close()
-
-
 def warn_if_short_of_disk(cfg: SwarmConfig, run_dir: Path) -> None:
     """One line on stderr when the run's expected size does not fit on ``run_dir``'s disk."""
     need = expected_run_bytes(cfg.n_control_steps + 1, cfg.n_followers, cfg.law_class().record_fields)
@@ -222,7 +173,7 @@ def _run_and_record(
             if stream is not None:
                 stream.close()
             raise
-    progress = _RunProgress(cfg, f"{kind} {cfg.name} ({clock})", quiet)
+    progress = RunProgress(cfg, f"{kind} {cfg.name} ({clock})", quiet)
     try:
         out = record_run(
             RunRequest(
