@@ -86,7 +86,8 @@ def _tokens(text: str) -> list[str]:
     while at < len(text):
         m = _TOKEN.match(text, at)
         if m is None or m.end() == at:
-            raise FormulaError(f"cannot read {text[at:].strip()[:20]!r} (at character {at + 1})")
+            rest = text[at:].lstrip()  # (the character named is the first that cannot be read)
+            raise FormulaError(f"cannot read {rest[:20]!r} (at character {len(text) - len(rest) + 1})")
         out.append(m.group(0).strip())
         at = m.end()
     return out
@@ -197,17 +198,6 @@ def signals_of(node: Formula) -> set[str]:
     if isinstance(node, Not | Always | Eventually):
         return signals_of(node.arg)
     return signals_of(node.left) | signals_of(node.right)
-
-
-def horizon_s(node: Formula) -> float:
-    """How far past the instant it is read at a formula looks [s] (``END``: to the end)."""
-    if isinstance(node, Atom):
-        return 0.0
-    if isinstance(node, Not):
-        return horizon_s(node.arg)
-    if isinstance(node, Always | Eventually):
-        return node.end_s + horizon_s(node.arg)
-    return max(horizon_s(node.left), horizon_s(node.right))
 
 
 def first_start_s(node: Formula) -> float:
