@@ -73,6 +73,7 @@ def edge_signals(rec: Recording, cfg: SwarmConfig, edge: Edge) -> dict[str, np.n
     # NaN compares False)
     new[1:] = made[1:] > np.where(np.isnan(made[:-1]), -np.inf, made[:-1]) + 1e-9
     ticked = np.isfinite(t)
+    new[: int(np.argmax(ticked)) + 1] = False  # (its first recorded tick is not one "after its first")
     heard = np.cumsum(new & ticked)
     looked = np.cumsum(ticked) - 1  # ticks after the first one it recorded
     with np.errstate(invalid="ignore", divide="ignore"):
