@@ -2,7 +2,9 @@
 space writes, shrinking against a known boundary, the same front for a seed, and a minimal
 counterexample on a generated ring of six followers that a lockstep run of processes replays."""
 
+import copy
 import json
+import math
 import signal
 import subprocess
 import tempfile
@@ -10,7 +12,7 @@ from pathlib import Path
 
 import pytest
 import yaml
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from swarm_sitl.campaigns.grid import point_data
@@ -18,7 +20,7 @@ from swarm_sitl.config.generator import generate
 from swarm_sitl.config.load import load_config, parse_config, with_spec
 from swarm_sitl.falsify.evaluate import evaluate, requirement_config
 from swarm_sitl.falsify.search import assert_no_counterexample, falsify
-from swarm_sitl.falsify.shrink import RESOLUTION, held_below, shrink
+from swarm_sitl.falsify.shrink import RESOLUTION, at, held_below, shrink
 from swarm_sitl.falsify.space import cost, expand
 from tests.support import CLI, CONFIGS, cli, cli_in_process
 
@@ -150,31 +152,146 @@ def test_links_and_controllers_in_a_space_write_the_plan_entries_lockstep_takes(
 ENTRIES = [[0, 1], [0, 2], [0, 3], [1, 4], [2, 4]]
 
 
+MILD = 0.05  #: the searched range's mild end (not 0: a range is not its own scale)
+
+
 @pytest.mark.unit
-@settings(max_examples=60, deadline=None)
+@settings(max_examples=80, deadline=None)
 @given(
     losses=st.lists(st.floats(0.05, 1.0), min_size=5, max_size=5),
     a=st.sampled_from(range(5)),
     b=st.sampled_from(range(5)),
     thresholds=st.lists(st.floats(0.1, 0.9), min_size=3, max_size=3),
     seeds=st.lists(st.integers(0, 5), min_size=1, max_size=3, unique=True),
+    flip=st.booleans(),
+    nested=st.booleans(),
+    alone=st.booleans(),
+    width=st.integers(1, 3),
+    held=st.one_of(st.none(), st.floats(1e-3, 0.05)),
 )
-def test_shrinking_finds_the_known_minimal_plan(losses, a, b, thresholds, seeds):
-    """A requirement broken exactly when edges A and B are both faulty and A loses at least the
-    plan's seed's threshold (each seed its own): shrinking keeps A and B only, lowers A's loss
-    to within 1/128 above the least threshold of any seed the space allows, with a seed that
-    breaks there (not only the plan's own), B's to the bottom, and each entry left is needed."""
+@example(  # the first probe lands exactly on the threshold: robustness 0 holds
+    losses=[1.0] * 5, a=0, b=1, thresholds=[0.525] * 3, seeds=[0], flip=False, nested=False,
+    alone=False, width=1, held=None,
+)  # fmt: skip
+@example(  # bisection narrowed to 1/128 of 0.95, not of 1.05 (the range's width, not its sum)
+    losses=[0.55] * 5, a=0, b=1, thresholds=[0.050005] * 3, seeds=[0], flip=False, nested=False,
+    alone=False, width=1, held=None,
+)  # fmt: skip
+@example(  # two seeds, flipped: the mildest of their worst holds is where bisection starts
+    losses=[1.0] * 5, a=0, b=1, thresholds=[0.3, 0.6, 0.6], seeds=[0, 1], flip=True, nested=True,
+    alone=True, width=1, held=0.01,
+)  # fmt: skip
+def test_shrinking_finds_the_known_minimal_plan(
+    losses, a, b, thresholds, seeds, flip, nested, alone, width, held
+):
+    """A requirement broken exactly when edges A and B are both faulty (A alone, with ``alone``)
+    and A loses at least the plan's seed's threshold (each seed its own): shrinking keeps A and B
+    only, lowers A's loss to within 1/128 of its range above the least threshold of any seed the
+    space allows, with a seed that breaks there (not only the plan's own), B's to the bottom, and
+    each entry left is needed. ``flip``: the searched value is 1 - loss, its range's mild end the
+    high one (as a rate whose lower values hurt more); ``nested``: the value is deeper in the
+    entry (``bursty.p``, as a link model's parameter). Entries are dropped under the plan's own
+    seed; no plan is flown twice; ``width`` seeds at a time, all of them: the most violating is
+    kept. ``held``: the search saw each seed hold just below its threshold (by ``held``): no probe
+    goes milder than the mildest of those."""
+    sev = (lambda v: 1.0 - v) if flip else (lambda v: v)  # (its own inverse)
+    path = ("bursty", "p") if nested else ("loss",)
     if a == b:
         b = (a + 1) % 5
     threshold = dict(zip(seeds, thresholds, strict=False))
     losses[a] = max(losses[a], max(threshold.values()) + 0.05)
-    plan = {"seed": seeds[0], "plan": [{"edge": e, "loss": p} for e, p in zip(ENTRIES, losses, strict=True)]}
+
+    def entry(e, loss, reverse=False):
+        value = {"p": sev(loss)} if nested else sev(loss)
+        return {path[0]: value, "edge": e} if reverse else {"edge": e, path[0]: value}
+
+    plan = {"seed": seeds[0], "plan": [entry(e, p) for e, p in zip(ENTRIES, losses, strict=True)]}
+    needed = [a] if alone else sorted({a, b})
 
     def robustness(p: dict) -> float:
-        on = {tuple(f["edge"]): f["loss"] for f in p["plan"]}
-        if tuple(ENTRIES[a]) in on and tuple(ENTRIES[b]) in on:
+        on = {tuple(f["edge"]): sev(at(f, path)) for f in p["plan"]}
+        if all(tuple(ENTRIES[k]) in on for k in needed):
             return threshold[p["seed"]] - on[tuple(ENTRIES[a])]
         return 1.0
+
+    flown: list[dict] = []
+
+    def check_many(plans: list[dict]) -> list[float]:
+        flown.extend(copy.deepcopy(plans))
+        return [robustness(p) for p in plans]
+
+    # the search's holds: the kept entries as found, A just below each seed's threshold (only where
+    # A is lowered first: once B is, those plans differ from the one bisected elsewhere too)
+    held = held if alone or a < b else None
+    seen = []
+    if held is not None:
+        for s, t in threshold.items():
+            kept = [entry(ENTRIES[k], max(t - held, 0.0) if k == a else losses[k], True) for k in needed]
+            seen.append({"plan": kept, "seed": s})
+
+    def ranges(f):  # (an entry without the value searches nothing)
+        return [(path, (sev(MILD), sev(1.0)))] if at(f, path) is not None else []
+
+    found, r, spent = shrink(plan, check_many, ranges, 0.01, seeds, seen, width=width)
+    assert spent == len(flown)
+    assert len({json.dumps(p, sort_keys=True) for p in flown}) == len(flown)  # none flown twice
+    kept = {tuple(f["edge"]): sev(at(f, path)) for f in found["plan"]}
+    assert set(kept) == {tuple(ENTRIES[k]) for k in needed}
+    assert r == robustness(found) and r < 0 and found["seed"] in seeds
+    least = min(threshold.values())  # where *a* seed breaks
+    assert least < kept[tuple(ENTRIES[a])] <= least + (1 - MILD) / RESOLUTION + 1e-12
+    if not alone:
+        assert kept[tuple(ENTRIES[b])] <= MILD + (1 - MILD) / RESOLUTION + 1e-12
+    for j in range(len(found["plan"])):  # minimal: without any one entry it holds
+        assert robustness({**found, "plan": found["plan"][:j] + found["plan"][j + 1 :]}) >= 0
+    original = {tuple(f["edge"]): at(f, path) for f in plan["plan"]}
+    for p in flown:  # the entries dropped (nothing lowered yet): under the plan's own seed only
+        if all(at(f, path) == original[tuple(f["edge"])] for f in p["plan"]):
+            assert p["seed"] == seeds[0], p
+    if width >= len(seeds):  # every seed in one batch: the most violating of them
+        assert all(robustness({**found, "seed": s}) >= r for s in seeds)
+    if held is not None:
+        start = min(max(t - held, 0.0) for t in threshold.values())
+        a_at = [sev(at(f, path)) for p in flown for f in p["plan"] if tuple(f["edge"]) == tuple(ENTRIES[a])]
+        assert all(v > start for v in a_at if v != losses[a]), (start, sorted(a_at)[:3])
+
+
+@pytest.mark.unit
+@settings(max_examples=100, deadline=None)
+@given(
+    windows=st.lists(
+        st.tuples(st.one_of(st.none(), st.floats(0.0, 5.0)), st.floats(0.05, 20.0), st.floats(0.0, 0.99)),
+        min_size=1,
+        max_size=3,
+    ),  # (from_s or none: from the start, the window's length, where the need lies past a period)
+    cut=st.one_of(st.none(), st.integers(0, 3)),
+    period=st.sampled_from([0.01, 0.1, 0.5]),
+    steps=st.one_of(st.none(), st.integers(1, 8)),
+)
+def test_shrinking_shortens_each_window_to_what_the_violation_needs(windows, cut, period, steps):
+    """A requirement broken exactly when each window is at least its own length long: each
+    window's end is bisected (``steps`` at most, down to a control period) to within
+    max(period, what is left of its length over a period / 2^steps) past what it needs, a
+    window with no ``from_s`` from 0; an entry with no window (a kill, anywhere in the plan)
+    keeps its fields; every plan flown is counted, under the plan's own seed (the others the
+    space allows are for severities). A window is probed no more once its end is known within a
+    period: log2(its length over a period) probes at most (``steps`` at most, 6 by default)."""
+    entries, need = [], {}
+    for k, (start, length, where) in enumerate(windows):
+        length = max(length, 2 * period)
+        need[k + 1] = period + where * (length - period)
+        f = {"edge": [0, k + 1], "drop": True, "until_s": (start or 0.0) + length}
+        entries.append(f if start is None else {**f, "from_s": start})
+    if cut is not None:
+        entries.insert(min(cut, len(entries)), {"controller": 1, "kill": True, "from_s": 1.0})
+    plan = {"seed": 0, "plan": entries}
+
+    def robustness(p: dict) -> float:
+        if len(p["plan"]) < len(entries):  # an entry dropped: it holds
+            return 1.0
+        windows = [f for f in p["plan"] if "until_s" in f]
+        slack = min(f["until_s"] - f.get("from_s", 0.0) - need[f["edge"][1]] for f in windows)
+        return 1.0 if slack < -1e-9 else -1.0 - slack  # (a length's rounding is no shortfall)
 
     flown: list[dict] = []
 
@@ -182,46 +299,104 @@ def test_shrinking_finds_the_known_minimal_plan(losses, a, b, thresholds, seeds)
         flown.extend(plans)
         return [robustness(p) for p in plans]
 
-    found, r, spent = shrink(plan, check_many, lambda f: [(("loss",), (0.0, 1.0))], 0.01, seeds)
-    assert spent == len(flown)
-    kept = {tuple(f["edge"]): f["loss"] for f in found["plan"]}
-    assert set(kept) == {tuple(ENTRIES[a]), tuple(ENTRIES[b])}
-    assert r == robustness(found) and r < 0 and found["seed"] in seeds
-    least = min(threshold.values())  # where *a* seed breaks
-    assert least < kept[tuple(ENTRIES[a])] <= least + 1 / RESOLUTION + 1e-12
-    assert kept[tuple(ENTRIES[b])] <= 1 / RESOLUTION + 1e-12
-    for j in range(len(found["plan"])):  # minimal: without any one entry it holds
-        assert robustness({**found, "plan": found["plan"][:j] + found["plan"][j + 1 :]}) >= 0
+    more = {} if steps is None else {"steps": steps}
+    found, r, spent = shrink(plan, check_many, lambda f: [], period, (0, 1, 2), **more)
+    steps = 6 if steps is None else steps
+    assert spent == len(flown) and r == robustness(found) < 0
+    assert len(found["plan"]) == len(entries) and found["seed"] == 0
+    assert all(p["seed"] == 0 for p in flown)
+    for f, g in zip(found["plan"], entries, strict=True):
+        if "until_s" not in g:
+            assert f == g
+            continue
+        start = g.get("from_s", 0.0)
+        length, n = g["until_s"] - start, need[g["edge"][1]]
+        assert f.get("from_s") == g.get("from_s") and f["until_s"] <= g["until_s"]
+        left = max(period, (length - period) / 2**steps)
+        assert n - 1e-9 <= f["until_s"] - start <= n + left + 1e-9, (f, n, left)
+    halvings = [
+        math.ceil(math.log2((g["until_s"] - g.get("from_s", 0.0) - period) / period))
+        for g in entries
+        if "until_s" in g
+    ]  # (one more for a width a rounding leaves a hair over a period)
+    # (the plan as given, flown once more for its figure where no probe broke the requirement)
+    probes = [p for p in flown if len(p["plan"]) == len(entries) and p["plan"] != entries]
+    assert len(probes) <= sum(min(steps, max(0, h) + 1) for h in halvings)
+
+
+@pytest.mark.unit
+def test_a_plan_nothing_can_shrink_is_flown_once_more_for_its_figure():
+    """One entry, nothing searched in it and no window: shrinking changes nothing and flies the
+    plan once, for the robustness it returns."""
+    plan = {"seed": 3, "plan": [{"controller": 2, "kill": True, "from_s": 1.0}]}
+    flown: list[dict] = []
+
+    def check_many(plans: list[dict]) -> list[float]:
+        flown.extend(plans)
+        return [-0.25 for _ in plans]
+
+    assert shrink(plan, check_many, lambda f: [], 0.01, (0, 3)) == (plan, -0.25, 1)
+    assert flown == [plan]
+
+
+@pytest.mark.unit
+def test_a_value_is_read_where_its_path_leads_and_nowhere_else():
+    f = {"loss": 0.3, "bursty": {"p": 0.2, "r": {"x": 1}}, "kill": True}
+    assert at(f, ("loss",)) == 0.3 and at(f, ("bursty", "p")) == 0.2 and at(f, ("bursty", "r", "x")) == 1
+    assert at(f, ("delay",)) is None and at(f, ("bursty", "q")) is None
+    assert at(f, ("loss", "p")) is None and at(f, ("kill", "p")) is None  # (through a number: nothing)
+    assert at(f, ()) == f
 
 
 @pytest.mark.unit
 @settings(max_examples=100, deadline=None)
 @given(
     held=st.lists(
-        st.tuples(st.integers(0, 2), st.floats(0.0, 1.0), st.sampled_from([False, False, True])),
+        st.tuples(
+            st.integers(0, 2),
+            st.floats(0.0, 1.0),
+            st.sampled_from(["", "", "longer", "elsewhere"]),
+            st.sampled_from([None, None, None, True, "0.1", "short"]),
+        ),
         min_size=2,
         max_size=12,
-    ),  # (seed, loss, another edge faulty too): several a seed, as a search leaves them
+    ),  # (seed, loss, another edge faulty too or another's loss, or a value that is not one): as a
+    # search leaves them
     seeds=st.lists(st.integers(0, 2), max_size=3, unique=True),
     own=st.integers(0, 2),
     ours=st.floats(0.1, 1.0),
+    flip=st.booleans(),
 )
-def test_the_severity_held_below_is_the_mildest_of_every_seeds_worst_hold(held, seeds, own, ours):
+@example(  # a plan that differs elsewhere, more severe than the seed's own hold: it says nothing
+    held=[(0, 0.5, "", None), (0, 0.7, "elsewhere", None)], seeds=[0], own=0, ours=0.8, flip=False
+)
+def test_the_severity_held_below_is_the_mildest_of_every_seeds_worst_hold(held, seeds, own, ours, flip):
     """Where bisection may start: for every seed the space allows (and the plan's own), the most
     severe value below the plan's at which the same plan otherwise held; the mildest of those,
-    or None while any seed has none. Plans that differ elsewhere say nothing."""
+    or None while any seed has none. Plans that differ elsewhere, that have fewer entries, or
+    whose value there is no number say nothing. ``flip``: values grow milder upward (the range's
+    mild end is 1): the same answer from the other side."""
+    sev = (lambda v: 1.0 - v) if flip else (lambda v: v)
 
-    def plan(seed, loss, other):
-        entries = [{"edge": [0, 1], "loss": loss}] + ([{"edge": [1, 2], "loss": 0.5}] if other else [])
+    def plan(seed, loss, other, junk=None):
+        first = {"edge": [0, 1], "loss": sev(loss) if junk is None else junk}
+        before = {"edge": [2, 3], "loss": 0.7 if other == "elsewhere" else 0.5}
+        if loss < 0.5:  # (keys in another order: the same entry)
+            before = {"loss": before["loss"], "edge": before["edge"]}
+        entries = [before, first]  # the searched entry is the second
+        if other == "longer":
+            entries.append({"edge": [1, 2], "loss": 0.5})
+        if junk == "short":
+            entries = entries[:1]
         return {"seed": seed, "plan": entries}
 
-    plans = [plan(s, v, other) for s, v, other in held]
-    got = held_below(plan(own, ours, False), 0, ("loss",), plans, seeds, 0.0)
+    plans = [plan(s, v, other, junk) for s, v, other, junk in held]
+    got = held_below(plan(own, ours, ""), 1, ("loss",), plans, seeds, sev(0.0))
     tops = {}
     for s in {*seeds, own}:
-        below = [v for t, v, other in held if t == s and v < ours and not other]
+        below = [v for t, v, other, junk in held if t == s and v < ours and not other and junk is None]
         tops[s] = max(below) if below else None
-    assert got == (None if None in tops.values() else min(tops.values()))
+    assert got == (None if None in tops.values() else sev(min(tops.values())))
 
 
 def _left_in(tmp: Path) -> list[str]:

@@ -41,30 +41,37 @@ def _follower(n: int, draw, est: bool = True, flat: bool = False) -> dict[str, n
 
 
 @settings(max_examples=60, deadline=None)
-@given(st.integers(1, 30), st.booleans(), st.booleans(), st.data())
-def test_each_follower_signal_is_its_definition(n, est, flat, data):
+@given(st.integers(1, 30), st.booleans(), st.booleans(), st.integers(0, 30), st.data())
+def test_each_follower_signal_is_its_definition(n, est, flat, enter, data):
     cfg = config("paper")
     a = _follower(n, data.draw, est, flat)
-    got = follower_signals(Recording({}, {2: a}, {}), cfg, 2, [])
+    events = [  # follower 2's vehicle in its failsafe from tick ``enter``; vehicle 3's from the start
+        {"t_s": enter * 0.01, "kind": "failsafe_enter", "vehicle": 2},
+        {"t_s": 0.0, "kind": "failsafe_enter", "vehicle": 3},
+    ]
+    got = follower_signals(Recording({}, {2: a}, {}), cfg, 2, events)
     norm = lambda v: np.sqrt((v**2).sum(axis=1))  # noqa: E731
     assert np.array_equal(got["pos_err_m"], np.abs(a["pos_err_m"]) if flat else norm(a["pos_err_m"]))
     assert np.array_equal(got["vel_err_mps"], norm(a["vel_err_mps"]))
     assert np.array_equal(got["altitude_m"], a["p_W"][:, 2])  # ENU: z is up
     assert np.array_equal(got["speed_mps"], norm(a["v_W"]))
     assert np.array_equal(got["thrust_frac"], a["thrust_N"] / cfg.vehicle.max_thrust_N)
-    assert np.array_equal(got["failsafe"], np.zeros(n))
+    assert np.array_equal(got["failsafe"], (np.arange(n) >= enter).astype(float))
     assert ("est_pos_err_m" in got) == est
     if est:
         assert np.array_equal(got["est_pos_err_m"], norm(a["est_pos_err_m"]))
 
 
 _EVENTS = st.lists(
-    st.fixed_dictionaries(
-        {
-            "t_s": st.integers(0, 40).map(lambda k: k * 0.05),
-            "kind": st.sampled_from(["failsafe_enter", "failsafe_exit", "lost"]),
-            "vehicle": st.sampled_from([1, 2]),
-        }
+    st.one_of(
+        st.fixed_dictionaries(
+            {
+                "t_s": st.integers(0, 40).map(lambda k: k * 0.05),
+                "kind": st.sampled_from(["failsafe_enter", "failsafe_exit", "lost"]),
+                "vehicle": st.sampled_from([1, 2]),
+            }
+        ),
+        st.just({"kind": "router_lost"}),  # (an event of the run's, of no vehicle and no instant)
     ),
     max_size=10,
 )
@@ -78,15 +85,15 @@ def test_the_failsafe_signal_is_a_replay_of_the_vehicles_events(events, dt):
     vehicle's events and other kinds say nothing)."""
     t = np.arange(int(2.2 / dt)) * dt
     got = failsafe_signal(t, events, 1)
-    ordered = sorted(events, key=lambda e: e["t_s"])  # (stable: one instant's in their order)
+    ordered = sorted(events, key=lambda e: e.get("t_s", -1.0))  # (stable: one instant's in order)
     for k, tk in enumerate(t):
         inside = False
         for e in ordered:
-            if e["t_s"] > tk + 1e-9:
+            if e.get("t_s", -1.0) > tk + 1e-9:
                 break
-            if e["vehicle"] == 1 and e["kind"] == "failsafe_enter":
+            if e.get("vehicle") == 1 and e["kind"] == "failsafe_enter":
                 inside = True
-            elif e["vehicle"] == 1 and e["kind"] == "failsafe_exit":
+            elif e.get("vehicle") == 1 and e["kind"] == "failsafe_exit":
                 inside = False
         assert got[k] == float(inside), (k, tk, ordered)
 
@@ -178,6 +185,33 @@ def test_a_requirements_members_and_the_run_have_the_robustness_of_the_closed_fo
             assert r["holds"] == (r["robustness"] >= 0)
         assert r["formula"] == next(s["formula"] for s in spec if s["name"] == name)
         assert r["over"] == next(s.get("over", "followers") for s in spec if s["name"] == name)
+
+
+def test_a_requirement_over_a_follower_with_no_recording_fails_unrecorded():
+    """Follower 3 lost before it recorded anything: a requirement over it alone has no member
+    judged, no robustness, and does not hold; over every follower, the others are judged."""
+    fs = {i: {**_FIXED, "t_s": _FIXED["t_s"].copy()} for i in (1, 2, 4)}
+    got = _judged(
+        [
+            {"name": "three", "over": "follower 3", "formula": "always (pos_err_m < 10)"},
+            {"name": "all", "formula": "always (pos_err_m < 10)"},
+        ],
+        fs,
+    )
+    assert got["three"]["members"] == {} and got["three"]["robustness"] is None
+    assert got["three"]["holds"] is False
+    assert set(got["all"]["members"]) == {"1", "2", "4"} and got["all"]["holds"] is True
+
+
+_FIXED = {
+    "t_s": np.arange(3) * 0.01,
+    "pos_err_m": np.ones((3, 3)),
+    "vel_err_mps": np.zeros((3, 3)),
+    "p_W": np.zeros((3, 3)),
+    "v_W": np.zeros((3, 3)),
+    "thrust_N": np.full(3, 10.0),
+    "in_age_s": np.zeros((3, 2)),
+}
 
 
 def test_a_failing_requirement_is_one_line_naming_its_three_worst_members():
