@@ -67,6 +67,8 @@ Ids = Literal["all", "each"] | list[Annotated[int, Field(ge=1)]]
 OWN_HOWS = ("loss", "delay_s", "drop", "kill")
 #: the least probability searched (a plan's probabilities are positive)
 P_LOW = 1e-6
+#: the least delay searched [s] (a plan's delays are positive)
+D_LOW_S = 1e-9
 
 
 class ModelHow(BaseModel):
@@ -123,6 +125,10 @@ class ModelHow(BaseModel):
         for k, (lo, hi) in self.searched.items():
             if not lo < hi:
                 raise ValueError(f"{self.name}.{k}: an empty range [{lo:g}, {hi:g}] (needs low < high)")
+            if probability and hi <= P_LOW:
+                raise ValueError(
+                    f"{self.name}.{k}: [{lo:g}, {hi:g}] ends at or below {P_LOW:g}, the least p searched"
+                )
             for end in (max(lo, P_LOW) if probability else lo, hi):
                 try:
                     self.params_at({k: end})
@@ -215,8 +221,17 @@ class SpaceEntry(BaseModel):
                 raise ValueError(f"{name}: an empty range [{r[0]:g}, {r[1]:g}] (needs low < high)")
         if self.loss is not None and not 0 <= self.loss[0] < self.loss[1] <= 1:
             raise ValueError(f"loss: [{self.loss[0]:g}, {self.loss[1]:g}] is not within [0, 1]")
+        if self.loss is not None and self.loss[1] <= P_LOW:
+            raise ValueError(
+                f"loss: [{self.loss[0]:g}, {self.loss[1]:g}] ends at or below {P_LOW:g}, the least p searched"
+            )
         if self.delay_s is not None and self.delay_s[0] < 0:
             raise ValueError("delay_s: a delay is at least 0 s")
+        if self.delay_s is not None and self.delay_s[1] <= D_LOW_S:
+            lo, hi = self.delay_s
+            raise ValueError(
+                f"delay_s: [{lo:g}, {hi:g}] ends at or below {D_LOW_S:g} s, the least delay searched"
+            )
         if self.restart_after_s is not None and self.restart_after_s[0] <= 0:
             raise ValueError("restart_after_s: more than 0 s")
         if self.window_s is not None and self.window_s[0] < 0:
@@ -389,7 +404,7 @@ def plan_of(trial: Trial, space: Space, its: list[Item], cfg: SwarmConfig) -> di
         elif e.loss is not None:
             f["loss"] = trial.suggest_float(f"{it.name}.p", max(e.loss[0], P_LOW), e.loss[1])
         elif e.delay_s is not None:
-            f["delay_s"] = trial.suggest_float(f"{it.name}.d", max(e.delay_s[0], 1e-9), e.delay_s[1])
+            f["delay_s"] = trial.suggest_float(f"{it.name}.d", max(e.delay_s[0], D_LOW_S), e.delay_s[1])
         elif e.restart_after_s is not None:
             f["kill"] = True
             f["restart_after_s"] = trial.suggest_float(f"{it.name}.down", *e.restart_after_s)
