@@ -180,8 +180,7 @@ def serve(config_path: str | None) -> int:
             if pid == 0:
                 break
             live.discard(pid)
-            code = -os.WTERMSIG(status) if os.WIFSIGNALED(status) else os.WEXITSTATUS(status)
-            _send(out, {"exit": pid, "code": code})
+            _send(out, {"exit": pid, "code": os.waitstatus_to_exitcode(status)})
     return 0
 
 
@@ -240,6 +239,16 @@ def _serve_here(argv: list[str], env: dict[str, str], fds: tuple[int, int, int])
         os._exit(code & 0xFF if code >= 0 else 1)
 
 
+def _wait(poll: Any, timeout: float | None, what: str) -> int:
+    """``Popen.wait`` for a process known by its ``poll``: its code, or ``TimeoutExpired``."""
+    end = None if timeout is None else time.monotonic() + timeout
+    while (code := poll()) is None:
+        if end is not None and time.monotonic() > end:
+            raise subprocess.TimeoutExpired(what, timeout or 0.0)
+        time.sleep(0.005)
+    return int(code)
+
+
 def _open_fds() -> list[int]:
     try:
         return [int(x) for x in os.listdir("/proc/self/fd")]
@@ -272,17 +281,11 @@ class _ServerHere:
             except ChildProcessError:
                 pid, status = self.pid, 0
             if pid:
-                self.returncode = -os.WTERMSIG(status) if os.WIFSIGNALED(status) else os.WEXITSTATUS(status)
+                self.returncode = os.waitstatus_to_exitcode(status)
         return self.returncode
 
     def wait(self, timeout: float | None = None) -> int:
-        end = None if timeout is None else time.monotonic() + timeout
-        while self.poll() is None:
-            if end is not None and time.monotonic() > end:
-                raise subprocess.TimeoutExpired(f"fork server {self.pid}", timeout or 0.0)
-            time.sleep(0.005)
-        assert self.returncode is not None
-        return self.returncode
+        return _wait(self.poll, timeout, f"fork server {self.pid}")
 
     def kill(self) -> None:
         if self.poll() is None:
@@ -315,12 +318,7 @@ class ForkedProcess:
         return self.returncode
 
     def wait(self, timeout: float | None = None) -> int:
-        end = None if timeout is None else time.monotonic() + timeout
-        while self.poll() is None:
-            if end is not None and time.monotonic() > end:
-                raise subprocess.TimeoutExpired(f"pid {self._pid}", timeout or 0.0)
-            time.sleep(0.005)
-        return int(self.returncode)  # type: ignore[arg-type]
+        return _wait(self.poll, timeout, f"pid {self._pid}")
 
     def send_signal(self, sig: int) -> None:
         if self.poll() is None and self.pid > 0:
