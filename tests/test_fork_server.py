@@ -26,7 +26,11 @@ pytestmark = [
 @pytest.fixture(params=["interpreter", "here"])
 def server(tmp_path, request):
     """A server started as a new interpreter, or forked from this process (as ``swarm-sitl run``
-    forks its own): every test below holds for both."""
+    forks its own): every test below holds for both. (Under pytest-xdist this process runs
+    execnet's thread, so ``can_fork_here`` would refuse it: the server is forked here anyway, to
+    test the mechanism; it touches nothing of that thread's, closing its descriptors and making
+    its own standard streams before anything else. The policy is tested in a fresh interpreter,
+    below.)"""
     env = {**child_env(), PARENT_ENV: str(os.getpid())}
     argv = module_argv("swarm_sitl.running.fork_server")
     s = ForkServer(argv, env, tmp_path / "server.log", here=request.param == "here")
