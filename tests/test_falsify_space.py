@@ -11,7 +11,17 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from pydantic import ValidationError
 
-from swarm_sitl.falsify.space import Space, SpaceEntry, cost, expand, items, plan_of
+from swarm_sitl.falsify.space import (
+    Space,
+    SpaceEntry,
+    cost,
+    default_space,
+    entries_relative_to,
+    expand,
+    flown_plan,
+    items,
+    plan_of,
+)
 from swarm_sitl.faults.plan import FaultPlan
 from tests.support import config
 
@@ -308,3 +318,119 @@ def test_a_space_that_does_not_fit_the_swarm_is_one_line_naming_the_entry(space,
     with pytest.raises(ValueError) as e:
         Space.model_validate(space).check_against(CFG)
     assert str(e.value) == says
+
+
+#: what each own how searches in a plan entry (the rest: a registry model's key, its p or params)
+_SEARCHED_AT = {"loss": ("loss",), "delay_s": ("delay_s",), "kill": ("restart_after_s",), "drop": None}
+
+
+@settings(max_examples=100, deadline=None)
+@given(_entries(), st.data())
+def test_what_shrinking_may_lower_is_each_searched_value_its_range_mild_end_first(entry, data):
+    """``searched``: the place of each searched value in a plan entry and its range, the end at
+    which the plan costs less first: a loss, a delay, a downtime, a model's p or its searched
+    parameters; nothing for a cut."""
+    space = Space.model_validate({"entries": [entry]})
+    e = space.entries[0]
+    f = plan_of(_Drawn(data.draw), space, items(space, CFG)[:1], CFG)["plan"][0]
+    got = e.searched(f)
+    if e.how in _SEARCHED_AT:
+        want = _SEARCHED_AT[e.how]
+        rng = {"loss": e.loss, "delay_s": e.delay_s, "kill": e.restart_after_s}.get(e.how)
+        assert got == ([] if want is None else [(want, tuple(rng))])
+    elif e.how == "corrupt":
+        assert got == [(("corrupt",), tuple(entry["corrupt"]))]
+    else:
+        assert [p for p, _ in got] == [("bursty", "p")]
+        assert set(got[0][1]) == set(entry["bursty"]["p"])
+    for path, (mild, severe) in got:  # (the plan at the mild end costs no more than at the severe)
+        at_end = []
+        for v in (mild + (severe - mild) * 1e-3, severe):  # (just inside: a plan's p and delay are > 0)
+            g = {**f, path[0]: {**f[path[0]], path[1]: v}} if len(path) == 2 else {**f, path[0]: v}
+            at_end.append(cost(expand({"seed": 0, "plan": [g]}, CFG), CFG))
+        assert at_end[0] <= at_end[1] + 1e-12, (path, mild, severe, at_end)
+
+
+def test_the_default_space_is_loss_cuts_and_delays_on_every_edge():
+    d = default_space(CFG)
+    assert d.seeds == [0] and [e.how for e in d.entries] == ["loss", "drop", "delay_s"]
+    assert all(e.edges == "each" for e in d.entries)
+    assert d.entries[0].loss == (0.0, 1.0)
+    assert (
+        d.entries[1].window_s == (0.0, CFG.duration_s) and d.entries[1].max_duration_s == CFG.duration_s / 4
+    )
+    assert d.entries[2].delay_s == (0.0, CFG.estimator.staleness_s * 1.2)
+    d.check_against(CFG)
+
+
+def test_a_plan_flies_under_the_configs_own_faults_first_its_defaults_left_out():
+    base = [{"edge": [0, 1], "loss": 0.25, "from_s": 3.0}, {"controller": 2, "kill": True, "from_s": 9.0}]
+    cfg = CFG.model_copy(update={"faults": FaultPlan.model_validate({"seed": 7, "plan": base})})
+    plan = {"seed": 4, "plan": [{"edges": "all", "drop": True, "from_s": 1.0, "until_s": 2.0}]}
+    got = flown_plan(plan, cfg)
+    assert got["seed"] == 4
+    assert got["plan"][:2] == base  # (each field given, none of a FaultEntry's defaults)
+    assert got["plan"][2:] == expand(plan, cfg)["plan"]
+    assert flown_plan(plan, CFG)["plan"] == expand(plan, CFG)["plan"]  # no faults of its own
+
+
+#: a user's link model: each message lost with probability ``p`` while ``on`` (a flag held)
+USER_LINK = """
+from pydantic import BaseModel, Field
+
+from swarm_sitl.faults.link_model import Effect
+
+
+class Lossy:
+    class Params(BaseModel):
+        p: float = Field(ge=0, le=1)
+        on: bool = True
+
+    def fate(self, p, m):
+        return Effect(lost=True) if p.on and (m.step % 100) < 100 * p.p else None
+"""
+
+
+def test_a_users_link_model_is_searched_by_its_file_wherever_the_space_file_names_it(tmp_path):
+    """A space names a user's model by its file, relative to the space file: the entry is made
+    absolute, the space ships that file once, each point writes ``model: {entry, params}`` with the
+    searched parameter in range and the held one as given, shrinking finds it under
+    ``model.params``, and only an entry of that file is the space entry's."""
+    (tmp_path / "links").mkdir()
+    (tmp_path / "links" / "lossy.py").write_text(USER_LINK)
+    entry = {
+        "edges": "each",
+        "model": {"entry": "links/lossy.py:Lossy", "params": {"p": [0.1, 0.4], "on": True}},
+    }
+    data = {"entries": [entry, {**entry, "edges": [[0, 1]]}, {"edges": "all", "loss": [0, 1]}]}
+    absolute = entries_relative_to(data, tmp_path)
+    file_entry = f"{tmp_path / 'links' / 'lossy.py'}:Lossy"
+    assert [e.get("model", {}).get("entry") for e in absolute["entries"]] == [file_entry, file_entry, None]
+    assert absolute["entries"][2] == data["entries"][2]
+    assert entries_relative_to([1, 2], tmp_path) == [1, 2] and entries_relative_to({"x": 1}, tmp_path) == {
+        "x": 1
+    }
+    space = Space.model_validate(absolute)
+    assert space.user_models() == [file_entry]
+    e = space.entries[0]
+    f = plan_of(_Fixed({"p": 0.3}), space, items(space, CFG)[:1], CFG)["plan"][0]
+    assert f == {"edge": [0, 1], "model": {"entry": file_entry, "params": {"on": True, "p": 0.3}}}
+    assert e.searched(f) == [(("model", "params", "p"), (0.1, 0.4))]
+    assert e.makes(f) and not space.entries[2].makes(f)
+    other = {**f, "model": {**f["model"], "entry": f"{tmp_path}/other.py:Lossy"}}
+    assert not e.makes(other)
+    assert e.link_model is not None and e.link_model.params_at({}).p == pytest.approx(0.25)  # the middle
+
+
+class _Fixed:
+    """A sampler answering each suggestion from a table by its last name part, else its low end;
+    every item on."""
+
+    def __init__(self, values: dict):
+        self.values = values
+
+    def suggest_float(self, name: str, low: float, high: float) -> float:
+        return self.values.get(name.rsplit(".", 1)[-1], low)
+
+    def suggest_categorical(self, name: str, choices):
+        return list(choices)[-1]
