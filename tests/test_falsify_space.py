@@ -374,7 +374,7 @@ def test_a_plan_flies_under_the_configs_own_faults_first_its_defaults_left_out()
     assert flown_plan(plan, CFG)["plan"] == expand(plan, CFG)["plan"]  # no faults of its own
 
 
-#: a user's link model: each message lost with probability ``p`` while ``on`` (a flag held)
+#: a user's link model: a share ``p`` of the messages lost, or (``invert``) all but that share
 USER_LINK = """
 from pydantic import BaseModel, Field
 
@@ -384,10 +384,10 @@ from swarm_sitl.faults.link_model import Effect
 class Lossy:
     class Params(BaseModel):
         p: float = Field(ge=0, le=1)
-        on: bool = True
+        invert: bool = False
 
     def fate(self, p, m):
-        return Effect(lost=True) if p.on and (m.step % 100) < 100 * p.p else None
+        return Effect(lost=True) if ((m.step % 100) < 100 * p.p) != p.invert else None
 """
 
 
@@ -395,27 +395,29 @@ def test_a_users_link_model_is_searched_by_its_file_wherever_the_space_file_name
     """A space names a user's model by its file, relative to the space file: the entry is made
     absolute, the space ships that file once, each point writes ``model: {entry, params}`` with the
     searched parameter in range and the held one as given, shrinking finds it under
-    ``model.params``, and only an entry of that file is the space entry's."""
+    ``model.params`` with its mild end first as the held parameter makes it (``invert``: a larger
+    p loses less), its cost is the share it loses over the run, and only an entry of that file is
+    the space entry's."""
     (tmp_path / "links").mkdir()
     (tmp_path / "links" / "lossy.py").write_text(USER_LINK)
     entry = {
         "edges": "each",
-        "model": {"entry": "links/lossy.py:Lossy", "params": {"p": [0.1, 0.4], "on": True}},
+        "model": {"entry": "links/lossy.py:Lossy", "params": {"p": [0.1, 0.4], "invert": True}},
     }
     data = {"entries": [entry, {**entry, "edges": [[0, 1]]}, {"edges": "all", "loss": [0, 1]}]}
     absolute = entries_relative_to(data, tmp_path)
     file_entry = f"{tmp_path / 'links' / 'lossy.py'}:Lossy"
     assert [e.get("model", {}).get("entry") for e in absolute["entries"]] == [file_entry, file_entry, None]
     assert absolute["entries"][2] == data["entries"][2]
-    assert entries_relative_to([1, 2], tmp_path) == [1, 2] and entries_relative_to({"x": 1}, tmp_path) == {
-        "x": 1
-    }
+    for other in ([1, 2], {"x": 1}, {"entries": ["x", {"model": "y"}]}):  # (refused later, as they are)
+        assert entries_relative_to(other, tmp_path) == other
     space = Space.model_validate(absolute)
     assert space.user_models() == [file_entry]
     e = space.entries[0]
     f = plan_of(_Fixed({"p": 0.3}), space, items(space, CFG)[:1], CFG)["plan"][0]
-    assert f == {"edge": [0, 1], "model": {"entry": file_entry, "params": {"on": True, "p": 0.3}}}
-    assert e.searched(f) == [(("model", "params", "p"), (0.1, 0.4))]
+    assert f == {"edge": [0, 1], "model": {"entry": file_entry, "params": {"invert": True, "p": 0.3}}}
+    assert e.searched(f) == [(("model", "params", "p"), (0.4, 0.1))]
+    assert cost(expand({"seed": 0, "plan": [f]}, CFG), CFG) == pytest.approx(0.7 * CFG.duration_s, rel=0.05)
     assert e.makes(f) and not space.entries[2].makes(f)
     other = {**f, "model": {**f["model"], "entry": f"{tmp_path}/other.py:Lossy"}}
     assert not e.makes(other)
