@@ -85,7 +85,7 @@ def test_a_space_over_every_edge_writes_the_plan_a_sweep_writes():
     d=st.floats(0.0, 2.0),
 )
 def test_the_cost_of_a_plan_is_severity_times_duration_summed(p, start, dur, d):
-    cfg = load_config(PAPER)  # 40 s, staleness 0.5 s
+    cfg = load_config(PAPER)  # 60 s, staleness 0.5 s
     plan = {
         "seed": 0,
         "plan": [
