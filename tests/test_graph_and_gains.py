@@ -282,3 +282,16 @@ def test_the_suggestion_keeps_unequal_k_p_and_k_v_when_they_already_hold(k_p, k_
     s = r.suggestion
     assert (s["k_p"], s["k_v"], s["l_a"]) == (k_p, k_v, l_a)
     assert s["k_a"] == pytest.approx(1.25 * r.conditions[2].bound, rel=1e-3)
+
+
+@given(spanning_graphs(), st.data())
+def test_hops_from_a_node_are_the_fewest_edges_to_each_node_it_reaches(g, data):
+    """Against a relaxation over the edge list (Bellman-Ford with unit lengths): each node a path
+    reaches has its fewest edges, the node itself 0, and nothing else is listed."""
+    start = data.draw(st.integers(0, g.n_followers))
+    dist = {start: 0}
+    for _ in range(g.n_followers + 1):
+        for e in g.edges:
+            if e.src in dist and dist[e.src] + 1 < dist.get(e.dst, g.n_followers + 2):
+                dist[e.dst] = dist[e.src] + 1
+    assert g.hops_from(start) == dist
