@@ -59,29 +59,35 @@ class ForkServerError(RuntimeError):
     """The fork server did not start, ended, or could not start a child; the message says which."""
 
 
-def _run_child(request: dict[str, Any], fd: int) -> int:
-    """In the forked child: become the process the request describes (``fd``: its log, opened by
-    the server so that it exists when the pid is answered), run it, return its code."""
+def _become(fds: tuple[int, int, int], argv: list[str], env: dict[str, str]) -> None:
+    """In a forked process: become what ``subprocess.Popen`` would have started for command line
+    ``argv`` with ``env``, in a session of its own, ``fds`` its stdin, stdout and stderr (and
+    Python's streams on them)."""
     os.setsid()
-    signal.signal(signal.SIGCHLD, signal.SIG_DFL)
-    signal.signal(signal.SIGTERM, signal.SIG_DFL)
-    signal.signal(signal.SIGINT, signal.SIG_DFL)
-    null = os.open(os.devnull, os.O_RDONLY)
-    os.dup2(null, 0)
-    os.dup2(fd, 1)
-    os.dup2(fd, 2)
-    os.close(fd)
-    os.close(null)
+    for target, fd in enumerate(fds):
+        os.dup2(fd, target)
     sys.stdin = open(0, closefd=False)  # noqa: SIM115
     sys.stdout = open(1, "w", buffering=1, closefd=False)  # noqa: SIM115
     sys.stderr = open(2, "w", buffering=1, closefd=False)  # noqa: SIM115
     # ps, top and pgrep show the command line Popen would have started (before the environment
     # changes: setproctitle takes its room from where the environment's strings lie)
-    setproctitle(" ".join(shlex.quote(a) for a in [*module_argv(request["module"]), *request["argv"]]))
+    setproctitle(" ".join(shlex.quote(a) for a in argv))
     os.environ.clear()
-    os.environ.update(request["env"])
-    os.environ[PARENT_ENV] = str(os.getppid())  # hold_on(): this process dies with the server
+    os.environ.update(env)
     random.seed()  # the parent's generator state is not this process's
+
+
+def _run_child(request: dict[str, Any], fd: int) -> int:
+    """In the forked child: become the process the request describes (``fd``: its log, opened by
+    the server so that it exists when the pid is answered), run it, return its code."""
+    signal.signal(signal.SIGCHLD, signal.SIG_DFL)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+    null = os.open(os.devnull, os.O_RDONLY)
+    _become((null, fd, fd), [*module_argv(request["module"]), *request["argv"]], request["env"])
+    os.close(fd)
+    os.close(null)
+    os.environ[PARENT_ENV] = str(os.getppid())  # hold_on(): this process dies with the server
     module, argv = request["module"], list(request["argv"])
     sys.argv = [module, *argv]
     # imported here, not at the top: this module is also the supervisor's side of the server
@@ -206,23 +212,14 @@ def _serve_here(argv: list[str], env: dict[str, str], fds: tuple[int, int, int])
     the supervisor's (its exit handlers, its objects' finalizers)."""
     code = 1
     try:
-        os.setsid()
-        for target, fd in enumerate(fds):
-            os.dup2(fd, target)
+        _become(fds, argv, env)
         for fd in _open_fds():  # (as Popen's close_fds: the children inherit only their own)
             if fd > 2:
                 with contextlib.suppress(OSError):
                     os.close(fd)
-        sys.stdin = open(0, closefd=False)  # noqa: SIM115
-        sys.stdout = open(1, "w", buffering=1, closefd=False)  # noqa: SIM115
-        sys.stderr = open(2, "w", buffering=1, closefd=False)  # noqa: SIM115
         for sig in (signal.SIGTERM, signal.SIGHUP, signal.SIGCHLD):
             signal.signal(sig, signal.SIG_DFL)
         signal.signal(signal.SIGINT, signal.default_int_handler)
-        setproctitle(" ".join(shlex.quote(a) for a in argv))
-        os.environ.clear()
-        os.environ.update(env)
-        random.seed()
         args = argv[len(module_argv(__name__)) :]
         sys.argv = [__name__, *args]
         print(f"fork server: forked from its supervisor (pid {os.getppid()})", file=sys.stderr)

@@ -76,9 +76,7 @@ def start_fork_server(cfg_path: Path, run_dir: Path, here: bool = False) -> Fork
     log_dir.mkdir(parents=True, exist_ok=True)
     env = {**child_env(), PARENT_ENV: str(os.getpid()), "PYTHONUNBUFFERED": "1"}
     argv = [*module_argv("swarm_sitl.running.fork_server"), str(cfg_path)]
-    if here and can_fork_here():
-        return ForkServer(argv, env, log_dir / "fork_server.log", here=True)
-    return ForkServer(argv, env, log_dir / "fork_server.log")
+    return ForkServer(argv, env, log_dir / "fork_server.log", here=here and can_fork_here())
 
 
 def uses_fork_server(cfg: SwarmConfig) -> bool:
