@@ -211,6 +211,24 @@ def cli_in_process(*args: object) -> tuple[int, str, str]:
     return code, out.getvalue(), err.getvalue()
 
 
+# -- falsify ----------------------------------------------------------------------------------------
+class FixedTrial:
+    """A sampler for ``falsify.space.plan_of`` that answers each suggestion from a table, by its
+    full name or its last part (the low end where it has none), held within the bounds asked;
+    every item on (the last choice)."""
+
+    def __init__(self, values: dict[str, float]):
+        self.values = values
+
+    def suggest_float(self, name: str, low: float, high: float) -> float:
+        v = self.values.get(name, self.values.get(name.rsplit(".", 1)[-1], low))
+        assert low <= v <= high, (name, v)
+        return v
+
+    def suggest_categorical(self, name: str, choices: Any) -> Any:
+        return list(choices)[-1]
+
+
 # -- ROS 2 ------------------------------------------------------------------------------------------
 def msg_files(ros_type: str) -> dict[str, str]:
     """The ``.msg`` text of ``ros_type`` and of each type it uses, by type name, split out of the

@@ -22,7 +22,7 @@ from swarm_sitl.falsify.evaluate import evaluate, requirement_config
 from swarm_sitl.falsify.search import assert_no_counterexample, falsify
 from swarm_sitl.falsify.shrink import RESOLUTION, at, held_below, shrink
 from swarm_sitl.falsify.space import cost, expand
-from tests.support import CLI, CONFIGS, cli, cli_in_process
+from tests.support import CLI, CONFIGS, FixedTrial, cli, cli_in_process
 
 #: its system tests run in lockstep or ``sim`` only (no wall clock): free to run beside others
 pytestmark = pytest.mark.lockstep
@@ -109,21 +109,6 @@ def test_the_edges_cost_counts_the_graph_edges_a_plan_touches():
     assert cost(into, cfg, "edges") == 3
 
 
-class _Fixed:
-    """A trial that answers each suggestion from a table (the low end where it has none)."""
-
-    def __init__(self, values: dict):
-        self.values = values
-
-    def suggest_float(self, name: str, low: float, high: float) -> float:
-        v = self.values.get(name, self.values.get(name.rsplit(".", 1)[-1], low))
-        assert low <= v <= high, (name, v)
-        return v
-
-    def suggest_categorical(self, name: str, choices: list) -> object:
-        return choices[-1]
-
-
 @pytest.mark.unit
 def test_links_and_controllers_in_a_space_write_the_plan_entries_lockstep_takes():
     from swarm_sitl.falsify.space import Space, items, plan_of
@@ -139,7 +124,7 @@ def test_links_and_controllers_in_a_space_write_the_plan_entries_lockstep_takes(
         }
     )
     at = {"p": 0.4, "from": 12.0, "dur": 2.0, "down": 1.5, "1.kill.controller2.from": 25.0}
-    plan = plan_of(_Fixed(at), space, items(space, cfg), cfg)
+    plan = plan_of(FixedTrial(at), space, items(space, cfg), cfg)
     assert plan["plan"] == [
         {"mavlink": 3, "direction": "up", "loss": 0.4, "from_s": 12.0, "until_s": 14.0},
         {"controller": 2, "kill": True, "restart_after_s": 1.5, "from_s": 25.0},

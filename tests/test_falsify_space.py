@@ -23,7 +23,7 @@ from swarm_sitl.falsify.space import (
     plan_of,
 )
 from swarm_sitl.faults.plan import FaultPlan
-from tests.support import config
+from tests.support import FixedTrial, config
 
 pytestmark = pytest.mark.unit
 
@@ -414,7 +414,7 @@ def test_a_users_link_model_is_searched_by_its_file_wherever_the_space_file_name
     space = Space.model_validate(absolute)
     assert space.user_models() == [file_entry]
     e = space.entries[0]
-    f = plan_of(_Fixed({"p": 0.3}), space, items(space, CFG)[:1], CFG)["plan"][0]
+    f = plan_of(FixedTrial({"p": 0.3}), space, items(space, CFG)[:1], CFG)["plan"][0]
     assert f == {"edge": [0, 1], "model": {"entry": file_entry, "params": {"invert": True, "p": 0.3}}}
     assert e.searched(f) == [(("model", "params", "p"), (0.4, 0.1))]
     assert cost(expand({"seed": 0, "plan": [f]}, CFG), CFG) == pytest.approx(0.7 * CFG.duration_s, rel=0.05)
@@ -422,17 +422,3 @@ def test_a_users_link_model_is_searched_by_its_file_wherever_the_space_file_name
     other = {**f, "model": {**f["model"], "entry": f"{tmp_path}/other.py:Lossy"}}
     assert not e.makes(other)
     assert e.link_model is not None and e.link_model.params_at({}).p == pytest.approx(0.25)  # the middle
-
-
-class _Fixed:
-    """A sampler answering each suggestion from a table by its last name part, else its low end;
-    every item on."""
-
-    def __init__(self, values: dict):
-        self.values = values
-
-    def suggest_float(self, name: str, low: float, high: float) -> float:
-        return self.values.get(name.rsplit(".", 1)[-1], low)
-
-    def suggest_categorical(self, name: str, choices):
-        return list(choices)[-1]
