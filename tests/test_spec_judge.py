@@ -22,6 +22,11 @@ pytestmark = pytest.mark.unit
 _FLOATS = st.floats(-50, 50, allow_nan=False)
 
 
+def _norm(v: np.ndarray) -> np.ndarray:
+    """Each row's length, written out (the module's is numpy's)."""
+    return np.sqrt((v**2).sum(axis=1))
+
+
 def _follower(n: int, draw, est: bool = True, flat: bool = False) -> dict[str, np.ndarray]:
     def arr(*shape):
         return draw(hnp.arrays(float, shape, elements=_FLOATS))
@@ -50,16 +55,15 @@ def test_each_follower_signal_is_its_definition(n, est, flat, enter, data):
         {"t_s": 0.0, "kind": "failsafe_enter", "vehicle": 3},
     ]
     got = follower_signals(Recording({}, {2: a}, {}), cfg, 2, events)
-    norm = lambda v: np.sqrt((v**2).sum(axis=1))  # noqa: E731
-    assert np.array_equal(got["pos_err_m"], np.abs(a["pos_err_m"]) if flat else norm(a["pos_err_m"]))
-    assert np.array_equal(got["vel_err_mps"], norm(a["vel_err_mps"]))
+    assert np.array_equal(got["pos_err_m"], np.abs(a["pos_err_m"]) if flat else _norm(a["pos_err_m"]))
+    assert np.array_equal(got["vel_err_mps"], _norm(a["vel_err_mps"]))
     assert np.array_equal(got["altitude_m"], a["p_W"][:, 2])  # ENU: z is up
-    assert np.array_equal(got["speed_mps"], norm(a["v_W"]))
+    assert np.array_equal(got["speed_mps"], _norm(a["v_W"]))
     assert np.array_equal(got["thrust_frac"], a["thrust_N"] / cfg.vehicle.max_thrust_N)
     assert np.array_equal(got["failsafe"], (np.arange(n) >= enter).astype(float))
     assert ("est_pos_err_m" in got) == est
     if est:
-        assert np.array_equal(got["est_pos_err_m"], norm(a["est_pos_err_m"]))
+        assert np.array_equal(got["est_pos_err_m"], _norm(a["est_pos_err_m"]))
 
 
 _EVENTS = st.lists(
@@ -160,12 +164,11 @@ def test_a_requirements_members_and_the_run_have_the_robustness_of_the_closed_fo
         {"name": "fresh", "over": "edges", "formula": f"always (age_s <= {c!r})"},
     ]
     got = _judged(spec, fs)
-    norm = lambda v: np.sqrt((v**2).sum(axis=1))  # noqa: E731
-    err = {str(i): c - norm(a["pos_err_m"]).max() for i, a in fs.items()}
+    err = {str(i): c - _norm(a["pos_err_m"]).max() for i, a in fs.items()}
     if lost:
         err[str(lost)] = None
     pairs = {
-        f"{i}-{j}": norm(fs[i]["p_W"] - fs[j]["p_W"]).min() - c for i in range(1, 5) for j in range(i + 1, 5)
+        f"{i}-{j}": _norm(fs[i]["p_W"] - fs[j]["p_W"]).min() - c for i in range(1, 5) for j in range(i + 1, 5)
     }
     g = config("paper").build_graph()
     edges = {}
