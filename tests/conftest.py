@@ -27,7 +27,8 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
     # (``tests/workers.py``). The group is a suffix of the node id (what xdist's own hook makes of an
     # xdist_group mark, which may run before this one; pytest 9 no longer reads it, so
     # pyproject.toml keeps pytest 8). A system test marked ``lockstep`` (it runs in lockstep or
-    # ``sim`` only: CPU, no wall clock) goes to any worker; a unit or integration test marked
+    # ``sim`` only: CPU, no wall clock) or ``light`` (one vehicle for a client that mostly waits)
+    # goes to any worker; a unit or integration test marked
     # ``realtime`` (an in-process loop timed to the millisecond) to a real-time worker.
     grouped = bool(config.getvalue("loadgroup")) if hasattr(config.option, "loadgroup") else False
     realtime = [item for item in items if _realtime(item)]
@@ -36,9 +37,10 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
 
 
 def _realtime(item: pytest.Item) -> bool:
-    """A test that keeps time on the wall clock: a system test not marked ``lockstep``, or one
-    marked ``realtime``."""
-    system = item.get_closest_marker("system") is not None and item.get_closest_marker("lockstep") is None
+    """A test that keeps time on the wall clock: a system test marked neither ``lockstep`` nor
+    ``light``, or one marked ``realtime``."""
+    beside = item.get_closest_marker("lockstep") or item.get_closest_marker("light")
+    system = item.get_closest_marker("system") is not None and beside is None
     return system or item.get_closest_marker("realtime") is not None
 
 

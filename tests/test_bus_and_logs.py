@@ -375,6 +375,7 @@ def _zenoh_pools(pid: int) -> set[str]:
 
 @pytest.mark.system
 @pytest.mark.parametrize("users_runtime", [None, "(rx: (worker_threads: 1))"])
+@pytest.mark.light
 def test_swarm_sitl_router_routes_on_one_thread_unless_the_user_sets_the_runtime(users_runtime):
     """``swarm-sitl router`` (and ``run``'s router) run zenoh on one worker thread: two clients
     exchange samples through it while it has threads of the application pool only; with the

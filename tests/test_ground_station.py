@@ -37,6 +37,7 @@ def _counts(*conns, seconds: float) -> list[dict[str, int]]:
     return got
 
 
+@pytest.mark.light
 def test_a_ground_station_gets_its_own_streams_and_changes_only_them():
     port, gcs_port = free_udp_port(), free_udp_port()
     proc = spawn_vehicle(2, port, "--gcs-port", str(gcs_port), "--duration", "30")

@@ -344,6 +344,7 @@ def _ack(conn, command: int, timeout: float = 3.0):
 
 
 @pytest.mark.system
+@pytest.mark.light
 def test_a_stranger_without_the_key_cannot_command_a_signed_vehicle_or_take_its_telemetry(signed_vehicle):
     port, proc, stats_path = signed_vehicle
     owner = _client(port, KEY)
@@ -396,6 +397,7 @@ def _docs_script() -> str:
 
 
 @pytest.mark.system
+@pytest.mark.light
 def test_the_docs_pymavlink_script_sets_a_parameter_of_a_signed_run_and_each_unsigned_message_is_counted(
     tmp_path,
 ):

@@ -27,6 +27,7 @@ example = importlib.util.module_from_spec(_spec)
 _spec.loader.exec_module(example)
 
 
+@pytest.mark.light
 def test_mavsdk_reads_telemetry_and_flies_offboard_attitude():
     port = free_udp_port()
     proc = spawn_vehicle(1, port, "--duration", "60")

@@ -52,6 +52,7 @@ def _binomial_bound(p: float, n: int) -> float:
     return 5 * math.sqrt(p * (1 - p) / n)
 
 
+@pytest.mark.light
 def test_a_pymavlink_controller_sees_the_planned_loss_on_its_link(tmp_path):
     plan = {
         "seed": 11,

@@ -296,6 +296,7 @@ def test_fuzz_vehicle_survives_random_bytes_from_anyone(flying, data, sender):
 
 
 @pytest.mark.system
+@pytest.mark.light
 def test_the_vehicle_process_keeps_flying_after_a_hostile_burst(tmp_path):
     """Across the real socket: a burst of the inputs above, then the vehicle still answers."""
     import subprocess

@@ -42,6 +42,7 @@ def _latest(conn, kind):
     return conn.messages[kind]
 
 
+@pytest.mark.light
 def test_pymavlink_client_arms_tilts_north_and_sees_it(vehicle):
     port, tlog, proc = vehicle
     conn = mavutil.mavlink_connection(f"udpout:127.0.0.1:{port}", source_system=250)
@@ -158,6 +159,7 @@ def test_pymavlink_client_arms_tilts_north_and_sees_it(vehicle):
     assert any("HEARTBEAT" in line and "autopilot : 12" in line for line in out), out[:5]
 
 
+@pytest.mark.light
 def test_garbage_bytes_are_dropped_and_the_vehicle_keeps_talking(vehicle):
     port, _, _ = vehicle
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
@@ -168,6 +170,7 @@ def test_garbage_bytes_are_dropped_and_the_vehicle_keeps_talking(vehicle):
     conn.close()
 
 
+@pytest.mark.light
 def test_offboard_refused_for_a_lost_setpoint_is_asked_again(vehicle):
     """On a lossy link the setpoint sent ahead of DO_SET_MODE can be lost while the command gets
     through: the vehicle answers TEMPORARILY_REJECTED (PX4's rule), and the controller's link asks

@@ -1,7 +1,12 @@
 """Which pytest-xdist worker runs what, and at which priority (``tests/conftest.py`` plugs it in).
 
-The system tests that are not marked ``lockstep`` fly in real time (and so do the tests marked
-``realtime``): their processes must get the CPU when their clocks say so. Only the first worker,
+The system tests that are marked neither ``lockstep`` nor ``light`` fly swarms in real time (and so
+do the tests marked ``realtime``): their processes must get the CPU when their clocks say so. A
+``light`` test flies one vehicle (or a few) in real time for a client that mostly waits on it
+(MAVSDK's flows, a pymavlink script's round trips): a niced vehicle answers such a client in time
+(checked: those tests, niced, beside two niced workers running the rest, five times over), so it
+runs beside the others, on any worker, as a ``lockstep`` test does, and its waiting is not in the
+real-time worker's chain. Only the first worker,
 ``gw0``, takes them, one at a time, in the order collected, at the normal priority. Every other
 worker lowers its own priority (``nice``) at its first test, and so do the processes its tests
 start: the unit and integration tests and the lockstep system tests take the CPU the real-time
