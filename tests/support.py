@@ -156,22 +156,35 @@ def sih_quad() -> Any:
     return VehicleParams(1.0, (0.025, 0.025, 0.03), 20.0)
 
 
-def sih_roll_step(t: np.ndarray, rate_p: float) -> np.ndarray:
+def sih_roll_step(t: np.ndarray, rate_p: float, rate_d: float = 0.0) -> np.ndarray:
     """``roll_cascade_step`` on PX4 SIH's quadrotor with PX4's torque scale (the roll torque a
     normalised 1 asks: the effectiveness' pseudo-inverse, as PX4 normalises it)."""
+    j = sih_quad().inertia_kgm2[0]
+    return roll_cascade_step(t, sih_roll_torque_per_unit_Nm(), j, rate_p, rate_d=rate_d)
+
+
+def sih_roll_torque_per_unit_Nm() -> float:
+    """The roll torque a normalised 1 asks of PX4 SIH's quadrotor (PX4's torque scale)."""
     from sim_vehicles.plant.px4_allocation import normalized_mix, torque_per_unit_Nm
     from sim_vehicles.plant.rotors import effectiveness
 
     scale = normalized_mix(effectiveness(5.0, 0.1, 0.2, 0.2))[1]
-    return roll_cascade_step(t, float(torque_per_unit_Nm(scale)[0]), sih_quad().inertia_kgm2[0], rate_p)
+    return float(torque_per_unit_Nm(scale)[0])
 
 
 def roll_cascade_step(
-    t: np.ndarray, torque_per_unit_Nm: float, inertia_kgm2: float, rate_p: float, att_p: float = 6.5
+    t: np.ndarray,
+    torque_per_unit_Nm: float,
+    inertia_kgm2: float,
+    rate_p: float,
+    att_p: float = 6.5,
+    rate_d: float = 0.0,
 ) -> np.ndarray:
-    """The unit step response from rest of PX4's roll cascade, linearised, P only: ``x'' + 2 zeta
-    wn x' + wn^2 x = wn^2`` with ``wn^2 = U P_r P_a / J`` and ``2 zeta wn = U P_r / J`` (``U``: the
-    roll torque a normalised 1 asks), under- or overdamped."""
+    """The unit step response from rest of PX4's roll cascade, linearised, P and D: ``J x'' = U
+    (P_r (P_a (1 - x) - x') - D_r x'')``, i.e. ``x'' + 2 zeta wn x' + wn^2 x = wn^2`` with ``wn^2 = U
+    P_r P_a / J'`` and ``2 zeta wn = U P_r / J'`` (``U``: the roll torque a normalised 1 asks; the D
+    term adds ``U D_r`` to the inertia: ``J' = J + U D_r``), under- or overdamped."""
+    inertia_kgm2 = inertia_kgm2 + torque_per_unit_Nm * rate_d
     a = torque_per_unit_Nm * rate_p / inertia_kgm2
     b = a * att_p  # x'' + a x' + b x = b
     disc = a * a / 4 - b

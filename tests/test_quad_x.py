@@ -5,15 +5,17 @@ scale, the yaw torque's sign and size, PX4's yaw-torque low-pass; and, for every
 any valid setpoint from any state keeps the vehicle finite. The mixer and the attitude loop
 against PX4's own are ``test_px4_allocation`` and ``test_px4_attitude``."""
 
+import dataclasses
 import math
 
 import numpy as np
 import pytest
-from hypothesis import given
+from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from sim_vehicles.common.command import AttitudeCommand
 from sim_vehicles.common.state import POS, QUAT, RATE, VEL, make_state
+from sim_vehicles.plant.px4_params import BY_NAME, GAINS
 from sim_vehicles.plant.quad_x import AIRFRAME, QuadX
 from sim_vehicles.plant.rigid_body import derivative
 from sim_vehicles.plant.rotors import (
@@ -27,6 +29,7 @@ from sim_vehicles.plant.rotors import (
     rotor_wrench,
     thrust_fraction,
 )
+from sim_vehicles.plant.wind import WindModel
 from tests.support import sih_quad, sih_roll_step
 
 pytestmark = pytest.mark.unit
@@ -116,9 +119,11 @@ def test_it_hovers_in_equilibrium_with_every_rotor_at_the_weight_over_four():
     assert q.state[QUAT] == pytest.approx([1.0, 0.0, 0.0, 0.0], abs=1e-12)
 
 
-def _roll_step(angle: float, rate_p: float, seconds: float) -> tuple[np.ndarray, np.ndarray]:
-    """The roll of a quadrotor without motor lag, I or D, after a roll command of ``angle``."""
-    q = _quad({"T_TAU_S": 0.0}, {"MC_ROLLRATE_P": rate_p, "MC_ROLLRATE_I": 0.0, "MC_ROLLRATE_D": 0.0})
+def _roll_step(
+    angle: float, rate_p: float, seconds: float, rate_d: float = 0.0
+) -> tuple[np.ndarray, np.ndarray]:
+    """The roll of a quadrotor without motor lag or I (D ``rate_d``) after a roll command of ``angle``."""
+    q = _quad({"T_TAU_S": 0.0}, {"MC_ROLLRATE_P": rate_p, "MC_ROLLRATE_I": 0.0, "MC_ROLLRATE_D": rate_d})
     q.set_command(AttitudeCommand(q_c=_roll_q(angle), thrust_N=SIH.hover_thrust_N))
     t, roll = [], []
     for k in range(1, round(seconds / DT) + 1):
@@ -140,6 +145,47 @@ def test_a_small_roll_step_follows_the_linearised_cascade(rate_p):
     assert np.max(np.abs(roll - angle * sih_roll_step(t, rate_p))) < 0.02 * angle
     # and the two gains differ where the closed forms do: the test tells them apart
     assert np.max(np.abs(roll - angle * sih_roll_step(t, 0.45 - rate_p))) > 0.05 * angle
+
+
+@pytest.mark.parametrize("rate_p", [0.15, 0.3])
+def test_the_rate_loops_d_term_acts_on_the_measured_angular_acceleration(rate_p):
+    """With PX4's D term, ``- D_r theta''`` on the normalised torque, the same cascade as above
+    with the inertia ``J + U D_r`` (``tests.support.roll_cascade_step``): the model's D acts on the
+    body's angular acceleration as it measures it (the rates' difference over one step). The
+    backward difference lags half a step, as the sampling does, and ``U D_r / J`` = 0.45 here (the
+    difference recursion's factor, well inside 1), so the P-only test's 2 % of the step holds; the
+    D term moves the response by more than 3 % of it (the inertia 45 % larger)."""
+    angle, rate_d = 0.02, 0.004
+    t, roll = _roll_step(angle, rate_p, 1.5, rate_d)
+    assert np.max(np.abs(roll - angle * sih_roll_step(t, rate_p, rate_d))) < 0.02 * angle
+    assert np.max(np.abs(roll - angle * sih_roll_step(t, rate_p))) > 0.03 * angle  # D tells
+
+
+@settings(max_examples=6, deadline=None)
+@given(
+    st.floats(0.5, 8.0),  # wind speed [m/s]
+    st.floats(-math.pi, math.pi),  # its heading
+    st.floats(0.02, 1.5),  # drag [N s^2/m^2]: under and over 1
+)
+def test_a_level_hover_in_a_steady_wind_drifts_as_quadratic_drag_says(speed, heading, drag):
+    """Level at hover thrust in a steady horizontal wind ``W`` with quadratic drag ``c``: the
+    attitude and the height hold (the drag acts at the centre, the thrust balances the weight),
+    and the velocity relative to the air, along ``W``, obeys ``m u' = -c u^2``: ``u = W / (1 + c
+    W t / m)``, so ``v = W - u`` and the distance flown ``W t - (m / c) ln(1 + c W t / m)``. RK4's
+    error per 1 ms step is ``(c W / m)^4 W dt^5``-small: 1e-7 of the wind is room."""
+    w = speed * np.array([math.cos(heading), math.sin(heading), 0.0])
+    params = dataclasses.replace(SIH, drag_Ns2pm2=drag)
+    q = QuadX(params, make_state([0.0, 0.0, 10.0]), DT)
+    q.wind = WindModel(1, mean_mps=tuple(w))
+    seconds = 1.0
+    q.advance(round(seconds / DT))
+    k = drag * speed / params.mass_kg
+    u = speed / (1.0 + k * seconds)
+    flown = speed * seconds - math.log1p(k * seconds) * params.mass_kg / drag
+    along = w / speed
+    assert q.state[VEL] == pytest.approx((speed - u) * along, abs=1e-7 * speed)
+    assert q.state[POS] == pytest.approx(np.array([0.0, 0.0, 10.0]) + flown * along, abs=1e-7 * speed)
+    assert q.state[QUAT] == pytest.approx([1.0, 0.0, 0.0, 0.0], abs=1e-12)
 
 
 def _level_with_yaw_rate(q: QuadX, rate: float) -> None:
@@ -204,6 +250,37 @@ def test_the_rigid_body_under_rotor_forces_matches_finite_differences():
     fwd = rk4_step(x0, T, tau, SIH.mass_kg, SIH.inertia, SIH.g_mps2, h)
     back = rk4_step(x0, T, tau, SIH.mass_kg, SIH.inertia, SIH.g_mps2, -h)
     assert (fwd - back) / (2 * h) == pytest.approx(f, abs=1e-6)
+
+
+@settings(max_examples=25, deadline=None)
+@given(st.data())
+def test_a_px4_parameter_set_anywhere_in_its_range_flies_as_a_quadrotor_built_with_it(data):
+    """``set_param(name, v)``: taken exactly when ``v`` is within PX4's range, both ends included
+    (``px4_params``, the one declaration); a value taken flies bit for bit as a quadrotor built
+    with it (a tilt, a yaw rate and a thrust step: every gain acts); a value refused (outside the
+    range, nan) changes nothing."""
+    name = data.draw(st.sampled_from(sorted(GAINS)))
+    p = BY_NAME[name]
+    value = data.draw(st.one_of(st.sampled_from([p.low, p.high]), st.floats(p.low, p.high)))
+    span = p.high - p.low
+    outside = data.draw(
+        st.one_of(
+            st.floats(p.low - 10 * span - 1, p.low, exclude_max=True),
+            st.floats(p.high, p.high + 10 * span + 1, exclude_min=True),
+            st.just(math.nan),
+        )
+    )
+    q, built = _quad(), _quad(px4={name: value})
+    assert q.set_param(name, value) and q.tunables == built.tunables
+    assert np.array_equal(q.gains, built.gains)
+    assert not q.set_param(name, outside) and q.tunables == built.tunables
+    command = AttitudeCommand(
+        q_c=_roll_q(0.3), thrust_N=0.8 * SIH.max_thrust_N, omega_c_B=np.array([0.0, 0.0, 0.5])
+    )
+    for vehicle in (q, built):
+        vehicle.set_command(command)
+        vehicle.advance(200)
+    assert np.array_equal(q.ext, built.ext, equal_nan=True)
 
 
 def test_its_pararameters_are_px4s_and_a_set_outside_the_range_is_refused():
