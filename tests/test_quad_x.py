@@ -109,8 +109,12 @@ def _quad(airframe: dict | None = None, px4: dict | None = None, x0: np.ndarray 
     return QuadX(SIH, make_state([0.0, 0.0, 10.0]) if x0 is None else x0, DT, airframe, px4)
 
 
-def test_it_hovers_in_equilibrium_with_every_rotor_at_the_weight_over_four():
-    q = _quad()
+@pytest.mark.parametrize("model", [THRUST_LAG, SPEED_LAG])
+def test_it_hovers_in_equilibrium_with_every_rotor_at_the_weight_over_four(model):
+    """With either motor model (the motors' state is a thrust fraction or a speed, whose square
+    the thrust is): held at hover thrust, each rotor gives a quarter of the weight, and the
+    vehicle stays where it is, level and still."""
+    q = _quad({"MOTOR_MODEL": model})
     q.advance(3000)
     f = SIH.mass_kg * SIH.g_mps2 / 4 / T_MAX
     assert q.thrust_fractions == pytest.approx(np.full(4, f), abs=1e-12)
@@ -186,6 +190,32 @@ def test_a_level_hover_in_a_steady_wind_drifts_as_quadratic_drag_says(speed, hea
     assert q.state[VEL] == pytest.approx((speed - u) * along, abs=1e-7 * speed)
     assert q.state[POS] == pytest.approx(np.array([0.0, 0.0, 10.0]) + flown * along, abs=1e-7 * speed)
     assert q.state[QUAT] == pytest.approx([1.0, 0.0, 0.0, 0.0], abs=1e-12)
+
+
+def test_each_advance_asks_the_wind_at_the_instant_and_the_place_its_steps_start():
+    """The wind a model reads (``update(t_s, position_m)``, RotorPy's call) is asked once per
+    ``advance``, at the time and the position its steps start from, and blows over them."""
+
+    class Recorder:
+        def __init__(self) -> None:
+            self.asked: list[tuple[float, np.ndarray]] = []
+
+        def update(self, t_s: float, position_m: np.ndarray) -> np.ndarray:
+            self.asked.append((t_s, position_m.copy()))
+            return np.array([1.0, -2.0, 0.5]) * len(self.asked)
+
+    q = QuadX(dataclasses.replace(SIH, drag_Ns2pm2=0.3), make_state([0.0, 0.0, 10.0], [3.0, -1.0, 0.0]), DT)
+    wind = Recorder()
+    q.wind = wind
+    starts = []
+    for n in (1, 7, 20):
+        starts.append((q.time_s, q.state[POS].copy()))
+        q.advance(n)
+        assert np.array_equal(q.wind_W, np.array([1.0, -2.0, 0.5]) * len(starts))
+    assert [t for t, _ in wind.asked] == [t for t, _ in starts] == [0.0, DT, 8 * DT]
+    for (_, asked), (_, start) in zip(wind.asked, starts, strict=True):
+        assert np.array_equal(asked, start)
+    assert len({tuple(p) for _, p in starts}) == 3  # it moved: the places differ
 
 
 def _level_with_yaw_rate(q: QuadX, rate: float) -> None:
