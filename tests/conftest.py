@@ -1,12 +1,16 @@
 import os
 
 import pytest
-from hypothesis import settings
+from hypothesis import Phase, settings
 
 from tests import support, workers
 
 # kernels are compiled (or loaded from cache) on first call: no per-example deadline
-settings.register_profile("swarm", deadline=None, max_examples=100)
+# under mutation testing (mutmut sets MUTANT_UNDER_TEST) a failing example is the verdict: it is
+# not shrunk nor explained, which would cost minutes per killed mutant with kernels run as Python
+_MUTATION = bool(os.environ.get("MUTANT_UNDER_TEST"))
+PHASES = tuple(p for p in Phase if not (_MUTATION and p in (Phase.shrink, Phase.explain)))
+settings.register_profile("swarm", deadline=None, max_examples=100, phases=PHASES)
 settings.load_profile("swarm")
 
 #: every test is one of these (``pyproject.toml`` says what each means; ``-m`` selects them)

@@ -1,8 +1,9 @@
 """The rotor-level quadrotor (``px4_quad_x``): its rotors and motors, and the whole model, against
-closed forms: the motors' step responses (SIH's thrust lag and the speed lag), the rotors' wrench
-against r x F, hover, a small attitude step against the linearised cascade on PX4's torque
-scale, the yaw torque's sign and size, PX4's yaw-torque low-pass; and, for every built-in model,
-any valid setpoint from any state keeps the vehicle finite. The mixer and the attitude loop
+closed forms: the motors' step responses (SIH's thrust lag and the speed lag, alone and in the
+whole model with its airframe's time constant), the rotors' wrench against r x F, hover, a small
+attitude step against the linearised cascade on PX4's torque scale, the yaw torque's sign and
+size, PX4's yaw-torque low-pass (in the model, and over many steps); and, for every built-in
+model, any valid setpoint from any state keeps the vehicle finite. The mixer and the attitude loop
 against PX4's own are ``test_px4_allocation`` and ``test_px4_attitude``."""
 
 import dataclasses
@@ -15,6 +16,7 @@ from hypothesis import strategies as st
 
 from sim_vehicles.common.command import AttitudeCommand
 from sim_vehicles.common.state import POS, QUAT, RATE, VEL, make_state
+from sim_vehicles.plant.px4_control import yaw_lowpass
 from sim_vehicles.plant.px4_params import BY_NAME, GAINS
 from sim_vehicles.plant.quad_x import AIRFRAME, QuadX
 from sim_vehicles.plant.rigid_body import derivative
@@ -88,6 +90,23 @@ def test_a_motor_steps_to_its_setpoint_as_a_first_order_lag(model, tau_s):
     for _ in range(3000):
         m = motor_step(m, u, decay, model)
     assert thrust_fraction(m, model) == pytest.approx(u, abs=1e-12)
+
+
+@settings(max_examples=20, deadline=None, derandomize=True)
+@given(model=st.sampled_from([THRUST_LAG, SPEED_LAG]), tau_s=st.floats(0.002, 0.9), u=st.floats(0.0, 1.0))
+def test_the_quadrotors_motors_follow_a_thrust_step_with_its_airframes_time_constant(model, tau_s, u):
+    """The whole quadrotor, level at hover, asked for the thrust fraction ``u``: each rotor's
+    thrust follows the lag's closed form with the airframe's ``T_TAU_S`` (the motors' unit test
+    above takes the decay as given; this is the decay the model makes of its time constant)."""
+    q = _quad({"T_TAU_S": tau_s, "MOTOR_MODEL": model})
+    start = q.thrust_fractions[0]
+    q.set_command(AttitudeCommand(q_c=np.array([1.0, 0.0, 0.0, 0.0]), thrust_N=u * SIH.max_thrust_N))
+    target, s0 = (math.sqrt(u), math.sqrt(start)) if model == SPEED_LAG else (u, start)
+    for k in (1, 7, 40):
+        q.advance(k - round(q.time_s / DT))
+        s = target + (s0 - target) * math.exp(-k * DT / tau_s)
+        expected = s * s if model == SPEED_LAG else s
+        assert q.thrust_fractions == pytest.approx(np.full(4, expected), rel=1e-9, abs=1e-12), k
 
 
 def test_a_thrust_step_through_the_speed_lag_rises_slower_than_sihs_thrust_lag():
@@ -264,6 +283,22 @@ def test_the_yaw_torque_passes_px4s_first_order_low_pass():
         f = q.thrust_fractions
         split.append(f[2] - f[0])
     assert split[0] == pytest.approx(alpha * split[1], rel=1e-9)
+
+
+@settings(max_examples=50, deadline=None, derandomize=True)
+@given(
+    s0=st.floats(-1.0, 1.0), x=st.floats(-1.0, 1.0), cutoff=st.floats(0.05, 10.0), steps=st.integers(1, 400)
+)
+def test_the_yaw_torque_low_pass_settles_on_a_held_input_as_a_geometric_sequence(s0, x, cutoff, steps):
+    """PX4's ``AlphaFilter`` from any state ``s0`` on a held input ``x``: ``s_k = x + (s0 - x)
+    (1 - alpha)^k``, ``alpha = dt / (dt + 1 / (2 pi fc))``; with the cutoff at 0 it is ``x`` at
+    once. (The model's test above is one step from zero, where any ``s + alpha (x +- s)`` agrees.)"""
+    alpha = DT / (DT + 1 / (2 * math.pi * cutoff))
+    s = s0
+    for _ in range(steps):
+        s = yaw_lowpass(s, x, cutoff, DT)
+    assert s == pytest.approx(x + (s0 - x) * (1 - alpha) ** steps, rel=1e-9, abs=1e-12)
+    assert yaw_lowpass(s0, x, 0.0, DT) == pytest.approx(x, rel=1e-12, abs=1e-15)
 
 
 def test_the_rigid_body_under_rotor_forces_matches_finite_differences():
