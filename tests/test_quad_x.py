@@ -18,7 +18,7 @@ from sim_vehicles.common.command import AttitudeCommand
 from sim_vehicles.common.state import POS, QUAT, RATE, VEL, make_state
 from sim_vehicles.plant.px4_control import yaw_lowpass
 from sim_vehicles.plant.px4_params import BY_NAME, GAINS
-from sim_vehicles.plant.quad_x import AIRFRAME, QuadX
+from sim_vehicles.plant.quad_x import AIRFRAME, INTEGRAL, QuadX
 from sim_vehicles.plant.rigid_body import derivative
 from sim_vehicles.plant.rotors import (
     SPEED_LAG,
@@ -211,32 +211,6 @@ def test_a_level_hover_in_a_steady_wind_drifts_as_quadratic_drag_says(speed, hea
     assert q.state[QUAT] == pytest.approx([1.0, 0.0, 0.0, 0.0], abs=1e-12)
 
 
-def test_each_advance_asks_the_wind_at_the_instant_and_the_place_its_steps_start():
-    """The wind a model reads (``update(t_s, position_m)``, RotorPy's call) is asked once per
-    ``advance``, at the time and the position its steps start from, and blows over them."""
-
-    class Recorder:
-        def __init__(self) -> None:
-            self.asked: list[tuple[float, np.ndarray]] = []
-
-        def update(self, t_s: float, position_m: np.ndarray) -> np.ndarray:
-            self.asked.append((t_s, position_m.copy()))
-            return np.array([1.0, -2.0, 0.5]) * len(self.asked)
-
-    q = QuadX(dataclasses.replace(SIH, drag_Ns2pm2=0.3), make_state([0.0, 0.0, 10.0], [3.0, -1.0, 0.0]), DT)
-    wind = Recorder()
-    q.wind = wind
-    starts = []
-    for n in (1, 7, 20):
-        starts.append((q.time_s, q.state[POS].copy()))
-        q.advance(n)
-        assert np.array_equal(q.wind_W, np.array([1.0, -2.0, 0.5]) * len(starts))
-    assert [t for t, _ in wind.asked] == [t for t, _ in starts] == [0.0, DT, 8 * DT]
-    for (_, asked), (_, start) in zip(wind.asked, starts, strict=True):
-        assert np.array_equal(asked, start)
-    assert len({tuple(p) for _, p in starts}) == 3  # it moved: the places differ
-
-
 def _level_with_yaw_rate(q: QuadX, rate: float) -> None:
     """Command ``q`` level at hover thrust with a yaw rate ``rate`` [rad/s] fed forward."""
     level = np.array([1.0, 0.0, 0.0, 0.0])
@@ -299,6 +273,25 @@ def test_the_yaw_torque_low_pass_settles_on_a_held_input_as_a_geometric_sequence
         s = yaw_lowpass(s, x, cutoff, DT)
     assert s == pytest.approx(x + (s0 - x) * (1 - alpha) ** steps, rel=1e-9, abs=1e-12)
     assert yaw_lowpass(s0, x, 0.0, DT) == pytest.approx(x, rel=1e-12, abs=1e-15)
+
+
+@settings(max_examples=10, deadline=None, derandomize=True)
+@given(heading=st.floats(-math.pi, math.pi), tilt=st.floats(0.2, 1.0))
+def test_a_quadrotor_whose_rotors_cannot_give_the_torque_asked_does_not_wind_its_rate_integral(heading, tilt):
+    """At zero thrust no rotor can slow further: a tilt asked is torque the allocation cannot
+    give, step after step. PX4 reads the allocator's miss and stops the rate integral growing
+    toward it, so in 0.2 s the roll and pitch integrals grow at most the one step before the first
+    miss is known (each step's growth is at most K I |err| dt, |err| at most the attitude P gain
+    times the tilt, the body not turning); carried nowhere, they would grow every step."""
+    q = _quad({"T_TAU_S": 0.0})
+    axis = np.array([math.cos(heading), math.sin(heading), 0.0])
+    q.set_command(
+        AttitudeCommand(q_c=np.array([math.cos(tilt / 2), *(math.sin(tilt / 2) * axis)]), thrust_N=0.0)
+    )
+    q.advance(200)
+    for a, name in ((0, "ROLL"), (1, "PITCH")):
+        step = GAINS[f"MC_{name}RATE_K"] * GAINS[f"MC_{name}RATE_I"] * GAINS[f"MC_{name}_P"] * tilt * DT
+        assert abs(q.ext[INTEGRAL][a]) <= step * (1 + 1e-9), name
 
 
 def test_the_rigid_body_under_rotor_forces_matches_finite_differences():

@@ -3,8 +3,8 @@ states and commands: a state of another size is one line; it holds the command i
 command attitude and its negative (the same rotation) fly the same bits, and the vehicle turns the
 short way; a thrust beyond its range flies as the nearest one in it; a state's quaternion not of
 unit length flies as its unit one; a body-rate limit written in place (as a PARAM_SET does) is the
-limit it flies. And the paper's autopilot (``plant.autopilot``) against closed forms: the thrust it
-applies, the rates it clips."""
+limit it flies; each advance asks the wind where and when its steps start. And the paper's
+autopilot (``plant.autopilot``) against closed forms: the thrust it applies, the rates it clips."""
 
 import math
 
@@ -15,7 +15,7 @@ from hypothesis import strategies as st
 
 from sim_vehicles.common.command import AttitudeCommand
 from sim_vehicles.common.quaternion import body_z_axis, from_axis_angle, qmul
-from sim_vehicles.common.state import QUAT, STATE_SIZE, VEL, make_state
+from sim_vehicles.common.state import POS, QUAT, STATE_SIZE, VEL, make_state
 from sim_vehicles.models.build import MODELS
 from sim_vehicles.models.vehicle_config import VehicleConfig
 from tests.strategies import unit_quaternions
@@ -137,6 +137,34 @@ def test_a_vehicle_holds_the_command_it_was_given_and_flies_a_rate_limit_written
         assert v.command is command
         v.advance(300)
     np.testing.assert_array_equal(given_ints.state, built.state)
+
+
+@pytest.mark.parametrize("model", sorted(MODELS))
+def test_each_advance_asks_the_wind_at_the_instant_and_the_place_its_steps_start(model):
+    """The wind a model reads (``update(t_s, position_m)``, RotorPy's call) is asked once per
+    ``advance``, at the time and the position its steps start from, and is the wind in force."""
+
+    class Recorder:
+        def __init__(self) -> None:
+            self.asked: list[tuple[float, np.ndarray]] = []
+
+        def update(self, t_s: float, position_m: np.ndarray) -> np.ndarray:
+            self.asked.append((t_s, position_m.copy()))
+            return np.array([1.0, -2.0, 0.5]) * len(self.asked)
+
+    x0 = make_state([0.0, 0.0, 10.0], [3.0, -1.0, 0.0])
+    v = MODELS[model](VehicleConfig(model=model, drag_Ns2pm2=0.3), x0, DT)
+    wind = Recorder()
+    v.wind = wind
+    starts = []
+    for n in (1, 7, 20):
+        starts.append((v.time_s, v.state[POS].copy()))
+        v.advance(n)
+        assert np.array_equal(v.wind_W, np.array([1.0, -2.0, 0.5]) * len(starts))
+    assert [t for t, _ in wind.asked] == [t for t, _ in starts] == [0.0, DT, 8 * DT]
+    for (_, asked), (_, start) in zip(wind.asked, starts, strict=True):
+        assert np.array_equal(asked, start)
+    assert len({tuple(p) for _, p in starts}) == 3  # it moved: the places differ
 
 
 @RULES
