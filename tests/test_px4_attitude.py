@@ -2,8 +2,8 @@
 here again as PX4 writes it, in PX4's own frames (NED world, FRD body) and with its own
 ``Quaternion(src, dst)`` and ``canonical()``, over random attitudes, setpoints and yaw rates,
 exactly opposite thrust axes and setpoints within 1e-12 of them included; the yaw-rate
-feed-forward at a tilted attitude against its closed form; and every unit quaternion giving a
-finite setpoint."""
+feed-forward at a tilted attitude against its closed form; every unit quaternion giving a
+finite setpoint; and the half turn between opposite thrust axes, ties included, bit for bit."""
 
 import math
 
@@ -13,7 +13,7 @@ from hypothesis import assume, given
 from hypothesis import strategies as st
 
 from sim_vehicles.mavlink.enu_ned import flu_to_frd, q_enu_flu_to_ned_frd
-from sim_vehicles.plant.px4_control import gain_vector, rate_setpoint
+from sim_vehicles.plant.px4_control import _tilt, gain_vector, rate_setpoint
 from tests.strategies import FUZZ, unit_quaternions
 
 pytestmark = pytest.mark.unit
@@ -171,3 +171,41 @@ def test_the_yaw_rate_is_fed_forward_about_the_world_vertical(roll_deg):
 @given(unit_quaternions(), unit_quaternions(), st.floats(-1e3, 1e3))
 def test_every_unit_quaternion_gives_a_finite_setpoint(q, qd, yaw_rate):
     assert np.all(np.isfinite(rate_setpoint(q, qd, yaw_rate, GAINS, PX4_LIMIT)))
+
+
+def _enu_to_ned(v: np.ndarray) -> np.ndarray:
+    return np.array([v[1], v[0], -v[2]])
+
+
+#: thrust axes on which PX4's choice of half turn meets a tie exactly (two or three components of
+#: equal size: the world axes, and 3-4-5 vectors in a coordinate plane), then any other
+EXACT_AXES = [
+    s * np.roll(np.array(v), r)
+    for v in ([0, 0, 1.0], [0, 0.6, 0.8], [0, 0.8, 0.6])
+    for r in range(3)
+    for s in (1, -1)
+]
+
+
+@FUZZ
+@given(
+    st.one_of(
+        st.sampled_from(EXACT_AXES),
+        unit_quaternions()
+        .filter(lambda q: np.linalg.norm(q[1:]) > 0.1)
+        .map(lambda q: q[1:] / np.linalg.norm(q[1:])),
+    )
+)
+def test_the_half_turn_between_opposite_thrust_axes_is_px4s_own_ties_included(ez):
+    """``_tilt`` of a thrust axis and its opposite is PX4's ``Quaternion(src, dst)`` of the same
+    axes in NED (a vector's frame change is exact: a permutation and a sign), bit for bit in its
+    sign and axis: the world axis PX4 turns about is the one along which the thrust axis is
+    smallest, ties resolved as PX4's comparisons resolve them."""
+    ez = np.asarray(ez, dtype=float)
+    q = _tilt(ez, -ez)
+    down = _enu_to_ned(-ez)  # PX4's e_z: the body's down axis, in NED
+    ref = _from_two_vectors(down, -down)
+    assert q[0] == ref[0] == 0.0
+    assert np.array_equal(_enu_to_ned(q[1:]), ref[1:]) or np.allclose(
+        _enu_to_ned(q[1:]), ref[1:], atol=1e-15
+    ), (q, ref)
