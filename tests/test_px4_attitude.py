@@ -2,8 +2,9 @@
 here again as PX4 writes it, in PX4's own frames (NED world, FRD body) and with its own
 ``Quaternion(src, dst)`` and ``canonical()``, over random attitudes, setpoints and yaw rates,
 exactly opposite thrust axes and setpoints within 1e-12 of them included; the yaw-rate
-feed-forward at a tilted attitude against its closed form; every unit quaternion giving a
-finite setpoint; and the half turn between opposite thrust axes, ties included, bit for bit."""
+feed-forward at a tilted attitude against its closed form; any yaw weight in its range; every
+unit quaternion giving a finite setpoint; and the half turn between opposite thrust axes, ties
+included, bit for bit."""
 
 import math
 
@@ -123,6 +124,18 @@ TOL = 1e-6
 def test_the_rate_setpoint_is_px4s_for_any_attitude_and_setpoint(q, qd, yaw_rate):
     for limit in (NO_LIMIT, PX4_LIMIT):
         assert ours_in_frd(q, qd, yaw_rate, limit) == pytest.approx(px4_for(q, qd, yaw_rate, limit), abs=TOL)
+
+
+@FUZZ
+@given(
+    unit_quaternions(), unit_quaternions(), st.one_of(st.sampled_from([0.0, 1e-5, 1e-4]), st.floats(0.1, 1.0))
+)
+def test_the_rate_setpoint_is_px4s_for_any_yaw_weight_in_its_range(q, qd, yaw_w):
+    """MC_YAW_WEIGHT anywhere in its range 0..1, its end 0 and PX4's cut at 1e-4 included (at or
+    under it, PX4 leaves MC_YAW_P unscaled). The tolerance above grows as the yaw gain P / w."""
+    ours = flu_to_frd(rate_setpoint(q, qd, 0.0, gain_vector({"MC_YAW_WEIGHT": yaw_w}), NO_LIMIT))
+    px4 = px4_update(q_enu_flu_to_ned_frd(q), q_enu_flu_to_ned_frd(qd), 0.0, K, yaw_w, NO_LIMIT)
+    assert ours == pytest.approx(px4, abs=TOL * max(1.0, YAW_W / yaw_w) if yaw_w > 1e-4 else TOL)
 
 
 @FUZZ
