@@ -1,5 +1,6 @@
 """The router's access rules, node by node, against the graph they come from: every node of a
-generated 8-follower swarm, with and without kills in its plan (which add the watcher rules).
+generated 8-follower swarm, with and without kills in its plan (which add the watcher rules); and
+the whole section, with ROS 2 and its controllers, as a document zenoh's router takes.
 
 Each node's grants are derived here from the config's edge list alone, not from ``NodeKeys``, and
 must be exactly the rules: a grant that widens (another follower's status, a wildcard, another
@@ -9,9 +10,10 @@ import pytest
 import yaml
 
 from swarm_sitl.bus import keys as zk
-from swarm_sitl.bus.access import access_control, user
+from swarm_sitl.bus.access import ROS2_USER, access_control, ros2_controller_user, user
 from swarm_sitl.config.generator import GRAPHS, generate
 from swarm_sitl.config.load import parse_config
+from swarm_sitl.nodes.ros2_controller import control_topic
 
 pytestmark = pytest.mark.unit
 N = 8
@@ -135,3 +137,52 @@ def test_a_followers_status_and_state_are_granted_to_it_alone_and_ros2_reads_onl
         if r["id"] in ros2_rules:  # never a key of the swarm's, and only its domain's
             assert all(k.startswith((f"{ros2}/", f"@ros2_lv/{ros2}/")) for k in r["key_exprs"]), r
             assert r["flows"] == ["egress"] or "put" not in r["messages"], r  # it never writes
+
+
+#: zenoh 1.x's access control vocabulary (its DEFAULT_CONFIG.json5's ``access_control`` section):
+#: what a rule may name, and the fields of each part of the section
+ZENOH_MESSAGES = {
+    "put",
+    "delete",
+    "declare_subscriber",
+    "query",
+    "declare_queryable",
+    "reply",
+    "liveliness_token",
+    "declare_liveliness_subscriber",
+    "liveliness_query",
+}
+
+
+@pytest.mark.parametrize("graph", GRAPHS)
+@pytest.mark.parametrize(("ros2", "flown"), [(None, ()), (0, ()), (7, (1,)), (0, (2, 5, 8))])
+def test_the_section_is_one_zenohs_router_takes_with_every_rule_and_subject_in_a_policy(graph, ros2, flown):
+    """Whatever the graph, ROS 2 and the followers ROS 2 controllers fly: every word is one of
+    zenoh's (its messages, ``ingress``/``egress``, ``allow``/``deny``), every rule and subject has
+    its fields and a unique id, every policy names rules and subjects that exist, and every
+    subject is in exactly one policy (zenoh reads one policy per subject)."""
+    cfg = _swarm(graph, kills=True)
+    controls = {i: control_topic("swarm", i, "").strip("/") for i in flown}
+    ac = access_control(cfg.name, [cfg.node_keys(n) for n in range(N + 1)], ros2, controls)
+    assert ac["enabled"] is True and ac["default_permission"] in ("allow", "deny")
+    rule_ids = [r["id"] for r in ac["rules"]]
+    assert len(set(rule_ids)) == len(rule_ids)
+    for r in ac["rules"]:
+        assert set(r) == {"id", "messages", "flows", "permission", "key_exprs"}, r
+        assert r["messages"] and set(r["messages"]) <= ZENOH_MESSAGES, r
+        assert r["flows"] and set(r["flows"]) <= {"ingress", "egress"}, r
+        assert r["permission"] in ("allow", "deny") and isinstance(r["id"], str) and r["id"], r
+        assert all(isinstance(k, str) and k for k in r["key_exprs"]), r
+    subject_ids = []
+    for s in ac["subjects"]:
+        assert set(s) == {"id", "usernames"} and s["usernames"], s
+        assert all(isinstance(u, str) and u for u in s["usernames"]), s
+        subject_ids.append(s["id"])
+    assert len(set(subject_ids)) == len(subject_ids)
+    in_policies = [who for p in ac["policies"] for who in p["subjects"]]
+    assert sorted(in_policies) == sorted(subject_ids)  # each subject in exactly one policy
+    for p in ac["policies"]:
+        assert p["rules"] and set(p["rules"]) <= set(rule_ids), p
+    expected = {user(n) for n in range(N + 1)} | ({ROS2_USER} if ros2 is not None else set())
+    expected |= {ros2_controller_user(i) for i in flown}
+    assert set(subject_ids) >= expected
