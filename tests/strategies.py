@@ -31,3 +31,9 @@ def unit_quaternions(draw):
         q = np.array([1.0, 0.0, 0.0, 0.0])
         n = 1.0
     return q / n
+
+
+def in_range(low: float, high: float, *also: float) -> st.SearchStrategy[float]:
+    """A value in ``low..high``: its two ends (and ``also``, e.g. a default) drawn as often as the
+    rest, as an end is where a division or a weight of zero waits."""
+    return st.one_of(st.sampled_from([low, high, *also]), st.floats(low, high))

@@ -17,7 +17,7 @@ from sim_vehicles.common.state import QUAT, make_state
 from sim_vehicles.models.build import MODELS, build_vehicle
 from sim_vehicles.models.vehicle_config import VehicleConfig
 from sim_vehicles.plant import px4_params
-from tests.strategies import FUZZ, unit_quaternions
+from tests.strategies import FUZZ, in_range, unit_quaternions
 
 pytestmark = pytest.mark.unit
 
@@ -67,9 +67,8 @@ def test_any_valid_setpoint_from_any_state_keeps_the_vehicle_finite(model, data)
 
 @st.composite
 def px4_params_in_range(draw) -> dict[str, float]:
-    """Every PX4 parameter of ``px4_quad_x`` (``plant.px4_params``) drawn in its range, its two
-    ends and its default weighted as much as the rest (an end is where a division or a weight
-    of zero waits)."""
+    """Every PX4 parameter of ``px4_quad_x`` (``plant.px4_params``) drawn in its range, its ends
+    and its default as often as the rest."""
     out = {}
     for p in px4_params.PARAMS:
         if p.name in px4_params.RATE_MAX:  # the vehicle's max_rate_rps, not a param
@@ -77,9 +76,7 @@ def px4_params_in_range(draw) -> dict[str, float]:
         if p.choices:
             out[p.name] = draw(st.sampled_from(p.choices))
         else:
-            out[p.name] = draw(
-                st.one_of(st.sampled_from([p.low, p.high, p.default]), st.floats(p.low, p.high))
-            )
+            out[p.name] = draw(in_range(p.low, p.high, p.default))
     return out
 
 
