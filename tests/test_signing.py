@@ -21,8 +21,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import common as mav
+from pymavlink.generator.mavcrc import x25crc
 
 import sim_vehicles.mavlink.signing as signing
 from sim_vehicles.mavlink.sha256 import sha256_into
@@ -36,6 +39,25 @@ KEY = key_from_passphrase("correct horse battery staple")
 def _plain(sysid: int = 3) -> bytes:
     msg = mav.MAVLink_set_attitude_target_message(100, 3, 1, 0, [1, 0, 0, 0], 0.1, 0.2, 0.3, 0.4)
     return bytes(msg.pack(mav.MAVLink(None, srcSystem=sysid, srcComponent=191)))
+
+
+@pytest.mark.unit
+@settings(max_examples=200, deadline=None, derandomize=True)
+@given(st.data())
+def test_the_signed_flags_crc_delta_is_pymavlinks_crc_difference_for_every_payload_length(data):
+    """The table ``_flip_flag`` reads, built afresh (it is built once at import): for a frame of
+    any payload length, any bytes and any CRC extra, pymavlink's X.25 CRC of the frame with the
+    signed flag set differs from its CRC without it by the table's entry for that length."""
+    table = signing._flag_deltas()
+    assert len(table) == 256
+    plen = data.draw(st.integers(0, 255))
+    body = bytearray(data.draw(st.binary(min_size=9 + plen, max_size=9 + plen)))  # header after STX
+    body[0] = plen
+    extra = data.draw(st.integers(0, 255))
+    body[1] &= ~signing.SIGNED
+    plain = x25crc(bytes(body) + bytes([extra])).crc
+    body[1] |= signing.SIGNED
+    assert x25crc(bytes(body) + bytes([extra])).crc ^ plain == table[plen]
 
 
 @pytest.mark.unit
