@@ -186,3 +186,48 @@ def test_the_section_is_one_zenohs_router_takes_with_every_rule_and_subject_in_a
     expected = {user(n) for n in range(N + 1)} | ({ROS2_USER} if ros2 is not None else set())
     expected |= {ros2_controller_user(i) for i in flown}
     assert set(subject_ids) >= expected
+
+
+def _granted(ac: dict, who: str, message: str, flow: str) -> set[str]:
+    """The keys subject ``who`` is allowed ``message`` on in ``flow``, read from its policy."""
+    mine = {r for p in ac["policies"] if who in p["subjects"] for r in p["rules"]}
+    return {
+        k
+        for r in ac["rules"]
+        if r["id"] in mine and message in r["messages"] and flow in r["flows"]
+        for k in r["key_exprs"]
+    }
+
+
+@pytest.mark.parametrize("graph", GRAPHS)
+@pytest.mark.parametrize(("ros2", "flown"), [(0, (1,)), (7, (2, 5, 8))])
+def test_a_flown_followers_bridge_and_ros2_node_each_put_what_the_other_reads_and_nothing_else(
+    graph, ros2, flown
+):
+    """Follower i flown by a ROS 2 node: its bridge (``node_i``) puts ``odom`` and ``from_<s>`` for
+    each in-neighbour s of the graph (derived here from the edge list) and reads ``setpoint`` and
+    ``message``; the node (``ros2_controller_i``) the other way round; each is forwarded what it
+    reads and neither puts on any other ROS 2 key. The leader puts ``/clock`` and reads nothing."""
+    cfg = _swarm(graph, kills=False)
+    ns = "swarm"
+    controls = {i: control_topic(ns, i, "").strip("/") for i in flown}
+    ac = access_control(cfg.name, [cfg.node_keys(n) for n in range(N + 1)], ros2, controls)
+    edges = [(e.src, e.dst) for e in cfg.build_graph().edges]
+
+    def keys(i: int, *whats: str) -> set[str]:
+        return {f"{ros2}/{control_topic(ns, i, w).strip('/')}/**" for w in whats}
+
+    def ros2_only(ks: set[str]) -> set[str]:
+        return {k for k in ks if not k.startswith(("swarm/", "@ros2_lv/"))}
+
+    for i in flown:
+        bridge, node = user(i), ros2_controller_user(i)
+        published = keys(i, "odom", *(f"from_{a}" for a, b in edges if b == i))
+        commanded = keys(i, "setpoint", "message")
+        for who, puts, reads in ((bridge, published, commanded), (node, commanded, published)):
+            assert ros2_only(_granted(ac, who, "put", "ingress")) == puts, (who, graph)
+            assert ros2_only(_granted(ac, who, "declare_subscriber", "ingress")) == reads, (who, graph)
+            assert ros2_only(_granted(ac, who, "put", "egress")) >= reads, (who, graph)
+    leader = user(0)
+    assert ros2_only(_granted(ac, leader, "put", "ingress")) == {f"{ros2}/clock/**"}
+    assert ros2_only(_granted(ac, leader, "declare_subscriber", "ingress")) == set()

@@ -166,6 +166,25 @@ def test_thrust_is_a_climb_rate_as_it_ships_and_thrust_with_guid_options_bit_3(c
     assert ep.autopilot.command.thrust_N == 0.0
 
 
+def test_a_climb_rate_after_thrust_setpoints_holds_the_altitude_where_it_came(copter):
+    """Thrust setpoints (GUID_OPTIONS bit 3) carry it up; with the bit cleared, a climb rate of 0
+    holds the altitude it had when that first climb setpoint came, not where guided began."""
+    ep, conn = copter
+    _param(ep, conn, "GUID_OPTIONS", 8, mav.MAV_PARAM_TYPE_INT32)
+    _guided_nogps(ep, conn)
+    z_guided = ep.autopilot.state[POS][2]
+    _fly(ep, conn, 100, thrust=0.45)  # 1 s at 1.3x the hover thrust: climbing
+    _param(ep, conn, "GUID_OPTIONS", 0, mav.MAV_PARAM_TYPE_INT32)
+    z_climb = ep.autopilot.state[POS][2]
+    assert z_climb - z_guided > 1.0
+    _fly(ep, conn, 400, thrust=0.5)  # 4 s of climb rate 0
+    # the altitude loop is a critically damped PD (2/s): from v0 < 4 m/s up, v0 t exp(-2 t) is
+    # under 0.006 m and its rate under 0.01 m/s at 4 s; ten times that for the attitude loop's lag
+    # and the thrust clipped at 0 as it brakes
+    assert ep.autopilot.state[POS][2] == pytest.approx(z_climb, abs=0.05)
+    assert abs(ep.autopilot.state[VEL][2]) < 0.05
+
+
 @pytest.mark.parametrize(
     ("mask", "q", "why"),
     [

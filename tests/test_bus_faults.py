@@ -498,6 +498,37 @@ def test_a_sample_is_a_datagram_that_starts_with_a_whole_local_position_ned():
     assert sample_ms(b"\xfe" + lpos[1:]) is None  # MAVLink 1's magic
 
 
+def _frame(msg, signed: bool) -> bytes:
+    from pymavlink.dialects.v20 import common as mav
+
+    m = mav.MAVLink(None, srcSystem=2, srcComponent=1)
+    if signed:
+        m.signing.secret_key, m.signing.sign_outgoing, m.signing.timestamp = b"k" * 32, True, 1
+    return msg.pack(m)
+
+
+@given(
+    st.lists(st.tuples(st.text("abc XYZ!", min_size=0, max_size=50), st.booleans()), max_size=3),
+    st.integers(0, 2**32 - 1),
+    st.booleans(),
+    st.booleans(),
+)
+def test_a_samples_stamp_is_found_after_any_statustexts_signed_or_not(texts, ms, signed, after):
+    """The vehicle's per-tick datagram: any STATUSTEXTs it said (any length, MAVLink 2 trims
+    their trailing zeros; each signed or not), then LOCAL_POSITION_NED: its ``time_boot_ms``,
+    whatever follows. Any other message first: not a sample."""
+    from pymavlink.dialects.v20 import common as mav
+
+    from swarm_sitl.faults.mavlink import sample_ms
+
+    said = b"".join(_frame(mav.MAVLink_statustext_message(6, t.encode(), 0, 0), sg) for t, sg in texts)
+    lpos = _frame(mav.MAVLink_local_position_ned_message(ms, 1.0, 2.0, 3.0, 0.0, 0.0, 0.0), signed)
+    tail = _frame(mav.MAVLink_attitude_message(ms, 0.1, 0.2, 0.3, 0.0, 0.0, 0.0), signed) if after else b""
+    assert sample_ms(said + lpos + tail) == ms
+    ack = _frame(mav.MAVLink_command_ack_message(400, 0), signed)
+    assert sample_ms(said + ack + lpos) is None
+
+
 def test_the_delay_summary_is_the_median_p99_and_max_of_the_delays():
     st = EdgeStats()
     assert "delay_s" not in st.as_dict() and set(st.as_dict()) == set(EdgeStats.FIELDS)

@@ -18,14 +18,19 @@ from sim_vehicles.plant.autopilot import Autopilot
 from sim_vehicles.plant.failsafe import (
     ACTION_HOLD,
     ACTION_LAND,
+    ACTION_LEVEL,
     FAILSAFE_PERIOD_S,
     LAND_SPEED_MPS,
+    Hold,
     attitude_for,
+    climb_command,
     failsafe_command,
     hold_at,
 )
 from sim_vehicles.plant.params import AttitudeGains, VehicleParams
+from sim_vehicles.vehicle.autopilots import ARDUCOPTER, PX4
 from sim_vehicles.vehicle.modes import MODE_FAILSAFE, MODE_HOLD, MODE_OFFBOARD, FlightModes
+from tests.strategies import unit_quaternions
 
 PARAMS = VehicleParams(0.85, (0.04856, 0.04856, 0.08801), 25.0)
 GAINS = AttitudeGains(16.0, 16.0)
@@ -280,3 +285,96 @@ def test_the_own_position_loop_runs_once_every_failsafe_period():
     _step(ap, f, 1000)  # 1 s
     assert len(calls) == round(1.0 / FAILSAFE_PERIOD_S)
     assert np.diff(calls).tolist() == [round(FAILSAFE_PERIOD_S / ap.dt_s)] * (len(calls) - 1)
+
+
+_coord = st.floats(-50, 50)
+_speed = st.floats(-10, 10)
+
+
+@pytest.mark.unit
+@given(
+    st.tuples(_coord, _coord, _coord),
+    st.tuples(_speed, _speed, _speed),
+    unit_quaternions(),
+    st.tuples(_coord, _coord, _coord),
+    st.floats(-math.pi + 1e-3, math.pi - 1e-3),
+)
+def test_level_flies_level_at_the_held_heading_and_only_its_altitude_sets_the_thrust(p, v, q, hold_p, yaw):
+    """ArduCopter's level failsafe, from any state: body z along world z at the hold's heading,
+    whatever the horizontal error and velocity; its thrust the altitude PD's (at least a fifth of
+    g up), the same with the horizontal state zeroed."""
+    state = make_state(p, v, q)
+    hold = Hold(np.array(hold_p), yaw, 0.0)
+    c = failsafe_command(state, hold, 1.0, ACTION_LEVEL, PARAMS)
+    assert np.allclose(c.q_c, _level(yaw), atol=1e-9) or np.allclose(c.q_c, -_level(yaw), atol=1e-9)
+    flat = make_state([hold_p[0], hold_p[1], p[2]], [0.0, 0.0, v[2]], q)
+    assert c.thrust_N == failsafe_command(flat, hold, 1.0, ACTION_LEVEL, PARAMS).thrust_N
+    a_z = max(-4.0 * (p[2] - hold_p[2]) - 4.0 * v[2] + PARAMS.g_mps2, 0.2 * PARAMS.g_mps2)
+    assert c.thrust_N == pytest.approx(min(PARAMS.mass_kg * a_z, PARAMS.max_thrust_N), rel=1e-12)
+
+
+@pytest.mark.unit
+@given(
+    st.floats(-50, 50),
+    _speed,
+    unit_quaternions(),
+    st.floats(-50, 50),
+    st.floats(-3, 3),
+    st.floats(0, 10),
+)
+def test_a_climb_commands_the_attitude_asked_and_the_thrust_whose_vertical_part_is_the_pd(
+    z, vz, q_c, hold_z, climb, t
+):
+    """ArduCopter's climb under an attitude: the attitude as asked; the thrust's vertical part
+    m a_z (the altitude PD towards the target climbing from the hold) over the tilt's cosine (at
+    least 0.1), within 0..max: none at all when the PD asks to fall faster than gravity."""
+    state = make_state([0.0, 0.0, z], [0.0, 0.0, vz])
+    hold = Hold(np.array([0.0, 0.0, hold_z]), 0.0, 0.0)
+    c = climb_command(state, q_c, hold, t, climb, PARAMS)
+    assert np.array_equal(c.q_c, q_c)
+    a_z = -4.0 * (z - (hold_z + climb * t)) - 4.0 * (vz - climb) + PARAMS.g_mps2
+    cos_tilt = max(float(rotation_matrix(q_c)[2, 2]), 0.1)
+    want = min(max(PARAMS.mass_kg * a_z / cos_tilt, 0.0), PARAMS.max_thrust_N)
+    assert c.thrust_N == pytest.approx(want, rel=1e-9, abs=1e-12)
+    if a_z <= 0.0:
+        assert c.thrust_N == 0.0
+
+
+@pytest.mark.unit
+@pytest.mark.parametrize("profile", [PX4, ARDUCOPTER], ids=lambda p: p.name)
+@given(st.tuples(_speed, _speed, _speed))
+def test_in_each_mode_its_own_loop_flies_the_modes_action_from_its_first_step(profile, v):
+    """From boot (moving at any velocity), and in each mode the profile enters without a
+    setpoint stream: its own loop sets the command of that mode's action at once (boot: step 0),
+    from the hold where the mode was entered (the boot's, for the mode it booted in), then every
+    failsafe period, whatever the failsafe action the vehicle was given."""
+    ap = Autopilot(PARAMS, GAINS, make_state([1.0, 2.0, 10.0], list(v)), 0.001)
+    f = FlightModes(ap, 1, 0.5, ACTION_HOLD, _Events(), lambda _s, _t: None, profile=profile)  # type: ignore[arg-type]
+    period = round(FAILSAFE_PERIOD_S / ap.dt_s)
+    set_at: list[tuple[int, AttitudeCommand]] = []
+    real = ap.set_command
+    ap.set_command = lambda c: (set_at.append((ap.step_index, c)), real(c))  # type: ignore[method-assign]
+
+    def expect(action: int, hold) -> None:
+        want = failsafe_command(ap.state, hold, ap.time_s, action, PARAMS, profile.land_speed_mps)
+        assert set_at[-1][0] == ap.step_index
+        assert np.array_equal(set_at[-1][1].q_c, want.q_c) and set_at[-1][1].thrust_N == want.thrust_N
+
+    hold = hold_at(ap.state, 0.0)
+    assert f.own_steps(1000) == period and [k for k, _ in set_at] == [0]
+    expect(profile.modes[profile.boot_mode].own, hold)
+    ap.advance(period)
+    for mode in profile.modes.values():
+        if mode.needs_stream:
+            continue
+        if mode.number != f.number:  # (the same mode again holds where it was)
+            hold = hold_at(ap.state, ap.time_s)
+        assert f.set_mode(mode.number) == mav.MAV_RESULT_ACCEPTED
+        calls = len(set_at)
+        left = f.own_steps(1000)
+        if len(set_at) == calls:  # (not due yet: the period began before the mode)
+            ap.advance(left)
+            left = f.own_steps(1000)
+        assert left == period and len(set_at) == calls + 1
+        expect(mode.own, hold)
+        ap.advance(left)

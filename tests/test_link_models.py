@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 import yaml
-from hypothesis import given
+from hypothesis import assume, given
 from hypothesis import strategies as st
 
 from swarm_sitl.config.load import ConfigError, parse_config
@@ -136,6 +136,23 @@ def test_a_partition_cuts_every_edge_between_its_groups_for_its_window():
     assert cut == list(range(500, 600))
     some = parse_config(_paper([{"partition": [[0], [3]], "loss": 0.5}]), "paper.yaml").faults.plan[0]
     assert some.edges(edges) == [(0, 3)] and some.loss == 0.5 and not some.drop  # node 4 in no group
+
+
+@pytest.mark.unit
+@given(
+    st.lists(st.tuples(st.integers(0, 8), st.integers(0, 8)).filter(lambda e: e[0] != e[1]), max_size=30),
+    st.lists(st.sampled_from([None, 0, 1, 2]), min_size=9, max_size=9),
+)
+def test_a_partition_names_the_edges_between_two_of_its_groups_whatever_nodes_it_leaves_out(edges, where):
+    """Any graph, any partition of any of its nodes (the rest in no group): the edges named are
+    those from one group into another, in the graph's order; an edge with an end in no group is
+    not, whichever end."""
+    groups = [[n for n in range(9) if where[n] == g] for g in range(3)]
+    groups = [g for g in groups if g]
+    assume(len(groups) >= 2)
+    entry = FaultEntry(partition=groups)
+    crossing = [(a, b) for a, b in edges if None not in (where[a], where[b]) and where[a] != where[b]]
+    assert entry.edges(edges) == crossing
 
 
 @pytest.mark.system

@@ -60,7 +60,6 @@ class FaultyBus:
     ):
         """``resume_tick``: this incarnation's first tick (a node restarted by the plan)."""
         self.inner = inner
-        self.plan = plan
         self.node = node
         self.clock = clock
         self.end_s = end_s
