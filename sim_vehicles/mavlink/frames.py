@@ -210,7 +210,7 @@ def crc_x25(buf, start, end, crc_extra):
     """MAVLink's X.25 CRC of ``buf[start:end]`` followed by the byte ``crc_extra``."""
     crc = 0xFFFF
     for j in range(start, end + 1):
-        b = buf[j] if j < end else crc_extra
+        b = int(buf[j]) if j < end else int(crc_extra)  # (ints: as Python, uint8 arithmetic overflows)
         tmp = (b ^ crc) & 0xFF
         tmp = (tmp ^ (tmp << 4)) & 0xFF
         crc = ((crc >> 8) ^ (tmp << 8) ^ (tmp << 3) ^ (tmp >> 4)) & 0xFFFF
