@@ -7,7 +7,10 @@ ATTITUDE_QUATERNION, at 50 Hz or what MAV_CMD_SET_MESSAGE_INTERVAL asks), answer
 PARAM_REQUEST_READ and PARAM_SET from its table (a parameter it lacks: no answer, as both
 autopilots give none), and answers commands as scripted: ``refuse_mode`` (DO_SET_MODE FAILED, with
 ArduCopter's STATUSTEXT), ``never_arm`` (ARM_DISARM FAILED with a pre-arm STATUSTEXT),
-``reboot_after_s`` (that long after it armed, its clock starts again from 0, disarmed). Run alone
+``reboot_after_s`` (that long after it armed, its clock starts again from 0, disarmed),
+``busy_mode`` (DO_SET_MODE TEMPORARILY_REJECTED that many times, as PX4 answers OFFBOARD without a
+setpoint stream; -1: always), ``read_only`` (parameters a PARAM_SET does not change: answered with
+the value kept). ``heard`` keeps every message it received, in order. Run alone
 (``python -m tests.fake_autopilot ...``) it prints ``listening on udp:HOST:PORT`` and serves until
 killed.
 """
@@ -36,11 +39,15 @@ class FakeAutopilot:
         never_arm: bool = False,
         reboot_after_s: float | None = None,
         port: int = 0,
+        busy_mode: int = 0,
+        read_only: frozenset[str] = frozenset(),
     ):
         self.kind, self.system_id = kind, system_id
         default = ARDUPILOT_PARAMS if kind == "ardupilot" else PX4_PARAMS
         self.params = dict(default if params is None else params)
         self.refuse_mode, self.never_arm, self.reboot_after_s = refuse_mode, never_arm, reboot_after_s
+        self.busy_mode, self.read_only = busy_mode, read_only
+        self.heard: list = []
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.sock.bind(("127.0.0.1", port))
         self.sock.settimeout(0.01)
@@ -101,7 +108,8 @@ class FakeAutopilot:
         if t == "PARAM_REQUEST_READ" and m.param_id in self.params:  # type: ignore[attr-defined]
             self._param(m.param_id)  # type: ignore[attr-defined]
         elif t == "PARAM_SET" and m.param_id in self.params:  # type: ignore[attr-defined]
-            self.params[m.param_id] = float(m.param_value)  # type: ignore[attr-defined]
+            if m.param_id not in self.read_only:  # type: ignore[attr-defined]
+                self.params[m.param_id] = float(m.param_value)  # type: ignore[attr-defined]
             self._param(m.param_id)  # type: ignore[attr-defined]
         elif t == "COMMAND_LONG":
             self._command(m)
@@ -113,7 +121,10 @@ class FakeAutopilot:
                 self.sample_every_s = m.param2 / 1e6  # type: ignore[attr-defined]
             self._ack(cmd, mav.MAV_RESULT_ACCEPTED, m)
         elif cmd == mav.MAV_CMD_DO_SET_MODE:
-            if self.refuse_mode:
+            if self.busy_mode:
+                self.busy_mode -= 1 if self.busy_mode > 0 else 0
+                self._ack(cmd, mav.MAV_RESULT_TEMPORARILY_REJECTED, m)
+            elif self.refuse_mode:
                 self._text("Mode GUIDED_NOGPS failed: requires position")
                 self._ack(cmd, mav.MAV_RESULT_FAILED, m)
             else:
@@ -152,6 +163,7 @@ class FakeAutopilot:
                 continue
             self.peer = addr
             for byte_msg in self.parser.parse_buffer(data) or []:
+                self.heard.append(byte_msg)
                 self._handle(byte_msg)
 
     def __enter__(self) -> "FakeAutopilot":

@@ -1,7 +1,8 @@
 """In-process fakes of the bench's interfaces, shared by the tests that drive a piece without its
 processes: an in-memory node bus (``MemoryBus``) and a publisher's (``Publisher``), a real-time
-clock the test sets (``ManualClock``), and the leader's bus with no one on it (``LeaderBus``) with
-the short config a leader's tests fly (``leader_config``)."""
+clock the test sets (``ManualClock``), the leader's bus with no one on it (``LeaderBus``) with
+the short config a leader's tests fly (``leader_config``), and a socket that keeps what a vehicle
+driven in process sends (``RecordingSocket``)."""
 
 import time
 
@@ -119,3 +120,17 @@ def leader_config():
 
     cfg = config("paper").model_copy(update={"duration_s": 8.0})
     return cfg.model_copy(update={"run": cfg.run.model_copy(update={"stall_timeout_s": 0.3})})
+
+
+class RecordingSocket:
+    """In place of a vehicle port's UDP socket (``port.sock``): keeps every datagram sent."""
+
+    def __init__(self) -> None:
+        self.sent: list[bytes] = []
+
+    def sendto(self, data: bytes, addr: object) -> int:
+        self.sent.append(bytes(data))
+        return len(data)
+
+    def close(self) -> None:
+        pass

@@ -21,7 +21,7 @@ from tests.support import CONFIGS
 
 TIMEOUT_S = 1.5
 DURATION_S = 4.0  #: the real-time run's
-CASES = [
+CASES = [  # (the autopilot, its script, the line after "follower 3: <url>: ")
     (
         "ardupilot",
         {"refuse_mode": True},
@@ -34,14 +34,30 @@ CASES = [
         "arming refused: MAV_CMD_COMPONENT_ARM_DISARM answered "
         "MAV_RESULT_FAILED; its last STATUSTEXT: 'PreArm: Throttle below failsafe'",
     ),
-    ("px4", {"never_arm": True}, "arming refused: MAV_CMD_COMPONENT_ARM_DISARM answered MAV_RESULT_FAILED"),
-    ("px4", {"params": {}}, "no PARAM_VALUE for MPC_THR_HOVER (the autopilot does not have it"),
+    (
+        "px4",
+        {"never_arm": True},
+        "arming refused: MAV_CMD_COMPONENT_ARM_DISARM answered MAV_RESULT_FAILED"
+        "; its last STATUSTEXT: 'PreArm: Throttle below failsafe'",
+    ),
+    (
+        "px4",
+        {"params": {}},
+        "no PARAM_VALUE for MPC_THR_HOVER (the autopilot does not have it, or does not answer) within 1.5 s",
+    ),
     (
         "ardupilot",
         {"params": {"MOT_THST_HOVER": 0.35, "GUID_OPTIONS": 0.0}},
-        "no PARAM_VALUE for ATC_ANGLE_BOOST",
+        "no PARAM_VALUE for ATC_ANGLE_BOOST (the autopilot does not have it, or does not answer)"
+        " within 1.5 s",
     ),
-    ("ardupilot", {"reboot_after_s": 0.3}, "mid-run, it "),
+    ("ardupilot", {"read_only": frozenset({"GUID_OPTIONS"})}, "PARAM_SET GUID_OPTIONS 8 refused: it keeps 0"),
+    (
+        "px4",
+        {"busy_mode": -1},
+        "OFFBOARD refused: MAV_CMD_DO_SET_MODE answered MAV_RESULT_TEMPORARILY_REJECTED for 1.5 s",
+    ),
+    ("ardupilot", {"reboot_after_s": 0.3}, "mid-run, it rebooted (its time_boot_ms went from "),
 ]
 
 
@@ -65,7 +81,13 @@ def test_a_vehicle_that_will_not_fly_ends_its_controller_in_one_line_within_the_
         finally:
             link.close()
     line = str(e.value)
-    assert "\n" not in line and line.startswith("follower 3: ") and says in line, line
+    head = f"follower 3: udpout:127.0.0.1:{fake.port}: "
+    assert "\n" not in line and line.startswith(head), line
+    tail = line[len(head) :]  # what it says, and nothing else (no STATUSTEXT where none came)
+    if says.endswith("from "):  # (a reboot: the times it saw)
+        assert re.fullmatch(re.escape(says) + r"\d+ to \d+\)", tail), line
+    else:
+        assert tail == says, line
     assert waited < 3 * TIMEOUT_S + 2.5  # each step within its timeout: never a hang
 
 

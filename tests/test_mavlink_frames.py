@@ -92,10 +92,17 @@ def _pymavlink_message(layout: frames.Layout, values: list):
     return cls(*args)
 
 
+def _afresh_or_not(layout: frames.Layout, draw: st.DrawFn) -> frames.Layout:
+    """``layout``, or the same message's built again here: the module's layouts are built when it
+    is imported, so only a fresh one shows what ``Layout`` builds now (a mutation test switches a
+    mutant on after the import)."""
+    return frames.Layout(mav.mavlink_map[layout.msg_id]) if draw(st.booleans()) else layout
+
+
 @settings(max_examples=150, deadline=None)
 @given(data=st.data(), seq=st.integers(0, 255), sysid=st.integers(1, 255), compid=st.integers(0, 255))
 def test_frames_are_byte_identical_to_pymavlink_and_read_back_the_same(data, seq, sysid, compid):
-    layout = data.draw(st.sampled_from(LAYOUTS))
+    layout = _afresh_or_not(data.draw(st.sampled_from(LAYOUTS)), data.draw)
     values = _values(layout, data.draw)
     ref, ours = mav.MAVLink(_Sink(), sysid, compid), mav.MAVLink(_Sink(), sysid, compid)
     ref.seq = ours.seq = seq
@@ -337,7 +344,7 @@ def test_a_signed_link_reads_its_sample_and_refuses_the_rest():
 @given(data=st.data(), seq=st.integers(0, 255), sysid=st.integers(1, 255), compid=st.integers(0, 255))
 def test_compiled_frames_are_byte_identical_to_pymavlink_and_read_back_the_same(data, seq, sysid, compid):
     """``pack_into``/``read_into`` (the kernels of ``tick_frames``) against pymavlink itself."""
-    layout = data.draw(st.sampled_from(LAYOUTS + OTHER_KINDS))
+    layout = _afresh_or_not(data.draw(st.sampled_from(LAYOUTS + OTHER_KINDS)), data.draw)
     values = _values(layout, data.draw)
     ref = mav.MAVLink(_Sink(), sysid, compid)
     ref.seq = seq
@@ -364,3 +371,36 @@ def test_frame_at_refuses_what_is_not_a_whole_plain_frame(cut):
     assert frames.frame_at(lpos[:-cut], 0)[3] == -1
     assert frames.frame_at(b"\xfe" + lpos[1:], 0)[3] == -1  # MAVLink 1
     assert frames.frame_at(lpos[:2] + b"\x01" + lpos[3:], 0)[3] == -1  # signed
+
+
+def _raw_frame(cls, payload: bytes, crc_extra: int) -> bytes:
+    """A plain MAVLink 2 frame of message ``cls`` with ``payload``, its CRC by pymavlink's X.25."""
+    from pymavlink.generator.mavcrc import x25crc
+
+    header = bytes([0xFD, len(payload), 0, 0, 0, 1, 1, cls.id & 0xFF, (cls.id >> 8) & 0xFF, cls.id >> 16])
+    crc = x25crc(header[1:] + payload)
+    crc.accumulate(bytes([crc_extra]))
+    return header + payload + crc.crc.to_bytes(2, "little")
+
+
+@given(data=st.data())
+def test_crc_ok_checks_any_common_message_by_its_own_crc_extra(data):
+    """Any message of the common set (ids from 0 to over 2^8 and 2^16's byte), any payload: its
+    frame with the CRC of its own CRC extra passes; with another CRC extra, or any covered byte
+    changed, it does not; a frame with an id the set does not have never passes."""
+    cls = data.draw(st.sampled_from(sorted(mav.mavlink_map.values(), key=lambda c: c.id)))
+    payload = data.draw(st.binary(min_size=1, max_size=cls.unpacker.size))
+    frame = _raw_frame(cls, payload, cls.crc_extra)
+    assert frames.crc_ok(frame)
+    other = data.draw(st.integers(0, 255).filter(lambda e: e != cls.crc_extra))
+    assert not frames.crc_ok(_raw_frame(cls, payload, other))
+    # any byte the CRC covers or is, but the length and the id (which would make it another
+    # frame): X.25 detects every change of one byte
+    at = data.draw(st.sampled_from([j for j in range(2, len(frame)) if j not in (7, 8, 9)]))
+    bad = bytearray(frame)
+    bad[at] ^= data.draw(st.integers(1, 255))
+    assert not frames.crc_ok(bytes(bad))
+    unknown = data.draw(st.integers(0, 2**24 - 1).filter(lambda i: i not in mav.mavlink_map))
+    alien = bytearray(frame)
+    alien[7:10] = unknown.to_bytes(3, "little")
+    assert not frames.crc_ok(bytes(alien))

@@ -3,11 +3,17 @@
 import numpy as np
 import pytest
 from hypothesis import given
+from hypothesis import strategies as st
 
 from sim_vehicles.common.command import AttitudeCommand
 from sim_vehicles.common.quaternion import from_axis_angle, rotation_matrix
 from sim_vehicles.mavlink.enu_ned import enu_to_ned, flu_to_frd, q_enu_flu_to_ned_frd, q_ned_frd_to_enu_flu
-from sim_vehicles.mavlink.wire_format import command_roundtrip, decode_attitude_target, encode_attitude_target
+from sim_vehicles.mavlink.wire_format import (
+    command_roundtrip,
+    decode_attitude_target,
+    encode_attitude_target,
+    f32,
+)
 from tests.strategies import unit_quaternions, vec3
 
 pytestmark = pytest.mark.unit
@@ -50,3 +56,26 @@ def test_bad_attitude_target_is_refused():
             ),
             25.0,
         )
+
+
+@given(
+    unit_quaternions(),
+    st.floats(0.0, 1.0),
+    st.floats(1.0, 200.0),
+    st.floats(1.0, 200.0),
+)
+def test_a_thrust_travels_as_a_fraction_of_the_senders_full_thrust_read_as_one_of_the_vehicles(
+    q, share, full_N, vehicle_N
+):
+    """The controller sends ``F / full`` (float32); the vehicle flies that fraction of its own
+    maximum thrust, which may differ (one float32 rounding apart); by default the sender's."""
+    cmd = AttitudeCommand(q, share * full_N)
+    got = command_roundtrip(cmd, full_N, vehicle_N).thrust_N
+    assert got == pytest.approx(share * vehicle_N, rel=2**-23, abs=vehicle_N * 2**-24)
+    same = command_roundtrip(cmd, full_N).thrust_N
+    assert same == pytest.approx(share * full_N, rel=2**-23, abs=full_N * 2**-24)
+
+
+@given(st.lists(st.floats(-3e38, 3e38), max_size=20))
+def test_f32_rounds_any_number_of_values_as_float32_does(values):
+    assert f32(*values) == tuple(float(np.float32(v)) for v in values)

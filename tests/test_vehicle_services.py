@@ -1,0 +1,108 @@
+"""What a vehicle answers whoever asks, as PX4 and ArduCopter do: a PING request echoed to its
+sender, MAVLink FTP refused with a NAK (no file system), an empty mission list, a parameter read
+by index or by name, all addressed to the system and component that asked. The endpoint is driven
+in process (its datagram handler); what it sends is parsed back with pymavlink."""
+
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from pymavlink.dialects.v20 import common as mav
+
+from sim_vehicles.common.state import make_state
+from sim_vehicles.plant.autopilot import Autopilot
+from sim_vehicles.plant.params import AttitudeGains, VehicleParams
+from sim_vehicles.vehicle.autopilots import PROFILES
+from sim_vehicles.vehicle.endpoint import VehicleEndpoint
+from tests.fakes import RecordingSocket
+
+pytestmark = pytest.mark.integration  # (an endpoint driven in process)
+SYS = 3
+PEER = ("127.0.0.1", 40001)
+PARAMS = VehicleParams(0.85, (0.05, 0.05, 0.09), 25.0)
+#: MAVLink FTP (https://mavlink.io/en/services/ftp.html): payload bytes of a request and a reply
+FTP_SEQ, FTP_SESSION, FTP_OPCODE, FTP_SIZE, FTP_REQ_OPCODE, FTP_DATA = 0, 2, 3, 4, 5, 12
+FTP_NAK, FTP_OPEN_FILE_RO, ERR_FILE_NOT_FOUND, ERR_UNKNOWN_COMMAND = 129, 4, 10, 7
+
+
+@pytest.fixture(scope="module", params=sorted(PROFILES))  # (the answers change no state)
+def vehicle(request):
+    ap = Autopilot(PARAMS, AttitudeGains(16.0, 16.0), make_state([0.0, 0.0, 10.0]), 0.001)
+    ep = VehicleEndpoint(ap, SYS, profile=PROFILES[request.param])
+    ep.port.sock.close()
+    ep.port.sock = RecordingSocket()
+    yield ep
+    ep.close()
+
+
+def _ask(ep: VehicleEndpoint, msg, sysid: int, compid: int) -> list:
+    """What the vehicle sends back for ``msg`` from (``sysid``, ``compid``), heartbeats aside."""
+    link = mav.MAVLink(None, srcSystem=sysid, srcComponent=compid)
+    ep.port.sock.sent.clear()
+    ep.datagram(bytes(msg.pack(link)), PEER)
+    ep.port.flush()
+    back = mav.MAVLink(None)
+    out = [m for data in ep.port.sock.sent for m in back.parse_buffer(data) or []]
+    return [m for m in out if m.get_type() != "HEARTBEAT"]
+
+
+senders = st.tuples(st.integers(1, 255), st.integers(0, 255))
+
+
+@settings(max_examples=40, deadline=None)
+@given(senders, st.integers(0, 2**64 - 1), st.integers(0, 2**32 - 1), st.integers(1, 255))
+def test_a_ping_request_is_echoed_to_its_sender_and_a_ping_reply_is_not_answered(
+    vehicle, sender, time_usec, seq, target
+):
+    (answer,) = _ask(vehicle, mav.MAVLink_ping_message(time_usec, seq, 0, 0), *sender)
+    assert answer.get_type() == "PING"
+    assert (answer.time_usec, answer.seq) == (time_usec, seq)
+    assert (answer.target_system, answer.target_component) == sender
+    assert _ask(vehicle, mav.MAVLink_ping_message(time_usec, seq, target, 1), *sender) == []
+
+
+@settings(max_examples=40, deadline=None)
+@given(senders, st.integers(0, 255))
+def test_a_mission_list_request_is_answered_with_no_items_of_its_type(vehicle, sender, mission_type):
+    (answer,) = _ask(vehicle, mav.MAVLink_mission_request_list_message(SYS, 1, mission_type), *sender)
+    assert answer.get_type() == "MISSION_COUNT" and answer.count == 0
+    assert (answer.target_system, answer.target_component) == sender
+    assert answer.mission_type == mission_type
+
+
+@settings(max_examples=40, deadline=None)
+@given(senders, st.integers(0, 0xFFFF), st.integers(0, 255), st.integers(0, 255))
+def test_any_ftp_request_gets_a_nak_to_its_sender(vehicle, sender, seq, session, opcode):
+    """A NAK with the request's sequence + 1, its session and opcode, one data byte:
+    FileNotFound to an open, UnknownCommand to anything else."""
+    payload = [seq & 0xFF, seq >> 8, session, opcode] + [0] * 247
+    (answer,) = _ask(vehicle, mav.MAVLink_file_transfer_protocol_message(0, SYS, 1, payload), *sender)
+    assert answer.get_type() == "FILE_TRANSFER_PROTOCOL"
+    assert (answer.target_system, answer.target_component) == sender
+    p = bytes(answer.payload)
+    assert p[FTP_SEQ] | p[FTP_SEQ + 1] << 8 == (seq + 1) % 0x10000
+    assert (p[FTP_SESSION], p[FTP_OPCODE], p[FTP_SIZE], p[FTP_REQ_OPCODE]) == (session, FTP_NAK, 1, opcode)
+    assert p[FTP_DATA] == (ERR_FILE_NOT_FOUND if opcode == FTP_OPEN_FILE_RO else ERR_UNKNOWN_COMMAND)
+
+
+@settings(max_examples=20, deadline=None)
+@given(senders, st.data())
+def test_a_parameter_is_read_by_its_index_or_its_name_as_the_list_gives_it(vehicle, sender, data):
+    """PARAM_REQUEST_LIST gives every parameter with its index and the count; reading index i
+    gives the i-th, by name (index -1) the same; an index past the end or an unknown name, nothing."""
+    listed = _ask(vehicle, mav.MAVLink_param_request_list_message(SYS, 1), *sender)
+    n = len(listed)
+    assert n > 0 and [m.param_index for m in listed] == list(range(n))
+    assert all(m.param_count == n for m in listed)
+    i = data.draw(st.integers(0, n - 1))
+    (by_index,) = _ask(vehicle, mav.MAVLink_param_request_read_message(SYS, 1, b"", i), *sender)
+    assert (by_index.param_id, by_index.param_index) == (listed[i].param_id, i)
+    name = listed[i].param_id.encode()
+    (by_name,) = _ask(vehicle, mav.MAVLink_param_request_read_message(SYS, 1, name, -1), *sender)
+    assert (by_name.param_id, by_name.param_value, by_name.param_index) == (
+        listed[i].param_id,
+        listed[i].param_value,
+        i,
+    )
+    past = data.draw(st.integers(n, 0x7FFF))
+    assert _ask(vehicle, mav.MAVLink_param_request_read_message(SYS, 1, b"", past), *sender) == []
+    assert _ask(vehicle, mav.MAVLink_param_request_read_message(SYS, 1, b"NO_SUCH_PARAM", -1), *sender) == []
