@@ -52,7 +52,7 @@ def _who(link: Link) -> str:
     return f"follower {link.system_id}"
 
 
-def _said(link: Link) -> str:
+def said(link: Link) -> str:
     """The autopilot's last STATUSTEXT, as a tail for a line ("": none came)."""
     return f"; its last STATUSTEXT: {link.statustext!r}" if link.statustext else ""
 
@@ -72,7 +72,7 @@ def wait(
     while not done():
         now = time.monotonic()
         if now > end:
-            raise LinkError(f"{_who(link)}: {link.url}: no {what} within {timeout_s:g} s{_said(link)}")
+            raise LinkError(f"{_who(link)}: {link.url}: no {what} within {timeout_s:g} s{said(link)}")
         if resend is not None and now >= next_send:
             resend()
             next_send = now + every_s
@@ -133,7 +133,7 @@ def set_param(link: Link, name: str, value: float, kind: int, timeout_s: float) 
     )
     if kept != float(value):
         raise LinkError(
-            f"{_who(link)}: {link.url}: PARAM_SET {name} {value:g} refused: it keeps {kept:g}{_said(link)}"
+            f"{_who(link)}: {link.url}: PARAM_SET {name} {value:g} refused: it keeps {kept:g}{said(link)}"
         )
 
 
@@ -234,10 +234,10 @@ def command_acked(
         result = mav.enums["MAV_RESULT"][last[0]].name
         raise LinkError(
             f"{_who(link)}: {link.url}: {step or name} refused: {name} answered {result} for "
-            f"{timeout_s:g} s{_said(link)}"
+            f"{timeout_s:g} s{said(link)}"
         ) from None
     if acks[command] != mav.MAV_RESULT_ACCEPTED:
         result = mav.enums["MAV_RESULT"][acks[command]].name
         raise LinkError(
-            f"{_who(link)}: {link.url}: {step or name} refused: {name} answered {result}{_said(link)}"
+            f"{_who(link)}: {link.url}: {step or name} refused: {name} answered {result}{said(link)}"
         )

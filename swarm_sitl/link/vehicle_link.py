@@ -90,8 +90,9 @@ class VehicleLink:
         """``LinkError`` (one line) if the vehicle is no longer the one engaged: it rebooted, or
         disarmed (``decoding.Downlink.gone``). A controller asks at every tick."""
         if self.downlink.gone:
-            said = f"; its last STATUSTEXT: {self.statustext!r}" if self.statustext else ""
-            raise LinkError(f"follower {self.system_id}: {self.url}: mid-run, {self.downlink.gone}{said}")
+            raise LinkError(
+                f"follower {self.system_id}: {self.url}: mid-run, {self.downlink.gone}{handshake.said(self)}"
+            )
 
     def sample_settled(self, time_boot_ms: int) -> bool:
         """Lockstep: whether the sample of ``time_boot_ms`` has come, or a fault plan lost it."""
