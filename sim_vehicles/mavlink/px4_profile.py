@@ -79,7 +79,9 @@ CAPABILITIES = (
     | mav.MAV_PROTOCOL_CAPABILITY_COMMAND_INT
 )
 FLIGHT_SW_VERSION = (1 << 24) | (15 << 16) | (0 << 8) | 255  #: "1.15.0 release", PX4's encoding
-EARTH_RADIUS_M = 6_378_137.0
+#: the earth's radius PX4 projects local positions with (``CONSTANTS_RADIUS_OF_EARTH``,
+#: ``src/lib/geo/geo.h``), so a ground station reads our vehicles' positions as PX4's [m]
+EARTH_RADIUS_M = 6_371_000.0
 
 
 @dataclass(frozen=True)
