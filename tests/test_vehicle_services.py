@@ -3,16 +3,20 @@ sender, MAVLink FTP refused with a NAK (no file system), an empty mission list, 
 by index or by name, all addressed to the system and component that asked. The endpoint is driven
 in process (its datagram handler); what it sends is parsed back with pymavlink."""
 
+import math
+
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from pymavlink.dialects.v20 import common as mav
 
 from sim_vehicles.common.state import make_state
+from sim_vehicles.mavlink import px4_profile as px4
 from sim_vehicles.plant.autopilot import Autopilot
 from sim_vehicles.plant.params import AttitudeGains, VehicleParams
 from sim_vehicles.vehicle.autopilots import PROFILES
 from sim_vehicles.vehicle.endpoint import VehicleEndpoint
+from sim_vehicles.vehicle.services import COMMAND_PARAMS
 from tests.fakes import RecordingSocket
 
 pytestmark = pytest.mark.integration  # (an endpoint driven in process)
@@ -106,3 +110,65 @@ def test_a_parameter_is_read_by_its_index_or_its_name_as_the_list_gives_it(vehic
     past = data.draw(st.integers(n, 0x7FFF))
     assert _ask(vehicle, mav.MAVLink_param_request_read_message(SYS, 1, b"", past), *sender) == []
     assert _ask(vehicle, mav.MAVLink_param_request_read_message(SYS, 1, b"NO_SUCH_PARAM", -1), *sender) == []
+
+
+#: commands a ground station or a controller sends (the vehicle's, and one it does not have)
+COMMANDS = [*COMMAND_PARAMS, mav.MAV_CMD_NAV_TAKEOFF]
+param = st.one_of(st.floats(-300, 300), st.sampled_from([0.0, 1.0, 4.0, 6.0, 21196.0, 32.0]))
+
+
+@settings(max_examples=60, deadline=None)
+@given(senders, st.sampled_from(COMMANDS), st.lists(param, min_size=7, max_size=7), st.data())
+def test_every_command_is_acknowledged_once_to_its_sender_and_each_refusal_counted_once(
+    vehicle, sender, command, params, data
+):
+    """Whatever the command and its parameters (an optional one NaN, MAVLink's "unused"): one
+    COMMAND_ACK of it to its sender (progress 0), before anything it asks for; a command it does
+    not have counted unhandled, a refused one (DENIED, FAILED) invalid, once each."""
+    for j in COMMAND_PARAMS.get(command, ((), ()))[1]:
+        if data.draw(st.booleans()):
+            params[j] = math.nan
+    before = (vehicle.stats.rx_invalid, vehicle.stats.rx_unhandled)
+    answers = _ask(vehicle, mav.MAVLink_command_long_message(SYS, 1, command, 0, *params), *sender)
+    acks = [m for m in answers if m.get_type() == "COMMAND_ACK"]
+    assert len(acks) == 1 and answers[0] is acks[0], [m.get_type() for m in answers]
+    (ack,) = acks
+    assert ack.command == command and (ack.target_system, ack.target_component) == sender
+    assert ack.progress == 0 and ack.result_param2 == 0
+    invalid = vehicle.stats.rx_invalid - before[0]
+    unhandled = vehicle.stats.rx_unhandled - before[1]
+    assert unhandled == (1 if ack.result == mav.MAV_RESULT_UNSUPPORTED else 0)
+    assert invalid == (1 if ack.result in (mav.MAV_RESULT_DENIED, mav.MAV_RESULT_FAILED) else 0)
+
+
+@settings(max_examples=20, deadline=None)
+@given(senders)
+def test_a_command_that_asks_for_a_message_gets_it_after_its_ack(vehicle, sender):
+    asks = [
+        (mav.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES, (1.0,), "AUTOPILOT_VERSION"),
+        (mav.MAV_CMD_GET_HOME_POSITION, (), "HOME_POSITION"),
+        (mav.MAV_CMD_REQUEST_MESSAGE, (float(mav.MAVLINK_MSG_ID_SYS_STATUS),), "SYS_STATUS"),
+    ]
+    for command, params, wanted in asks:
+        p = [*params, 0, 0, 0, 0, 0, 0, 0][:7]
+        answers = _ask(vehicle, mav.MAVLink_command_long_message(SYS, 1, command, 0, *p), *sender)
+        assert [m.get_type() for m in answers] == ["COMMAND_ACK", wanted]
+        assert answers[0].result == mav.MAV_RESULT_ACCEPTED
+
+
+def test_px4_takes_its_auto_sub_modes_by_param3():
+    """DO_SET_MODE with PX4's AUTO main mode and a sub mode in param3 (AUTO.LOITER): taken, and
+    its HEARTBEAT says so."""
+    ap = Autopilot(PARAMS, AttitudeGains(16.0, 16.0), make_state([0.0, 0.0, 10.0]), 0.001)
+    ep = VehicleEndpoint(ap, SYS, profile=PROFILES["px4"])
+    try:
+        ep.port.sock.close()
+        ep.port.sock = RecordingSocket()
+        custom = float(mav.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED)
+        params = (custom, float(px4.MAIN_AUTO), float(px4.SUB_AUTO_LOITER), 0, 0, 0, 0)
+        (ack,) = _ask(
+            ep, mav.MAVLink_command_long_message(SYS, 1, mav.MAV_CMD_DO_SET_MODE, 0, *params), 255, 190
+        )
+        assert ack.result == mav.MAV_RESULT_ACCEPTED and ep.flight.number == px4.HOLD
+    finally:
+        ep.close()
