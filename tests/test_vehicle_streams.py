@@ -1,8 +1,9 @@
-"""A vehicle's telemetry schedule (``vehicle.port.Streams``) and its heartbeat, against what
+"""A vehicle's telemetry schedule (``vehicle.port.Streams``), its heartbeat and its flush, against what
 MAVLink's MAV_CMD_SET_MESSAGE_INTERVAL says and against the schedule's own state: after any
 sequence of interval changes, passes and lockstep samples, a pass sends exactly the streams due
 by then, each next due at the next multiple of its period; the heartbeat goes out at its rate on
-the wall clock, whatever the steps between looks."""
+the wall clock, whatever the steps between looks; a flush sends every frame queued once, in
+order, in datagrams that fit."""
 
 import dataclasses
 import math
@@ -13,10 +14,11 @@ from hypothesis import strategies as st
 from pymavlink.dialects.v20 import common as mav
 
 from sim_vehicles.common.state import make_state
+from sim_vehicles.mavlink.signing import SIGNATURE_LEN, Verifier
 from sim_vehicles.plant.autopilot import Autopilot
 from sim_vehicles.plant.params import AttitudeGains, VehicleParams
 from sim_vehicles.vehicle.endpoint import VehicleEndpoint
-from sim_vehicles.vehicle.port import ATTQ_ID, LPOS_ID, Streams
+from sim_vehicles.vehicle.port import ATTQ_ID, LPOS_ID, MAX_DATAGRAM, EndpointStats, Port, Streams, Tlog
 from sim_vehicles.vehicle.telemetry import TelemetryRates
 from tests.fakes import RecordingSocket
 from tests.strategies import in_range
@@ -143,3 +145,39 @@ def test_the_heartbeat_goes_out_at_its_rate_on_the_wall_clock(rate_hz, steps):
             assert beats == want
         finally:
             ep.close()
+
+
+@pytest.mark.unit
+@settings(max_examples=40, deadline=None)
+@given(st.integers(1, 120), st.sampled_from([None, b"k" * 32]), st.integers(0, 2**31))
+def test_a_flush_sends_every_queued_frame_once_in_order_in_datagrams_that_fit(n_frames, key, ms):
+    """However many frames a pass queues: each sent once, in the order queued, in datagrams of at
+    most ``MAX_DATAGRAM`` bytes (one when they fit), each frame whole and, on a signed link,
+    signed; counted as sent."""
+    stats = EndpointStats()
+    port = Port(
+        ("127.0.0.1", 0), 3, DEFAULTS, stats, Tlog(None), remote=("127.0.0.1", 40001), signing_key=key
+    )
+    try:
+        port.sock.close()
+        port.sock = rec = RecordingSocket()  # type: ignore[assignment]
+        sent = [ms + j for j in range(n_frames)]
+        for t in sent:
+            port.send(port.mav.system_time_encode(t, t % 1000))
+        queued = sum(len(f) + (SIGNATURE_LEN if key else 0) for f in port.sink.frames)
+        port.flush()
+        assert port.sink.frames == [] and stats.tx_messages == n_frames
+        assert all(len(d) <= MAX_DATAGRAM for d in rec.sent)
+        if queued <= MAX_DATAGRAM:
+            assert len(rec.sent) == 1
+        verifier = Verifier(key) if key else None
+        got = []
+        for d in rec.sent:
+            if verifier is not None:
+                d = verifier.open(d)
+                assert d is not None  # every frame signed, each datagram opens whole
+            msgs = mav.MAVLink(None).parse_buffer(d) or []
+            got += [m.time_unix_usec for m in msgs]
+        assert got == sent
+    finally:
+        port.close()
