@@ -13,11 +13,12 @@ import time
 
 import numpy as np
 import pytest
-from hypothesis import given
+from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from pymavlink.dialects.v20 import common as mav
 
 from sim_vehicles.common.state import make_state
+from sim_vehicles.mavlink.enu_ned import q_enu_flu_to_ned_frd, q_ned_frd_to_enu_flu
 from sim_vehicles.mavlink.frames import _crc
 from sim_vehicles.plant.autopilot import Autopilot
 from sim_vehicles.plant.params import AttitudeGains, VehicleParams
@@ -25,7 +26,7 @@ from sim_vehicles.vehicle.endpoint import VehicleEndpoint
 from sim_vehicles.vehicle.modes import MODE_OFFBOARD
 from sim_vehicles.vehicle.port import PEER_SILENT_S
 from sim_vehicles.vehicle.services import COMMAND_PARAMS
-from tests.strategies import FUZZ, FUZZ_TIMEOUT
+from tests.strategies import FUZZ, FUZZ_TIMEOUT, unit_quaternions
 
 SYS = 3
 PEER = ("127.0.0.1", 40001)
@@ -197,6 +198,41 @@ def test_body_rates_are_clipped_to_the_rate_limits_and_the_state_stays_finite(fl
             # the loop tracks the clipped rates (with its attitude term on top: the command
             # attitude stands still while its rates say it turns)
             assert np.all(np.abs(w) <= 2 * limit), w
+
+
+@pytest.mark.integration
+@settings(max_examples=80, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(
+    unit_quaternions(),
+    st.tuples(*[st.floats(-2.0, 2.0)] * 3),
+    st.floats(0.05, 0.9),
+    st.integers(0, 0b1100_0111).filter(lambda m: m & 0b0011_1000 == 0 and m != 0b1100_0111),
+)
+def test_px4_takes_each_field_its_mask_does_not_ignore_and_holds_or_zeroes_the_rest(
+    flying, q, rates, thrust, mask
+):
+    """A SET_ATTITUDE_TARGET with any of PX4's ignore bits (not all: a clock-only one): the
+    attitude held if ignored, else the one sent (NED/FRD to ENU/FLU); the thrust held if ignored,
+    else the field of full thrust; each body rate whose bit is set not given (0), the others the
+    sent ones (FRD to FLU). Counted as a setpoint either way."""
+    held = flying.autopilot.command
+    before = flying.stats.setpoints
+    ned_q = q_enu_flu_to_ned_frd(np.array(q))
+    flying.datagram(
+        _frame(mav.MAVLink_set_attitude_target_message(0, SYS, 1, mask, list(ned_q), *rates, thrust)), PEER
+    )
+    cmd = flying.autopilot.command
+    assert flying.stats.setpoints == before + 1
+    f32 = np.float32
+    if mask & 0b1000_0000:
+        assert np.array_equal(cmd.q_c, held.q_c)
+    else:
+        sent = q_ned_frd_to_enu_flu(np.array([float(f32(x)) for x in ned_q]))
+        assert np.allclose(cmd.q_c, sent, atol=1e-6) or np.allclose(cmd.q_c, -sent, atol=1e-6)
+    want_T = held.thrust_N if mask & 0b0100_0000 else float(f32(thrust)) * PARAMS.max_thrust_N
+    assert cmd.thrust_N == pytest.approx(want_T, rel=1e-12)
+    frd = [0.0 if mask & (1 << axis) else float(f32(r)) for axis, r in enumerate(rates)]
+    assert np.allclose(cmd.omega_c_B, [frd[0], -frd[1], -frd[2]], rtol=0, atol=1e-12)
 
 
 # -- fuzzing ---------------------------------------------------------------------------------------
