@@ -304,3 +304,21 @@ def fresh_ros2_client(monkeypatch: Any) -> None:
 
     monkeypatch.setattr(ZenohSession, "_instance", None)
     monkeypatch.setattr(message_registry, "_registry", None)
+
+
+def raw_frame(
+    cls: Any, payload: bytes, crc_extra: int | None = None, sysid: int = 1, compid: int = 1
+) -> bytes:
+    """A plain MAVLink 2 frame of message class ``cls`` carrying ``payload`` (its trailing zeros
+    dropped, as MAVLink 2 sends it), its CRC by pymavlink's own X.25 over ``crc_extra`` (default:
+    the message's): a frame any payload makes, good or, with another CRC extra, bad."""
+    from pymavlink.generator.mavcrc import x25crc
+
+    while len(payload) > 1 and payload[-1] == 0:
+        payload = payload[:-1]
+    msg_id = cls.id
+    ids = [msg_id & 0xFF, (msg_id >> 8) & 0xFF, msg_id >> 16]
+    header = bytes([0xFD, len(payload), 0, 0, 0, sysid, compid, *ids])
+    crc = x25crc(header[1:] + payload)
+    crc.accumulate(bytes([cls.crc_extra if crc_extra is None else crc_extra]))
+    return header + payload + crc.crc.to_bytes(2, "little")

@@ -8,13 +8,13 @@ import math
 import socket
 import time
 
-import numpy as np
 import pytest
 from pymavlink.dialects.v20 import common as mav
 
 from sim_vehicles.mavlink import ardupilot_profile as ap
 from sim_vehicles.mavlink import px4_profile as px4
 from sim_vehicles.mavlink.thrust_map import full_thrust_N
+from sim_vehicles.mavlink.wire_format import f32
 from swarm_sitl.link.dialects import ARDUPILOT, PX4
 from swarm_sitl.link.transport import LinkError
 from swarm_sitl.link.vehicle_link import VehicleLink
@@ -25,10 +25,6 @@ TIMEOUT_S = 1.5
 LPOS, ATTQ = mav.MAVLINK_MSG_ID_LOCAL_POSITION_NED, mav.MAVLINK_MSG_ID_ATTITUDE_QUATERNION
 OTHERS = (mav.MAVLINK_MSG_ID_ATTITUDE, mav.MAVLINK_MSG_ID_HIGHRES_IMU)
 ADDRESSED = {"PARAM_REQUEST_READ", "PARAM_SET", "COMMAND_LONG", "SET_ATTITUDE_TARGET"}
-
-
-def _f32(x: float) -> float:
-    return float(np.float32(x))
 
 
 @pytest.mark.parametrize("lockstep", [False, True])
@@ -64,7 +60,7 @@ def test_the_autopilot_hears_what_its_dialect_reads_the_rates_asked_and_its_mode
         hover = fake.params[dialect.hover_param]
     assert dialect is (PX4 if kind == "px4" else ARDUPILOT)
     # the thrust map: the hover fraction it serves (float32 on the wire) is m g
-    assert full == full_thrust_N(mass_kg, g, _f32(hover))
+    assert full == full_thrust_N(mass_kg, g, f32(hover)[0])
     # every request to the vehicle's autopilot (system sysid, component 1)
     for m in heard:
         if m.get_type() in ADDRESSED:
@@ -88,8 +84,8 @@ def test_the_autopilot_hears_what_its_dialect_reads_the_rates_asked_and_its_mode
         assert rest == [0.0] * len(rest), c
     intervals = {int(c.param1): c.param2 for c in commands if c.command == mav.MAV_CMD_SET_MESSAGE_INTERVAL}
     other_us = 1e6 / other_hz if other_hz > 0 else -1.0
-    assert intervals == {LPOS: _f32(period_s * 1e6), ATTQ: _f32(period_s * 1e6)} | dict.fromkeys(
-        OTHERS, _f32(other_us)
+    assert intervals == {LPOS: f32(period_s * 1e6)[0], ATTQ: f32(period_s * 1e6)[0]} | dict.fromkeys(
+        OTHERS, f32(other_us)[0]
     )
     modes = [c for c in commands if c.command == mav.MAV_CMD_DO_SET_MODE]
     arms = [c for c in commands if c.command == mav.MAV_CMD_COMPONENT_ARM_DISARM]

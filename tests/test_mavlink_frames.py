@@ -19,6 +19,7 @@ from hypothesis import strategies as st
 from pymavlink.dialects.v20 import common as mav
 
 from sim_vehicles.mavlink import frames
+from tests.support import raw_frame
 
 pytestmark = pytest.mark.unit
 
@@ -373,16 +374,6 @@ def test_frame_at_refuses_what_is_not_a_whole_plain_frame(cut):
     assert frames.frame_at(lpos[:2] + b"\x01" + lpos[3:], 0)[3] == -1  # signed
 
 
-def _raw_frame(cls, payload: bytes, crc_extra: int) -> bytes:
-    """A plain MAVLink 2 frame of message ``cls`` with ``payload``, its CRC by pymavlink's X.25."""
-    from pymavlink.generator.mavcrc import x25crc
-
-    header = bytes([0xFD, len(payload), 0, 0, 0, 1, 1, cls.id & 0xFF, (cls.id >> 8) & 0xFF, cls.id >> 16])
-    crc = x25crc(header[1:] + payload)
-    crc.accumulate(bytes([crc_extra]))
-    return header + payload + crc.crc.to_bytes(2, "little")
-
-
 @given(data=st.data())
 def test_crc_ok_checks_any_common_message_by_its_own_crc_extra(data):
     """Any message of the common set (ids from 0 to over 2^8 and 2^16's byte), any payload: its
@@ -390,10 +381,10 @@ def test_crc_ok_checks_any_common_message_by_its_own_crc_extra(data):
     changed, it does not; a frame with an id the set does not have never passes."""
     cls = data.draw(st.sampled_from(sorted(mav.mavlink_map.values(), key=lambda c: c.id)))
     payload = data.draw(st.binary(min_size=1, max_size=cls.unpacker.size))
-    frame = _raw_frame(cls, payload, cls.crc_extra)
+    frame = raw_frame(cls, payload)
     assert frames.crc_ok(frame)
     other = data.draw(st.integers(0, 255).filter(lambda e: e != cls.crc_extra))
-    assert not frames.crc_ok(_raw_frame(cls, payload, other))
+    assert not frames.crc_ok(raw_frame(cls, payload, other))
     # any byte the CRC covers or is, but the length and the id (which would make it another
     # frame): X.25 detects every change of one byte
     at = data.draw(st.sampled_from([j for j in range(2, len(frame)) if j not in (7, 8, 9)]))

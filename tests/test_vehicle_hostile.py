@@ -19,7 +19,6 @@ from pymavlink.dialects.v20 import common as mav
 
 from sim_vehicles.common.state import make_state
 from sim_vehicles.mavlink.enu_ned import q_enu_flu_to_ned_frd, q_ned_frd_to_enu_flu
-from sim_vehicles.mavlink.frames import _crc
 from sim_vehicles.plant.autopilot import Autopilot
 from sim_vehicles.plant.params import AttitudeGains, VehicleParams
 from sim_vehicles.vehicle.endpoint import VehicleEndpoint
@@ -27,6 +26,7 @@ from sim_vehicles.vehicle.modes import MODE_OFFBOARD
 from sim_vehicles.vehicle.port import PEER_SILENT_S
 from sim_vehicles.vehicle.services import COMMAND_PARAMS
 from tests.strategies import FUZZ, FUZZ_TIMEOUT, unit_quaternions
+from tests.support import raw_frame
 
 SYS = 3
 PEER = ("127.0.0.1", 40001)
@@ -287,7 +287,8 @@ def hostile_datagrams(draw) -> bytes:
     if cls.id in _HANDLED:
         cls = mav.MAVLink_system_time_message
     # a frame of ``cls`` with a random payload and a good CRC: counted unhandled (or refused)
-    return _pack_raw(cls, draw(st.binary(min_size=cls.unpacker.size, max_size=cls.unpacker.size)))
+    payload = draw(st.binary(min_size=cls.unpacker.size, max_size=cls.unpacker.size))
+    return raw_frame(cls, payload, sysid=SYS, compid=191)
 
 
 _HANDLED = {  # what the vehicle acts on: the other strategies make those hostile
@@ -301,15 +302,6 @@ _HANDLED = {  # what the vehicle acts on: the other strategies make those hostil
     mav.MAVLINK_MSG_ID_PARAM_SET,
     mav.MAVLINK_MSG_ID_HEARTBEAT,
 }
-
-
-def _pack_raw(cls, payload: bytes) -> bytes:
-    """A MAVLink 2 frame of message ``cls`` with ``payload`` (CRC made good)."""
-    while len(payload) > 1 and payload[-1] == 0:
-        payload = payload[:-1]
-    header = bytes([0xFD, len(payload), 0, 0, 0, SYS, 191, cls.id & 0xFF, (cls.id >> 8) & 0xFF, cls.id >> 16])
-    crc = _crc(header[1:] + payload, bytes([cls.crc_extra]))
-    return header + payload + crc.to_bytes(2, "little")
 
 
 @pytest.mark.integration
