@@ -147,8 +147,8 @@ def _failsafe_windows(events: list[dict[str, Any]]) -> dict[int, list[tuple[floa
         v = e.get("vehicle")
         if not isinstance(v, int):
             continue
-        if e["kind"] == "failsafe_enter":
-            open_at[v] = float(e["t_s"])
+        if e["kind"] == "failsafe_enter":  # (entered again while in it: still in it since the first)
+            open_at.setdefault(v, float(e["t_s"]))
         elif e["kind"] == "failsafe_exit" and v in open_at:
             out.setdefault(v, []).append((open_at.pop(v), float(e["t_s"])))
     for v, start in open_at.items():
