@@ -72,7 +72,13 @@ FOLLOWER_FIELDS = [
 ]
 ESTIMATE_FIELDS = ["p_hat", "v_hat", "a_hat", "a_hat_dot"]
 REFERENCE_FIELDS = ["p_r", "v_r", "a_r"]
-EVENT = {"title": "swarm_sitl.Event", "type": "object", "properties": {"kind": {"type": "string"}}}
+EVENT = {  # the fields of each kind are its own (``rundir.events``): declared open
+    "title": "swarm_sitl.Event",
+    "type": "object",
+    "properties": {"t_s": {"type": "number"}, "kind": {"type": "string"}},
+    "required": ["t_s", "kind"],
+    "additionalProperties": True,
+}
 
 
 def timestamp_ns(t_s: float) -> int:
