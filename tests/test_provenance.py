@@ -3,13 +3,15 @@ made with, so two runs made with different code can be told apart."""
 
 import hashlib
 import platform
+import shutil
+import subprocess
 from importlib import metadata
 
 import pytest
 import yaml
 
 from swarm_sitl.config.load import parse_config
-from swarm_sitl.rundir.provenance import provenance
+from swarm_sitl.rundir.provenance import git_describe, provenance
 from tests.support import CONFIGS, ROOT, config
 
 pytestmark = pytest.mark.unit
@@ -44,3 +46,37 @@ def test_each_plug_in_file_is_hashed_and_a_changed_file_hashes_otherwise(tmp_pat
     assert first["seeds"]["faults"] == 9
     law.write_text(law.read_text() + "\n# edited\n")
     assert provenance(parse_config(data))["plugins"]["law"]["sha256"] != first["plugins"]["law"]["sha256"]
+
+
+def test_a_kept_plug_in_is_named_by_its_copy_and_a_recorded_config_hashes_nothing(tmp_path):
+    cfg = config("paper")
+    kept = {
+        "law": {"entry": "plugins/law.py:Law", "sha256": "ab" * 32, "kept": "plugins/law.py"},
+        "faults.plan.7": {"entry": "plugins/x.py:X", "sha256": None, "kept": None},  # not a plug-in of cfg
+        "vehicle": "not a record",
+    }
+    assert provenance(cfg, kept)["plugins"] == {"law": kept["law"]}
+    recorded = parse_config(cfg.data(), recorded=True)
+    assert provenance(recorded)["plugins"] == {"law": {"entry": cfg.law.entry, "sha256": None}}
+
+
+def _git(root, *args):
+    return subprocess.run(["git", *args], cwd=root, capture_output=True, text=True, check=True).stdout.strip()
+
+
+@pytest.mark.skipif(shutil.which("git") is None, reason="needs git on PATH (a checkout's git describe)")
+def test_git_describe_is_the_checkouts_commit_dirty_when_changed_and_none_outside_one(tmp_path):
+    repo = tmp_path / "repo"
+    repo.mkdir()
+    _git(repo, "init", "-q")
+    (repo / "a.py").write_text("A = 1\n")
+    _git(repo, "add", "a.py")
+    _git(repo, "-c", "user.name=t", "-c", "user.email=t@t", "commit", "-q", "-m", "one")
+    head = _git(repo, "rev-parse", "--short", "HEAD")
+    assert git_describe(repo) == head  # (no tag: the commit, abbreviated)
+    (repo / "a.py").write_text("A = 2\n")
+    assert git_describe(repo) == f"{head}-dirty"
+    assert git_describe(tmp_path) is None  # not a checkout
+    (tmp_path / "broken").mkdir()
+    (tmp_path / "broken" / ".git").write_text("gitdir: nowhere\n")  # a .git git cannot read
+    assert git_describe(tmp_path / "broken") is None

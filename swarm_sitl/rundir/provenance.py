@@ -31,7 +31,7 @@ def _version(distribution: str) -> str | None:
         return None
 
 
-def _git_describe(root: Path) -> str | None:
+def git_describe(root: Path) -> str | None:
     """``git describe --always --dirty`` of the checkout ``root`` is in, if it is one."""
     if not (root / ".git").exists():
         return None
@@ -61,7 +61,7 @@ def provenance(cfg: SwarmConfig, kept: dict[str, Any] | None = None) -> dict[str
             plugins[what] = {"entry": k.get("entry"), "sha256": k.get("sha256"), "kept": k.get("kept")}
     root = Path(__file__).resolve().parents[2]
     return {
-        "swarm_sitl": {"version": _version("swarm-sitl"), "git": _git_describe(root)},
+        "swarm_sitl": {"version": _version("swarm-sitl"), "git": git_describe(root)},
         "python": platform.python_version(),
         **{name: _version(dist) for name, dist in _LIBRARIES.items()},
         "plugins": plugins,
