@@ -4,6 +4,9 @@ messages are the recorded arrays (poses bit for bit, each odometry's twist the b
 by a rotation written here), each topic's type hash in the bag's metadata, ``/clock`` at every
 tick; and the CLI's errors are one line."""
 
+import json
+import shutil
+
 import numpy as np
 import pytest
 import yaml
@@ -11,6 +14,7 @@ from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 
 from swarm_sitl.ros2 import types
+from swarm_sitl.rundir.events import write_events
 from swarm_sitl.rundir.outputs import write_outputs
 from swarm_sitl.rundir.ros2_bag import write_bag
 from swarm_sitl.running.sim import run_sim
@@ -92,6 +96,39 @@ def test_each_edge_carries_what_its_sender_published_and_clock_every_tick(bag):
     clock = _decoded(mcap, "/clock")
     assert [t for t, _, _ in clock] == [round(t * 1e9) for t in rec.leader["t_s"]]
     assert all(c.clock.sec * 10**9 + c.clock.nanosec == t for t, _, c in clock)
+
+
+def test_the_leaders_reference_is_its_pose_and_odometry_and_each_event_is_one_json_string(bag, tmp_path):
+    _, rec, d, _ = bag
+    events = [
+        {"t_s": 0.25, "kind": "failsafe_enter", "vehicle": 3, "action": "land"},
+        {"t_s": 2.5, "kind": "vehicle_lost", "vehicle": 1, "source": "supervisor"},
+    ]
+    run = tmp_path / "run"
+    shutil.copytree(d / "run", run)
+    write_events(run / "events.jsonl", events)
+    counts = write_bag(run, tmp_path / "bag", "/fleet")
+    mcap = tmp_path / "bag" / "bag.mcap"
+    said = _decoded(mcap, "/fleet/events")
+    assert counts["/fleet/events"] == len(events)
+    assert [json.loads(s.data) for _, _, s in said] == events
+    assert [t for t, _, _ in said] == [round(e["t_s"] * 1e9) for e in events]
+    assert {name for _, name, _ in said} == {types.STRING}
+    poses, odoms = _decoded(mcap, "/fleet/leader/pose"), _decoded(mcap, "/fleet/leader/odom")
+    assert [t for t, _, _ in poses] == [t for t, _, _ in odoms] == [round(t * 1e9) for t in rec.leader["t_s"]]
+    for k, ((_, _, p), (_, _, o)) in enumerate(zip(poses, odoms, strict=True)):
+        for pose in (p.pose, o.pose.pose):
+            pos, q = pose.position, pose.orientation
+            assert [pos.x, pos.y, pos.z] == rec.leader["p_r"][k].tolist() and [q.w, q.x, q.y, q.z] == [
+                1,
+                0,
+                0,
+                0,
+            ]
+        tw = o.twist.twist  # the reference does not turn: its body frame is the world's
+        assert [tw.linear.x, tw.linear.y, tw.linear.z] == rec.leader["v_r"][k].tolist()
+        assert [tw.angular.x, tw.angular.y, tw.angular.z] == [0, 0, 0]
+        assert o.child_frame_id == "leader" and o.header.frame_id == p.header.frame_id == "world"
 
 
 def test_the_bags_metadata_names_each_topics_type_and_hash_and_rosbags_reads_it(bag):
