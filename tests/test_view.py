@@ -256,6 +256,11 @@ def test_the_server_serves_the_page_from_the_package_and_answers_bad_requests_in
         get = lambda path: urllib.request.urlopen(server.url + path, timeout=5)  # noqa: E731
         assert b"<canvas" in get("").read() and b"function" in get("view.js").read()
         assert json.loads(get("document.json").read())["followers"] == [1, 2, 3, 4]
+        for path in ("document.json", "frames.json?from=0&events=0"):  # JSON, never cached, its length
+            r = get(path)
+            body = r.read()
+            assert r.headers["Content-Type"] == "application/json" and json.loads(body) is not None
+            assert r.headers["Cache-Control"] == "no-store" and int(r.headers["Content-Length"]) == len(body)
         for path, code in (("nowhere", 404), ("frames.json?from=-1", 400), ("frames.json?from=x", 400)):
             with pytest.raises(urllib.error.HTTPError) as e:
                 get(path)
@@ -263,6 +268,9 @@ def test_the_server_serves_the_page_from_the_package_and_answers_bad_requests_in
         post = lambda q: urllib.request.Request(  # noqa: E731
             server.url + "control?" + q, method="POST", headers={TOKEN_HEADER: server.token}
         )
+        with pytest.raises(urllib.error.HTTPError) as e:  # a POST anywhere else: one line naming it
+            urllib.request.urlopen(urllib.request.Request(server.url + "elsewhere", method="POST"), timeout=5)
+        assert e.value.code == 404 and e.value.read().decode().splitlines() == ["no /elsewhere here"]
         for q, code in (("pause=toggle", 409), ("step=1", 409), ("step=-1", 400), ("nothing=1", 409)):
             with pytest.raises(urllib.error.HTTPError) as e:
                 urllib.request.urlopen(post(q), timeout=5)  # a finished run is not paused
