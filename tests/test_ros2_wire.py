@@ -8,7 +8,7 @@ import random
 import re
 
 import pytest
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 from zenoh_ros2_sdk.attachment import Attachment as SdkAttachment
 from zenoh_ros2_sdk.qos import QosDurability, QosProfile, QosReliability
@@ -170,3 +170,31 @@ def test_the_leaders_clock_bytes_are_rosbags_cdr_of_the_same_clock(t_s):
     assert clock_cdr(t_s) == types.encode(Messages().clock(t_s), types.CLOCK)
     back = types.decode(clock_cdr(t_s), types.CLOCK).clock
     assert back.sec * 10**9 + back.nanosec == round(t_s * 1e9)
+
+
+names_ = st.lists(
+    st.from_regex(_LEGAL_TOKEN, fullmatch=True).filter(lambda t: len(t) < 12), min_size=1, max_size=3
+)
+
+
+@settings(max_examples=200, deadline=None)
+@example(ns=["Xa"], node="X", topic=["Xray", "X_2"])  # (a key strips '/' alone, not what follows it)
+@given(ns=st.one_of(st.just(["/"]), names_), node=st.from_regex(_LEGAL_TOKEN, fullmatch=True), topic=names_)
+def test_a_namespaced_nodes_keys_and_tokens_carry_its_namespace_and_topic_as_design_md_writes_them(
+    ns, node, topic
+):
+    """A key carries the topic without its leading '/' (its tokens as they are, ``X`` first among
+    them); a token carries the namespace and the topic with each '/' as '%', the root namespace
+    as a lone '%'; read back (``demangle``) they are the names given."""
+    namespace = "/" if ns == ["/"] else "/" + "/".join(ns)
+    full = "/" + "/".join(topic)
+    h = types.type_hash(types.STRING)
+    key = wire.data_key(0, full, types.STRING, h)
+    assert key.split("/")[1:-2] == topic and key.split("/")[0] == "0"
+    fields = wire.node_token(3, "ab12", 7, namespace, node).split("/")
+    assert fields[:6] == ["@ros2_lv", "3", "ab12", "7", "7", "NN"] and fields[8] == node and len(fields) == 9
+    assert wire.demangle(fields[7]) == ("" if namespace == "/" else namespace) and "/" not in fields[7]
+    pub = wire.publisher_token(3, "ab12", 7, 9, namespace, node, full, types.STRING, h, wire.Qos()).split("/")
+    assert pub[6:10] == [fields[6], fields[7], node, wire.mangle(full)] and wire.demangle(pub[9]) == full
+    with pytest.raises(RosNameError, match=re.escape(f"topic {full + '/9'!r}: token '9'")):  # names both
+        check_topic(full + "/9")
