@@ -20,7 +20,7 @@ pytestmark = pytest.mark.unit
 def test_it_names_the_versions_in_use_and_the_seeds():
     cfg = config("paper")
     p = provenance(cfg)
-    assert p["swarm_sitl"]["version"] == metadata.version("swarm-sitl")
+    assert p["swarm_sitl"] == {"version": metadata.version("swarm-sitl"), "git": git_describe(ROOT)}
     assert p["python"] == platform.python_version()
     assert (p["numpy"], p["numba"], p["zenoh"], p["pymavlink"]) == tuple(
         metadata.version(d) for d in ("numpy", "numba", "eclipse-zenoh", "pymavlink")

@@ -17,13 +17,13 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from swarm_sitl.rundir.events import write_events
+from swarm_sitl.rundir.load import load_run
 from swarm_sitl.rundir.outputs import write_outputs
 from swarm_sitl.running.sim import run_sim
-from swarm_sitl.view.replay import DOWN, FAILSAFE, replay_document
+from swarm_sitl.view.frames import FollowerAt, Frame, columns
+from swarm_sitl.view.replay import DOWN, FAILSAFE, FRAME_HZ, frame_ticks, replay_document
 from tests.strategies import EXAMPLES, FUZZ
 from tests.support import config
-
-pytestmark = pytest.mark.integration
 
 DURATION_S = 2.0
 SKIPPED = ("t_s", "kind", "source", "unix_s")  #: an event's fields the page shows apart from its text
@@ -71,6 +71,7 @@ def _in_failsafe(events, vehicle: int, t: float) -> bool:
     return last == "failsafe_enter"
 
 
+@pytest.mark.integration
 @settings(FUZZ, max_examples=min(60, EXAMPLES))  # each reads the run directory whole
 @given(events=event_lists())
 def test_each_frames_failsafe_state_is_what_the_vehicles_events_say_and_each_event_is_listed(run_dir, events):
@@ -88,6 +89,7 @@ def test_each_frames_failsafe_state_is_what_the_vehicles_events_say_and_each_eve
         assert (line["text"].split(", ") if line["text"] else []) == rest
 
 
+@pytest.mark.integration
 def test_a_follower_whose_records_end_early_is_down_from_there_where_it_was_last(run_dir, tmp_path):
     d = tmp_path / "run"
     shutil.copytree(run_dir, d)
@@ -107,4 +109,58 @@ def test_a_follower_whose_records_end_early_is_down_from_there_where_it_was_last
     np.testing.assert_allclose(p[down], np.repeat(a["p_W"][n - 1 : n], down.sum(), axis=0), atol=5e-4)
     for j, other in doc["frames"]["followers"].items():
         assert j == "2" or not any(s & DOWN for s in other["state"])
+    k = np.rint(t / 0.01).astype(int)  # (the paper's 100 Hz)
+    np.testing.assert_allclose(doc["frames"]["leader"], load_run(run_dir).leader["p_r"][k], rtol=0, atol=5e-4)
+    assert doc["live"] is False  # (a finished run: its page offers no pause)
     json.dumps(doc, allow_nan=False)  # strict JSON, though a follower's last frames are not recorded
+
+
+@pytest.mark.unit
+@FUZZ
+@given(n_ticks=st.integers(1, 5000), period_s=st.sampled_from([0.001, 0.004, 0.01, 0.02, 0.05, 0.1, 0.25]))
+def test_the_frames_are_the_first_tick_every_twentieth_of_a_second_and_the_last(n_ticks, period_s):
+    ticks = frame_ticks(n_ticks, period_s)
+    assert ticks.dtype.kind == "i" and ticks[0] == 0 and ticks[-1] == n_ticks - 1
+    gaps = np.diff(ticks)
+    assert np.all(gaps > 0)
+    stride = max(1, round(1 / (FRAME_HZ * period_s)))  # the ticks nearest a frame's period
+    assert np.all(gaps[:-1] == stride) and (len(gaps) == 0 or 1 <= gaps[-1] <= stride)
+
+
+@pytest.mark.unit
+@FUZZ
+@given(
+    n=st.integers(0, 6),
+    ids=st.lists(st.integers(1, 9), unique=True, max_size=3),
+    edges=st.lists(st.sampled_from(["0->1", "1->2", "2->1"]), unique=True),
+    seed=st.integers(0, 2**16),
+)
+def test_frames_as_columns_give_each_frame_back_by_its_index(n, ids, edges, seed):
+    rng = np.random.default_rng(seed)
+
+    def value() -> float | None:
+        return None if rng.random() < 0.2 else float(rng.normal())
+
+    frames = [
+        Frame(
+            t_s=k * 0.05,
+            leader=[value() for _ in range(3)],
+            followers={
+                str(i): FollowerAt([value() for _ in range(3)], value(), int(rng.integers(0, 4))) for i in ids
+            },
+            edge_age_s={e: value() for e in edges},
+        )
+        for k in range(n)
+    ]
+    c = columns(frames, ids)
+    assert set(c["followers"]) == {str(i) for i in ids} and set(c["edge_age_s"]) == (
+        set(edges) if n else set()
+    )
+    for k, fr in enumerate(frames):
+        assert c["t_s"][k] == fr.t_s and c["leader"][k] == fr.leader
+        for e, age in fr.edge_age_s.items():
+            assert c["edge_age_s"][e][k] == age
+        for i, f in fr.followers.items():
+            assert (c["followers"][i]["p"][k], c["followers"][i]["err"][k]) == (f.p, f.err)
+            assert c["followers"][i]["state"][k] == f.state
+    assert all(len(col) == n for col in [c["t_s"], c["leader"], *c["edge_age_s"].values()])
