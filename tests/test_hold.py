@@ -10,6 +10,8 @@ import time
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from swarm_sitl.bus.codec import HOLD_NONE, PayloadError, Status, decode_hold, encode_hold
 from swarm_sitl.bus.hold import REPUT_EVERY_S, SETTLE_S, STOP, LockstepHold
@@ -120,8 +122,9 @@ def test_a_hold_payload_round_trips_and_a_bad_one_is_refused_in_one_line():
         assert decode_hold(encode_hold(tick)) == tick
     with pytest.raises(PayloadError, match="hold payload has 3 bytes, expected 9"):
         decode_hold(b"abc")
-    with pytest.raises(PayloadError, match="below -1"):
-        decode_hold(encode_hold(-5))
+    for below in (STOP - 1, -5, -(2**62)):  # every tick below the stop, the one next to it first
+        with pytest.raises(PayloadError, match="below -1"):
+            decode_hold(encode_hold(below))
 
 
 class _HeldBus(LeaderBus):
@@ -159,3 +162,50 @@ def test_a_held_leader_finishes_the_tick_it_is_on_and_waits_past_the_stall_timeo
     bus.hold = HOLD_NONE
     th.join(10)
     assert not errors and bus.published == list(range(cfg.n_control_steps + 1))
+
+
+@pytest.mark.unit
+@settings(max_examples=150, deadline=None)
+@given(
+    ops=st.lists(
+        st.one_of(
+            st.tuples(st.just("page"), st.sampled_from(["toggle", "on", "on", "off"]), st.just(0)),
+            st.tuples(st.just("page"), st.none(), st.integers(1, 5)),
+            st.tuples(
+                st.just("act"), st.lists(st.integers(0, 60), min_size=2, max_size=2), st.floats(0.01, 0.4)
+            ),
+            st.tuples(st.just("act"), st.just("at the hold"), st.floats(0.01, 0.4)),
+            st.just(("settle",)),  # a pause and rounds with both followers at the hold: held, often
+        ),
+        max_size=40,
+    )
+)
+def test_a_run_is_said_held_only_paused_at_the_tick_every_live_follower_is_at_and_each_put_is_the_hold(ops):
+    """Any sequence of page requests and supervisor rounds: ``held_at`` is None but while paused,
+    and then it is the hold last put, which every follower's status says and has said for
+    ``SETTLE_S``; a put is made when the hold changes and again at most ``REPUT_EVERY_S`` later."""
+    hold, puts = _hold(last_tick=50)
+    now, put_at, level_since = 0.0, [], None
+    settle = [("page", "on", 0), *[("act", "at the hold", 0.1)] * 4]
+    for op in [o for drawn in ops for o in (settle if drawn == ("settle",) else [drawn])]:
+        if op[0] == "page":
+            hold.control(op[1], op[2])
+            continue
+        steps, dt = op[1], op[2]
+        if steps == "at the hold":  # both followers where the hold is (once it is a tick)
+            steps = [hold.tick, hold.tick] if 0 <= hold.tick <= 50 else [3, 3]
+        now += dt
+        before = len(puts)
+        hold.act({1: _status(1, steps[0]), 2: _status(2, steps[1])}, set(), now)
+        put_at += [now] * (len(puts) - before)
+        level = hold.paused and steps[0] == steps[1] == hold.tick
+        level_since = (now if level_since is None else level_since) if level else None
+        if not hold.paused:
+            assert hold.held_at is None
+        elif hold.held_at is not None:
+            assert hold.held_at == hold.tick == puts[-1] == steps[0] == steps[1]
+            assert level_since is not None and now - level_since >= SETTLE_S
+        assert len(puts) == len(put_at)
+        if puts and hold.tick != HOLD_NONE:
+            assert now - put_at[-1] <= REPUT_EVERY_S + 0.4  # put again once due (rounds 0.4 s apart at most)
+    assert all(p == HOLD_NONE or -1 <= p <= 50 for p in puts)
