@@ -8,7 +8,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from swarm_sitl.nodes.pacing import WallClock
+from swarm_sitl.bus.clock import RunClock
+from swarm_sitl.nodes.pacing import Lockstep, WallClock, pacer
 
 pytestmark = pytest.mark.unit
 
@@ -58,3 +59,27 @@ def test_a_tick_on_time_is_flown_and_not_counted(k, periods):
     clock = _behind(k, periods, 0.0)
     at, lateness = _wait(clock, k, 0.0, k + 10)
     assert at == k and lateness >= 0.0 and clock.late == 0
+
+
+@settings(max_examples=30, deadline=None)
+@given(k=st.integers(0, 5000), first=st.floats(1.05, 50.0), second=st.floats(1.05, 50.0))
+def test_late_ticks_add_up_over_a_run(k, first, second):
+    """Each late tick adds what it skipped (or one at the last tick) to the count the run reports."""
+    clock = _behind(k, first, 0.0)
+    at, _ = _wait(clock, k, 0.0, k + 10_000)
+    after_first = clock.late
+    assert after_first == max(at - k, 1)
+    clock.epoch_mono = time.monotonic() - (at + 1 + second) * DT_S  # its next tick, late again
+    at2, _ = _wait(clock, at + 1, 0.0, at + 1 + 10_000)
+    assert clock.late == after_first + max(at2 - (at + 1), 1)
+
+
+@pytest.mark.parametrize("lockstep", [True, False])
+def test_a_pacer_is_its_clocks_run_clock_of_its_period_and_lockstep_is_never_late(lockstep):
+    dt = 0.02
+    clock = pacer(lockstep, dt)
+    assert isinstance(clock, Lockstep if lockstep else WallClock) and isinstance(clock, RunClock)
+    assert (clock.lockstep, clock.period_s) == (lockstep, dt)
+    if lockstep:  # its inputs pace it: the tick asked, at once, never late
+        assert clock.wait_instant(17, 0.004, [], lambda: None, lambda: None) == (17, 0.0) and clock.tick == 17
+        assert clock.message_due(3, 0.06, 2.5 * dt, 0.0) == (6, True, 1.0)
