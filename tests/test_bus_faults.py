@@ -224,6 +224,10 @@ def test_a_silent_neighbour_is_carried_until_stale_then_left_out_and_regained():
         (61, "neighbour_regained", 2),
     ]
     assert ev.seen[0][2]["age_s"] == pytest.approx(0.11)
+    assert all(f["follower"] == 4 for _, _, f in ev.seen)  # each event names whose inbox it is
+    ages = {(kind, f.get("neighbour")): f.get("age_s") for _, kind, f in ev.seen}
+    assert ages[("neighbour_lost", 2)] == pytest.approx(0.11)  # its newest, of step 19, at tick 30
+    assert ages[("neighbour_regained", 1)] == ages[("neighbour_regained", 2)] == pytest.approx(DT)
     assert inbox.stale_ticks == {1: 41, 2: 31}
 
 

@@ -110,7 +110,31 @@ def test_a_window_cut_short_is_not_judged_and_a_lost_vehicle_or_a_skipped_row_is
     (r,) = judge_rejoins(followers, events, PAPER, end, None, 10.0, {3})
     assert r["window_s"] == 4.0 and set(r["followers"]) == {"1", "2", "4"}  # 3's vehicle is lost
     assert {f["verdict"] for f in r["followers"].values()} == {"not judged"}
+    assert rejoin_lines({"rejoins": [r]}) == (
+        [
+            "  leader restarted at 11 s: follower 1, 2, 4 not back within 0.1 m when the run ended or the "
+            "next kill came 4.00 s later: not judged (run.rejoin_within_s = 10 s)"
+        ],
+        [],
+    )
     (r,) = judge_rejoins(followers, events[:2], PAPER, end, None, 10.0, {3})
     assert all(f["verdict"] == "rejoined" for f in r["followers"].values())
     lines, failures = rejoin_lines({"rejoins": [r]})
     assert failures == [] and lines[0].startswith("  leader restarted at 11 s: back within 0.1 m: follower 1")
+
+
+def test_restarts_are_judged_in_time_order_and_one_with_nothing_recorded_says_so():
+    t_r, end = 11.0, 40.0
+    followers = {i: _decay(t_r, 1.0, 0.3, end) for i in (1, 3, 4)}
+    followers[2] = {"t_s": np.full(4001, np.nan), "pos_err_m": np.full((4001, 3), np.nan)}  # no row
+    events = [*_restart("controller_4", 25.0), *_restart("controller_2", t_r)]  # the later one first
+    rs = judge_rejoins(followers, events, PAPER, end, None, 10.0, set())
+    assert [(r["process"], r["restart_s"]) for r in rs] == [("controller_2", t_r), ("controller_4", 25.0)]
+    assert rs[0]["window_s"] == 24.0 - t_r  # until the next kill, a second before the next restart
+    assert rs[0]["followers"]["2"] == {
+        "back_after_s": None,
+        "error_at_end_m": None,
+        "verdict": "did not rejoin",
+    }
+    _, failures = rejoin_lines({"rejoins": rs})
+    assert failures[0].startswith("did not rejoin: follower 2, nothing recorded at the end (controller_2 ")
