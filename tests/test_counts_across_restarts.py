@@ -124,13 +124,25 @@ def test_a_counts_file_with_names_this_version_does_not_write_is_read_for_what_i
     from swarm_sitl.faults.counts import EdgeStats
     from swarm_sitl.rundir.merge import _killed_stats
 
-    names = ["odd", *(f"in 2 {f}" for f in EdgeStats.FIELDS), "x y received", "in 3 received"]
+    foreign = [f"x 2 {f}" for f in EdgeStats.FIELDS]  # a whole edge's counts under a head it does not know
+    mavlink = [f"mavlink up {f}" for f in EdgeStats.FIELDS]
+    names = [
+        "odd",
+        *(f"in 2 {f}" for f in EdgeStats.FIELDS),
+        "x y received",
+        "in 3 received",
+        *foreign,
+        *mavlink,
+    ]
     c = NamedCounts(tmp_path / "c.counts", names)
     c.values[1] = 5  # in 2 received
     c.values[3] = 2  # in 2 lost
+    c.values[names.index(foreign[0])] = 9
+    c.values[names.index("mavlink up received")] = 4
     got = _killed_stats(tmp_path / "c.counts")
+    zeros = dict.fromkeys(sorted(EdgeStats.FIELDS), 0)
     assert got == {
-        "in_edges": {"2": {**dict.fromkeys(sorted(EdgeStats.FIELDS), 0), "received": 5, "lost": 2}},
-        "mavlink": {},
+        "in_edges": {"2": {**zeros, "received": 5, "lost": 2}},
+        "mavlink": {"up": {**zeros, "received": 4}},
     }
     assert _killed_stats(tmp_path / "none.counts") == {"in_edges": {}, "mavlink": {}}
