@@ -32,6 +32,7 @@ from typing import Any, Protocol
 
 from pymavlink.dialects.v20 import common as mav
 
+from sim_vehicles.mavlink.wire_format import f32
 from sim_vehicles.vehicle.autopilots import PARAMS_OF
 from sim_vehicles.vehicle.modes import FlightModes
 from sim_vehicles.vehicle.port import EndpointStats, Port
@@ -107,7 +108,8 @@ class Parameters:
         """Set a parameter within its range; anything else (a name it does not have, a value out
         of range or not finite, a read-only one; for PX4 any type but REAL32, which is every one's)
         is refused and counted. Answered with PARAM_VALUE of what the vehicle keeps, as both do; an
-        integer parameter keeps the value rounded."""
+        integer parameter keeps the value rounded. A bound is compared as a float32, as the
+        autopilots compare it: a parameter's maximum sent as MAVLink's float is taken."""
         name = m.param_id
         d = self.defs.get(name)
         if d is None:
@@ -117,7 +119,8 @@ class Parameters:
         wrong_type = self.profile.name == "px4" and m.param_type != mav.MAV_PARAM_TYPE_REAL32
         if d.kind != mav.MAV_PARAM_TYPE_REAL32:
             value = float(round(value)) if math.isfinite(value) else value
-        if wrong_type or not d.writable or not (d.low <= value <= d.high):
+        low, high = f32(d.low, d.high)  # the bounds as the float a PARAM_SET carries them (0.8 is 0.80000001)
+        if wrong_type or not d.writable or not (low <= value <= high):
             self.stats.rx_invalid += 1
             self.send(port, name)
             return
