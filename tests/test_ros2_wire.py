@@ -4,9 +4,11 @@ and attachments as an independent implementation (``zenoh-ros2-sdk``) encodes an
 type hashes from two independent implementations (``rosbags`` and ``zenoh-ros2-sdk``) and against
 the hashes ROS 2 publishes, and the name rules over random names."""
 
+import math
 import random
 import re
 
+import numpy as np
 import pytest
 from hypothesis import example, given, settings
 from hypothesis import strategies as st
@@ -198,3 +200,17 @@ def test_a_namespaced_nodes_keys_and_tokens_carry_its_namespace_and_topic_as_des
     assert pub[6:10] == [fields[6], fields[7], node, wire.mangle(full)] and wire.demangle(pub[9]) == full
     with pytest.raises(RosNameError, match=re.escape(f"topic {full + '/9'!r}: token '9'")):  # names both
         check_topic(full + "/9")
+
+
+@pytest.mark.parametrize("known", [True, False])
+def test_an_odometrys_body_rates_not_known_are_zeros_with_minus_one_on_their_covariance(known):
+    """REP-105's twist in the body frame; rates NaN (a vehicle that does not report them): zeros,
+    and -1 on the angular diagonal of the twist's covariance (row-major 6 x 6) says "no estimate"."""
+    m = Messages()
+    rates = [0.1, -0.2, 0.3] if known else [math.nan] * 3
+    o = m.odometry(1.5, "follower_2", m.pose([1.0, 2.0, 3.0], None), [4.0, 5.0, 6.0], rates)
+    a = o.twist.twist.angular
+    assert [a.x, a.y, a.z] == (rates if known else [0.0, 0.0, 0.0])
+    cov = np.asarray(o.twist.covariance).reshape(6, 6)
+    assert np.array_equal(np.diag(cov), [0, 0, 0] + ([0, 0, 0] if known else [-1, -1, -1]))
+    assert np.count_nonzero(cov) == (0 if known else 3) and not np.any(o.pose.covariance)

@@ -208,6 +208,7 @@ def test_the_live_feed_makes_at_most_20_frames_a_simulated_second_and_drops_the_
     assert set(one["err"]) == {0.01} and set(one["state"]) == {0}
     more = json.loads(feed.frames_since(doc["frame0"] + 45, 0))
     assert more["frames"]["t_s"] == doc["frames"]["t_s"][45:]
+    assert doc["events"] == more["events"] == [] and more["done"] is False  # what the page reads of them
 
 
 @pytest.mark.unit
