@@ -1,13 +1,20 @@
 """In-process fakes of the bench's interfaces, shared by the tests that drive a piece without its
 processes: an in-memory node bus (``MemoryBus``) and a publisher's (``Publisher``), a real-time
 clock the test sets (``ManualClock``), the leader's bus with no one on it (``LeaderBus``) with
-the short config a leader's tests fly (``leader_config``), and a socket that keeps what a vehicle
-driven in process sends (``RecordingSocket``)."""
+the short config a leader's tests fly (``leader_config``), a socket that keeps what a vehicle
+driven in process sends (``RecordingSocket``), and such a vehicle (``recording_endpoint``) with
+what it answers a message (``answers``)."""
 
 import time
+from typing import Any
 
 import numpy as np
+from pymavlink.dialects.v20 import common as mav
 
+from sim_vehicles.common.state import make_state
+from sim_vehicles.plant.autopilot import Autopilot
+from sim_vehicles.plant.params import AttitudeGains, VehicleParams
+from sim_vehicles.vehicle.endpoint import VehicleEndpoint
 from swarm_sitl.bus.clock import WallTime
 from swarm_sitl.bus.codec import HOLD_NONE, Message
 from swarm_sitl.bus.node_bus import ZenohNodeBus
@@ -134,3 +141,31 @@ class RecordingSocket:
 
     def close(self) -> None:
         pass
+
+
+#: the vehicle the endpoint tests drive: 0.85 kg, its inertia, 25 N at most
+ENDPOINT_PARAMS = VehicleParams(0.85, (0.05, 0.05, 0.09), 25.0)
+
+
+def recording_endpoint(system_id: int = 3, **endpoint: Any) -> VehicleEndpoint:
+    """A vehicle endpoint driven in process (``VehicleEndpoint`` with ``endpoint``'s fields), its
+    plain autopilot hovering at 10 m, its datagrams kept by a ``RecordingSocket`` (``answers``)."""
+    ap = Autopilot(ENDPOINT_PARAMS, AttitudeGains(16.0, 16.0), make_state([0.0, 0.0, 10.0]), 0.001)
+    ep = VehicleEndpoint(ap, system_id, **endpoint)
+    ep.port.sock.close()
+    ep.port.sock = RecordingSocket()
+    return ep
+
+
+def answers(
+    ep: VehicleEndpoint, msg: Any, sysid: int, compid: int, peer: tuple[str, int] = ("127.0.0.1", 40001)
+) -> list:
+    """What ``recording_endpoint`` ``ep`` sends back for ``msg`` from (``sysid``, ``compid``) at
+    ``peer``, heartbeats aside."""
+    link = mav.MAVLink(None, srcSystem=sysid, srcComponent=compid)
+    ep.port.sock.sent.clear()
+    ep.datagram(bytes(msg.pack(link)), peer)
+    ep.port.flush()
+    back = mav.MAVLink(None)
+    out = [m for data in ep.port.sock.sent for m in back.parse_buffer(data) or []]
+    return [m for m in out if m.get_type() != "HEARTBEAT"]

@@ -16,37 +16,26 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from pymavlink.dialects.v20 import common as mav
 
-from sim_vehicles.common.state import make_state
 from sim_vehicles.mavlink import ardupilot_profile as ap
-from sim_vehicles.plant.autopilot import Autopilot
 from sim_vehicles.plant.failsafe import ACTION_HOLD, ACTION_LAND
-from sim_vehicles.plant.params import AttitudeGains, VehicleParams
 from sim_vehicles.vehicle.autopilots import PARAMS_OF, PROFILES
 from sim_vehicles.vehicle.endpoint import VehicleEndpoint
-from tests.fakes import RecordingSocket
+from tests.fakes import ENDPOINT_PARAMS as PARAMS
+from tests.fakes import answers, recording_endpoint
 
 pytestmark = pytest.mark.integration  # (an endpoint driven in process)
 SYS = 3
 PEER = ("127.0.0.1", 40002)
-PARAMS = VehicleParams(0.85, (0.05, 0.05, 0.09), 25.0)
 PX4_METADATA = {"MPC_THR_HOVER": (0.1, 0.8), "COM_OF_LOSS_T": (0.05, 60.0), "COM_OBL_RC_ACT": (0.0, 5.0)}
 
 
 def _vehicle(profile: str, action: int = ACTION_HOLD) -> VehicleEndpoint:
-    ap_ = Autopilot(PARAMS, AttitudeGains(16.0, 16.0), make_state([0.0, 0.0, 10.0]), 0.001)
-    ep = VehicleEndpoint(ap_, SYS, profile=PROFILES[profile], failsafe_action=action)
-    ep.port.sock.close()
-    ep.port.sock = RecordingSocket()
-    return ep
+    return recording_endpoint(SYS, profile=PROFILES[profile], failsafe_action=action)
 
 
 def _answers(ep: VehicleEndpoint, msg) -> list:
-    link = mav.MAVLink(None, srcSystem=255, srcComponent=190)
-    ep.port.sock.sent.clear()
-    ep.datagram(bytes(msg.pack(link)), PEER)
-    ep.port.flush()
-    back = mav.MAVLink(None)
-    return [m for d in ep.port.sock.sent for m in back.parse_buffer(d) or [] if m.get_type() == "PARAM_VALUE"]
+    """The PARAM_VALUEs a ground station (255, 190) gets back for ``msg``."""
+    return [m for m in answers(ep, msg, 255, 190, PEER) if m.get_type() == "PARAM_VALUE"]
 
 
 def _listed(ep: VehicleEndpoint) -> dict[str, tuple[float, int]]:

@@ -10,19 +10,15 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from pymavlink.dialects.v20 import common as mav
 
-from sim_vehicles.common.state import make_state
 from sim_vehicles.mavlink import px4_profile as px4
-from sim_vehicles.plant.autopilot import Autopilot
-from sim_vehicles.plant.params import AttitudeGains, VehicleParams
 from sim_vehicles.vehicle.autopilots import PROFILES
 from sim_vehicles.vehicle.endpoint import VehicleEndpoint
 from sim_vehicles.vehicle.services import COMMAND_PARAMS
-from tests.fakes import RecordingSocket
+from tests.fakes import answers, recording_endpoint
 
 pytestmark = pytest.mark.integration  # (an endpoint driven in process)
 SYS = 3
 PEER = ("127.0.0.1", 40001)
-PARAMS = VehicleParams(0.85, (0.05, 0.05, 0.09), 25.0)
 #: MAVLink FTP (https://mavlink.io/en/services/ftp.html): payload bytes of a request and a reply
 FTP_SEQ, FTP_SESSION, FTP_OPCODE, FTP_SIZE, FTP_REQ_OPCODE, FTP_DATA = 0, 2, 3, 4, 5, 12
 FTP_NAK, FTP_OPEN_FILE_RO, ERR_FILE_NOT_FOUND, ERR_UNKNOWN_COMMAND = 129, 4, 10, 7
@@ -30,23 +26,13 @@ FTP_NAK, FTP_OPEN_FILE_RO, ERR_FILE_NOT_FOUND, ERR_UNKNOWN_COMMAND = 129, 4, 10,
 
 @pytest.fixture(scope="module", params=sorted(PROFILES))  # (the answers change no state)
 def vehicle(request):
-    ap = Autopilot(PARAMS, AttitudeGains(16.0, 16.0), make_state([0.0, 0.0, 10.0]), 0.001)
-    ep = VehicleEndpoint(ap, SYS, profile=PROFILES[request.param])
-    ep.port.sock.close()
-    ep.port.sock = RecordingSocket()
+    ep = recording_endpoint(SYS, profile=PROFILES[request.param])
     yield ep
     ep.close()
 
 
 def _ask(ep: VehicleEndpoint, msg, sysid: int, compid: int) -> list:
-    """What the vehicle sends back for ``msg`` from (``sysid``, ``compid``), heartbeats aside."""
-    link = mav.MAVLink(None, srcSystem=sysid, srcComponent=compid)
-    ep.port.sock.sent.clear()
-    ep.datagram(bytes(msg.pack(link)), PEER)
-    ep.port.flush()
-    back = mav.MAVLink(None)
-    out = [m for data in ep.port.sock.sent for m in back.parse_buffer(data) or []]
-    return [m for m in out if m.get_type() != "HEARTBEAT"]
+    return answers(ep, msg, sysid, compid, PEER)
 
 
 senders = st.tuples(st.integers(1, 255), st.integers(0, 255))
@@ -159,11 +145,8 @@ def test_a_command_that_asks_for_a_message_gets_it_after_its_ack(vehicle, sender
 def test_px4_takes_its_auto_sub_modes_by_param3():
     """DO_SET_MODE with PX4's AUTO main mode and a sub mode in param3 (AUTO.LOITER): taken, and
     its HEARTBEAT says so."""
-    ap = Autopilot(PARAMS, AttitudeGains(16.0, 16.0), make_state([0.0, 0.0, 10.0]), 0.001)
-    ep = VehicleEndpoint(ap, SYS, profile=PROFILES["px4"])
+    ep = recording_endpoint(SYS, profile=PROFILES["px4"])
     try:
-        ep.port.sock.close()
-        ep.port.sock = RecordingSocket()
         custom = float(mav.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED)
         params = (custom, float(px4.MAIN_AUTO), float(px4.SUB_AUTO_LOITER), 0, 0, 0, 0)
         (ack,) = _ask(

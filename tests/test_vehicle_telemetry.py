@@ -16,14 +16,12 @@ from sim_vehicles.common.command import AttitudeCommand
 from sim_vehicles.common.quaternion import rotation_matrix
 from sim_vehicles.common.state import make_state
 from sim_vehicles.mavlink import px4_profile as px4
-from sim_vehicles.plant.autopilot import Autopilot
-from sim_vehicles.plant.params import AttitudeGains, VehicleParams
 from sim_vehicles.vehicle.endpoint import VehicleEndpoint
-from tests.fakes import RecordingSocket
+from tests.fakes import ENDPOINT_PARAMS as PARAMS
+from tests.fakes import recording_endpoint
 from tests.strategies import unit_quaternions
 
 pytestmark = pytest.mark.integration  # (an endpoint driven in process)
-PARAMS = VehicleParams(0.85, (0.05, 0.05, 0.09), 25.0)
 EARTH_RADIUS_M = 6371000.0  #: PX4's CONSTANTS_RADIUS_OF_EARTH (src/lib/geo/geo.h): its flat-earth offsets
 span = st.floats(-500, 500)
 speed = st.floats(-20, 20)
@@ -39,10 +37,7 @@ def _telemetry(ep: VehicleEndpoint, msg_id: int, ms: int):
 
 @pytest.fixture(scope="module")  # (each example sets the state it reads)
 def endpoint():
-    ap = Autopilot(PARAMS, AttitudeGains(16.0, 16.0), make_state([0.0, 0.0, 10.0]), 0.001)
-    ep = VehicleEndpoint(ap, 3)
-    ep.port.sock.close()
-    ep.port.sock = RecordingSocket()
+    ep = recording_endpoint(3)
     ep.port.peer = ("127.0.0.1", 40001)
     yield ep
     ep.close()
