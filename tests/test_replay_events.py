@@ -16,9 +16,11 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from swarm_sitl.campaigns.point import failsafe_s
 from swarm_sitl.rundir.events import write_events
 from swarm_sitl.rundir.load import load_run
 from swarm_sitl.rundir.outputs import write_outputs
+from swarm_sitl.rundir.requirements import failsafe_signal
 from swarm_sitl.running.sim import run_sim
 from swarm_sitl.view.frames import FollowerAt, Frame, columns
 from swarm_sitl.view.replay import DOWN, FAILSAFE, FRAME_HZ, frame_ticks, replay_document
@@ -81,6 +83,14 @@ def test_each_frames_failsafe_state_is_what_the_vehicles_events_say_and_each_eve
     for i, f in doc["frames"]["followers"].items():
         flags = [bool(s & FAILSAFE) for s in f["state"]]
         assert flags == [_in_failsafe(events, int(i), x) for x in t], i
+        # a spec's failsafe signal reads the same windows (to within its 1e-9 s of a tick's edge)
+        assert failsafe_signal(np.array(t), events, int(i)).astype(bool).tolist() == flags
+    in_it = 0.0  # a campaign row's time in failsafe: between each of a vehicle's failsafe events
+    for v in (1, 2, 3, 4):  # and the next (or the end), where the last one was an enter
+        own = [e for e in events if e.get("vehicle") == v and e["kind"].startswith("failsafe_")]
+        for e, after in zip(own, [*(x["t_s"] for x in own[1:]), DURATION_S][: len(own)], strict=True):
+            in_it += (after - e["t_s"]) if _in_failsafe(events, v, e["t_s"]) else 0.0
+    assert failsafe_s(events, DURATION_S) == pytest.approx(in_it, abs=1e-6)
     assert len(doc["events"]) == len(events)
     for line, e in zip(doc["events"], events, strict=True):
         assert line["t_s"] == round(e["t_s"], 3) and line["kind"] == e["kind"]  # (to the millisecond)

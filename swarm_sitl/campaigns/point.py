@@ -197,12 +197,9 @@ def recovered_after(t: np.ndarray, worst: np.ndarray, bound: float, end_s: float
 def failsafe_s(events: list[dict[str, Any]], end_s: float) -> float:
     """The vehicles' time in their setpoint-loss failsafe, summed; one still in it counts to
     ``end_s``."""
-    since: dict[Any, float] = {}
-    total = 0.0
-    for e in sorted(events, key=lambda e: e.get("t_s", 0.0)):
-        if e.get("kind") == "failsafe_enter":
-            since.setdefault(e.get("vehicle"), float(e["t_s"]))
-        elif e.get("kind") == "failsafe_exit" and e.get("vehicle") in since:
-            total += float(e["t_s"]) - since.pop(e.get("vehicle"))
-    total += sum(end_s - t0 for t0 in since.values())
-    return round(total, 6)
+    from swarm_sitl.rundir.events import failsafe_windows
+
+    windows = failsafe_windows(events).values()
+    return round(
+        sum((end_s if end == math.inf else end) - start for each in windows for start, end in each), 6
+    )

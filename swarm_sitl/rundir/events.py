@@ -18,6 +18,7 @@ them on the run's clock (``t_s`` = UNIX time - the start epoch).
 """
 
 import json
+import math
 from pathlib import Path
 from typing import Any
 
@@ -34,6 +35,26 @@ def plan_events(cfg: SwarmConfig) -> list[dict[str, Any]]:
         end = f.until_s if f.until_s is not None else (f.from_s + lasts if lasts else cfg.duration_s)
         out.append({"t_s": f.from_s, "kind": "fault_start", **common})
         out.append({"t_s": end, "kind": "fault_end", **common})
+    return out
+
+
+def failsafe_windows(events: list[dict[str, Any]]) -> dict[int, list[tuple[float, float]]]:
+    """Per vehicle, when it was in its setpoint-loss failsafe: from a ``failsafe_enter`` (the first,
+    where it enters again while in it) to the ``failsafe_exit`` after it, ``math.inf`` for one
+    still in it at the end; events taken in time order (ties as given). What the page shows, the
+    ``failsafe`` signal of a spec and a campaign row's ``failsafe_s`` are read from it."""
+    out: dict[int, list[tuple[float, float]]] = {}
+    open_at: dict[int, float] = {}
+    for e in sorted(events, key=lambda e: float(e.get("t_s", 0.0))):
+        v = e.get("vehicle")
+        if not isinstance(v, int) or isinstance(v, bool):
+            continue
+        if e.get("kind") == "failsafe_enter":
+            open_at.setdefault(v, float(e["t_s"]))
+        elif e.get("kind") == "failsafe_exit" and v in open_at:
+            out.setdefault(v, []).append((open_at.pop(v), float(e["t_s"])))
+    for v, start in open_at.items():
+        out.setdefault(v, []).append((start, math.inf))
     return out
 
 

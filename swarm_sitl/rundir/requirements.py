@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 
 from swarm_sitl.config.schema import SwarmConfig
+from swarm_sitl.rundir.events import failsafe_windows
 from swarm_sitl.rundir.recording import Recording
 from swarm_sitl.specs.requirement import Edge
 from swarm_sitl.specs.robustness import robustness
@@ -28,17 +29,8 @@ def _norm(a: np.ndarray) -> np.ndarray:
 def failsafe_signal(t_s: np.ndarray, events: list[dict[str, Any]], vehicle: int) -> np.ndarray:
     """1 at the ticks vehicle ``vehicle`` was in its failsafe, else 0."""
     out = np.zeros(len(t_s))
-    since = None
-    for e in sorted(events, key=lambda e: e.get("t_s", 0.0)):
-        if e.get("vehicle") != vehicle:
-            continue
-        if e.get("kind") == "failsafe_enter" and since is None:
-            since = float(e["t_s"])
-        elif e.get("kind") == "failsafe_exit" and since is not None:
-            out[(t_s >= since - 1e-9) & (t_s < float(e["t_s"]) - 1e-9)] = 1.0
-            since = None
-    if since is not None:
-        out[t_s >= since - 1e-9] = 1.0
+    for start, end in failsafe_windows(events).get(vehicle, []):
+        out[(t_s >= start - 1e-9) & (t_s < end - 1e-9)] = 1.0
     return out
 
 

@@ -13,7 +13,6 @@ Nothing here is new in a run directory: a run made before the view reads as one 
 """
 
 import json
-import math
 from pathlib import Path
 from typing import Any
 
@@ -21,7 +20,7 @@ import numpy as np
 
 from swarm_sitl.config.load import ConfigError, load_recorded
 from swarm_sitl.config.schema import SwarmConfig
-from swarm_sitl.rundir.events import plan_events, read_events
+from swarm_sitl.rundir.events import failsafe_windows, plan_events, read_events
 from swarm_sitl.rundir.load import RunDirError, load_run
 from swarm_sitl.view.frames import DOWN, FAILSAFE, event_line, follower_columns, frame_columns, no_frames, num
 from swarm_sitl.view.layout import graph_layout
@@ -108,7 +107,7 @@ def replay_document(run_dir: str | Path) -> dict[str, Any]:
     t = rec.leader["t_s"]
     ticks = frame_ticks(len(t), cfg.control_dt_s)
     graph = cfg.build_graph()
-    failsafe = _failsafe_windows(events)
+    failsafe = failsafe_windows(events)
     followers: dict[str, Any] = {}
     ages: dict[str, list[float | None]] = {}
     for i, a in rec.followers.items():
@@ -137,23 +136,6 @@ def replay_document(run_dir: str | Path) -> dict[str, Any]:
     doc["events"] = [event_line(e) for e in events]
     doc["live"] = False
     return doc
-
-
-def _failsafe_windows(events: list[dict[str, Any]]) -> dict[int, list[tuple[float, float]]]:
-    """Per vehicle, when it was in its failsafe (``failsafe_enter`` to ``failsafe_exit``)."""
-    out: dict[int, list[tuple[float, float]]] = {}
-    open_at: dict[int, float] = {}
-    for e in events:
-        v = e.get("vehicle")
-        if not isinstance(v, int):
-            continue
-        if e["kind"] == "failsafe_enter":  # (entered again while in it: still in it since the first)
-            open_at.setdefault(v, float(e["t_s"]))
-        elif e["kind"] == "failsafe_exit" and v in open_at:
-            out.setdefault(v, []).append((open_at.pop(v), float(e["t_s"])))
-    for v, start in open_at.items():
-        out.setdefault(v, []).append((start, math.inf))
-    return out
 
 
 class ReplaySource:
