@@ -1,0 +1,57 @@
+"""A signed vehicle port admits a datagram exactly when it is signed with the link's key and moves
+its stream forward, for any mix of datagrams: signed right, signed with another key, unsigned,
+replayed, garbage. Each datagram is counted once: admitted + bad + refused = received, bad being
+a wrong signature or not frames, refused an unsigned or replayed one (``vehicle.port.Port.admit``);
+an admitted one is its frames as sent."""
+
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from pymavlink.dialects.v20 import common as mav
+
+from sim_vehicles.mavlink.signing import Signer
+from sim_vehicles.vehicle.port import EndpointStats, Port, Tlog
+
+pytestmark = pytest.mark.unit
+
+KEY, OTHER = bytes(range(32)), bytes(range(1, 33))
+
+
+def _frame(n: int) -> bytes:
+    link = mav.MAVLink(None, srcSystem=255, srcComponent=190)
+    return bytes(mav.MAVLink_heartbeat_message(6, 8, 0, n, 0, 3).pack(link))
+
+
+@settings(max_examples=60, deadline=None)
+@given(kinds=st.lists(st.sampled_from(["signed", "other key", "unsigned", "replay", "garbage"]), max_size=25))
+def test_each_datagram_is_admitted_or_counted_bad_or_refused_once(kinds):
+    port = Port(("127.0.0.1", 0), 3, {}, EndpointStats(), Tlog(None), signing_key=KEY)
+    ours, theirs = Signer(KEY), Signer(OTHER)
+    sent: list[bytes] = []
+    admitted = expected_bad = expected_refused = 0
+    try:
+        for n, kind in enumerate(kinds):
+            plain = _frame(n)
+            if kind == "signed":
+                data = ours.seal(plain)
+                sent.append(data)
+            elif kind == "replay" and sent:
+                data = sent[0]  # the first signed one again: its timestamp does not move forward
+            elif kind == "other key":
+                data = theirs.seal(plain)
+            elif kind == "garbage":
+                data = b"\xfd" + bytes(range(40))  # a MAVLink 2 start and no frame
+            else:
+                kind, data = "unsigned", plain
+            got = port.admit(data, ("127.0.0.1", 40000 + n))
+            if kind == "signed":
+                assert got == plain
+                admitted += 1
+            else:
+                assert got is None, kind
+                expected_bad += kind in ("other key", "garbage")
+                expected_refused += kind in ("unsigned", "replay")
+            assert (port.stats.rx_bad, port.stats.rx_refused) == (expected_bad, expected_refused)
+        assert admitted + port.stats.rx_bad + port.stats.rx_refused == len(kinds)
+    finally:
+        port.close()
