@@ -1,0 +1,87 @@
+"""What a vehicle counts of what it receives (``vehicle.endpoint``'s ``stats``), for any mix of
+datagrams on its two ports: every well-formed message once in ``rx_messages``; refused once,
+those addressed to another vehicle and setpoints on the ground station's port; unhandled once,
+those it has no service for (ArduCopter's REQUEST_DATA_STREAM on PX4 among them); the messages
+after a bad frame in the same datagram still handled. A datagram of frames is one or more messages
+one after another; a setpoint alone in one is what a controller sends (the fast path)."""
+
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from pymavlink.dialects.v20 import common as mav
+
+from sim_vehicles.vehicle.autopilots import PROFILES
+from tests.fakes import RecordingSocket, recording_endpoint
+
+pytestmark = pytest.mark.integration  # (an endpoint driven in process)
+SYS = 3
+PEER = ("127.0.0.1", 40003)
+
+
+def _message(kind: str, seq: int):
+    """``(message, counted as)``: refused, unhandled or handled."""
+    if kind == "ping":  # a request (to everyone): echoed
+        return mav.MAVLink_ping_message(seq, seq, 0, 0), "handled"
+    if kind == "ping elsewhere":
+        return mav.MAVLink_ping_message(seq, seq, SYS + 1, 1), "refused"
+    if kind == "heartbeat":
+        return mav.MAVLink_heartbeat_message(6, 8, 0, 0, 0, 3), "handled"
+    if kind == "debug":  # nothing a vehicle answers
+        return mav.MAVLink_debug_message(seq, 0, 1.5), "unhandled"
+    if kind == "data stream":
+        return mav.MAVLink_request_data_stream_message(SYS, 1, 0, 4, 1), "data stream"
+    return mav.MAVLink_set_attitude_target_message(seq, SYS, 1, 0b111, [1, 0, 0, 0], 0, 0, 0, 0.5), "setpoint"
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    profile=st.sampled_from(sorted(PROFILES)),
+    datagrams=st.lists(
+        st.tuples(
+            st.sampled_from(["controller", "ground station"]),
+            st.lists(
+                st.sampled_from(["ping", "ping elsewhere", "heartbeat", "debug", "data stream", "setpoint"]),
+                min_size=1,
+                max_size=3,
+            ),
+            st.sampled_from([None, "crc", "not a frame"]),  # a bad frame first: its CRC broken, or bytes
+        ),
+        max_size=12,
+    ),
+)
+def test_every_message_is_counted_once_as_what_the_vehicle_did_with_it(profile, datagrams):
+    ep = recording_endpoint(SYS, profile=PROFILES[profile], gcs_bind=("127.0.0.1", 0))
+    ep.gcs.sock.close()
+    ep.gcs.sock = RecordingSocket()
+    link = mav.MAVLink(None, srcSystem=255, srcComponent=190)
+    want = {"messages": 0, "refused": 0, "unhandled": 0, "bad": 0}
+    try:
+        for n, (where, kinds, bad_first) in enumerate(datagrams):
+            port = ep.port if where == "controller" else ep.gcs
+            data = b""
+            if bad_first == "crc":
+                broken = bytearray(mav.MAVLink_ping_message(0, 0, SYS, 1).pack(link))
+                broken[-1] ^= 0xFF
+                data += bytes(broken)
+                want["messages"] += 1  # (a frame: counted, then refused as bad)
+                want["bad"] += 1
+            elif bad_first == "not a frame":  # pymavlink's BAD_DATA: one bad message (``decoder``)
+                data += b"\x00\x11\x22\x33"
+                want["messages"] += 1
+                want["bad"] += 1
+            for kind in kinds:
+                m, counted = _message(kind, n)
+                data += bytes(m.pack(link))
+                want["messages"] += 1
+                if counted == "data stream":
+                    counted = "handled" if profile == "ardupilot" else "unhandled"
+                if counted == "setpoint":
+                    counted = "refused" if port is ep.gcs else "handled"
+                if counted in ("refused", "unhandled"):
+                    want[counted] += 1
+            ep.datagram(data, PEER, port)
+            got = ep.stats
+            assert (got.rx_messages, got.rx_refused, got.rx_unhandled, got.rx_bad) == tuple(want.values()), n
+        assert ep.stats.handler_errors == 0
+    finally:
+        ep.close()
