@@ -147,10 +147,13 @@ class RecordingSocket:
 ENDPOINT_PARAMS = VehicleParams(0.85, (0.05, 0.05, 0.09), 25.0)
 
 
-def recording_endpoint(system_id: int = 3, **endpoint: Any) -> VehicleEndpoint:
+def recording_endpoint(system_id: int = 3, autopilot: Any = None, **endpoint: Any) -> VehicleEndpoint:
     """A vehicle endpoint driven in process (``VehicleEndpoint`` with ``endpoint``'s fields), its
-    plain autopilot hovering at 10 m, its datagrams kept by a ``RecordingSocket`` (``answers``)."""
-    ap = Autopilot(ENDPOINT_PARAMS, AttitudeGains(16.0, 16.0), make_state([0.0, 0.0, 10.0]), 0.001)
+    ``autopilot`` (by default the plain one hovering at 10 m), its datagrams kept by a
+    ``RecordingSocket`` (``answers``)."""
+    ap = autopilot or Autopilot(
+        ENDPOINT_PARAMS, AttitudeGains(16.0, 16.0), make_state([0.0, 0.0, 10.0]), 0.001
+    )
     ep = VehicleEndpoint(ap, system_id, **endpoint)
     ep.port.sock.close()
     ep.port.sock = RecordingSocket()

@@ -16,12 +16,16 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from pymavlink.dialects.v20 import common as mav
 
+from sim_vehicles.common.state import make_state
 from sim_vehicles.mavlink import ardupilot_profile as ap
 from sim_vehicles.plant.failsafe import ACTION_HOLD, ACTION_LAND
+from sim_vehicles.plant.px4_params import BY_NAME
+from sim_vehicles.plant.quad_x import QuadX
 from sim_vehicles.vehicle.autopilots import PARAMS_OF, PROFILES
 from sim_vehicles.vehicle.endpoint import VehicleEndpoint
 from tests.fakes import ENDPOINT_PARAMS as PARAMS
 from tests.fakes import answers, recording_endpoint
+from tests.support import sih_quad
 
 pytestmark = pytest.mark.integration  # (an endpoint driven in process)
 SYS = 3
@@ -187,5 +191,46 @@ def test_px4s_own_parameters_take_their_metadatas_range_and_nothing_past_it(name
         for value in (low - 0.01, high + 0.01, high + 1.0):
             (answer,) = _answers(ep, mav.MAVLink_param_set_message(SYS, 1, name.encode(), value, real))
             assert answer.param_value == _f32(high)  # refused: the last taken kept
+    finally:
+        ep.close()
+
+
+@settings(max_examples=40, deadline=None)
+@given(profile=st.sampled_from(sorted(PROFILES)), data=st.data())
+def test_a_models_own_gains_are_served_under_the_autopilots_names_and_set_within_their_ranges(profile, data):
+    """``px4_quad_x``'s PX4 gains (the model's ``tunables``): PX4 serves each under its own name,
+    ArduPilot under its ATC_ name where it has one (PX4's elsewhere), in REAL32, with the value in
+    force; a PARAM_SET within the gain's range (PX4's metadata, ``px4_params``; its bounds as the
+    float32 MAVLink carries them, as PX4 compares them) sets the model's gain, one outside it is
+    refused, counted, and answered with the gain kept."""
+    quad = QuadX(sih_quad(), make_state([0.0, 0.0, 10.0]), 0.001)
+    renamed = ap.ATC_NAMES if profile == "ardupilot" else {}
+    ep = recording_endpoint(SYS, autopilot=quad, profile=PROFILES[profile])
+    try:
+        listed = _listed(ep)
+        for own, value in quad.tunables.items():
+            assert listed[renamed.get(own, own)] == (_f32(value), mav.MAV_PARAM_TYPE_REAL32), own
+        own = data.draw(st.sampled_from(sorted(quad.tunables)), label="gain")
+        low, high = BY_NAME[own].low, BY_NAME[own].high
+        width = high - low
+        value = _f32(
+            data.draw(
+                st.sampled_from([low, high])
+                | st.floats(low, high)
+                | st.floats(low - width, high + width).filter(lambda v: not low <= v <= high),
+                label="value",
+            )
+        )
+        kept = quad.tunables[own]
+        refused = ep.stats.rx_invalid
+        name = renamed.get(own, own).encode()
+        (answer,) = _answers(
+            ep, mav.MAVLink_param_set_message(SYS, 1, name, value, mav.MAV_PARAM_TYPE_REAL32)
+        )
+        taken = _f32(low) <= value <= _f32(high)
+        assert quad.tunables[own] == (value if taken else kept)
+        assert answer.param_value == _f32(quad.tunables[own])
+        assert ep.stats.rx_invalid == refused + (not taken)
+        assert _listed(ep)[name.decode()][0] == _f32(quad.tunables[own])
     finally:
         ep.close()

@@ -314,18 +314,20 @@ def test_the_rigid_body_under_rotor_forces_matches_finite_differences():
 @settings(max_examples=25, deadline=None)
 @given(st.data())
 def test_a_px4_parameter_set_anywhere_in_its_range_flies_as_a_quadrotor_built_with_it(data):
-    """``set_param(name, v)``: taken exactly when ``v`` is within PX4's range, both ends included
-    (``px4_params``, the one declaration); a value taken flies bit for bit as a quadrotor built
-    with it (a tilt, a yaw rate and a thrust step: every gain acts); a value refused (outside the
-    range, nan) changes nothing."""
+    """``set_param(name, v)``: taken exactly when ``v`` is within PX4's range, both ends included,
+    each also as the float32 PX4 holds it (``px4_params``, the one declaration); a value taken
+    flies bit for bit as a quadrotor built with it (a tilt, a yaw rate and a thrust step: every
+    gain acts); a value refused (outside the range, nan) changes nothing."""
     name = data.draw(st.sampled_from(sorted(GAINS)))
     p = BY_NAME[name]
     value = data.draw(in_range(p.low, p.high))
     span = p.high - p.low
     outside = data.draw(
         st.one_of(
-            st.floats(p.low - 10 * span - 1, p.low, exclude_max=True),
-            st.floats(p.high, p.high + 10 * span + 1, exclude_min=True),
+            st.floats(p.low - 10 * span - 1, p.low, exclude_max=True).filter(lambda v: v < np.float32(p.low)),
+            st.floats(p.high, p.high + 10 * span + 1, exclude_min=True).filter(
+                lambda v: v > np.float32(p.high)
+            ),
             st.just(math.nan),
         )
     )

@@ -114,6 +114,13 @@ def advance_quad_kernel(
     return xe
 
 
+#: each gain's range (``RANGES``) widened to take its bounds as float32 too: PX4's parameters are
+#: float32, and so are the bounds it compares a PARAM_SET's value with
+_HELD_RANGES = {
+    n: (min(lo, float(np.float32(lo))), max(hi, float(np.float32(hi)))) for n, (lo, hi) in RANGES.items()
+}
+
+
 class QuadX:
     """One rotor-level quadrotor: the plant, its motors and PX4's attitude and rate loops. No
     I/O: the MAVLink endpoint wraps it as it wraps ``Autopilot``.
@@ -188,8 +195,9 @@ class QuadX:
 
     def set_param(self, name: str, value: float) -> bool:
         """Set PX4 parameter ``name`` (one of ``tunables``) if ``value`` is within its range
-        (``px4_control.RANGES``); whether it was."""
-        lo, hi = RANGES.get(name, (math.nan, math.nan))
+        (``px4_control.RANGES``, each bound also as the float32 PX4 holds it: a bound sent in a
+        PARAM_SET arrives as its float32, 0.01 as 0.0099999998, and PX4 takes it); whether it was."""
+        lo, hi = _HELD_RANGES.get(name, (math.nan, math.nan))
         if not lo <= value <= hi:
             return False
         self.tunables[name] = float(value)
