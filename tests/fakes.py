@@ -151,10 +151,9 @@ def recording_endpoint(system_id: int = 3, autopilot: Any = None, **endpoint: An
     """A vehicle endpoint driven in process (``VehicleEndpoint`` with ``endpoint``'s fields), its
     ``autopilot`` (by default the plain one hovering at 10 m), its datagrams kept by a
     ``RecordingSocket`` (``answers``)."""
-    ap = autopilot or Autopilot(
-        ENDPOINT_PARAMS, AttitudeGains(16.0, 16.0), make_state([0.0, 0.0, 10.0]), 0.001
-    )
-    ep = VehicleEndpoint(ap, system_id, **endpoint)
+    if autopilot is None:
+        autopilot = Autopilot(ENDPOINT_PARAMS, AttitudeGains(16.0, 16.0), make_state([0.0, 0.0, 10.0]), 0.001)
+    ep = VehicleEndpoint(autopilot, system_id, **endpoint)
     ep.port.sock.close()
     ep.port.sock = RecordingSocket()
     return ep
