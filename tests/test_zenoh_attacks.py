@@ -21,7 +21,7 @@ from swarm_sitl.rundir.layout import zenoh_users_path
 from swarm_sitl.running.hub import free_tcp_port
 from swarm_sitl.running.sim import run_sim
 from tests.support import CLI, CONFIGS
-from tests.zenoh_client import client_session
+from tests.zenoh_client import client_session, client_session_once_up
 
 #: its system tests run in lockstep or ``sim`` only (no wall clock): free to run beside others
 pytestmark = [pytest.mark.system, pytest.mark.lockstep]
@@ -58,11 +58,12 @@ def test_strangers_and_a_node_out_of_its_rights_leave_the_formation_where_it_was
         while not (users.exists() and users.stat().st_size > 0):
             assert run.poll() is None and time.monotonic() < end, "the run did not start"
             time.sleep(0.05)
-        time.sleep(0.2)
+        creds = dict(line.split(":", 1) for line in users.read_text().splitlines())
+        # the router opens after it writes its users' file: once it admits node 1, it is listening,
+        # and a refusal of the session without credentials is zenoh's, not an unbound port's
+        insider = client_session_once_up(endpoint, ("node_1", creds["node_1"]), within_s=60.0)
         with pytest.raises(zenoh.ZError):
             client_session(endpoint, None)
-        creds = dict(line.split(":", 1) for line in users.read_text().splitlines())
-        insider = client_session(endpoint, ("node_1", creds["node_1"]))
         watcher = client_session(endpoint, ("node_1", creds["node_1"]))
         seen: dict[str, list[str]] = {"own in-edge": [], "wildcard": [], "2's in-edge": []}
 
