@@ -32,7 +32,9 @@ from swarm_sitl.laws.follower_law import (
 from swarm_sitl.laws.position_loop import command_force
 from swarm_sitl.laws.trajectories import Helix
 
-pytestmark = pytest.mark.unit
+#: one worker runs them all: their trajectory (a module fixture) calls the kernels with gains of
+#: their own types, which each process compiles once (14 s of CPU), not once per worker at once
+pytestmark = [pytest.mark.unit, pytest.mark.xdist_group("derivatives_fd")]
 
 PHI = 20.0
 GAINS = ControlGains(

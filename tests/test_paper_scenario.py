@@ -7,7 +7,8 @@ from sim_vehicles.common.quaternion import rotation_matrix
 from swarm_sitl.nodes.assembly import reported_vehicle_params
 from swarm_sitl.running.sim import run_sim
 
-pytestmark = pytest.mark.integration
+#: one worker runs them all: each worker that ran one would fly the minute's ``sim`` again
+pytestmark = [pytest.mark.integration, pytest.mark.xdist_group("paper_scenario")]
 
 
 @pytest.fixture(scope="module")
