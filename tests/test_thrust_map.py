@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 import pytest
-from hypothesis import given
+from hypothesis import assume, given
 from hypothesis import strategies as st
 
 from sim_vehicles.common.command import AttitudeCommand
@@ -92,6 +92,17 @@ def test_arducopters_angle_boost_undoes_the_compensation_at_the_commanded_tilt(F
     elif c <= 0.0:
         assert out == 0.0
     assert 0.0 <= out <= 1.0
+
+
+@pytest.mark.unit
+@given(t=st.floats(0.0, 1.0), q=unit_quaternions())
+def test_a_tilted_arducopter_divides_its_throttle_by_the_tilts_cosine_up_to_full(t, q):
+    """Any throttle in, at any tilt upright within 84 degrees: ArduCopter's angle boost gives
+    ``t / cos(tilt)``, and its motors at most full (1): a throttle the boost would take past full is
+    full, never more (the compensated throttles above never reach it)."""
+    c = cos_tilt(q)
+    assume(c >= BOOST_MIN_COS)
+    assert boosted_throttle(t, c) == pytest.approx(min(t / c, 1.0), rel=1e-12, abs=1e-15)
 
 
 @pytest.mark.unit

@@ -1,8 +1,10 @@
 """ENU/FLU <-> NED/FRD at the MAVLink boundary, and float32 round trips."""
 
+import math
+
 import numpy as np
 import pytest
-from hypothesis import given
+from hypothesis import assume, given
 from hypothesis import strategies as st
 
 from sim_vehicles.common.command import AttitudeCommand
@@ -11,6 +13,8 @@ from sim_vehicles.mavlink.enu_ned import enu_to_ned, flu_to_frd, q_enu_flu_to_ne
 from sim_vehicles.mavlink.wire_format import (
     command_roundtrip,
     decode_attitude_target,
+    encode_attitude,
+    encode_attitude_quaternion,
     encode_attitude_target,
     f32,
 )
@@ -79,3 +83,36 @@ def test_a_thrust_travels_as_a_fraction_of_the_senders_full_thrust_read_as_one_o
 @given(st.lists(st.floats(-3e38, 3e38), max_size=20))
 def test_f32_rounds_any_number_of_values_as_float32_does(values):
     assert f32(*values) == tuple(float(np.float32(v)) for v in values)
+
+
+@given(unit_quaternions(), vec3)
+def test_attitudes_euler_angles_turn_as_its_quaternion_does(q_WB, omega_B):
+    """ATTITUDE's roll, pitch and yaw, composed in pymavlink's own ZYX order (its ``Quaternion``
+    from Euler angles, an independent reference), give the rotation of the float32 quaternion
+    ATTITUDE_QUATERNION sends, and its rates are that message's. Tolerance: the float32 quaternion
+    is unit within a few of its ulps, ||q|^2 - 1| < 1e-6; the angles' formulas take it as unit, so
+    each argument is off by about that, and an angle by that over cos(pitch), at most 10x with the
+    pitch kept within 84 degrees here; 1e-5 on the matrix's entries is over that."""
+    from pymavlink.quaternion import Quaternion
+
+    f = encode_attitude_quaternion(q_WB, omega_B)
+    sent = np.array(f[0:4]) / np.linalg.norm(f[0:4])
+    roll, pitch, yaw, *rates = encode_attitude(q_WB, omega_B)
+    assert rates == list(f[4:7])
+    assume(abs(rotation_matrix(sent)[2, 0]) < math.cos(math.radians(6.0)))  # |pitch| < 84 degrees
+    np.testing.assert_allclose(
+        rotation_matrix(np.array(Quaternion([roll, pitch, yaw]).q)), rotation_matrix(sent), atol=1e-5
+    )
+
+
+@given(st.floats(-math.pi, math.pi), st.sampled_from([-1.0, 1.0]))
+def test_at_either_gimbal_lock_attitude_says_a_quarter_turn_of_pitch(yaw, up):
+    """Nose straight up or down (NED: pitch +-90 degrees), any yaw: the float32 quaternion's sine
+    of the pitch may pass 1 by its rounding; ATTITUDE says the quarter turn, finite, never a math
+    domain error. Tolerance: a sine within 1e-6 of 1 is a pitch within sqrt(2e-6) = 1.4e-3."""
+    from pymavlink.quaternion import Quaternion
+
+    q_ned = np.array(Quaternion([0.0, up * math.pi / 2, yaw]).q)
+    roll, pitch, yaw_sent, *_ = encode_attitude(q_ned_frd_to_enu_flu(q_ned), np.zeros(3))
+    assert math.isfinite(roll) and math.isfinite(yaw_sent)
+    assert pitch == pytest.approx(up * math.pi / 2, abs=1.5e-3)
