@@ -1,15 +1,17 @@
 """A vehicle's telemetry schedule (``vehicle.port.Streams``), its heartbeat and its flush, against what
 MAVLink's MAV_CMD_SET_MESSAGE_INTERVAL says and against the schedule's own state: after any
 sequence of interval changes, passes and lockstep samples, a pass sends exactly the streams due
-by then, each next due at the next multiple of its period; the heartbeat goes out at its rate on
+by then, each next due at the next multiple of its period, and a sample sent alone leaves the
+schedule as a pass would; the heartbeat goes out at its rate on
 the wall clock, whatever the steps between looks; a flush sends every frame queued once, in
 order, in datagrams that fit."""
 
+import copy
 import dataclasses
 import math
 
 import pytest
-from hypothesis import given, settings
+from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 from pymavlink.dialects.v20 import common as mav
 
@@ -71,9 +73,13 @@ def test_a_pass_sends_exactly_what_is_due_whatever_came_before(ops):
     """Whatever the order of interval changes, passes and lockstep samples (the sample sent alone
     when nothing else is due): a pass sends every stream whose next instant has come, in the
     schedule's order, and none other; a stream sent at t is next due at the next multiple of its
-    period after t (off: never)."""
+    period after t (off: never). The schedule's shortcuts, the earliest instant of any stream and
+    of any but the sample's, never pass a stream's own (a pass that looked at them first would
+    skip a stream that is due)."""
     s = Streams(DEFAULTS)
     for kind, t, arg in ops:
+        assert s.next_any_s <= min(s.next_send.values())
+        assert s.next_other_s <= min(s.next_send[i] for i in OTHERS)
         if kind == "interval":
             s.set_interval(*arg)
             continue
@@ -100,6 +106,33 @@ def test_a_pass_sends_exactly_what_is_due_whatever_came_before(ops):
             else:
                 assert t < s.next_send[i] <= t + 1.0 / rate + 1e-9
                 assert s.next_send[i] * rate == pytest.approx(round(s.next_send[i] * rate), abs=1e-6)
+
+
+@pytest.mark.unit
+@given(
+    st.floats(0.0, 1e4),
+    st.dictionaries(st.sampled_from(IDS), intervals),
+    st.lists(st.floats(1e-6, 5.0), min_size=len(OTHERS), max_size=len(OTHERS)),
+)
+def test_a_sample_sent_alone_leaves_the_schedule_as_a_pass_would(t, intervals_us, ahead):
+    """A lockstep tick that sends its sample alone (``sample_sent``) leaves the schedule exactly as
+    a pass at that instant would (``due``, which then sends the sample's two and nothing else):
+    whatever the rates (the sample's slower than the others' or not) and whenever the others are
+    next due after it."""
+    s = Streams(DEFAULTS)
+    for msg_id, interval_us in intervals_us.items():
+        s.set_interval(msg_id, interval_us)
+    s.set_interval(ATTQ_ID, 1e6 / s.rate_hz[LPOS_ID] if s.rate_hz[LPOS_ID] > 0 else -1.0)
+    assume(s.rate_hz[LPOS_ID] > 0)
+    s.next_send[LPOS_ID] = s.next_send[ATTQ_ID] = t  # the sample is due, and nothing else
+    for msg_id, dt in zip(OTHERS, ahead, strict=True):
+        s.next_send[msg_id] = t + dt if s.rate_hz[msg_id] > 0 else math.inf
+    s.next_any_s = t
+    s.next_other_s = min(s.next_send[i] for i in OTHERS)
+    a, b = copy.deepcopy(s), copy.deepcopy(s)
+    a.sample_sent(t)
+    assert list(b.due(t)) == [i for i in IDS if i in (LPOS_ID, ATTQ_ID)]
+    assert (a.next_send, a.next_any_s, a.next_other_s) == (b.next_send, b.next_any_s, b.next_other_s)
 
 
 @pytest.mark.integration  # (an endpoint driven in process)
