@@ -2,9 +2,8 @@
 MAVLink's MAV_CMD_SET_MESSAGE_INTERVAL says and against the schedule's own state: after any
 sequence of interval changes, passes and lockstep samples, a pass sends exactly the streams due
 by then, each next due at the next multiple of its period, and a sample sent alone leaves the
-schedule as a pass would; the heartbeat goes out at its rate on
-the wall clock, whatever the steps between looks; a flush sends every frame queued once, in
-order, in datagrams that fit."""
+schedule as a pass would; the heartbeat goes out at its rate on the wall clock, whatever the steps
+between looks; a flush sends every frame queued once, in order, in datagrams that fit."""
 
 import copy
 import dataclasses
