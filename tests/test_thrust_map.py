@@ -139,3 +139,21 @@ def test_arducopter_refuses_exactly_what_its_handler_refuses(mask, q):
     refused = bool(mask & 64) or (not mask & 128 and not abs(n2 - 1.0) < 1e-3) or (mask & 7 not in (0, 7))
     assert (check_setpoint(mask, tuple(q)) is not None) == refused
     assert math.isfinite(n2)
+
+
+@pytest.mark.unit
+@given(
+    t=st.floats(0.0, 1.0),
+    e=st.one_of(st.floats(-1.0, 1.0), st.sampled_from([-1.0, 1.0])),
+    beyond=st.floats(1.0, 10.0, exclude_min=True),
+)
+def test_any_curve_gives_no_thrust_at_zero_full_at_full_and_one_past_its_range_flies_as_its_bound(
+    t, e, beyond
+):
+    """Whatever MOT_THST_EXPO is set to (ArduPilot takes any value over MAVLink and constrains the
+    curve to -1..1 where it uses it): no throttle is no thrust and full throttle full thrust, the
+    curve's ends included (at 1 its root is 0 at zero throttle); a curve past either end flies as
+    that end."""
+    assert motor_thrust(0.0, e) == 0.0 and motor_thrust(1.0, e) == pytest.approx(1.0, abs=1e-15)
+    assert motor_thrust(t, beyond) == motor_thrust(t, 1.0)
+    assert motor_thrust(t, -beyond) == motor_thrust(t, -1.0)
