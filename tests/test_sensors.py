@@ -7,10 +7,13 @@ import math
 import numpy as np
 import pytest
 import yaml
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from sim_vehicles.common.quaternion import qconj, qmul
 from sim_vehicles.common.state import POS, QUAT, VEL, make_state
 from sim_vehicles.plant.sensors import SensorModel
+from tests.strategies import unit_quaternions
 from tests.support import CLI, CONFIGS
 
 #: its system tests run in lockstep or ``sim`` only (no wall clock): free to run beside others
@@ -53,11 +56,11 @@ def test_the_position_bias_wanders_as_a_random_walk_of_its_stated_intensity(walk
     x = _x()
     ids = range(1, 401)
     models = [SensorModel(i, seed=5, position_bias_walk_m_per_sqrt_s=walk) for i in ids]
-    b = {t: np.array([m.bias(round(t / 0.01)) for m in models]) for t in (2.0, 4.0)}  # (carried on)
+    b = {t: np.array([m.bias(round(t / 0.01)) for m in models]) for t in (0.5, 1.0)}  # (carried on)
     n = 3 * len(ids)
     for t, v in b.items():
         assert abs(v.var() / (walk**2 * t) - 1) < 5 * math.sqrt(2 / n), t
-    first, second = b[2.0].ravel(), (b[4.0] - b[2.0]).ravel()
+    first, second = b[0.5].ravel(), (b[1.0] - b[0.5]).ravel()
     assert abs(np.corrcoef(first, second)[0, 1]) < 5 / math.sqrt(n)
     m = SensorModel(9, seed=5, position_bias_walk_m_per_sqrt_s=walk)
     later = m.reported(4000, x)
@@ -69,6 +72,24 @@ def test_the_position_bias_wanders_as_a_random_walk_of_its_stated_intensity(walk
         SensorModel(9, seed=5, position_bias_walk_m_per_sqrt_s=walk).reported(0, x), x
     )  # zero at boot
     assert np.array_equal(later[VEL], x[VEL]) and not np.array_equal(later[POS], x[POS])  # position only
+
+
+@pytest.mark.unit
+@settings(max_examples=200, deadline=None)
+@given(
+    spread=st.tuples(st.floats(0, 1e3), st.floats(0, 1e3), st.floats(0, 10.0)),
+    tiny=st.floats(0, 1e-150),  # (its square underflows: a rotation vector of length 0 once)
+    seed=st.integers(0, 2**32 - 1),
+    ms=st.integers(0, 2**31),
+    q=unit_quaternions(),
+)
+def test_any_spread_however_small_reports_a_finite_state_and_a_rotation(spread, tiny, seed, ms, q):
+    x = make_state([1.0, 2.0, 3.0], [0.5, -0.5, 0.1], q)
+    for att in (spread[2], tiny):
+        y = SensorModel(3, spread[0], spread[1], att, seed=seed).reported(ms, x)
+        assert np.isfinite(y).all() and abs(np.linalg.norm(y[QUAT]) - 1) < 1e-12, (att, y)
+        if att == 0 or att < 1e-150:  # no rotation, or one below a float's resolution of 1
+            assert np.allclose(np.abs(qmul(qconj(x[QUAT]), y[QUAT])[0]), 1.0, rtol=0, atol=1e-15)
 
 
 @pytest.mark.unit

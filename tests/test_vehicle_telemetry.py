@@ -16,6 +16,7 @@ from sim_vehicles.common.command import AttitudeCommand
 from sim_vehicles.common.quaternion import rotation_matrix
 from sim_vehicles.common.state import make_state
 from sim_vehicles.mavlink import px4_profile as px4
+from sim_vehicles.plant.sensors import SensorModel
 from sim_vehicles.vehicle.endpoint import VehicleEndpoint
 from tests.fakes import ENDPOINT_PARAMS as PARAMS
 from tests.fakes import recording_endpoint
@@ -107,3 +108,39 @@ def test_the_status_says_every_sensor_present_enabled_and_healthy_and_home_where
     home = ep.home
     assert (h.latitude, h.longitude) == (round(home.latitude_deg * 1e7), round(home.longitude_deg * 1e7))
     assert h.altitude == round(home.altitude_m * 1000) and (h.x, h.y, h.z) == (0.0, 0.0, 0.0)
+
+
+@settings(max_examples=30, deadline=None)
+@given(
+    noise=st.tuples(st.floats(0, 2), st.floats(0, 2), st.floats(0, 0.3), st.floats(0, 0.5)),
+    latency_s=st.sampled_from([0.0, 0.004, 0.05]),
+    seed=st.integers(0, 2**31),
+    states=st.lists(
+        st.tuples(st.tuples(span, span, span), st.tuples(speed, speed, speed), unit_quaternions()),
+        min_size=1,
+        max_size=6,
+    ),
+)
+def test_a_vehicle_with_sensors_sends_its_sensor_models_report_of_its_truth(noise, latency_s, seed, states):
+    """LOCAL_POSITION_NED and ATTITUDE_QUATERNION of a vehicle with sensor noise and latency
+    (``plant.sensors``) are, byte for byte, what a vehicle without them sends when its truth is
+    what an identical sensor model, fed the same truths at the same instants, reports."""
+
+    def model():
+        pos, vel, att, walk = noise
+        return SensorModel(3, pos, vel, att, latency_s, seed, position_bias_walk_m_per_sqrt_s=walk)
+
+    noisy, plain, reference = recording_endpoint(3, sensors=model()), recording_endpoint(3), model()
+    noisy.port.peer = plain.port.peer = ("127.0.0.1", 40001)
+    try:
+        for k, (p, v, q) in enumerate(states):
+            ms = 20 * k + 7  # (a sample every 20 ms: latencies of none, less than one, more than two)
+            noisy.autopilot.state[:] = make_state(p, v, q)
+            plain.autopilot.state[:] = reference.reported(ms, make_state(p, v, q))
+            for msg_id in (mav.MAVLINK_MSG_ID_LOCAL_POSITION_NED, mav.MAVLINK_MSG_ID_ATTITUDE_QUATERNION):
+                got, want = _telemetry(noisy, msg_id, ms), _telemetry(plain, msg_id, ms)
+                assert got.get_payload() == want.get_payload(), (k, got, want)
+        assert any(noise) or noisy.autopilot.state.tolist() == plain.autopilot.state.tolist()
+    finally:
+        noisy.close()
+        plain.close()

@@ -62,8 +62,10 @@ class SensorModel:
         y[POS] += self.position_noise_m * e[0:3]
         y[VEL] += self.velocity_noise_mps * e[3:6]
         if self.attitude_noise_rad > 0:
-            v = self.attitude_noise_rad * e[6:9]  # a rotation vector (never zero: a normal draw)
-            y[QUAT] = qmul(y[QUAT], from_axis_angle(v, float(np.linalg.norm(v))))
+            v = self.attitude_noise_rad * e[6:9]  # a rotation vector
+            angle = float(np.linalg.norm(v))  # (0 where a tiny noise's square underflows: no rotation)
+            if angle > 0:
+                y[QUAT] = qmul(y[QUAT], from_axis_angle(v, angle))
         return y
 
     def bias(self, k: int) -> np.ndarray:
