@@ -1,9 +1,13 @@
 """What a vehicle counts of what it receives (``vehicle.endpoint``'s ``stats``), for any mix of
 datagrams on its two ports: every well-formed message once in ``rx_messages``; refused once,
-those addressed to another vehicle and setpoints on the ground station's port; unhandled once,
-those it has no service for (ArduCopter's REQUEST_DATA_STREAM on PX4 among them); the messages
-after a bad frame in the same datagram still handled. A datagram of frames is one or more messages
-one after another; a setpoint alone in one is what a controller sends (the fast path)."""
+those addressed to another vehicle or another of its components and setpoints on the ground
+station's port; unhandled once, those it has no service for (ArduCopter's REQUEST_DATA_STREAM on
+PX4 among them, and a command it does not know); invalid once, a parameter it does not have and
+a command whose parameter it reads is not finite; the messages after a bad frame in the same
+datagram still handled. A datagram of frames is one or more messages one after another; a setpoint
+alone in one is what a controller sends (the fast path)."""
+
+import math
 
 import pytest
 from hypothesis import given, settings
@@ -19,7 +23,7 @@ PEER = ("127.0.0.1", 40003)
 
 
 def _message(kind: str, seq: int):
-    """``(message, counted as)``: refused, unhandled or handled."""
+    """``(message, counted as)``: refused, unhandled, invalid or handled."""
     if kind == "ping":  # a request (to everyone): echoed
         return mav.MAVLink_ping_message(seq, seq, 0, 0), "handled"
     if kind == "ping elsewhere":
@@ -28,9 +32,32 @@ def _message(kind: str, seq: int):
         return mav.MAVLink_heartbeat_message(6, 8, 0, 0, 0, 3), "handled"
     if kind == "debug":  # nothing a vehicle answers
         return mav.MAVLink_debug_message(seq, 0, 1.5), "unhandled"
+    if kind == "ping another component":  # this system, not its autopilot (1)
+        return mav.MAVLink_ping_message(seq, seq, SYS, 5), "refused"
     if kind == "data stream":
         return mav.MAVLink_request_data_stream_message(SYS, 1, 0, 4, 1), "data stream"
-    return mav.MAVLink_set_attitude_target_message(seq, SYS, 1, 0b111, [1, 0, 0, 0], 0, 0, 0, 0.5), "setpoint"
+    if kind == "unknown parameter":  # (a name no autopilot has)
+        return mav.MAVLink_param_set_message(
+            SYS, 1, b"NO_SUCH_PARAM", 1.0, mav.MAV_PARAM_TYPE_REAL32
+        ), "invalid"
+    if kind == "arm with NaN":  # a command whose parameter it reads is not finite
+        return mav.MAVLink_command_long_message(
+            SYS, 1, mav.MAV_CMD_COMPONENT_ARM_DISARM, 0, *[math.nan] * 7
+        ), "invalid"
+    if kind == "unknown command":
+        return mav.MAVLink_command_long_message(SYS, 1, 31999, 0, 0, 0, 0, 0, 0, 0, 0), "unhandled"
+    target = {"setpoint elsewhere": (SYS + 1, 1), "setpoint to another component": (SYS, 5)}.get(
+        kind, (SYS, 1)
+    )
+    m = mav.MAVLink_set_attitude_target_message(seq, *target, 0b111, [1, 0, 0, 0], 0, 0, 0, 0.5)
+    return m, ("setpoint" if target == (SYS, 1) else "refused")
+
+
+KINDS = [
+    "ping", "ping elsewhere", "ping another component", "heartbeat", "debug", "data stream",
+    "unknown parameter", "arm with NaN", "unknown command",
+    "setpoint", "setpoint elsewhere", "setpoint to another component",
+]  # fmt: skip
 
 
 @settings(max_examples=40, deadline=None)
@@ -40,7 +67,7 @@ def _message(kind: str, seq: int):
         st.tuples(
             st.sampled_from(["controller", "ground station"]),
             st.lists(
-                st.sampled_from(["ping", "ping elsewhere", "heartbeat", "debug", "data stream", "setpoint"]),
+                st.sampled_from(KINDS),
                 min_size=1,
                 max_size=3,
             ),
@@ -54,7 +81,7 @@ def test_every_message_is_counted_once_as_what_the_vehicle_did_with_it(profile, 
     ep.gcs.sock.close()
     ep.gcs.sock = RecordingSocket()
     link = mav.MAVLink(None, srcSystem=255, srcComponent=190)
-    want = {"messages": 0, "refused": 0, "unhandled": 0, "bad": 0}
+    want = {"messages": 0, "refused": 0, "unhandled": 0, "bad": 0, "invalid": 0}
     try:
         for n, (where, kinds, bad_first) in enumerate(datagrams):
             port = ep.port if where == "controller" else ep.gcs
@@ -77,11 +104,12 @@ def test_every_message_is_counted_once_as_what_the_vehicle_did_with_it(profile, 
                     counted = "handled" if profile == "ardupilot" else "unhandled"
                 if counted == "setpoint":
                     counted = "refused" if port is ep.gcs else "handled"
-                if counted in ("refused", "unhandled"):
+                if counted in ("refused", "unhandled", "invalid"):
                     want[counted] += 1
             ep.datagram(data, PEER, port)
             got = ep.stats
-            assert (got.rx_messages, got.rx_refused, got.rx_unhandled, got.rx_bad) == tuple(want.values()), n
+            counts = (got.rx_messages, got.rx_refused, got.rx_unhandled, got.rx_bad, got.rx_invalid)
+            assert counts == tuple(want.values()), n
         assert ep.stats.handler_errors == 0
     finally:
         ep.close()
