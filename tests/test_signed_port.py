@@ -2,15 +2,21 @@
 its stream forward, for any mix of datagrams: signed right, signed with another key, unsigned,
 replayed, garbage. Each datagram is counted once: admitted + bad + refused = received, bad being
 a wrong signature or not frames, refused an unsigned or replayed one (``vehicle.port.Port.admit``);
-an admitted one is its frames as sent."""
+an admitted one is its frames as sent. Who the port's peer is (``Port.heard``): the first address
+heard; another after the peer's silence, or at once as the vehicle's signed companion."""
+
+import math
+from unittest import mock
 
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from pymavlink.dialects.v20 import common as mav
 
+from sim_vehicles.mavlink.px4_profile import COMPANION
 from sim_vehicles.mavlink.signing import Signer
-from sim_vehicles.vehicle.port import EndpointStats, Port, Tlog
+from sim_vehicles.vehicle import port as port_module
+from sim_vehicles.vehicle.port import PEER_SILENT_S, EndpointStats, Port, Tlog
 
 pytestmark = pytest.mark.unit
 
@@ -53,5 +59,46 @@ def test_each_datagram_is_admitted_or_counted_bad_or_refused_once(kinds):
                 expected_refused += kind in ("unsigned", "replay")
             assert (port.stats.rx_bad, port.stats.rx_refused) == (expected_bad, expected_refused)
         assert admitted + port.stats.rx_bad + port.stats.rx_refused == len(kinds)
+    finally:
+        port.close()
+
+
+#: who speaks (``Port.accepted_from`` of the message heard): the vehicle's own companion computer
+#: (its controller), a ground station, another vehicle's companion
+SPEAKERS = {"companion": (3, COMPANION), "ground station": (255, 190), "another companion": (4, COMPANION)}
+
+
+@settings(max_examples=80, deadline=None)
+@given(
+    signed=st.booleans(),
+    events=st.lists(
+        st.tuples(st.integers(0, 3), st.sampled_from(sorted(SPEAKERS)), st.floats(0.0, 2 * PEER_SILENT_S)),
+        max_size=20,
+    ),
+)
+def test_a_new_address_takes_the_link_after_the_peers_silence_or_at_once_as_its_signed_companion(
+    signed, events
+):
+    """The first address heard is the peer (greeted once); another takes its place (greeted) only
+    after the peer has been silent ``PEER_SILENT_S``, or at once on a signed link when it speaks
+    as the vehicle's own companion computer (a restarted controller at a new port). Anyone else
+    signed is heard, and the telemetry stays with the peer."""
+    port = Port(("127.0.0.1", 0), 3, {}, EndpointStats(), Tlog(None), signing_key=KEY if signed else None)
+    clock = [100.0]
+    peer, peer_heard, greeted, want_greeted = None, -math.inf, [], []
+    try:
+        with mock.patch.object(port_module.time, "monotonic", lambda: clock[0]):
+            for n, who, dt in events:
+                clock[0] += dt
+                addr = ("127.0.0.1", 40000 + n)
+                port.accepted_from = SPEAKERS[who]
+                port.heard(addr, lambda p, addr=addr: greeted.append(addr))
+                silent = clock[0] - peer_heard > PEER_SILENT_S
+                if addr != peer and (silent or (signed and who == "companion")):
+                    peer = addr
+                    want_greeted.append(addr)
+                if addr == peer:
+                    peer_heard = clock[0]
+                assert (port.peer, greeted) == (peer, want_greeted), (n, who)
     finally:
         port.close()
