@@ -3,7 +3,8 @@ its stream forward, for any mix of datagrams: signed right, signed with another 
 replayed, garbage. Each datagram is counted once: admitted + bad + refused = received, bad being
 a wrong signature or not frames, refused an unsigned or replayed one (``vehicle.port.Port.admit``);
 an admitted one is its frames as sent. Who the port's peer is (``Port.heard``): the first address
-heard; another after the peer's silence, or at once as the vehicle's signed companion."""
+heard; another after the peer's silence, or at once as the vehicle's signed companion. A signed
+vehicle's two ports alike answer only the signed, and sign what they answer."""
 
 import math
 from unittest import mock
@@ -17,8 +18,7 @@ from sim_vehicles.mavlink.px4_profile import COMPANION
 from sim_vehicles.mavlink.signing import Signer
 from sim_vehicles.vehicle import port as port_module
 from sim_vehicles.vehicle.port import PEER_SILENT_S, EndpointStats, Port, Tlog
-
-pytestmark = pytest.mark.unit
+from tests.fakes import RecordingSocket, recording_endpoint
 
 KEY, OTHER = bytes(range(32)), bytes(range(1, 33))
 
@@ -28,6 +28,7 @@ def _frame(n: int) -> bytes:
     return bytes(mav.MAVLink_heartbeat_message(6, 8, 0, n, 0, 3).pack(link))
 
 
+@pytest.mark.unit
 @settings(max_examples=60, deadline=None)
 @given(kinds=st.lists(st.sampled_from(["signed", "other key", "unsigned", "replay", "garbage"]), max_size=25))
 def test_each_datagram_is_admitted_or_counted_bad_or_refused_once(kinds):
@@ -68,6 +69,7 @@ def test_each_datagram_is_admitted_or_counted_bad_or_refused_once(kinds):
 SPEAKERS = {"companion": (3, COMPANION), "ground station": (255, 190), "another companion": (4, COMPANION)}
 
 
+@pytest.mark.unit
 @settings(max_examples=80, deadline=None)
 @given(
     signed=st.booleans(),
@@ -102,3 +104,36 @@ def test_a_new_address_takes_the_link_after_the_peers_silence_or_at_once_as_its_
                 assert (port.peer, greeted) == (peer, want_greeted), (n, who)
     finally:
         port.close()
+
+
+@pytest.mark.integration
+@settings(max_examples=20, deadline=None)
+@given(
+    order=st.lists(st.tuples(st.sampled_from(["controller", "ground station"]), st.booleans()), max_size=10)
+)
+def test_both_ports_of_a_signed_vehicle_answer_only_the_signed_and_sign_their_answers(order):
+    """A signed vehicle's controller port and ground-station port alike: a PING request signed
+    with the key is answered, signed; an unsigned one is refused, counted against its port
+    (``unsigned_by_port``), and answered by nothing."""
+    ep = recording_endpoint(3, signing_key=KEY, gcs_bind=("127.0.0.1", 0))
+    ep.gcs.sock.close()
+    ep.gcs.sock = RecordingSocket()
+    ports = {"controller": ep.port, "ground station": ep.gcs}
+    unsigned = {"controller": 0, "ground_station": 0}
+    link, signer = mav.MAVLink(None, srcSystem=255, srcComponent=190), Signer(KEY)
+    try:
+        for n, (where, signed) in enumerate(order):
+            port = ports[where]
+            ping = bytes(mav.MAVLink_ping_message(n, n, 0, 0).pack(link))
+            ping = signer.seal(ping) if signed else ping
+            port.sock.sent.clear()
+            ep.datagram(ping, ("127.0.0.1", 40000), port)
+            port.flush()
+            unsigned[where.replace(" ", "_")] += not signed
+            assert ep.unsigned_by_port() == unsigned
+            reader = mav.MAVLink(None)
+            reader.signing.secret_key = KEY
+            back = [m for d in port.sock.sent for m in reader.parse_buffer(d) or [] if m.get_type() == "PING"]
+            assert [(m.seq, m.get_signed()) for m in back] == ([(n, True)] if signed else [])
+    finally:
+        ep.close()

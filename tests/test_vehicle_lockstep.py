@@ -11,6 +11,8 @@ import time
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import common as mavlink2
 
@@ -21,6 +23,7 @@ from sim_vehicles.runtime import udp_arrival
 from sim_vehicles.runtime.row_log import read_rows
 from sim_vehicles.vehicle import lockstep_tick
 from sim_vehicles.vehicle.endpoint import VehicleEndpoint
+from tests.fakes import recording_endpoint
 
 pytestmark = pytest.mark.integration
 mav = mavutil.mavlink
@@ -409,3 +412,33 @@ def _tlog(path) -> list[tuple[float, bytes]]:
         got.append((m._timestamp, bytes(m.get_msgbuf())))
     log.close()
     return got
+
+
+@settings(max_examples=40, deadline=None)
+@given(dt_ms=st.sampled_from([1, 2, 4, 5]), k=st.integers(1, 30), off=st.sampled_from([0.5, 0.001]))
+def test_a_lockstep_period_of_any_whole_number_of_steps_steps_that_many_and_no_other_period_is_taken(
+    dt_ms, k, off
+):
+    """A period of k attitude steps (k >= 1, one step included) that is a whole number of
+    milliseconds is taken, and a setpoint stamped with the vehicle's time advances it exactly k
+    steps and k dt of ``time_boot_ms``; a period between two multiples is refused in one line."""
+    dt = dt_ms / 1000
+    ap = Autopilot(
+        VehicleParams(0.85, (0.05, 0.05, 0.09), 25.0),
+        AttitudeGains(16.0, 16.0),
+        make_state([0.0, 0.0, 5.0]),
+        dt,
+    )
+    ep = recording_endpoint(7, ap, lockstep_period_s=k * dt)
+    try:
+        link = mavlink2.MAVLink(None, srcSystem=7, srcComponent=191)
+        for n in range(1, 3):
+            sp = mavlink2.MAVLink_set_attitude_target_message(
+                ep.time_boot_ms, 7, 1, 0, [1, 0, 0, 0], 0, 0, 0, 0.3
+            )
+            ep.datagram(bytes(sp.pack(link)), ("127.0.0.1", 40007))
+            assert (ep.autopilot.step_index, ep.time_boot_ms) == (n * k, n * k * dt_ms)
+    finally:
+        ep.close()
+    with pytest.raises(ValueError, match=r"lockstep period .* whole number"):
+        recording_endpoint(7, ap, lockstep_period_s=(k + off) * dt)
