@@ -23,7 +23,7 @@ from sim_vehicles.runtime import udp_arrival
 from sim_vehicles.runtime.row_log import read_rows
 from sim_vehicles.vehicle import lockstep_tick
 from sim_vehicles.vehicle.endpoint import VehicleEndpoint
-from tests.fakes import recording_endpoint
+from tests.fakes import answers, recording_endpoint
 
 pytestmark = pytest.mark.integration
 mav = mavutil.mavlink
@@ -442,3 +442,25 @@ def test_a_lockstep_period_of_any_whole_number_of_steps_steps_that_many_and_no_o
         ep.close()
     with pytest.raises(ValueError, match=r"lockstep period .* whole number"):
         recording_endpoint(7, ap, lockstep_period_s=(k + off) * dt)
+
+
+@settings(max_examples=30, deadline=None)
+@given(stamp_ms=st.integers(1, 2**32 - 1), clock=st.sampled_from(["real time", "lockstep"]))
+def test_a_setpoint_is_the_stream_offboard_needs_in_real_time_whatever_its_stamp_and_in_lockstep_only_on_time(
+    stamp_ms, clock
+):
+    """PX4 takes OFFBOARD only while setpoints stream. In real time any setpoint is that signal,
+    whatever its ``time_boot_ms`` (PX4 reads no stamp); in lockstep one stamped ahead of the
+    vehicle's clock is refused (``rx_bad``) and is no signal: OFFBOARD is then rejected."""
+    ep = recording_endpoint(7, lockstep_period_s=0.01 if clock == "lockstep" else None)
+    try:
+        sp = mavlink2.MAVLink_set_attitude_target_message(stamp_ms, 7, 1, 0, [1, 0, 0, 0], 0, 0, 0, 0.3)
+        answers(ep, sp, 7, 191)
+        mode = mavlink2.MAVLink_command_long_message(7, 1, mav.MAV_CMD_DO_SET_MODE, 0, 29, 6, 0, 0, 0, 0, 0)
+        (ack,) = [m for m in answers(ep, mode, 7, 191) if m.get_type() == "COMMAND_ACK"]
+        if clock == "real time":
+            assert ack.result == mav.MAV_RESULT_ACCEPTED and ep.stats.rx_bad == 0
+        else:
+            assert ack.result == mav.MAV_RESULT_TEMPORARILY_REJECTED and ep.stats.rx_bad == 1
+    finally:
+        ep.close()
