@@ -21,7 +21,7 @@ from sim_vehicles.plant.autopilot import Autopilot
 from sim_vehicles.plant.params import AttitudeGains, VehicleParams
 from sim_vehicles.runtime import udp_arrival
 from sim_vehicles.runtime.row_log import read_rows
-from sim_vehicles.vehicle import lockstep_tick
+from sim_vehicles.vehicle import lockstep_tick, loops
 from sim_vehicles.vehicle.endpoint import VehicleEndpoint
 from tests.fakes import answers, recording_endpoint
 
@@ -464,3 +464,23 @@ def test_a_setpoint_is_the_stream_offboard_needs_in_real_time_whatever_its_stamp
             assert ack.result == mav.MAV_RESULT_TEMPORARILY_REJECTED and ep.stats.rx_bad == 1
     finally:
         ep.close()
+
+
+@pytest.mark.parametrize("k0", [0, 123_457])
+def test_in_real_time_a_vehicle_goes_on_from_its_own_time_and_says_when_its_time_began(k0):
+    """``loops.run_realtime`` of a vehicle that has already flown ``k0`` steps: its boot instant
+    (``boot_unix_s``, what the run's merge puts its samples on the wall clock by) is the start
+    less ``k0`` steps, and it steps on from ``k0``, never ahead of the wall clock (one step of
+    the clock's reading between the two ends)."""
+    params = VehicleParams(0.85, (0.05, 0.05, 0.09), 25.0)
+    ap = Autopilot(params, AttitudeGains(16.0, 16.0), make_state([0.0, 0.0, 5.0]), 0.001)
+    ap.step_index = k0
+    ep = VehicleEndpoint(ap, 7)
+    try:
+        before, start = time.time(), time.monotonic()
+        loops.run_realtime(ep, duration_s=0.3)
+        elapsed, after = time.monotonic() - start, time.time()
+    finally:
+        ep.close()
+    assert before - k0 * ap.dt_s <= ep.boot_unix_s <= after - k0 * ap.dt_s
+    assert k0 < ap.step_index <= k0 + elapsed / ap.dt_s + 1
