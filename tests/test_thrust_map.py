@@ -141,10 +141,29 @@ def test_arducopter_refuses_exactly_what_its_handler_refuses(mask, q):
     assert math.isfinite(n2)
 
 
+_NEAR = st.floats(-17.0, -6.0).map(lambda x: 10.0**x)  #: from a few ulp of 1 to 1e-6
+#: MOT_THST_EXPO: anywhere in -1..1, its ends, and just inside -1 (where the curve's root cancels)
+EXPOS = st.one_of(st.floats(-1.0, 1.0), st.sampled_from([-1.0, 1.0]), _NEAR.map(lambda d: -1.0 + d))
+#: a throttle: anywhere, full, and just below full
+THROTTLES = st.one_of(st.floats(0.0, 1.0), st.just(1.0), _NEAR.map(lambda d: 1.0 - d))
+
+
+@pytest.mark.unit
+@given(t=st.lists(THROTTLES, min_size=2, max_size=2), e=EXPOS)
+def test_any_curve_maps_more_throttle_to_no_less_thrust_within_none_to_full(t, e):
+    """For any MOT_THST_EXPO and throttle, the thrust is a fraction of full thrust, never less for
+    more throttle. (Just inside -1, near full throttle, the root's argument ``(1 - e)^2 + 4 e t``
+    cancels to about 0 and once rounded below it: the vehicle's handler raised a math domain
+    error for a setpoint near full throttle.)"""
+    lo, hi = sorted(t)
+    a, b = motor_thrust(lo, e), motor_thrust(hi, e)
+    assert 0.0 <= a <= b <= 1.0
+
+
 @pytest.mark.unit
 @given(
     t=st.floats(0.0, 1.0),
-    e=st.one_of(st.floats(-1.0, 1.0), st.sampled_from([-1.0, 1.0])),
+    e=EXPOS,
     beyond=st.floats(1.0, 10.0, exclude_min=True),
 )
 def test_any_curve_gives_no_thrust_at_zero_full_at_full_and_one_past_its_range_flies_as_its_bound(
@@ -153,7 +172,14 @@ def test_any_curve_gives_no_thrust_at_zero_full_at_full_and_one_past_its_range_f
     """Whatever MOT_THST_EXPO is set to (ArduPilot takes any value over MAVLink and constrains the
     curve to -1..1 where it uses it): no throttle is no thrust and full throttle full thrust, the
     curve's ends included (at 1 its root is 0 at zero throttle); a curve past either end flies as
-    that end."""
-    assert motor_thrust(0.0, e) == 0.0 and motor_thrust(1.0, e) == pytest.approx(1.0, abs=1e-15)
+    that end. Full thrust within the rounding of the curve's root at full throttle: the root of
+    ``(1 - e)^2 + 4 e``, which cancels to ``(1 + e)^2``, from a sum rounded by a few ulp of
+    ``(1 - e)^2`` (``ds``); the root moves by ``ds / 2 |1 + e|`` (at most ``sqrt(ds)``) and the
+    motor command by half that, the rotors' curve by at most ``1 + AIRFRAME_EXPO`` times it."""
+    eps = np.finfo(float).eps
+    ds = 4 * eps * (1 - e) ** 2
+    droot = min(math.sqrt(ds), ds / (2 * abs(1 + e))) if e > -1 else math.sqrt(ds)
+    tol = (1 + AIRFRAME_EXPO) * droot / 2 + 4 * eps
+    assert motor_thrust(0.0, e) == 0.0 and motor_thrust(1.0, e) == pytest.approx(1.0, rel=0, abs=tol)
     assert motor_thrust(t, beyond) == motor_thrust(t, 1.0)
     assert motor_thrust(t, -beyond) == motor_thrust(t, -1.0)

@@ -118,8 +118,10 @@ def motor_thrust(throttle: float, expo: float, airframe_expo: float = AIRFRAME_E
     t = min(max(throttle, 0.0), 1.0)
     e = min(max(expo, -1.0), 1.0)
     # the root of e a^2 + (1 - e) a = t, ArduPilot's ((e - 1) + sqrt(...)) / (2 e) written without
-    # its cancellation for a small e; no curve within float's epsilon (ArduPilot's is_zero)
-    root = math.sqrt((1.0 - e) * (1.0 - e) + 4.0 * e * t)
+    # its cancellation for a small e; no curve within float's epsilon (ArduPilot's is_zero). Under
+    # the root (1 - e)^2 + 4 e t >= (1 + e)^2 >= 0, but for e near -1 and t near 1 it cancels and
+    # may round below 0: taken as 0, as ArduPilot's safe_sqrt does
+    root = math.sqrt(max((1.0 - e) * (1.0 - e) + 4.0 * e * t, 0.0))
     a = t if abs(e) < FLT_EPSILON else (2.0 * t / ((1.0 - e) + root) if (1.0 - e) + root > 0.0 else 0.0)
     a = min(max(a, 0.0), 1.0)
     return (1.0 - airframe_expo) * a + airframe_expo * a * a
