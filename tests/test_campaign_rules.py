@@ -1,17 +1,20 @@
 """The rules of a campaign that no lockstep run is needed to check, each one a plausible bug away:
 the direction every harsher-when-smaller key is read in, a swept jitter that flies a fault, a list
 index past the list's end, the campaign a directory holds, when a run recovered and how long a
-failsafe lasted, and a point that outlasts its wall budget."""
+failsafe lasted, a point that outlasts its wall budget, and a range's values up to its limit."""
 
 import math
+import re
 import sys
 import time
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from swarm_sitl.campaigns.breaking import breaking_point, harsher_smaller, toward
-from swarm_sitl.campaigns.grid import SweepSpecError, point_data
+from swarm_sitl.campaigns.grid import MAX_POINTS, SweepSpecError, parse_values, point_data
 from swarm_sitl.campaigns.point import failsafe_s, recovered_after, run_point
 from swarm_sitl.campaigns.sweep import _open_campaign
 from swarm_sitl.config.load import parse_config
@@ -126,3 +129,29 @@ def test_a_requirement_is_a_column_and_a_run_passes_only_if_every_one_holds():
     ]
     judge(rows, 0.05)
     assert [r["passed"] for r in rows] == [1, 0, 0, 1, 0]
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    start=st.integers(-2000, 2000),
+    step=st.integers(1, 64),
+    n=st.one_of(st.integers(1, 40), st.sampled_from([MAX_POINTS - 1, MAX_POINTS, MAX_POINTS + 1])),
+    short=st.integers(0, 7),
+)
+def test_a_range_is_every_step_from_its_start_to_its_stop_and_at_most_max_points_of_them(
+    start, step, n, short
+):
+    """``START:STOP:STEP`` (in eighths: exact in binary, so the count is the arithmetic's) is
+    ``START + k STEP`` for each k whose value is at most STOP, a stop short of the next step
+    included (one value when STOP is START); more than ``MAX_POINTS`` values is one line naming the
+    key and the count."""
+    a, d = start / 8, step / 8
+    stop = a + (n - 1) * d + short / 8 * d  # (short < 8: short of the next value)
+    text = f"{a!r}:{stop!r}:{d!r}"
+    if n > MAX_POINTS:
+        with pytest.raises(SweepSpecError, match=rf"^sweep k\.x: '{re.escape(text)}' has {n} values, more "):
+            parse_values("k.x", text)
+        return
+    got = parse_values("k.x", text)
+    assert len(got) == n and got[0] == a and got[-1] <= stop
+    assert np.array_equal(np.diff(got), np.full(n - 1, d))
