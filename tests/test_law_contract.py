@@ -1,17 +1,21 @@
 """The law contract from outside: what a config may name, what the bench refuses (each a one-line
 error naming the law, and the follower once it runs), and what a run keeps when a law fails."""
 
+import dataclasses
 import math
 import subprocess
 from pathlib import Path
-from typing import ClassVar
+from typing import ClassVar, NamedTuple
 
 import numpy as np
 import pytest
 import yaml
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
+from swarm_sitl.config.law_entry import LawEntryError, check_contract, validate_params
 from swarm_sitl.config.load import ConfigError, load_config
-from swarm_sitl.laws.contract import AttitudeCommand, LawOutput, Received, VehicleSample
+from swarm_sitl.laws.contract import MAX_MESSAGE_LENGTH, AttitudeCommand, LawOutput, Received, VehicleSample
 from swarm_sitl.nodes.assembly import build_law
 from swarm_sitl.nodes.law_host import HostedLaw, LawError
 from swarm_sitl.running.sim import SimFailedError, run_sim
@@ -282,3 +286,61 @@ def test_a_silent_neighbours_message_reaches_the_law_with_its_growing_age_then_l
     assert (heard[back] == 1).all() and np.allclose(age[back], 0.01)
     lost = r.events_of("neighbour_lost")
     assert [(e["follower"], e["neighbour"], round(e["t_s"], 2)) for e in lost] == [(1, 0, 1.30)]
+
+
+def _law_class(n) -> type:
+    """A class that meets the law contract but for its ``message_length`` ``n``."""
+    return type("L", (), {"message_length": n, "record_fields": {}, "step": lambda self, t, s, i: None})
+
+
+@pytest.mark.unit
+@settings(max_examples=60, deadline=None)
+@given(
+    n=st.one_of(
+        st.integers(-3, 3),
+        st.integers(MAX_MESSAGE_LENGTH - 3, MAX_MESSAGE_LENGTH + 3),
+        st.sampled_from([1.0, True, "3", None]),
+    )
+)
+def test_a_message_length_is_taken_exactly_when_it_is_an_int_from_1_to_the_largest(n):
+    if type(n) is int and 1 <= n <= MAX_MESSAGE_LENGTH:
+        check_contract(_law_class(n), "e")
+    else:
+        with pytest.raises(LawEntryError, match=r"^entry 'e': message_length must be an int from 1 to "):
+            check_contract(_law_class(n), "e")
+
+
+@dataclasses.dataclass(frozen=True)
+class _GainsData:
+    k: float = 1.0
+
+    def __post_init__(self) -> None:
+        if not self.k > 0:
+            raise ValueError(f"k must be positive, got {self.k}")
+
+
+class _GainsTuple(NamedTuple):
+    k: float = 1.0
+
+
+@pytest.mark.unit
+@pytest.mark.parametrize("schema", [_GainsData, _GainsTuple])
+@settings(max_examples=20, deadline=None)
+@given(k=st.floats(-10, 10))
+def test_a_laws_params_of_any_class_taking_keywords_are_built_from_the_config_or_refused_in_one_line(
+    schema, k
+):
+    """A law's ``Params`` need not be a pydantic model: a dataclass or a NamedTuple is built with
+    the config's values as keywords, its defaults where none is given; what it raises is one line
+    naming the law; a name it does not declare is refused whatever the class would take."""
+    law = type("L", (), {"Params": schema})
+    assert validate_params(law, {}, "e") == schema()
+    if schema is _GainsData and not k > 0:
+        with pytest.raises(
+            LawEntryError, match=r"^params: ValueError: k must be positive, got .* \(law e\)$"
+        ):
+            validate_params(law, {"k": k}, "e")
+    else:
+        assert validate_params(law, {"k": k}, "e") == schema(k=k)
+    with pytest.raises(LawEntryError, match=r"^params: it has no parameter gain \(it has k\) \(law e\)$"):
+        validate_params(law, {"gain": k}, "e")
