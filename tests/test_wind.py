@@ -7,6 +7,8 @@ import math
 import numpy as np
 import pytest
 import yaml
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from sim_vehicles.common.command import AttitudeCommand
 from sim_vehicles.common.state import POS, VEL, make_state
@@ -174,13 +176,23 @@ def test_the_paper_swarm_in_wind_gusts_and_noisy_reports_flies_in_processes_as_i
 
 
 @pytest.mark.unit
-def test_the_worlds_gust_is_the_mean_wind_plus_the_gust_of_the_instant_it_left_upstream():
+@settings(max_examples=40, deadline=None)
+@given(
+    heading=st.floats(0, 2 * math.pi),
+    speed=st.one_of(st.floats(0.2, 1.0), st.floats(1.0, 20.0)),  # (a breeze under 1 m/s too)
+    climb=st.floats(-0.5, 0.5),
+    where=st.lists(st.tuples(st.floats(0, 6), st.tuples(*[st.floats(-30, 30)] * 3)), min_size=1, max_size=4),
+)
+def test_the_worlds_gust_is_the_mean_wind_plus_the_gust_of_the_instant_it_left_upstream(
+    heading, speed, climb, where
+):
     """``FrozenGusts.update(t, p)`` is ``W + g(floor(tau / 10 ms))`` with ``tau = t - p.W / |W|^2``
-    (the first sample before the field reaches p), and ``W + g(t)`` in still mean air."""
-    mean = (4.0, 3.0, 0.0)
+    (the first sample before the field reaches p), for any mean wind however light, and ``W + g(t)``
+    in still mean air."""
+    mean = (speed * math.cos(heading), speed * math.sin(heading), climb * speed)
     world = FrozenGusts(mean_mps=mean, gust_mps=1.5, gust_time_s=0.4, seed=7)
     series = WindModel(0, gust_mps=1.5, gust_time_s=0.4, seed=7)
-    for t, p in ((2.0, (10.0, -2.0, 1.0)), (5.37, (-3.0, 8.0, 0.0)), (0.1, (30.0, 0.0, 0.0))):
+    for t, p in where:
         tau = t - (np.dot(p, mean)) / np.dot(mean, mean)
         k = max(0, math.floor(tau / WIND_DT_S + 1e-9))
         assert np.array_equal(world.update(t, np.array(p)), np.array(mean) + series.gust(k)), (t, p)
