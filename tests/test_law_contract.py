@@ -344,3 +344,26 @@ def test_a_laws_params_of_any_class_taking_keywords_are_built_from_the_config_or
         assert validate_params(law, {"k": k}, "e") == schema(k=k)
     with pytest.raises(LawEntryError, match=r"^params: it has no parameter gain \(it has k\) \(law e\)$"):
         validate_params(law, {"gain": k}, "e")
+
+
+_SHAPES = st.sampled_from([(4,), (3,), (2,), (5,), (1, 3), (3, 1), (0,), ()])
+
+
+@pytest.mark.unit
+@settings(max_examples=40, deadline=None)
+@given(q=_SHAPES, w=_SHAPES, wd=_SHAPES, thrust=st.sampled_from([5.0, np.float32(5.0), 5]))
+def test_a_command_of_wrong_shapes_is_one_line_naming_each_fields_shape(q, w, wd, thrust):
+    """A command whose q_c, omega_c_B and omegadot_c_B are not arrays of 4, 3 and 3 fails the
+    tick in one line that gives the shape each of them had and the thrust's type, whichever are
+    wrong; a command of the right shapes passes."""
+    q_c = np.resize(LEVEL, q) if q != (4,) else LEVEL
+    out = LawOutput(AttitudeCommand(q_c, thrust, np.zeros(w), np.zeros(wd)), np.zeros(3), {"x": [1.0, 2.0]})
+    host = HostedLaw(_Scripted(out), 7, "my_laws.py:Scripted")
+    sample = VehicleSample(0.25, np.zeros(3), np.zeros(3), LEVEL)
+    if (q, w, wd) == ((4,), (3,), (3,)):
+        assert host.step(0.25, sample, {}).command.q_c.shape == (4,)
+        return
+    with pytest.raises(LawError) as e:
+        host.step(0.25, sample, {})
+    said = f"(got q_c {q}, omega_c_B {w}, omegadot_c_B {wd}, thrust_N {type(thrust).__name__})"
+    assert str(e.value).endswith(said) and "must be arrays of 4, 3, 3 floats" in str(e.value), str(e.value)
