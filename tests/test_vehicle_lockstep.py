@@ -19,6 +19,7 @@ from pymavlink.dialects.v20 import common as mavlink2
 from sim_vehicles.common.state import make_state
 from sim_vehicles.plant.autopilot import Autopilot
 from sim_vehicles.plant.params import AttitudeGains, VehicleParams
+from sim_vehicles.plant.sensors import SensorModel
 from sim_vehicles.runtime import udp_arrival
 from sim_vehicles.runtime.row_log import read_rows
 from sim_vehicles.vehicle import lockstep_tick, loops
@@ -242,6 +243,7 @@ from sim_vehicles.vehicle.endpoint import VehicleEndpoint
 from sim_vehicles.vehicle.modes import MODE_OFFBOARD
 from sim_vehicles.mavlink.signing import Signer
 from sim_vehicles.plant.params import AttitudeGains, VehicleParams
+from sim_vehicles.plant.sensors import SensorModel
 from sim_vehicles.common.state import make_state
 
 def loaded():
@@ -484,3 +486,35 @@ def test_in_real_time_a_vehicle_goes_on_from_its_own_time_and_says_when_its_time
         ep.close()
     assert before - k0 * ap.dt_s <= ep.boot_unix_s <= after - k0 * ap.dt_s
     assert k0 < ap.step_index <= k0 + elapsed / ap.dt_s + 1
+
+
+@settings(max_examples=15, deadline=None)
+@given(seed=st.integers(0, 2**31), ticks=st.integers(1, 4))
+def test_in_lockstep_a_vehicle_with_sensors_sends_its_sensor_models_report_at_every_tick(seed, ticks):
+    """Armed in offboard, a lockstep vehicle with sensor noise answers each setpoint with the
+    LOCAL_POSITION_NED an identical sensor model reports of its true state at the new instant
+    (the one-call tick, which sends the true state, is not for it), in NED as float32."""
+
+    def model() -> SensorModel:
+        return SensorModel(7, 0.3, 0.2, 0.05, seed=seed)
+
+    ep, reference = recording_endpoint(7, lockstep_period_s=0.01, sensors=model()), model()
+    ep.port.peer = ("127.0.0.1", 40007)
+    ep.armed, ep.mode = True, 1
+    link = mavlink2.MAVLink(None, 7, 191)
+    try:
+        for _ in range(ticks):
+            ep.port.sock.sent.clear()
+            sp = mavlink2.MAVLink_set_attitude_target_message(
+                ep.time_boot_ms, 7, 1, 0, [1, 0, 0, 0], 0, 0, 0, 0.33
+            )
+            ep.datagram(bytes(sp.pack(link)), ep.port.peer)
+            ep.flush()
+            back = [m for d in ep.port.sock.sent for m in mavlink2.MAVLink(None).parse_buffer(d) or []]
+            (lp,) = [m for m in back if m.get_type() == "LOCAL_POSITION_NED"]
+            e, n, u, ve, vn, vu = reference.reported(ep.time_boot_ms, ep.autopilot.state)[:6]
+            assert lp.time_boot_ms == ep.time_boot_ms
+            got = [lp.x, lp.y, lp.z, lp.vx, lp.vy, lp.vz]
+            assert got == np.float32([n, e, -u, vn, ve, -vu]).tolist(), (got, [n, e, -u])
+    finally:
+        ep.close()
