@@ -10,7 +10,8 @@ ArduCopter's STATUSTEXT), ``never_arm`` (ARM_DISARM FAILED with a pre-arm STATUS
 ``reboot_after_s`` (that long after it armed, its clock starts again from 0, disarmed),
 ``busy_mode`` (DO_SET_MODE TEMPORARILY_REJECTED that many times, as PX4 answers OFFBOARD without a
 setpoint stream; -1: always), ``read_only`` (parameters a PARAM_SET does not change: answered with
-the value kept). ``heard`` keeps every message it received, in order. Run alone
+the value kept), ``deaf`` (commands it never answers). ``heard`` keeps every message it
+received, in order. Run alone
 (``python -m tests.fake_autopilot ...``) it prints ``listening on udp:HOST:PORT`` and serves until
 killed.
 """
@@ -41,12 +42,13 @@ class FakeAutopilot:
         port: int = 0,
         busy_mode: int = 0,
         read_only: frozenset[str] = frozenset(),
+        deaf: frozenset[int] = frozenset(),
     ):
         self.kind, self.system_id = kind, system_id
         default = ARDUPILOT_PARAMS if kind == "ardupilot" else PX4_PARAMS
         self.params = dict(default if params is None else params)
         self.refuse_mode, self.never_arm, self.reboot_after_s = refuse_mode, never_arm, reboot_after_s
-        self.busy_mode, self.read_only = busy_mode, read_only
+        self.busy_mode, self.read_only, self.deaf = busy_mode, read_only, deaf
         self.heard: list = []
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.sock.bind(("127.0.0.1", port))
@@ -116,6 +118,8 @@ class FakeAutopilot:
 
     def _command(self, m: object) -> None:
         cmd = m.command  # type: ignore[attr-defined]
+        if cmd in self.deaf:
+            return
         if cmd == mav.MAV_CMD_SET_MESSAGE_INTERVAL:
             if m.param1 == mav.MAVLINK_MSG_ID_LOCAL_POSITION_NED and m.param2 > 0:  # type: ignore[attr-defined]
                 self.sample_every_s = m.param2 / 1e6  # type: ignore[attr-defined]

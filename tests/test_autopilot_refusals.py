@@ -2,7 +2,8 @@
 follower, the step and the autopilot's own answer (its COMMAND_ACK result, its last STATUSTEXT),
 within the handshake's timeout, never a hang: a controller's link against a scripted PX4 or
 ArduCopter (``tests.fake_autopilot``) that refuses a mode, never arms, lacks a parameter, says it
-is neither autopilot, or reboots once flying. And against a real-time swarm: the rest flies on."""
+is neither autopilot, reboots once flying, or never answers a command. And against a real-time
+swarm: the rest flies on."""
 
 import re
 import subprocess
@@ -12,6 +13,7 @@ import time
 import numpy as np
 import pytest
 import yaml
+from pymavlink.dialects.v20 import common as mav
 
 from swarm_sitl.link.transport import LinkError
 from swarm_sitl.link.vehicle_link import VehicleLink
@@ -58,6 +60,11 @@ CASES = [  # (the autopilot, its script, the line after "follower 3: <url>: ")
         "OFFBOARD refused: MAV_CMD_DO_SET_MODE answered MAV_RESULT_TEMPORARILY_REJECTED for 1.5 s",
     ),
     ("ardupilot", {"reboot_after_s": 0.3}, "mid-run, it rebooted (its time_boot_ms went from "),
+    (
+        "px4",
+        {"deaf": frozenset({mav.MAV_CMD_COMPONENT_ARM_DISARM})},
+        "no COMMAND_ACK for MAV_CMD_COMPONENT_ARM_DISARM (arming) within 1.5 s",
+    ),
 ]
 
 
