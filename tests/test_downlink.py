@@ -3,7 +3,7 @@ comes: alone in a datagram (the compiled read), beside other messages or split a
 (the split read), or on a stream through pymavlink's parser. The three ways give the same sample,
 the vehicle's NED/FRD float32 fields in ENU/FLU, stamped with its ``time_boot_ms`` and the arrival
 of the datagram that completed it; a vehicle that reboots or disarms is ``gone``, and each bad
-frame is counted once."""
+frame, and a last one cut short, is counted once."""
 
 import numpy as np
 import pytest
@@ -115,11 +115,13 @@ def test_a_vehicle_is_gone_once_it_disarms_after_it_was_armed(armed, whole):
         assert d.gone == want, armed
 
 
-@given(st.integers(1, 5), samples)
-def test_each_bad_frame_is_counted_once_and_the_good_ones_still_read(n_bad, sample):
+@given(st.integers(0, 5), samples, st.integers(0, len(_heartbeat(True)) - 1))
+def test_each_bad_frame_is_counted_once_and_the_good_ones_still_read(n_bad, sample, cut):
+    """Frames whose CRC is broken, then a sample, then (``cut`` > 0) a last frame cut short after
+    ``cut`` bytes: each bad frame and the cut one counted once, the sample read."""
     ms, p, v, q = sample
     bad = bytearray(_heartbeat(True))
     bad[-1] ^= 0xFF  # its CRC
     d = _downlink()
-    d.read(bytes(bad) * n_bad + _lpos(ms, p, v) + _attq(ms, q), 3.0)
-    assert d.rx_bad == n_bad and d.sample_ms == ms and d.heartbeat is None
+    d.read(bytes(bad) * n_bad + _lpos(ms, p, v) + _attq(ms, q) + _heartbeat(True)[:cut], 3.0)
+    assert d.rx_bad == n_bad + (cut > 0) and d.sample_ms == ms and d.heartbeat is None

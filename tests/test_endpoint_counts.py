@@ -4,8 +4,9 @@ those addressed to another vehicle or another of its components and setpoints on
 station's port; unhandled once, those it has no service for (ArduCopter's REQUEST_DATA_STREAM on
 PX4 among them, and a command it does not know); invalid once, a parameter it does not have and
 a command whose parameter it reads is not finite; the messages after a bad frame in the same
-datagram still handled. A datagram of frames is one or more messages one after another; a setpoint
-alone in one is what a controller sends (the fast path)."""
+datagram still handled, and those before a last frame cut short (bad once). A datagram of frames
+is one or more messages one after another; a setpoint alone in one is what a controller sends
+(the fast path)."""
 
 import math
 
@@ -53,6 +54,11 @@ def _message(kind: str, seq: int):
     return m, ("setpoint" if target == (SYS, 1) else "refused")
 
 
+#: a frame to cut short (a PING of 9 payload bytes, 21 in all)
+LAST = bytes(
+    mav.MAVLink_ping_message(123456789, 7, 0, 0).pack(mav.MAVLink(None, srcSystem=255, srcComponent=190))
+)
+
 KINDS = [
     "ping", "ping elsewhere", "ping another component", "heartbeat", "debug", "data stream",
     "unknown parameter", "arm with NaN", "unknown command",
@@ -72,6 +78,7 @@ KINDS = [
                 max_size=3,
             ),
             st.sampled_from([None, "crc", "not a frame"]),  # a bad frame first: its CRC broken, or bytes
+            st.integers(0, len(LAST) - 1),  # a last frame cut short after this many bytes (0: none)
         ),
         max_size=12,
     ),
@@ -83,7 +90,7 @@ def test_every_message_is_counted_once_as_what_the_vehicle_did_with_it(profile, 
     link = mav.MAVLink(None, srcSystem=255, srcComponent=190)
     want = {"messages": 0, "refused": 0, "unhandled": 0, "bad": 0, "invalid": 0}
     try:
-        for n, (where, kinds, bad_first) in enumerate(datagrams):
+        for n, (where, kinds, bad_first, cut) in enumerate(datagrams):
             port = ep.port if where == "controller" else ep.gcs
             data = b""
             if bad_first == "crc":
@@ -106,6 +113,9 @@ def test_every_message_is_counted_once_as_what_the_vehicle_did_with_it(profile, 
                     counted = "refused" if port is ep.gcs else "handled"
                 if counted in ("refused", "unhandled", "invalid"):
                     want[counted] += 1
+            if cut:  # the datagram ends inside a frame: the datagram's garbage, once
+                data += LAST[:cut]
+                want["bad"] += 1
             ep.datagram(data, PEER, port)
             got = ep.stats
             counts = (got.rx_messages, got.rx_refused, got.rx_unhandled, got.rx_bad, got.rx_invalid)
