@@ -198,11 +198,13 @@ def test_a_setpoint_arducopter_refuses_changes_nothing_and_in_guided_it_holds(co
     ep, conn = copter
     _param(ep, conn, "GUID_OPTIONS", 8, mav.MAV_PARAM_TYPE_INT32)
     _guided_nogps(ep, conn)
+    taken = ep.stats.setpoints
     _fly(ep, conn, 5, thrust=0.34, rates=(0.1, 0.0, 0.0))
+    assert ep.stats.setpoints == taken + 5  # each setpoint it takes counted once
     held = ep.autopilot.command
     invalid = ep.stats.rx_invalid
     _setpoint(ep, conn, q=q, thrust=0.9, mask=mask)
-    assert ep.stats.rx_invalid == invalid + 1, why
+    assert ep.stats.rx_invalid == invalid + 1 and ep.stats.setpoints == taken + 5, why
     assert ep.autopilot.command is held or np.array_equal(ep.autopilot.command.q_c, held.q_c)
     assert _command(ep, conn, mav.MAV_CMD_DO_SET_MODE, 1, ap.GUIDED) == mav.MAV_RESULT_ACCEPTED
     _fly(ep, conn, 3, thrust=0.34)

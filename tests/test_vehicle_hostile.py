@@ -21,6 +21,7 @@ from sim_vehicles.common.state import make_state
 from sim_vehicles.mavlink.enu_ned import q_enu_flu_to_ned_frd, q_ned_frd_to_enu_flu
 from sim_vehicles.plant.autopilot import Autopilot
 from sim_vehicles.plant.params import AttitudeGains, VehicleParams
+from sim_vehicles.vehicle import services
 from sim_vehicles.vehicle.endpoint import VehicleEndpoint
 from sim_vehicles.vehicle.modes import MODE_OFFBOARD
 from sim_vehicles.vehicle.port import PEER_SILENT_S
@@ -359,3 +360,23 @@ def test_the_vehicle_process_keeps_flying_after_a_hostile_burst(tmp_path):
     finally:
         proc.terminate()
         proc.wait(timeout=10)
+
+
+@pytest.mark.integration
+def test_a_handler_that_fails_is_counted_with_its_message_and_error_and_the_vehicle_flies_on(
+    flying, monkeypatch
+):
+    """A bug a message finds in a handler (here: the command service raising) is counted in
+    ``handler_errors`` with the message's type and the error kept, once per failure, and the
+    vehicle goes on taking setpoints."""
+
+    def broken(*_args) -> None:
+        raise ZeroDivisionError("the handler's bug")
+
+    monkeypatch.setattr(services, "on_command", broken)
+    for n in (1, 2):
+        flying.datagram(_command(mav.MAV_CMD_COMPONENT_ARM_DISARM, 1), PEER)
+        assert flying.stats.handler_errors == n
+    assert flying.stats.last_handler_error == "COMMAND_LONG: ZeroDivisionError: the handler's bug"
+    flying.datagram(_setpoint(thrust=0.5), PEER)
+    assert flying.stats.setpoints == 3 and flying.autopilot.command.thrust_N == pytest.approx(0.5 * 25.0)

@@ -108,6 +108,8 @@ def test_the_status_says_every_sensor_present_enabled_and_healthy_and_home_where
     home = ep.home
     assert (h.latitude, h.longitude) == (round(home.latitude_deg * 1e7), round(home.longitude_deg * 1e7))
     assert h.altitude == round(home.altitude_m * 1000) and (h.x, h.y, h.z) == (0.0, 0.0, 0.0)
+    # a multicopter lands straight down: its approach vector ends where home is
+    assert (h.approach_x, h.approach_y, h.approach_z) == (h.x, h.y, h.z)
 
 
 @settings(max_examples=30, deadline=None)
