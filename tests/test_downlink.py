@@ -3,17 +3,19 @@ comes: alone in a datagram (the compiled read), beside other messages or split a
 (the split read), or on a stream through pymavlink's parser. The three ways give the same sample,
 the vehicle's NED/FRD float32 fields in ENU/FLU, stamped with its ``time_boot_ms`` and the arrival
 of the datagram that completed it; a vehicle that reboots or disarms is ``gone``, and each bad
-frame, and a last one cut short, is counted once."""
+frame, and a last one cut short, is counted once; another dialect's message is passed over."""
 
 import numpy as np
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
+from pymavlink.dialects.v20 import ardupilotmega
 from pymavlink.dialects.v20 import common as mav
 
 from sim_vehicles.mavlink.enu_ned import ned_to_enu, q_ned_frd_to_enu_flu
 from swarm_sitl.link.decoding import REBOOT_MS, Downlink
 from tests.strategies import unit_quaternions
+from tests.support import raw_frame
 
 pytestmark = pytest.mark.unit
 SYS = 4
@@ -125,3 +127,26 @@ def test_each_bad_frame_is_counted_once_and_the_good_ones_still_read(n_bad, samp
     d = _downlink()
     d.read(bytes(bad) * n_bad + _lpos(ms, p, v) + _attq(ms, q) + _heartbeat(True)[:cut], 3.0)
     assert d.rx_bad == n_bad + (cut > 0) and d.sample_ms == ms and d.heartbeat is None
+
+
+#: the messages of ArduPilot's dialect that the common set does not have (AHRS, EKF_STATUS_REPORT, ...)
+ARDUPILOT_ONLY = sorted(
+    (c for i, c in ardupilotmega.mavlink_map.items() if i not in mav.mavlink_map), key=lambda c: c.id
+)
+
+
+@given(st.data(), samples, st.booleans(), st.sampled_from([SYS, 1, 200]))
+def test_another_dialects_message_is_passed_over_not_counted_bad_whichever_read_takes_it(
+    data, sample, whole, sender
+):
+    """A message of a dialect the controller does not read (an ArduPilot SITL streams AHRS,
+    EKF_STATUS_REPORT and more beside the common set), well formed, from the vehicle or anyone,
+    beside the sample: the sample is read and nothing is counted bad, on a datagram read whole
+    (its CRC cannot be checked without the message's CRC extra) as on a stream (where pymavlink
+    passes it as an unknown message)."""
+    cls = data.draw(st.sampled_from(ARDUPILOT_ONLY))
+    other = raw_frame(cls, data.draw(st.binary(min_size=1, max_size=cls.unpacker.size)), sysid=sender)
+    ms, p, v, q = sample
+    d = _downlink(whole)
+    d.read(other + _lpos(ms, p, v) + other + _attq(ms, q), 3.0)
+    assert d.rx_bad == 0 and d.sample_ms == ms

@@ -9,7 +9,9 @@ would from a stream):
    (``frames.read_datagram``): a message of ``layouts`` comes with its field values (CRC
    checked) and no message object; one that ``wanted(msg_id)`` asks for is decoded by pymavlink
    (``bad`` if that fails); any other has its CRC checked only (``bad`` if it fails), for a
-   receiver that counts what it does not read;
+   receiver that counts what it does not read. A message the common set does not have (another
+   dialect's, such as ArduPilot's AHRS or EKF_STATUS_REPORT) has no CRC extra to check it by:
+   it is not ``bad``, as pymavlink's parser passes it on a stream (an unknown message);
 2. anything else (MAVLink 1, garbage, a frame cut short, a bad CRC in one of ``layouts``' frames)
    goes to pymavlink's parser, which drops what is bad as ``BAD_DATA`` (``bad``). A datagram
    ends every frame in it (``whole``, UDP): bytes left over are a frame cut short, reported once
@@ -60,8 +62,9 @@ def messages(
         for msg_id, system, component, values, frame in split:
             if values is not None:
                 yield Received(frame, msg_id, system, component, values)
-            elif not wanted(msg_id):
-                yield Received(frame, msg_id, system, component, bad=not frames.crc_ok(frame))
+            elif not wanted(msg_id):  # (another dialect's: not checkable, not bad, as pymavlink's parser)
+                bad = frames.known(msg_id) and not frames.crc_ok(frame)
+                yield Received(frame, msg_id, system, component, bad=bad)
             else:
                 try:
                     m = parser.decode(bytearray(frame))

@@ -155,6 +155,12 @@ def _crc_matches(frame: bytes, crc_extra: bytes) -> bool:
     return bool(_CRC.unpack_from(frame, len(frame) - 2)[0] == _crc(frame[1:-2], crc_extra))
 
 
+def known(msg_id: int) -> bool:
+    """Whether the common set has message ``msg_id`` (and so its CRC extra: a frame of another
+    dialect's message, such as ArduPilot's AHRS, cannot be checked by a receiver of this one)."""
+    return msg_id in mav.mavlink_map
+
+
 def crc_ok(frame: bytes) -> bool:
     """Whether a plain MAVLink 2 frame (as ``read_datagram`` returns it) of any message of the
     common set has a valid CRC: what a receiver that ignores the message still checks, to count it."""
