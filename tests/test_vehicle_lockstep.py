@@ -518,3 +518,25 @@ def test_in_lockstep_a_vehicle_with_sensors_sends_its_sensor_models_report_at_ev
             assert got == np.float32([n, e, -u, vn, ve, -vu]).tolist(), (got, [n, e, -u])
     finally:
         ep.close()
+
+
+def test_a_vehicle_closed_twice_raises_nothing_and_keeps_its_records(tmp_path):
+    """A vehicle's shutdown path and a ``finally`` may both close it: the second close does
+    nothing, and the truth rows written before stay readable."""
+    paths = {
+        "truth_path": tmp_path / "t.rows",
+        "tlog_path": tmp_path / "t.tlog",
+        "events_path": tmp_path / "e",
+    }
+    ep = recording_endpoint(7, lockstep_period_s=0.01, gcs_bind=("127.0.0.1", 0), **paths)
+    ep.armed, ep.mode = True, 1
+    link = mavlink2.MAVLink(None, 7, 191)
+    for _ in range(3):
+        sp = mavlink2.MAVLink_set_attitude_target_message(
+            ep.time_boot_ms, 7, 1, 0, [1, 0, 0, 0], 0, 0, 0, 0.3
+        )
+        ep.datagram(bytes(sp.pack(link)), ("127.0.0.1", 40007))
+    ep.close()
+    ep.close()
+    _, rows = read_rows(paths["truth_path"])
+    assert rows[:, 0].tolist() == [0.01, 0.02, 0.03]
