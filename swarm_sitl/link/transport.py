@@ -69,7 +69,6 @@ class Transport:
         except Exception as e:  # pymavlink raises many kinds for a bad connection string
             raise LinkError(f"cannot open MAVLink connection {url!r}: {e}") from None
         self.conn.mav.robust_parsing = True  # garbage becomes BAD_DATA, counted, not an exception
-        self.url = url
         self.faults = faults
         self.rx_bad = 0  #: datagrams with a wrong signature
         self.rx_refused = 0  #: unsigned or replayed datagrams on a signed link
