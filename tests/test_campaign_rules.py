@@ -3,6 +3,8 @@ the direction every harsher-when-smaller key is read in, a swept jitter that fli
 index past the list's end, the campaign a directory holds, when a run recovered and how long a
 failsafe lasted, a point that outlasts its wall budget, and a range's values up to its limit."""
 
+import copy
+import functools
 import math
 import re
 import sys
@@ -18,6 +20,7 @@ from swarm_sitl.campaigns.grid import MAX_POINTS, SweepSpecError, parse_values, 
 from swarm_sitl.campaigns.point import failsafe_s, recovered_after, run_point
 from swarm_sitl.campaigns.sweep import _open_campaign
 from swarm_sitl.config.load import parse_config
+from tests.support import config
 
 pytestmark = pytest.mark.unit
 
@@ -155,3 +158,79 @@ def test_a_range_is_every_step_from_its_start_to_its_stop_and_at_most_max_points
     got = parse_values("k.x", text)
     assert len(got) == n and got[0] == a and got[-1] <= stop
     assert np.array_equal(np.diff(got), np.full(n - 1, d))
+
+
+#: a user's link model in a file, with one parameter (the link-model contract: ``faults.link_model``)
+DARK = """
+from pydantic import BaseModel, Field
+
+from swarm_sitl.faults.link_model import Effect
+
+
+class Dark:
+    class Params(BaseModel):
+        dark: float = Field(ge=0, le=1)
+
+    def fate(self, p, m):
+        return Effect(lost=True) if (m.t_s % 1.0) < p.dark else None
+"""
+
+_LEVEL = st.sampled_from([0.0, 0.25, 0.5])  #: a swept value, 0 among them (no entry)
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    link=st.fixed_dictionaries({h: _LEVEL for h in ("loss", "corrupt", "duplicate", "reorder")}),
+    mavlink=st.fixed_dictionaries({h: _LEVEL for h in ("loss", "corrupt")}),
+    bursty_p=st.sampled_from([None, 0.0, 0.05]),
+    range_m=st.sampled_from([None, 30.0]),
+    dark=st.sampled_from([None, 0.4]),
+    shipped=st.booleans(),
+    kept=st.lists(st.sampled_from([{"into": 2, "loss": 0.1}, {"mavlink": 3, "corrupt": 0.2}]), max_size=2),
+)
+def test_a_points_plan_is_the_bases_then_one_entry_per_follower_or_edge_for_each_swept_fault(
+    tmp_path_factory, link, mavlink, bursty_p, range_m, dark, shipped, kept
+):
+    """``point_data``: the base config's own plan entries first, unchanged; then for each of
+    ``link.{loss,corrupt,duplicate,reorder}`` swept above 0 an entry into every follower; each
+    link model swept (a bursty link with ``p`` 0 puts none, and the models after it still do),
+    one entry on every edge, a user's model by its entry (the copy shipped beside the run, else
+    its file from where the campaign runs); then each ``mavlink.*`` above 0 on every follower's
+    MAVLink link."""
+    where = tmp_path_factory.mktemp("campaign")
+    (where / "dark.py").write_text(DARK)
+    base = _base_with_plan(kept)
+    ids = [f["id"] for f in base["followers"]]
+    point: dict[str, float] = {f"link.{h}": v for h, v in link.items()}
+    want = [*kept]
+    want += [
+        {"into": i, h: link[h]} for h in ("loss", "corrupt", "duplicate", "reorder") if link[h] for i in ids
+    ]
+    if bursty_p is not None:
+        point |= {"link.bursty.p": bursty_p, "link.bursty.r": 0.3}
+        want += [{"all_edges": True, "bursty": {"p": bursty_p, "r": 0.3}}] if bursty_p else []
+    if range_m is not None:
+        point["link.range.range_m"] = range_m
+        want.append({"all_edges": True, "range": {"range_m": range_m}})
+    if dark is not None:
+        point[f"link.{where / 'dark.py'}:Dark.dark"] = dark
+        entry = "plugins/dark.py:Dark" if shipped else f"{(where / 'dark.py').resolve()}:Dark"
+        want.append({"all_edges": True, "model": {"entry": entry, "params": {"dark": dark}}})
+    point |= {f"mavlink.{h}": v for h, v in mavlink.items()}
+    want += [{"mavlink": i, h: mavlink[h]} for h in ("loss", "corrupt") if mavlink[h] for i in ids]
+    ships = {f"{where / 'dark.py'}:Dark": "plugins/dark.py:Dark"} if shipped else None
+    data = point_data(base, point, 11, ships)
+    assert data["faults"]["plan"] == want and data["seed"] == 11
+    assert base["faults"]["plan"] == kept  # the base is not changed
+
+
+@functools.cache
+def _paper_data() -> dict:
+    return config("paper").data()
+
+
+def _base_with_plan(kept: list[dict]) -> dict:
+    """The paper config's data with ``kept`` as its own fault plan."""
+    data = copy.deepcopy(_paper_data())
+    data.setdefault("faults", {})["plan"] = [dict(e) for e in kept]
+    return data
