@@ -17,6 +17,7 @@ from swarm_sitl.config.law_entry import LawEntryError, check_contract, validate_
 from swarm_sitl.config.load import ConfigError, load_config
 from swarm_sitl.laws.contract import MAX_MESSAGE_LENGTH, AttitudeCommand, LawOutput, Received, VehicleSample
 from swarm_sitl.nodes.assembly import build_law
+from swarm_sitl.nodes.law_guard import LawExit, LawStopped
 from swarm_sitl.nodes.law_host import HostedLaw, LawError
 from swarm_sitl.running.sim import SimFailedError, run_sim
 from tests.support import CLI, CONFIGS, cli
@@ -166,6 +167,12 @@ def _out(q=LEVEL, thrust=5.0, message=None, record=None) -> LawOutput:
         (None, "step returned NoneType, not a LawOutput"),
         ((LEVEL, 5.0, np.zeros(3)), "its command is ndarray, not an AttitudeCommand"),
         (ZeroDivisionError("division by zero"), "ZeroDivisionError: division by zero"),
+        (SystemExit(3), "it called sys.exit(3), which ends nothing here"),
+        (LawExit(4), "it called os._exit(4), which ends nothing here"),
+        (LawStopped("its step outlasted 0.5 s"), "its step outlasted 0.5 s"),
+        (_out(message=["a", "b", "c"]), "its message is not numbers (list)"),
+        (_out(record=np.zeros(5)), "its record is (5,), not a mapping or an array of 2"),
+        (_out(record=[1.0, 2.0]), "its record is list, not a mapping or an array of 2"),
     ],
 )
 def test_a_tick_that_breaks_the_contract_is_one_line_naming_the_law_the_follower_and_the_time(out, says):
