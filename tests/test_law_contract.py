@@ -374,3 +374,29 @@ def test_a_command_of_wrong_shapes_is_one_line_naming_each_fields_shape(q, w, wd
         host.step(0.25, sample, {})
     said = f"(got q_c {q}, omega_c_B {w}, omegadot_c_B {wd}, thrust_N {type(thrust).__name__})"
     assert str(e.value).endswith(said) and "must be arrays of 4, 3, 3 floats" in str(e.value), str(e.value)
+
+
+@pytest.mark.unit
+@pytest.mark.parametrize(
+    ("members", "says"),
+    [
+        ({"message_length": 3, "record_fields": {}}, "no step(t_s, sample, inbox) method"),
+        ({"record_fields": {}, "step": lambda self, t, s, i: None}, "no message_length (an int)"),
+        ({"message_length": 3, "step": lambda self, t, s, i: None}, "no record_fields"),
+        ({"message_length": 3, "record_fields": {}, "step": 3}, "no step(t_s, sample, inbox) method"),
+        (
+            {"message_length": 3, "record_fields": {"a b": 1}, "step": lambda self, t, s, i: None},
+            "'a b' is not a name",
+        ),
+        (
+            {"message_length": 3, "record_fields": {1: 1}, "step": lambda self, t, s, i: None},
+            "field 1 is not a name",
+        ),
+    ],
+)
+def test_a_class_missing_any_member_of_the_law_contract_is_one_line_naming_it(members, says):
+    """Each member the law protocol declares (``laws.contract.Law``), removed or of the wrong kind
+    (a step that is not a method, a record field that is not a name), is named in one line."""
+    with pytest.raises(LawEntryError) as e:
+        check_contract(type("L", (), members), "e")
+    assert str(e.value).startswith("entry 'e': ") and says in str(e.value), str(e.value)
