@@ -16,7 +16,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from swarm_sitl.campaigns.breaking import breaking_point, harsher_smaller, toward
-from swarm_sitl.campaigns.grid import MAX_POINTS, SweepSpecError, parse_values, point_data
+from swarm_sitl.campaigns.grid import MAX_POINTS, SweepSpecError, check_key, parse_values, point_data
 from swarm_sitl.campaigns.point import failsafe_s, recovered_after, run_point
 from swarm_sitl.campaigns.sweep import _open_campaign
 from swarm_sitl.config.load import parse_config
@@ -234,3 +234,27 @@ def _base_with_plan(kept: list[dict]) -> dict:
     data = copy.deepcopy(_paper_data())
     data.setdefault("faults", {})["plan"] = [dict(e) for e in kept]
     return data
+
+
+@pytest.mark.parametrize(
+    ("key", "says"),
+    [
+        (
+            "mavlink.reorder",
+            r"sweep mavlink\.reorder: mavlink\.\* is one of mavlink\.loss, mavlink\.corrupt$",
+        ),
+        (
+            "mavlink.delay_s",
+            r"sweep mavlink\.delay_s: mavlink\.\* is one of mavlink\.loss, mavlink\.corrupt$",
+        ),
+        ("link.loss.extra", r"sweep link\.loss\.extra: link\.MODEL\.PARAM is a model of bursty, range, "),
+        ("link.lost", r"sweep link\.lost: link\.\* is one of link\.loss, "),
+        ("mavlink.loss.x", r"sweep mavlink\.loss\.x: mavlink\.\* is one of mavlink\.loss, mavlink\.corrupt$"),
+    ],
+)
+def test_a_shorthand_key_of_no_fault_a_run_can_fly_is_one_line_naming_those_it_can(key, says):
+    """``mavlink.*`` takes the MAVLink faults a lockstep run flies (``loss``, ``corrupt``: a
+    duplicate or a delay of a setpoint would not be one tick's), ``link.*`` the link's; any other
+    is refused naming what may be swept."""
+    with pytest.raises(SweepSpecError, match=says):
+        check_key(key)
