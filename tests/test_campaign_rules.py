@@ -16,7 +16,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from swarm_sitl.campaigns.breaking import breaking_point, harsher_smaller, toward
-from swarm_sitl.campaigns.grid import MAX_POINTS, SweepSpecError, check_key, parse_values, point_data
+from swarm_sitl.campaigns.grid import MAX_POINTS, SweepSpecError, check_key, grid, parse_values, point_data
 from swarm_sitl.campaigns.point import failsafe_s, recovered_after, run_point
 from swarm_sitl.campaigns.sweep import _open_campaign
 from swarm_sitl.config.load import parse_config
@@ -258,3 +258,16 @@ def test_a_shorthand_key_of_no_fault_a_run_can_fly_is_one_line_naming_those_it_c
     is refused naming what may be swept."""
     with pytest.raises(SweepSpecError, match=says):
         check_key(key)
+
+
+def test_a_grid_is_every_combination_up_to_max_points_and_one_more_is_one_line():
+    """``grid``: the product of the swept values, the first key slowest, up to ``MAX_POINTS``
+    points (100 x 1000 of them taken), one more refused naming the count."""
+    a, b = [float(i) for i in range(100)], [float(j) for j in range(MAX_POINTS // 100)]
+    points = grid([("a", a), ("b", b)])
+    assert (
+        len(points) == MAX_POINTS and points[0] == {"a": 0.0, "b": 0.0} and points[1] == {"a": 0.0, "b": 1.0}
+    )
+    assert points[-1] == {"a": 99.0, "b": b[-1]}
+    with pytest.raises(SweepSpecError, match=rf"^sweep: {MAX_POINTS + 100} points, more than {MAX_POINTS}$"):
+        grid([("a", a), ("b", [*b, -1.0])])

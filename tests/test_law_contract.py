@@ -8,6 +8,7 @@ from pathlib import Path
 from typing import ClassVar, NamedTuple
 
 import numpy as np
+import pydantic
 import pytest
 import yaml
 from hypothesis import given, settings
@@ -400,3 +401,28 @@ def test_a_class_missing_any_member_of_the_law_contract_is_one_line_naming_it(me
     with pytest.raises(LawEntryError) as e:
         check_contract(type("L", (), members), "e")
     assert str(e.value).startswith("entry 'e': ") and says in str(e.value), str(e.value)
+
+
+class _Checked(pydantic.BaseModel):
+    k: float = 1.0
+
+    @pydantic.field_validator("k")
+    @classmethod
+    def _positive(cls, v: float) -> float:
+        if not v > 0:
+            raise ValueError(f"k must be positive, got {v}")
+        return v
+
+
+@pytest.mark.unit
+def test_a_laws_params_are_refused_in_one_line_naming_what_it_declares_and_its_own_reason():
+    """A law that declares no ``Params`` takes no parameter (the line says it declares none); a
+    pydantic ``Params``' own refusal is its reason, without pydantic's "Value error, " prefix."""
+    bare = type("L", (), {})
+    assert validate_params(bare, {}, "e") == {}
+    with pytest.raises(
+        LawEntryError, match=r"^params: it has no parameter x \(it declares none\) \(law e\)$"
+    ):
+        validate_params(bare, {"x": 1.0}, "e")
+    with pytest.raises(LawEntryError, match=r"^params\.k: k must be positive, got -1\.0 \(law e\)$"):
+        validate_params(type("L", (), {"Params": _Checked}), {"k": -1.0}, "e")

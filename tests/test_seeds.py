@@ -30,6 +30,8 @@ def test_every_stream_takes_the_run_seed_unless_its_section_pins_one(run_seed):
         ("faults", "law", "sensors"), run_seed
     )
     assert "wind 11 (pinned by its section)" in seed_lines(pinned)[0]
+    streams = ", ".join(f"{n} {run_seed}" for n in STREAMS)
+    assert seed_lines(cfg) == [f"seeds: run {run_seed}; streams: {streams}"]  # none pinned: nothing more
 
 
 @pytest.mark.unit
