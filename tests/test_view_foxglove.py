@@ -56,10 +56,12 @@ class _Client:
             subs.append({"id": sid, "channelId": self.channels[topic]["id"]})
         self.ws.send(json.dumps({"op": "subscribe", "subscriptions": subs}))
 
-    def messages(self, until_s: float) -> list[tuple[str, int, dict]]:
-        """(topic, log time [ns], message) until nothing comes for ``until_s`` or the server is gone."""
-        out = []
-        self.ws.settimeout(until_s)
+    def messages(self, until_s: float, first_s: float | None = None) -> list[tuple[str, int, dict]]:
+        """(topic, log time [ns], message) until nothing comes for ``until_s`` or the server is gone;
+        ``first_s``: how long the first message may take (a run still starting its processes on a
+        loaded machine sends nothing yet: that silence is not its end)."""
+        out: list[tuple[str, int, dict]] = []
+        self.ws.settimeout(until_s if first_s is None else first_s)
         while True:
             try:
                 data = self.ws.recv()
@@ -72,6 +74,7 @@ class _Client:
             if isinstance(data, bytes) and data[0] == 1:
                 _, sid, ns = MESSAGE_DATA.unpack_from(data)
                 out.append((self._topic_of[sid], ns, json.loads(data[MESSAGE_DATA.size :])))
+                self.ws.settimeout(until_s)
 
     def close(self) -> None:
         self.ws.close()
@@ -184,7 +187,7 @@ def test_a_lockstep_run_streams_where_it_recorded_each_follower(tmp_path):
         assert m, line
         client = _Client(m.group(1))  # (the run is starting up: its processes, then the start)
         client.subscribe("/follower_1/pose", "/leader/pose")
-        got = client.messages(5.0)  # until the run is over and nothing comes
+        got = client.messages(5.0, first_s=60.0)  # until the run is over and nothing comes
         client.close()
         _, err = proc.communicate(timeout=120)
     finally:
