@@ -65,6 +65,23 @@ def config_data(name: str) -> dict:
     return yaml.safe_load((CONFIGS / f"{name}.yaml").read_text())
 
 
+#: a user's link model in a file (the link-model contract: ``faults.link_model``), with one parameter:
+#: messages lost while ``m.t_s`` is within the first ``dark`` of each second
+BLACKOUT_MODEL = """
+from pydantic import BaseModel, Field
+
+from swarm_sitl.faults.link_model import Effect
+
+
+class Blackout:
+    class Params(BaseModel):
+        dark: float = Field(ge=0, le=1)
+
+    def fate(self, p, m):
+        return Effect(lost=True) if (m.t_s % 1.0) < p.dark else None
+"""
+
+
 # -- ports and processes -------------------------------------------------------------------------------
 def free_udp_port() -> int:
     """A loopback UDP port free now."""

@@ -3,8 +3,6 @@ the direction every harsher-when-smaller key is read in, a swept jitter that fli
 index past the list's end, the campaign a directory holds, when a run recovered and how long a
 failsafe lasted, a point that outlasts its wall budget, and a range's values up to its limit."""
 
-import copy
-import functools
 import math
 import re
 import sys
@@ -20,7 +18,7 @@ from swarm_sitl.campaigns.grid import MAX_POINTS, SweepSpecError, check_key, gri
 from swarm_sitl.campaigns.point import failsafe_s, recovered_after, run_point
 from swarm_sitl.campaigns.sweep import _open_campaign
 from swarm_sitl.config.load import parse_config
-from tests.support import config
+from tests.support import BLACKOUT_MODEL, config
 
 pytestmark = pytest.mark.unit
 
@@ -160,21 +158,6 @@ def test_a_range_is_every_step_from_its_start_to_its_stop_and_at_most_max_points
     assert np.array_equal(np.diff(got), np.full(n - 1, d))
 
 
-#: a user's link model in a file, with one parameter (the link-model contract: ``faults.link_model``)
-DARK = """
-from pydantic import BaseModel, Field
-
-from swarm_sitl.faults.link_model import Effect
-
-
-class Dark:
-    class Params(BaseModel):
-        dark: float = Field(ge=0, le=1)
-
-    def fate(self, p, m):
-        return Effect(lost=True) if (m.t_s % 1.0) < p.dark else None
-"""
-
 _LEVEL = st.sampled_from([0.0, 0.25, 0.5])  #: a swept value, 0 among them (no entry)
 
 
@@ -198,7 +181,7 @@ def test_a_points_plan_is_the_bases_then_one_entry_per_follower_or_edge_for_each
     its file from where the campaign runs); then each ``mavlink.*`` above 0 on every follower's
     MAVLink link."""
     where = tmp_path_factory.mktemp("campaign")
-    (where / "dark.py").write_text(DARK)
+    (where / "blackout.py").write_text(BLACKOUT_MODEL)
     base = _base_with_plan(kept)
     ids = [f["id"] for f in base["followers"]]
     point: dict[str, float] = {f"link.{h}": v for h, v in link.items()}
@@ -213,25 +196,20 @@ def test_a_points_plan_is_the_bases_then_one_entry_per_follower_or_edge_for_each
         point["link.range.range_m"] = range_m
         want.append({"all_edges": True, "range": {"range_m": range_m}})
     if dark is not None:
-        point[f"link.{where / 'dark.py'}:Dark.dark"] = dark
-        entry = "plugins/dark.py:Dark" if shipped else f"{(where / 'dark.py').resolve()}:Dark"
+        point[f"link.{where / 'blackout.py'}:Blackout.dark"] = dark
+        entry = "plugins/blackout.py:Blackout" if shipped else f"{(where / 'blackout.py').resolve()}:Blackout"
         want.append({"all_edges": True, "model": {"entry": entry, "params": {"dark": dark}}})
     point |= {f"mavlink.{h}": v for h, v in mavlink.items()}
     want += [{"mavlink": i, h: mavlink[h]} for h in ("loss", "corrupt") if mavlink[h] for i in ids]
-    ships = {f"{where / 'dark.py'}:Dark": "plugins/dark.py:Dark"} if shipped else None
+    ships = {f"{where / 'blackout.py'}:Blackout": "plugins/blackout.py:Blackout"} if shipped else None
     data = point_data(base, point, 11, ships)
     assert data["faults"]["plan"] == want and data["seed"] == 11
     assert base["faults"]["plan"] == kept  # the base is not changed
 
 
-@functools.cache
-def _paper_data() -> dict:
-    return config("paper").data()
-
-
 def _base_with_plan(kept: list[dict]) -> dict:
     """The paper config's data with ``kept`` as its own fault plan."""
-    data = copy.deepcopy(_paper_data())
+    data = config("paper").data()
     data.setdefault("faults", {})["plan"] = [dict(e) for e in kept]
     return data
 

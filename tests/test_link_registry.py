@@ -223,23 +223,6 @@ def test_a_space_entry_a_model_cannot_take_is_one_line_naming_it(entry, said):
         Space.model_validate({"entries": [entry]})
 
 
-#: a user's link model with one parameter, in a file: messages lost while ``m.t_s`` is within the
-#: first ``dark`` of each second
-BLACKOUT = """
-from pydantic import BaseModel, Field
-
-from swarm_sitl.faults.link_model import Effect
-
-
-class Blackout:
-    class Params(BaseModel):
-        dark: float = Field(ge=0, le=1)
-
-    def fate(self, p, m):
-        return Effect(lost=True) if (m.t_s % 1.0) < p.dark else None
-"""
-
-
 @pytest.mark.system
 @pytest.mark.lockstep
 def test_a_users_model_named_by_its_entry_is_swept_and_searched(tmp_path, monkeypatch):
@@ -249,7 +232,7 @@ def test_a_users_model_named_by_its_entry_is_swept_and_searched(tmp_path, monkey
     from swarm_sitl.campaigns.sweep import sweep
     from swarm_sitl.falsify.search import falsify
 
-    (tmp_path / "blackout.py").write_text(BLACKOUT)
+    (tmp_path / "blackout.py").write_text(support.BLACKOUT_MODEL)
     data = support.config_data("paper")
     data["duration_s"], data["run"] = 4.0, {**data.get("run", {}), "settle_s": 1.0}
     config = tmp_path / "short.yaml"
