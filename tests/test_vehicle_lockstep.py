@@ -24,7 +24,7 @@ from sim_vehicles.runtime import udp_arrival
 from sim_vehicles.runtime.row_log import read_rows
 from sim_vehicles.vehicle import lockstep_tick, loops
 from sim_vehicles.vehicle.endpoint import VehicleEndpoint
-from tests.fakes import answers, recording_endpoint
+from tests.fakes import ENDPOINT_PARAMS, answers, recording_endpoint
 
 pytestmark = pytest.mark.integration
 mav = mavutil.mavlink
@@ -243,7 +243,6 @@ from sim_vehicles.vehicle.endpoint import VehicleEndpoint
 from sim_vehicles.vehicle.modes import MODE_OFFBOARD
 from sim_vehicles.mavlink.signing import Signer
 from sim_vehicles.plant.params import AttitudeGains, VehicleParams
-from sim_vehicles.plant.sensors import SensorModel
 from sim_vehicles.common.state import make_state
 
 def loaded():
@@ -425,12 +424,7 @@ def test_a_lockstep_period_of_any_whole_number_of_steps_steps_that_many_and_no_o
     milliseconds is taken, and a setpoint stamped with the vehicle's time advances it exactly k
     steps and k dt of ``time_boot_ms``; a period between two multiples is refused in one line."""
     dt = dt_ms / 1000
-    ap = Autopilot(
-        VehicleParams(0.85, (0.05, 0.05, 0.09), 25.0),
-        AttitudeGains(16.0, 16.0),
-        make_state([0.0, 0.0, 5.0]),
-        dt,
-    )
+    ap = Autopilot(ENDPOINT_PARAMS, AttitudeGains(16.0, 16.0), make_state([0.0, 0.0, 5.0]), dt)
     ep = recording_endpoint(7, ap, lockstep_period_s=k * dt)
     try:
         link = mavlink2.MAVLink(None, srcSystem=7, srcComponent=191)
@@ -474,8 +468,7 @@ def test_in_real_time_a_vehicle_goes_on_from_its_own_time_and_says_when_its_time
     (``boot_unix_s``, what the run's merge puts its samples on the wall clock by) is the start
     less ``k0`` steps, and it steps on from ``k0``, never ahead of the wall clock (one step of
     the clock's reading between the two ends)."""
-    params = VehicleParams(0.85, (0.05, 0.05, 0.09), 25.0)
-    ap = Autopilot(params, AttitudeGains(16.0, 16.0), make_state([0.0, 0.0, 5.0]), 0.001)
+    ap = Autopilot(ENDPOINT_PARAMS, AttitudeGains(16.0, 16.0), make_state([0.0, 0.0, 5.0]), 0.001)
     ap.step_index = k0
     ep = VehicleEndpoint(ap, 7)
     try:
