@@ -150,12 +150,14 @@ ENDPOINT_PARAMS = VehicleParams(0.85, (0.05, 0.05, 0.09), 25.0)
 def recording_endpoint(system_id: int = 3, autopilot: Any = None, **endpoint: Any) -> VehicleEndpoint:
     """A vehicle endpoint driven in process (``VehicleEndpoint`` with ``endpoint``'s fields), its
     ``autopilot`` (by default the plain one hovering at 10 m), its datagrams kept by a
-    ``RecordingSocket`` (``answers``)."""
+    ``RecordingSocket`` on each of its ports (``answers``)."""
     if autopilot is None:
         autopilot = Autopilot(ENDPOINT_PARAMS, AttitudeGains(16.0, 16.0), make_state([0.0, 0.0, 10.0]), 0.001)
     ep = VehicleEndpoint(autopilot, system_id, **endpoint)
-    ep.port.sock.close()
-    ep.port.sock = RecordingSocket()
+    for port in (ep.port, ep.gcs):  # (the ground station's too, where it has one)
+        if port is not None:
+            port.sock.close()
+            port.sock = RecordingSocket()
     return ep
 
 

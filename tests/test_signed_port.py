@@ -18,7 +18,7 @@ from sim_vehicles.mavlink.px4_profile import COMPANION
 from sim_vehicles.mavlink.signing import Signer
 from sim_vehicles.vehicle import port as port_module
 from sim_vehicles.vehicle.port import PEER_SILENT_S, EndpointStats, Port, Tlog
-from tests.fakes import RecordingSocket, recording_endpoint
+from tests.fakes import recording_endpoint
 
 KEY, OTHER = bytes(range(32)), bytes(range(1, 33))
 
@@ -116,8 +116,6 @@ def test_both_ports_of_a_signed_vehicle_answer_only_the_signed_and_sign_their_an
     with the key is answered, signed; an unsigned one is refused, counted against its port
     (``unsigned_by_port``), and answered by nothing."""
     ep = recording_endpoint(3, signing_key=KEY, gcs_bind=("127.0.0.1", 0))
-    ep.gcs.sock.close()
-    ep.gcs.sock = RecordingSocket()
     ports = {"controller": ep.port, "ground station": ep.gcs}
     unsigned = {"controller": 0, "ground_station": 0}
     link, signer = mav.MAVLink(None, srcSystem=255, srcComponent=190), Signer(KEY)
