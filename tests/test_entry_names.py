@@ -8,7 +8,7 @@ from pathlib import Path
 from typing import NamedTuple
 
 import pytest
-from hypothesis import given
+from hypothesis import given, settings
 from hypothesis import strategies as st
 from pydantic import BaseModel, Field
 
@@ -21,6 +21,7 @@ _PART = st.text(alphabet="abc:.-_", min_size=1, max_size=6).filter(lambda s: s n
 _NAME = st.from_regex(r"[A-Za-z_][A-Za-z0-9_]{0,8}", fullmatch=True)
 
 
+@settings(max_examples=40)
 @given(parts=st.lists(_PART, min_size=1, max_size=3), name=_NAME)
 def test_a_file_entry_is_split_at_its_last_colon_and_made_absolute_against_the_configs_folder(parts, name):
     where = "/".join([*parts, "law.py"])
