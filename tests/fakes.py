@@ -1,9 +1,10 @@
 """In-process fakes of the bench's interfaces, shared by the tests that drive a piece without its
 processes: an in-memory node bus (``MemoryBus``) and a publisher's (``Publisher``), a real-time
 clock the test sets (``ManualClock``), the leader's bus with no one on it (``LeaderBus``) with
-the short config a leader's tests fly (``leader_config``), a socket that keeps what a vehicle
-driven in process sends (``RecordingSocket``), and such a vehicle (``recording_endpoint``) with
-what it answers a message (``answers``)."""
+the short config a leader's tests fly (``leader_config``), where a pymavlink link writes what it
+sends (``FrameSink``), a socket that keeps what a vehicle driven in process sends
+(``RecordingSocket``), and such a vehicle (``recording_endpoint``) with what it answers a message
+(``answers``)."""
 
 import time
 from typing import Any
@@ -127,6 +128,16 @@ def leader_config():
 
     cfg = config("paper").model_copy(update={"duration_s": 8.0})
     return cfg.model_copy(update={"run": cfg.run.model_copy(update={"stall_timeout_s": 0.3})})
+
+
+class FrameSink:
+    """Where a pymavlink ``MAVLink`` object writes what it sends (its ``file``): keeps every frame."""
+
+    def __init__(self) -> None:
+        self.frames: list[bytes] = []
+
+    def write(self, data: bytes) -> None:
+        self.frames.append(bytes(data))
 
 
 class RecordingSocket:

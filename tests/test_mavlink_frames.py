@@ -19,6 +19,7 @@ from hypothesis import strategies as st
 from pymavlink.dialects.v20 import common as mav
 
 from sim_vehicles.mavlink import frames
+from tests.fakes import FrameSink
 from tests.support import raw_frame
 
 pytestmark = pytest.mark.unit
@@ -39,14 +40,6 @@ OTHER_KINDS = [
     frames.Layout(mav.MAVLink_timesync_message),
     frames.Layout(mav.MAVLink_wheel_distance_message),
 ]
-
-
-class _Sink:
-    def __init__(self) -> None:
-        self.frames: list[bytes] = []
-
-    def write(self, data: bytes) -> None:
-        self.frames.append(bytes(data))
 
 
 def _f32(x: float) -> float:
@@ -105,7 +98,7 @@ def _afresh_or_not(layout: frames.Layout, draw: st.DrawFn) -> frames.Layout:
 def test_frames_are_byte_identical_to_pymavlink_and_read_back_the_same(data, seq, sysid, compid):
     layout = _afresh_or_not(data.draw(st.sampled_from(LAYOUTS)), data.draw)
     values = _values(layout, data.draw)
-    ref, ours = mav.MAVLink(_Sink(), sysid, compid), mav.MAVLink(_Sink(), sysid, compid)
+    ref, ours = mav.MAVLink(FrameSink(), sysid, compid), mav.MAVLink(FrameSink(), sysid, compid)
     ref.seq = ours.seq = seq
     ref.send(_pymavlink_message(layout, values))
     frame = frames.pack_frame(ours, layout, values)
@@ -123,7 +116,7 @@ def test_frames_are_byte_identical_to_pymavlink_and_read_back_the_same(data, seq
 
 
 def test_trailing_zero_fields_shorten_the_frame_and_read_back_as_zero():
-    ours = mav.MAVLink(_Sink(), 1, 1)
+    ours = mav.MAVLink(FrameSink(), 1, 1)
     frame = frames.pack_frame(ours, frames.LOCAL_POSITION_NED, (5, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0))
     assert frame[1] == 8  # time_boot_ms and x: the zeros after them are not sent
     ((_, _, _, got, _),) = frames.read_datagram(frame, {32: frames.LOCAL_POSITION_NED})
@@ -131,7 +124,7 @@ def test_trailing_zero_fields_shorten_the_frame_and_read_back_as_zero():
 
 
 def _two_frames() -> tuple[bytes, bytes]:
-    link = mav.MAVLink(_Sink(), 3, 1)
+    link = mav.MAVLink(FrameSink(), 3, 1)
     a = frames.pack_frame(link, frames.LOCAL_POSITION_NED, (10, 1.0, 2.0, 3.0, 0.1, 0.2, 0.3))
     link.heartbeat_send(mav.MAV_TYPE_QUADROTOR, mav.MAV_AUTOPILOT_GENERIC, 0, 0, 0)
     return a, link.file.frames[0]
@@ -162,7 +155,7 @@ def test_anything_but_plain_mavlink2_frames_goes_to_pymavlink(mangle):
 
 
 def test_pack_frame_leaves_signing_to_pymavlink():
-    link = mav.MAVLink(_Sink(), 1, 1)
+    link = mav.MAVLink(FrameSink(), 1, 1)
     link.signing.sign_outgoing = True
     with pytest.raises(ValueError, match="sign"):
         frames.pack_frame(link, frames.LOCAL_POSITION_NED, (1, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0))
@@ -180,7 +173,7 @@ def test_a_udp_link_knows_when_a_sample_arrived_without_reading_it_then():
         assert link.stamps_arrivals
         link.send_heartbeat_if_due()
         _, controller_addr = vehicle.recvfrom(512)
-        tx = mav.MAVLink(_Sink(), 3, 1)
+        tx = mav.MAVLink(FrameSink(), 3, 1)
         # a first datagram, read: the kernel turns receive stamps on for the whole system lazily
         # (a deferred job), and one that comes before that is stamped when it is read
         vehicle.sendto(
@@ -271,7 +264,7 @@ def test_a_link_checks_the_telemetry_it_ignores_and_counts_what_is_bad():
     (``MAVLink_unknown``)."""
     with _vehicle_and_link() as (vehicle, link, controller_addr):
         assert not link.stamps_arrivals
-        tx = mav.MAVLink(_Sink(), 3, 1)
+        tx = mav.MAVLink(FrameSink(), 3, 1)
         sample = _sample_pass(tx, 40)
         attitude = frames.pack_frame(tx, frames.ATTITUDE, (40, 0.1, 0.2, 0.3, 0.0, 0.0, 0.0))
         corrupted = attitude[:-1] + bytes([attitude[-1] ^ 0xFF])
@@ -290,7 +283,7 @@ def test_a_link_checks_the_telemetry_it_ignores_and_counts_what_is_bad():
 def test_a_lockstep_read_stops_at_the_sample_it_waits_for_and_leaves_the_rest_queued():
     """``poll(until_ms=...)``: once the sample of that instant is in, the link stops reading (a
     lockstep tick needs nothing more); what came after it is read by the next poll."""
-    tx = mav.MAVLink(_Sink(), 3, 1)
+    tx = mav.MAVLink(FrameSink(), 3, 1)
     with _vehicle_and_link() as (vehicle, link, controller_addr):
         for datagram in (
             _sample_pass(tx, 10),
@@ -312,7 +305,7 @@ def test_a_signed_link_reads_its_sample_and_refuses_the_rest():
 
     key = key_from_passphrase("run key")
     signer = Signer(key)
-    tx = mav.MAVLink(_Sink(), 3, 1)
+    tx = mav.MAVLink(FrameSink(), 3, 1)
 
     def deliver(datagram: bytes) -> None:
         vehicle.sendto(datagram, controller_addr)
@@ -349,7 +342,7 @@ def test_compiled_frames_are_byte_identical_to_pymavlink_and_read_back_the_same(
     """``pack_into``/``read_into`` (the kernels of ``tick_frames``) against pymavlink itself."""
     layout = _afresh_or_not(data.draw(st.sampled_from(LAYOUTS + OTHER_KINDS)), data.draw)
     values = _values(layout, data.draw)
-    ref = mav.MAVLink(_Sink(), sysid, compid)
+    ref = mav.MAVLink(FrameSink(), sysid, compid)
     ref.seq = seq
     ref.send(_pymavlink_message(layout, values))
     expected = ref.file.frames[0]

@@ -13,20 +13,16 @@ from pymavlink.dialects.v20 import common as mav
 
 from sim_vehicles.mavlink import frames
 from swarm_sitl.link.vehicle_link import VehicleLink
+from tests.fakes import FrameSink
 
 pytestmark = pytest.mark.integration
 SYS = 3
 
 
-class _Sink:
-    def write(self, data: bytes) -> None:
-        pass
-
-
 def _stream(samples: list[int]) -> bytes:
     """A vehicle's HEARTBEAT, then a sample (LOCAL_POSITION_NED and ATTITUDE_QUATERNION) at each
     instant of ``samples`` [ms], up 1 m more each time."""
-    tx = mav.MAVLink(_Sink(), SYS, 1)
+    tx = mav.MAVLink(FrameSink(), SYS, 1)
     out = bytes(mav.MAVLink_heartbeat_message(2, 12, 0, 4, 3, 3).pack(tx))
     for k, ms in enumerate(samples):
         out += frames.pack_frame(tx, frames.LOCAL_POSITION_NED, (ms, 1.0, 2.0, -float(k), 0.0, 0.0, 0.0))

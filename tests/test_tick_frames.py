@@ -16,6 +16,7 @@ from sim_vehicles.mavlink import frames
 from sim_vehicles.mavlink import tick_frames as tf
 from sim_vehicles.mavlink.enu_ned import swap_frames_wxyz
 from sim_vehicles.mavlink.wire_format import AttitudeTargetFields, decode_attitude_target
+from tests.fakes import FrameSink
 from tests.strategies import unit_quaternions, vec3
 
 pytestmark = pytest.mark.unit
@@ -28,14 +29,6 @@ for _cls in (mav.MAVLink_attitude_message, mav.MAVLink_highres_imu_message):
     IGNORED[_cls.id] = _cls.crc_extra
 
 
-class _Sink:
-    def __init__(self) -> None:
-        self.frames: list[bytes] = []
-
-    def write(self, data: bytes) -> None:
-        self.frames.append(bytes(data))
-
-
 def _f32(*values: float) -> tuple[float, ...]:
     return struct.unpack(f"<{len(values)}f", struct.pack(f"<{len(values)}f", *values))
 
@@ -46,7 +39,7 @@ def _state(p, v, q, w) -> np.ndarray:
 
 def _reference_sample_frames(x: np.ndarray, ms: int, seq: int) -> tuple[bytes, bytes]:
     """What the vehicle must send for state ``x``, built by pymavlink from fields computed here."""
-    ref = mav.MAVLink(_Sink(), 3, 1)
+    ref = mav.MAVLink(FrameSink(), 3, 1)
     ref.seq = seq
     ref.local_position_ned_send(ms, *_f32(x[1], x[0], -x[2], x[4], x[3], -x[5]))
     q = swap_frames_wxyz(*x[6:10].tolist())
@@ -81,7 +74,7 @@ def test_read_sample_counts_the_telemetry_it_ignores_and_leaves_the_rest_to_the_
     x = _state(np.array([1.0, 2.0, 3.0]), np.zeros(3), np.array([1.0, 0, 0, 0]), np.zeros(3))
     lpos, attq = _reference_sample_frames(x, 40, 0)
     later, _ = _reference_sample_frames(x, 50, 2)
-    other = mav.MAVLink(_Sink(), 3, 1)
+    other = mav.MAVLink(FrameSink(), 3, 1)
     other.heartbeat_send(mav.MAV_TYPE_QUADROTOR, mav.MAV_AUTOPILOT_GENERIC, 0, 0, 0)
     other.attitude_send(40, 0.1, 0.2, 0.3, 0.0, 0.0, 0.0)
     other.sys_status_send(0, 0, 0, 0, 12000, -1, -1, 0, 0, 0, 0, 0, 0)  # not in IGNORED: unknown here
@@ -115,7 +108,7 @@ def test_setpoint_frame_is_pymavlinks_and_the_vehicle_reads_the_command_sim_uses
     frame = out[:n].tobytes()
 
     fields = _f32(*swap_frames_wxyz(*q_c.tolist()), w[0], -w[1], -w[2], min(max(thrust / 25.0, 0.0), 1.0))
-    ref = mav.MAVLink(_Sink(), 7, 191)
+    ref = mav.MAVLink(FrameSink(), 7, 191)
     ref.seq = seq
     ref.set_attitude_target_send(ms, 7, 1, 0, list(fields[0:4]), *fields[4:8])
     assert frame == ref.file.frames[0]
@@ -132,7 +125,7 @@ def test_setpoint_frame_is_pymavlinks_and_the_vehicle_reads_the_command_sim_uses
 
 
 def test_read_setpoint_takes_one_whole_frame_and_flags_a_bad_quaternion():
-    ref = mav.MAVLink(_Sink(), 7, 191)
+    ref = mav.MAVLink(FrameSink(), 7, 191)
     ref.set_attitude_target_send(10, 7, 1, 0, [1.0, 0.0, 0.0, 0.0], 0.0, 0.0, 0.0, 0.5)
     ref.set_attitude_target_send(10, 7, 1, 0, [0.5, 0.0, 0.0, 0.0], 0.0, 0.0, 0.0, 0.5)
     good, not_unit = ref.file.frames
