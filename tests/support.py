@@ -137,6 +137,12 @@ def cmdline(pid: int) -> str:
         return ""
 
 
+def ppid_and_sid(pid: int) -> tuple[int, int]:
+    """Process ``pid``'s parent and session (``/proc/<pid>/stat``, after the command's brackets)."""
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return int(fields[1]), int(fields[3])
+
+
 def processes_mentioning(text: str) -> list[int]:
     """Live processes whose command line contains ``text`` (a run directory): what a run left."""
     found = []

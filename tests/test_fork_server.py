@@ -13,7 +13,7 @@ import pytest
 
 from swarm_sitl.running.children import PARENT_ENV, child_env, module_argv
 from swarm_sitl.running.fork_server import ForkServer
-from tests.support import CONFIGS, cli_ok
+from tests.support import CONFIGS, cli_ok, ppid_and_sid
 
 #: (no wall clock to the millisecond here: generous timeouts only, so beside other tests)
 pytestmark = [
@@ -36,11 +36,6 @@ def server(tmp_path, request):
     s = ForkServer(argv, env, tmp_path / "server.log", here=request.param == "here")
     yield s
     s.close()
-
-
-def _ppid_and_sid(pid: int) -> tuple[int, int]:
-    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    return int(fields[1]), int(fields[3])
 
 
 def _alive(pid: int) -> bool:
@@ -69,7 +64,7 @@ def test_a_child_runs_in_its_own_session_under_the_server_and_reports_its_signal
     while "listening on udp:127.0.0.1:" not in (tmp_path / "v.log").read_text():
         assert vehicle.poll() is None and time.monotonic() < end, (tmp_path / "v.log").read_text()
         time.sleep(0.05)
-    ppid, sid = _ppid_and_sid(vehicle.pid)
+    ppid, sid = ppid_and_sid(vehicle.pid)
     assert ppid == server.proc.pid and sid == vehicle.pid  # forked by the server, setsid as Popen's
     os.kill(vehicle.pid, signal.SIGKILL)
     assert vehicle.wait(timeout=10) == -signal.SIGKILL

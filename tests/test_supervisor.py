@@ -4,6 +4,7 @@ code and its last tick; one ridden through is recorded and the run goes on; a re
 whose ticks stop, or a run past its end, is named."""
 
 import json
+import signal
 import sys
 import time
 from pathlib import Path
@@ -16,7 +17,7 @@ from sim_vehicles.runtime.counter_file import CounterFile
 from swarm_sitl.nodes.law_guard import HARD_STOP_S
 from swarm_sitl.rundir.layout import procs_dir, tick_path
 from swarm_sitl.running import ends
-from swarm_sitl.running.supervisor import RunFailedError, Supervisor
+from swarm_sitl.running.supervisor import Child, RunFailedError, Supervisor
 from tests.support import config
 
 pytestmark = pytest.mark.integration
@@ -38,13 +39,14 @@ def _supervisor(tmp_path: Path) -> Supervisor:
 
 
 class _Frozen:
-    """A fault plan that stopped the processes of ``names`` and killed none."""
+    """A fault plan that stopped the processes of ``names`` and killed those of ``killed``."""
 
-    def __init__(self, names: set[str]):
+    def __init__(self, names: set[str], killed: frozenset[str] = frozenset()):
         self.names = names
+        self.killed = killed
 
-    def planned_exit(self, child: object, code: int) -> bool:
-        return False
+    def planned_exit(self, child: Child, code: int) -> bool:
+        return child.process in self.killed and code == -signal.SIGKILL
 
     def frozen(self, process: str) -> bool:
         return process in self.names
@@ -149,7 +151,9 @@ def test_a_real_time_controller_whose_ticks_stop_is_named_and_a_run_past_its_end
     cfg = config("paper")
     sup = _supervisor(tmp_path)
     tick = _ticked(tmp_path, "controller_4", 120)
+    leader_tick = _ticked(tmp_path, "leader", 30)  # stalled too: only a controller's ticks are watched
     try:
+        sup.spawn("leader", _sleeps(), True)
         sup.spawn("controller_4", _sleeps(), True)
         t0 = 1000.0
         watch = ends.TickWatch(cfg, tmp_path, t0)
@@ -169,14 +173,24 @@ def test_a_real_time_controller_whose_ticks_stop_is_named_and_a_run_past_its_end
             r".* last tick 121, t=1.210 s$",
         ):
             watch.check(sup.children, t0 + 1.0 + 2 * watch.allowed_s + 0.6)
-        tick.set(cfg.n_control_steps + 1)  # its last tick: done, not stalled
+        tick.set(cfg.n_control_steps + 1)  # its last tick: done, not stalled (writing its figures)
+        assert 5.0 + 2 * watch.allowed_s < cfg.duration_s
+        watch.check(sup.children, t0 + 5.0)
+        watch.check(sup.children, t0 + 5.0 + 2 * watch.allowed_s)
         late = t0 + cfg.duration_s + watch.allowed_s + 0.1
         sup.spawn("vehicle_4", _sleeps(), False)  # a vehicle runs until torn down: not named
-        with pytest.raises(RunFailedError, match=r"^the run did not end .*: controller_4 still running$"):
+        with pytest.raises(
+            RunFailedError, match=r"^the run did not end .*: leader, controller_4 still running$"
+        ):
             watch.check(sup.children, late)
         watch.check(sup.children, late - 0.2)
+        for c in sup.children[:2]:
+            c.retired = True
+        with pytest.raises(RunFailedError, match=r"^the run did not end .*: no process still running$"):
+            watch.check(sup.children, late)
     finally:
         tick.close()
+        leader_tick.close()
         sup.close()
 
 
@@ -225,6 +239,7 @@ def test_a_child_stopped_by_no_plan_fails_the_run_after_its_grace_and_one_the_pl
 
     sup = _supervisor(tmp_path)
     try:
+        sup.spawn("controller_1", _sleeps(), True)  # running on: each child is looked at
         victim = sup.spawn("controller_2", _sleeps(), True)
         time.sleep(0.5)  # the interpreter is up
         victim.proc.send_signal(signal.SIGSTOP)
@@ -247,25 +262,6 @@ def test_a_child_stopped_by_no_plan_fails_the_run_after_its_grace_and_one_the_pl
     finally:
         sup.close()
     assert victim.proc.poll() is not None  # close() woke it and ended it
-
-
-def test_closing_ends_a_child_that_ignores_sigterm(tmp_path, monkeypatch):
-    import swarm_sitl.running.supervisor as supervisor
-
-    monkeypatch.setattr(supervisor, "TERM_GRACE_S", 0.5)
-    sup = _supervisor(tmp_path)
-    stubborn = [
-        sys.executable,
-        "-c",
-        "import signal, time; signal.signal(signal.SIGTERM, signal.SIG_IGN); time.sleep(60)",
-    ]
-    child = sup.spawn("vehicle_3", stubborn, False)
-    polite = sup.spawn("vehicle_4", _sleeps(), False)
-    time.sleep(0.5)
-    t0 = time.monotonic()
-    sup.close()
-    assert child.proc.poll() == -9 and polite.proc.poll() == -15
-    assert time.monotonic() - t0 < 0.5 + 2.0
 
 
 def test_a_controller_stuck_at_its_first_tick_is_named_and_one_that_never_ticked_is_left_to_the_start(
@@ -314,3 +310,34 @@ def test_the_exits_ridden_through_are_one_line_naming_every_process_and_the_firs
     else:  # (a handful: each whole, nothing added)
         assert line == "; ".join(whole)
     assert len(line) <= len("; ".join(whole)) + sum(len(n) + 2 for n in names) + 80
+
+
+def test_an_exit_the_plan_made_is_no_failure_and_the_same_exit_of_another_process_is(tmp_path):
+    sup = _supervisor(tmp_path)
+    rules = sup.rules
+    assert isinstance(rules, ends.RunExits)
+    rules.faults = _Frozen(set(), frozenset({"controller_3"}))
+    try:
+        killed = [sys.executable, "-c", "import os, signal; os.kill(os.getpid(), signal.SIGKILL)"]
+        for name in ("controller_3", "controller_2"):
+            sup.spawn(name, killed, True)
+        _ended(sup)
+        with pytest.raises(RunFailedError, match=r"^controller_2 exited with code -9"):
+            sup.check()
+    finally:
+        sup.close()
+
+
+def test_a_loss_with_no_run_epoch_yet_is_recorded_at_time_0(tmp_path):
+    """Lost before the run's epoch was known (a child lost while the run started): at t 0."""
+    procs_dir(tmp_path).mkdir(parents=True)
+    lost = ends.LostLog(tmp_path, None)
+    sup = _supervisor(tmp_path)
+    try:
+        child = sup.spawn("vehicle_1", _exits(1), False)
+        lost.add(child, 1, "vehicle_1 exited with code 1")
+    finally:
+        lost.close()
+        sup.close()
+    events = [json.loads(x) for x in (procs_dir(tmp_path) / "lost.events").read_text().splitlines()]
+    assert [(e["t_s"], e["process"], e["code"]) for e in events] == [(0.0, "vehicle_1", 1)]
