@@ -5,15 +5,18 @@ its limit with the count of what was dropped, and a step held where no signal re
 process with the line."""
 
 import io
+import math
 import os
 import subprocess
 import sys
 import threading
 import time
+from typing import ClassVar
 
 import numpy as np
 import pytest
 
+from swarm_sitl.laws.contract import Received, VehicleSample
 from swarm_sitl.nodes.law_guard import (
     HARD_STOP_S,
     WATCH_EVERY_S,
@@ -21,7 +24,10 @@ from swarm_sitl.nodes.law_guard import (
     LawExit,
     LawGuard,
     LawStopped,
+    max_output_bytes,
+    resident_bytes,
 )
+from swarm_sitl.nodes.law_host import HostedLaw, LawError
 
 pytestmark = pytest.mark.integration
 
@@ -177,3 +183,98 @@ def test_a_step_no_signal_reaches_ends_its_process_with_the_line():
         "so the process ends"
     )
     assert wall < 0.3 + HARD_STOP_S + 10.0
+
+
+class _Sleeper:
+    """A law whose step sleeps in compiled code (``time.sleep``) longer than it may: no stop
+    reaches it there."""
+
+    message_length = 1
+    record_fields: ClassVar[dict[str, int]] = {}
+
+    def __init__(self, sleep_s: float):
+        self.sleep_s = sleep_s
+
+    def step(self, t, sample, inbox):
+        time.sleep(self.sleep_s)
+        return None
+
+
+@pytest.mark.parametrize("told", [False, True])
+def test_a_step_held_past_the_hard_stop_ends_its_process_with_one_line_naming_the_law_and_the_reason(
+    monkeypatch, told
+):
+    """In the process itself (the process's end stood in for): a hosted law's step held in
+    compiled code past its timeout and the hard stop gives one line naming the law, the follower,
+    the time and the reason, to the step's own stderr or to ``on_hard_stop`` when the host gives
+    one, then the process ends with code 1; once the step returns, the stop it was sent is its
+    host's ``LawError`` with the guard's reason."""
+    import swarm_sitl.nodes.law_guard as law_guard
+
+    hard_s = 0.3
+    monkeypatch.setattr(law_guard, "HARD_STOP_S", hard_s)
+    exits: list[int] = []
+    monkeypatch.setattr(law_guard, "_REAL_EXIT", exits.append)
+    stderr, said = io.StringIO(), []
+    monkeypatch.setattr(sys, "stderr", stderr)
+    result: list[BaseException | None] = []
+
+    def worker() -> None:  # (not the main thread: the stop is an exception posted to it)
+        guard = LawGuard(0.3, None, None, 0, said.append if told else None)
+        host = HostedLaw(_Sleeper(0.3 + hard_s + 0.6), 7, "my_laws.py:Sleeper")
+        host.guard = guard
+        sample = VehicleSample(0.25, np.zeros(3), np.zeros(3), np.array([1.0, 0.0, 0.0, 0.0]))
+        try:
+            host.step(0.25, sample, {0: Received(np.zeros(12), 0.24, 0.01)})
+            result.append(None)
+        except BaseException as e:
+            result.append(e)
+        finally:
+            guard.close()
+
+    t = threading.Thread(target=worker)
+    t.start()
+    t.join(timeout=30)
+    reason = "its step did not return within 0.3 s (run.tick_timeout_s)"
+    line = (
+        f"law my_laws.py:Sleeper, follower 7 at t=0.250 s: {reason}; it did not stop {hard_s:g} s later "
+        "(held in compiled code?), so the process ends"
+    )
+    assert exits == [1]
+    assert (said, stderr.getvalue()) == (([line], "") if told else ([], line + "\n"))
+    assert len(result) == 1 and isinstance(result[0], LawError)
+    assert str(result[0]) == f"law my_laws.py:Sleeper, follower 7 at t=0.250 s: {reason}"
+
+
+def test_a_memory_bound_is_on_the_growth_not_on_the_process_size():
+    """A bound far under what the process already holds (the interpreter, numpy, the tests)
+    stops no step that grows nothing."""
+    size = resident_bytes()
+    assert size is not None and size > 30e6
+    guard = _guard(5.0, memory_mb=size / 1e6 / 4)
+    try:
+        assert _stepping(guard, lambda: time.sleep(4 * WATCH_EVERY_S)) is None
+        guard.after_step()  # (the peak is the process's: no growth)
+    finally:
+        guard.close()
+
+
+def test_an_unlimited_output_passes_whole():
+    target = io.StringIO()
+    guard = _guard(5.0, output=target, limit=max_output_bytes(math.inf))
+    text = "z" * 100_000
+    try:
+        assert _stepping(guard, lambda: print(text)) is None
+    finally:
+        guard.close()
+    assert target.getvalue() == text + "\n"
+    assert max_output_bytes(2.5) == 2_500_000
+
+
+def test_a_guard_left_open_does_not_keep_its_process_from_ending():
+    """A host that ends without closing its guard (an error on its way out) still ends: the
+    watchdog does not hold the interpreter."""
+    code = "from swarm_sitl.nodes.law_guard import LawGuard\nLawGuard(5.0, None, None, 0)\nprint('made')\n"
+    _guard(5.0).close()  # (the same guard here)
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert r.returncode == 0 and r.stdout == "made\n", r.stderr
