@@ -264,6 +264,47 @@ def test_a_child_stopped_by_no_plan_fails_the_run_after_its_grace_and_one_the_pl
     assert victim.proc.poll() is not None  # close() woke it and ended it
 
 
+#: a child that lets any process trace it and forks one that does (a debugger attached: the
+#: child is in a tracing stop, ``t`` in /proc, not ``T``); the tracer says whether it could attach
+_TRACED = """
+import ctypes, os, time
+libc = ctypes.CDLL(None, use_errno=True)
+libc.prctl(0x59616D61, ctypes.c_ulong(-1), 0, 0, 0)  # PR_SET_PTRACER, PR_SET_PTRACER_ANY
+me = os.getpid()
+if os.fork() == 0:
+    ok = libc.ptrace(16, me, 0, 0) == 0  # PTRACE_ATTACH
+    print("attached" if ok else f"no ptrace: {os.strerror(ctypes.get_errno())}", flush=True)
+    time.sleep(60)
+    os._exit(0)
+time.sleep(60)
+"""
+
+
+def test_a_child_held_by_a_debugger_fails_the_run_as_a_stopped_one_does(tmp_path, monkeypatch):
+    import swarm_sitl.running.supervisor as supervisor
+
+    monkeypatch.setattr(supervisor, "TERM_GRACE_S", 0.5)  # (a tracee takes no SIGTERM: killed at once)
+    sup = _supervisor(tmp_path)
+    try:
+        held = sup.spawn("controller_3", [sys.executable, "-c", _TRACED], True)
+        end = time.monotonic() + 20
+        while not held.last_line():
+            assert time.monotonic() < end
+            time.sleep(0.02)
+        if held.last_line() != "attached":  # (a container may forbid ptrace)
+            pytest.skip(f"no process may trace another here: {held.last_line()}")
+        while not held.stopped():
+            assert time.monotonic() < end
+            time.sleep(0.02)
+        sup.check()  # seen stopped from now
+        time.sleep(supervisor.STOPPED_GRACE_S + 0.1)
+        with pytest.raises(RunFailedError, match=r"^controller_3 is stopped \(SIGSTOP or a debugger\)"):
+            sup.check()
+    finally:
+        sup.close()
+    assert held.proc.poll() == -signal.SIGKILL
+
+
 def test_a_controller_stuck_at_its_first_tick_is_named_and_one_that_never_ticked_is_left_to_the_start(
     tmp_path,
 ):
