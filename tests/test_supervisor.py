@@ -203,11 +203,14 @@ def test_the_exit_line_says_why_from_the_log_for_a_failure_and_not_for_code_0(tm
             False,
         )
         sup.spawn("leader", [sys.executable, "-c", "print('a line that is not a reason')"], True)
+        garbled = "import sys; sys.stdout.buffer.write(b'bad \\xff\\xfe byte\\n'); sys.exit(4)"
+        sup.spawn("vehicle_2", [sys.executable, "-c", garbled], False)  # its last words not UTF-8
         _ended(sup)
         lines = [sup.exit_line(c, c.proc.poll()) for c in sup.children]
         assert lines == [
             "vehicle_1 exited with code 3: boom: it broke",
             "leader exited with code 0 before the run's end",
+            "vehicle_2 exited with code 4: bad \ufffd\ufffd byte",
         ]
         assert sup.children[1].first_tick == 0
     finally:
