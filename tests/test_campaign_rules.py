@@ -14,7 +14,15 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from swarm_sitl.campaigns.breaking import breaking_point, harsher_smaller, toward
-from swarm_sitl.campaigns.grid import MAX_POINTS, SweepSpecError, check_key, grid, parse_values, point_data
+from swarm_sitl.campaigns.grid import (
+    MAX_POINTS,
+    SweepSpecError,
+    check_key,
+    grid,
+    link_model_key,
+    parse_values,
+    point_data,
+)
 from swarm_sitl.campaigns.point import failsafe_s, recovered_after, run_point
 from swarm_sitl.campaigns.sweep import _open_campaign
 from swarm_sitl.config.load import parse_config
@@ -249,3 +257,24 @@ def test_a_grid_is_every_combination_up_to_max_points_and_one_more_is_one_line()
     assert points[-1] == {"a": 99.0, "b": b[-1]}
     with pytest.raises(SweepSpecError, match=rf"^sweep: {MAX_POINTS + 100} points, more than {MAX_POINTS}$"):
         grid([("a", a), ("b", [*b, -1.0])])
+
+
+_name = st.from_regex(r"[a-z_][a-z0-9_]{0,8}", fullmatch=True)
+
+
+@settings(max_examples=60)
+@given(
+    folders=st.lists(_name, max_size=2), stem=_name, cls=st.lists(_name, min_size=1, max_size=2), param=_name
+)
+def test_a_users_link_model_key_is_its_entry_then_the_parameter_after_the_class_names_last_dot(
+    folders, stem, cls, param
+):
+    """``link.FILE.py:CLASS.PARAM`` (a file in folders, a nested class): the entry and the
+    parameter; without a parameter, the entry alone (its file's dot is no parameter's); a built-in
+    model's key splits at its first dot; any other key is not a link model's."""
+    entry = "/".join([*folders, f"{stem}.py"]) + ":" + ".".join(cls)
+    if len(cls) == 1:  # (a nested class without a parameter reads as its outer class's)
+        assert link_model_key(f"link.{entry}") == (entry, "")
+    assert link_model_key(f"link.{entry}.{param}") == (entry, param)
+    assert link_model_key(f"link.{stem}.{param}") == (stem, param)
+    assert link_model_key(f"link.{stem}") is None and link_model_key(f"gains.{stem}.{param}") is None

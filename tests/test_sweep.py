@@ -65,6 +65,7 @@ def test_a_point_puts_one_entry_per_follower_and_sets_config_paths(paper_cfg):
     for point, message in [
         ({"gains.kp": 1.0}, r"sweep gains\.kp: no setting 'gains\.kp' in the config \(there: .*k_p"),
         ({"gains": 1.0}, r"sweep gains: gains is a section, not a value"),
+        ({"duration_s.x.y": 1.0}, r"^sweep duration_s\.x\.y: duration_s is a value, not a section$"),
         ({"followers.9.mass_kg": 1.0}, r"followers\.9: no item 9 \(the list has 4\)"),
         ({"link.lost": 0.1}, r"link\.\* is one of link\.loss, "),
         ({"faults.seed": 1.0}, r"the seed is --seeds"),
