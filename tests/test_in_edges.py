@@ -1,0 +1,149 @@
+"""A fault plan's stage on the edges into one node (``faults.in_edges.InEdges``) in lockstep, two
+ways: as ``sim`` drives it (``in_order``: a message on time or only delayed is filed or held by
+tick, without the heap) and as a controller process's bus does (every message through the heap).
+Lockstep equals ``sim`` bit for bit only if the two file the same messages at the same ticks, so
+for any plan of any hows and windows on the node's in-edges, any seed and any motion of the
+senders, they must: at every tick the same table, and at the end the same counts, in which every
+message received is accounted for (``received == delivered - duplicated + lost + corrupt +
+held``) at every tick; and no message is filed before the tick after its own."""
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from swarm_sitl.bus.clock import RunClock
+from swarm_sitl.bus.codec import Message
+from swarm_sitl.bus.estimates import EstimateTable
+from swarm_sitl.faults.in_edges import InEdges
+from swarm_sitl.faults.plan import FaultPlan
+
+pytestmark = pytest.mark.unit
+
+DT = 0.02
+TICKS = 40
+NODE = 3
+#: the leader 0 and followers 1 and 2 each send to follower 3 (and the leader to 1 and 2)
+EDGES = [(0, 1), (0, 2), (0, 3), (1, 3), (2, 3)]
+SOURCES = (0, 1, 2)
+
+_p = st.floats(0.05, 0.9)
+_delay = st.floats(0.0, 5 * DT)
+_how = st.one_of(
+    st.builds(lambda p: {"loss": p}, _p),
+    st.just({"drop": True}),
+    st.builds(lambda p, r: {"bursty": {"p": p, "r": r}}, _p, _p),
+    st.builds(lambda d, j: {"delay_s": d, "jitter_s": j}, _delay, _delay),
+    st.just({"stall": True}),
+    st.builds(lambda p: {"duplicate": p}, _p),
+    st.builds(lambda p: {"reorder": p}, _p),
+    st.builds(lambda p: {"corrupt": p}, _p),
+    st.builds(
+        lambda r, f, n: {"range": {"range_m": r, "fading_db": f, "retries": n, "retry_s": DT / 2}},
+        st.floats(2.0, 40.0),
+        st.floats(0.0, 10.0),
+        st.integers(0, 2),
+    ),
+)
+#: a sender's radio (on the edges out of it)
+_radio = st.builds(
+    lambda rate, q: {"bandwidth": {"rate_bps": rate, "queue": q}}, st.floats(4e3, 4e5), st.integers(0, 4)
+)
+_on = st.sampled_from([{"into": NODE}, {"edge": [0, NODE]}, {"edge": [1, NODE]}, {"edge": [2, NODE]}])
+_out_of = st.sampled_from([{"out_of": 1}, {"out_of": 2}, {"leader_edges": True}, {"all_edges": True}])
+
+
+@st.composite
+def _entry(draw) -> dict:
+    radio = draw(st.integers(0, 9)) == 0
+    e = {**draw(_out_of), **draw(_radio)} if radio else {**draw(_on), **draw(_how)}
+    start = draw(st.sampled_from([0.0, 0.1, 0.3]))
+    if start:
+        e["from_s"] = start
+    if e.get("stall") or draw(st.booleans()):
+        e["until_s"] = start + draw(st.sampled_from([0.1, 0.25, 0.5]))
+    return e
+
+
+def _stage(plan: FaultPlan, in_order: bool) -> InEdges:
+    stage = InEdges(EstimateTable(), plan, NODE, EDGES, RunClock(True, DT), TICKS * DT, {})
+    stage.in_order = in_order
+    return stage
+
+
+def _filed(table: EstimateTable) -> set[tuple[int, int, bytes]]:
+    return {
+        (m.src, m.step, m.values.tobytes()) for by_step in table._estimates.values() for m in by_step.values()
+    }
+
+
+def _accounted(stage: InEdges) -> None:
+    for src, s in stage.edge_stats().items():
+        assert s["received"] == s["delivered"] - s["duplicated"] + s["lost"] + s["corrupt"] + s["held"], (
+            src,
+            s,
+        )
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    entries=st.lists(_entry(), min_size=1, max_size=3),
+    seed=st.integers(0, 2**32),
+    speeds=st.lists(st.floats(-20.0, 20.0), min_size=3, max_size=3),
+)
+def test_sim_and_a_controllers_bus_file_the_same_messages_at_the_same_ticks_and_count_every_one(
+    entries, seed, speeds
+):
+    plan = FaultPlan(seed=seed, plan=entries)
+    sim, bus = _stage(plan, True), _stage(plan, False)
+    rng = np.random.default_rng(seed)
+    values = {s: rng.normal(size=(TICKS, 5 if s else 12)) for s in SOURCES}
+    for k in range(TICKS):
+        t = k * DT
+        for stage in (sim, bus):  # a tick: release, then the node publishes
+            stage.clock.tick = k
+            stage.release()
+            stage.published(Message(NODE, k, t, np.zeros(5), (0.0, 0.0, 0.0)))
+        seen = _filed(sim.table)
+        assert seen == _filed(bus.table), (k, seen ^ _filed(bus.table))
+        assert all(step < k for _, step, _ in seen)  # nothing before the tick after its own
+        for s in SOURCES:  # then every node's message of tick k comes
+            m = Message(s, k, t, values[s][k], (speeds[s] * t, 3.0 * s, 0.0))
+            sim.admit(m)
+            bus.admit(m)
+        _accounted(sim)
+        _accounted(bus)
+    for stage in (sim, bus):  # (sim files a message on time as it comes, the bus at the next tick)
+        stage.clock.tick = TICKS
+        stage.release()
+    assert _filed(sim.table) == _filed(bus.table)
+    assert sim.edge_stats() == bus.edge_stats()
+    assert all(s["received"] == TICKS for s in sim.edge_stats().values())
+    assert sim.table.dropped == bus.table.dropped
+    held = sorted((d, m.src, m.step, c) for d, m, c in sim.held())
+    assert held == sorted((d, m.src, m.step, c) for d, m, c in bus.held())
+    assert all(d > TICKS for d, *_ in held)  # what is still held is due after the last tick
+
+
+@settings(max_examples=30, deadline=None)
+@given(delay=st.floats(0.0, 5 * DT), seed=st.integers(0, 2**32))
+def test_a_delay_alone_files_each_message_the_ticks_it_says_after_its_own(delay, seed):
+    """A closed form: with only a fixed delay ``d`` on an edge, its message of tick ``s`` is
+    filed at tick ``s + 1 + ceil(d / dt)``, by both ways; the other edges' at ``s + 1``."""
+    plan = FaultPlan(seed=seed, plan=[{"edge": [1, NODE], "delay_s": delay}])
+    late = math.ceil(delay / DT - 1e-9)
+    for in_order in (True, False):
+        stage = _stage(plan, in_order)
+        for k in range(TICKS):
+            stage.clock.tick = k
+            stage.release()
+            for s in SOURCES:
+                filed = stage.table.latest(s)
+                want = k - 1 - (late if s == 1 else 0)
+                assert (filed.step if filed else -1) == (want if want >= 0 else -1), (in_order, k, s)
+            for s in SOURCES:
+                stage.admit(Message(s, k, k * DT, np.zeros(5), (0.0, 0.0, 0.0)))
+        st_ = stage.edge_stats()[1]
+        assert st_["delayed"] == (TICKS if delay > 0 else 0) and st_["delivered"] + st_["held"] == TICKS
