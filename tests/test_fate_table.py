@@ -53,8 +53,12 @@ def _same(a, b) -> bool:
     seed=st.integers(0, 2**63 - 1),
     plan=st.lists(st.tuples(hows, windows), min_size=1, max_size=4),
     stall=st.booleans(),
+    first=st.integers(0, 3 * BLOCK),
+    back=st.lists(st.integers(0, 2 * BLOCK), max_size=5),
 )
-def test_an_edges_table_gives_each_step_the_fate_plan_fate_gives_it(seed, plan, stall):
+def test_an_edges_table_gives_each_step_the_fate_plan_fate_gives_it(seed, plan, stall, first, back):
+    """From any first tick (a node restarted mid-block), in order, and with steps back (a message
+    delayed past later ones, any distance back): each tick's fate is ``plan.fate``'s."""
     what = {"edge": (2, 3)}
     rules = [(j, _entry(how, w, what)) for j, (how, w) in enumerate(plan)]
     if stall:  # (a stall's delay is its end less the message's time)
@@ -63,7 +67,11 @@ def test_an_edges_table_gives_each_step_the_fate_plan_fate_gives_it(seed, plan, 
     channel = edge_channel(2, 3)
     table = FateTable(seed, rules, channel, END_S, PERIOD_S)
     n = math.ceil(END_S / PERIOD_S) + BLOCK  # (past the run's end: every entry off)
-    for k in range(n):
+    ticks = list(range(min(first, n - 1), n))
+    for i, b in enumerate(back):  # a step back at evenly spread points of the walk
+        at = len(ticks) * (i + 1) // (len(back) + 1)
+        ticks.insert(at, max(0, ticks[at] - b))
+    for k in ticks:
         want = fate(seed, rules, channel, k, k * PERIOD_S, END_S, PERIOD_S)
         assert _same(table.at(k), want), (k, table.at(k), want)
 
@@ -79,13 +87,15 @@ def test_an_edges_table_gives_each_step_the_fate_plan_fate_gives_it(seed, plan, 
                 st.builds(lambda p: {"loss": p}, probability),
                 st.builds(lambda p: {"corrupt": p}, probability),
                 st.builds(lambda p, r: {"bursty": {"p": p, "r": r}}, probability, probability),
+                st.builds(lambda p: {"reorder": p}, probability),
+                st.builds(lambda p: {"duplicate": p}, probability),
             ),
             windows,
         ),
         min_size=1,
         max_size=3,
     ),
-    period_ms=st.sampled_from([4, 10, 20, 33]),
+    period_ms=st.sampled_from([4, 10, 20, 33, 500, 1000]),
 )
 def test_a_mavlink_links_table_gives_each_datagram_the_fate_keyed_by_its_time_boot_ms(seed, plan, period_ms):
     period_s = period_ms / 1000
