@@ -22,7 +22,7 @@ from pydantic import (
     model_validator,
 )
 
-from sim_vehicles.models import vehicle_config
+from sim_vehicles.models import vehicle_config as vehicle_configs  # (a method below is vehicle_config)
 from sim_vehicles.models.build import check as model_check
 from swarm_sitl.bus.access import NodeKeys, node_keys
 from swarm_sitl.bus.session import ZenohSection
@@ -371,7 +371,7 @@ class SwarmConfig(_Strict):
             return self
         try:  # the model and its parameters, as the vehicles will be built (cheap: no kernel runs)
             model_check(self.vehicle_config(ids[0]))
-        except vehicle_config.VehicleConfigError as e:
+        except vehicle_configs.VehicleConfigError as e:
             raise ValueError(str(e).replace("vehicle config: ", "vehicle: ", 1)) from None
         return self
 
@@ -404,7 +404,7 @@ class SwarmConfig(_Strict):
     def trajectory(self) -> Trajectory:
         return self.leader.trajectory.build()
 
-    def vehicle_config(self, i: int) -> vehicle_config.VehicleConfig:
+    def vehicle_config(self, i: int) -> vehicle_configs.VehicleConfig:
         """Follower ``i``'s vehicle, whole (``sim_vehicles.models``): what ``sim`` builds and
         what the run hands its vehicle process as one file. Each field of the vehicle's config comes from the
         ``vehicle:`` key of its name (declared there or taken as it is), or from the section
@@ -412,7 +412,7 @@ class SwarmConfig(_Strict):
         v, f = self.vehicle, self.follower(i)
         given = {**(v.model_extra or {}), **{k: getattr(v, k) for k in type(v).model_fields}}
         fields: dict[str, Any] = {}
-        for field in dataclasses.fields(vehicle_config.VehicleConfig):
+        for field in dataclasses.fields(vehicle_configs.VehicleConfig):
             if field.name in SET_ELSEWHERE:
                 value: Any = self
                 for part in SET_ELSEWHERE[field.name].split("."):
@@ -424,7 +424,7 @@ class SwarmConfig(_Strict):
             fields[field.name] = spec_value(value, field.type)
         fields["autopilot"] = f.autopilot or v.autopilot  # a follower's own in place of the swarm's
         fields["params"] = {k: float(x) for k, x in v.params.items()}
-        return vehicle_config.VehicleConfig(**fields)
+        return vehicle_configs.VehicleConfig(**fields)
 
     def control_gains(self, mass_kg: float | None = None) -> ControlGains:
         """The paper's law's kernel parameters (``paper_law_params`` and the vehicle's)."""
