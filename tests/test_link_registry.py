@@ -12,6 +12,8 @@ import random
 
 import pytest
 import yaml
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from pydantic import BaseModel, ConfigDict, Field
 
 from swarm_sitl.campaigns.breaking import harsher_smaller
@@ -285,3 +287,19 @@ def test_every_registered_model_is_in_the_guide_and_the_registrys_table_with_its
     table = [ln for ln in (link_models.__doc__ or "").splitlines() if ln.startswith(f"``{key}``")]
     assert f"`{key}`" in guide and f"`{module}.py`" in guide, (key, module)
     assert len(table) == 1 and table[0].rstrip().endswith(f"``{module}``"), (key, table)
+
+
+@pytest.mark.unit
+@settings(max_examples=30, deadline=None)
+@given(delay_s=st.floats(0.0, 0.2), jitter_s=st.floats(1e-3, 0.2), staleness_s=st.floats(0.45, 1.0))
+def test_a_delays_severity_is_its_mean_delay_to_the_spread_of_its_jitter(delay_s, jitter_s, staleness_s):
+    """A delay with jitter ``J`` is ``d + J U`` late (``U`` uniform): below staleness, each
+    message's severity has the spread ``J / sqrt(12) / staleness`` of a uniform's, so the mean of
+    ``SEVERITY_STEPS`` draws is within five of its standard errors of the declared severity (the
+    bound above is Popoviciu's, for any model, and far looser)."""
+    model, params = FaultEntry.model_validate(
+        {"edge": [0, 1], "delay_s": delay_s, "jitter_s": jitter_s}
+    ).link_how
+    own = severity_of(model, params, 0.02, staleness_s)
+    tol = 5 * jitter_s / math.sqrt(12) / staleness_s / math.sqrt(SEVERITY_STEPS) + 1e-12
+    assert abs(own - drawn_severity(model, params, 0.02, staleness_s)) <= tol
