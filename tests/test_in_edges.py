@@ -147,3 +147,27 @@ def test_a_delay_alone_files_each_message_the_ticks_it_says_after_its_own(delay,
                 stage.admit(Message(s, k, k * DT, np.zeros(5), (0.0, 0.0, 0.0)))
         st_ = stage.edge_stats()[1]
         assert st_["delayed"] == (TICKS if delay > 0 else 0) and st_["delivered"] + st_["held"] == TICKS
+
+
+@settings(max_examples=10, deadline=None)
+@given(seed=st.integers(0, 2**32), p=st.floats(0.1, 1.0))
+def test_a_corrupted_message_is_dropped_by_its_checksum_and_counted_never_filed(seed, p):
+    """Whichever byte a corruption flips, the message's CRC-32 catches it: the message is
+    dropped and counted (corrupt on its edge, dropped in the table), never filed; the rest of
+    the edge's messages are filed as they were sent."""
+    plan = FaultPlan(seed=seed, plan=[{"edge": [1, NODE], "corrupt": p}])
+    for in_order in (True, False):
+        stage = _stage(plan, in_order)
+        sent = {}
+        for k in range(TICKS + 1):
+            stage.clock.tick = k
+            stage.release()
+            m = sent[k] = Message(1, k, k * DT, np.full(5, 0.5 + k), (1.0, 2.0, 3.0))
+            stage.admit(m)
+        st_ = stage.edge_stats()[1]
+        filed = [stage.table.estimate(1, k) for k in range(TICKS + 1)]
+        assert all(f is None or np.array_equal(f.values, sent[k].values) for k, f in enumerate(filed))
+        n_filed = sum(f is not None for f in filed)
+        assert st_["corrupt"] == stage.table.dropped == TICKS + 1 - st_["delivered"] - st_["held"] > 0
+        assert n_filed == st_["delivered"]  # (each filed once)
+        assert st_["lost"] == 0
