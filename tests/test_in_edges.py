@@ -171,3 +171,31 @@ def test_a_corrupted_message_is_dropped_by_its_checksum_and_counted_never_filed(
         assert st_["corrupt"] == stage.table.dropped == TICKS + 1 - st_["delivered"] - st_["held"] > 0
         assert n_filed == st_["delivered"]  # (each filed once)
         assert st_["lost"] == 0
+
+
+@pytest.mark.parametrize("in_order", [True, False])
+@settings(max_examples=10, deadline=None)
+@given(queue=st.integers(0, 8), seed=st.integers(0, 2**32))
+def test_a_sender_whose_radio_carries_a_tenth_of_its_messages_loses_most_at_its_queue(in_order, queue, seed):
+    """Follower 1's radio at a tenth of the bits its message each tick needs: past its queue,
+    about nine in ten are dropped there (``queue_full``, of ``lost``); ten times the bits: none."""
+    from swarm_sitl.bus.codec import message_size
+
+    need_bps = 8 * message_size(5) / DT
+    for factor, most_lost in ((0.1, True), (10.0, False)):
+        plan = FaultPlan(
+            seed=seed, plan=[{"out_of": 1, "bandwidth": {"rate_bps": factor * need_bps, "queue": queue}}]
+        )
+        stage = _stage(plan, in_order)
+        for k in range(TICKS):
+            stage.clock.tick = k
+            stage.release()
+            stage.published(Message(NODE, k, k * DT, np.zeros(5), (0.0, 0.0, 0.0)))
+            for s in SOURCES:
+                stage.admit(Message(s, k, k * DT, np.zeros(5), (0.0, 0.0, 0.0)))
+        st_ = stage.edge_stats()[1]
+        if most_lost:
+            assert st_["queue_full"] >= 0.9 * TICKS - queue - 2 and st_["lost"] >= st_["queue_full"], st_
+        else:
+            assert st_["queue_full"] == 0 and st_["lost"] == 0, st_
+        assert stage.edge_stats()[2]["queue_full"] == 0  # (another sender's radio is its own)
