@@ -80,7 +80,7 @@ def test_a_runs_modules_are_forked_from_its_fork_server_with_their_environment_a
     )
     try:
         vehicle = sup.spawn(
-            "vehicle_3", [*module_argv("sim_vehicles"), "--id", "3", "--port", "0", "--duration", "2"], False
+            "vehicle_3", [*module_argv("sim_vehicles"), "--id", "3", "--port", "0", "--duration", "4"], False
         )
         other = sup.spawn("vehicle_4", [sys.executable, "-c", "import time; time.sleep(60)"], False)
         assert vehicle.pid > 0  # the server's answer: from here its log exists
