@@ -1,6 +1,7 @@
 """Config validation (one clear line per mistake) and the CLI."""
 
 import json
+import math
 import subprocess
 from pathlib import Path
 
@@ -11,7 +12,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from swarm_sitl.cli import main
-from tests.support import CLI, CONFIGS
+from tests.support import CLI, CONFIGS, config_data
 
 pytestmark = pytest.mark.integration
 
@@ -268,3 +269,47 @@ def test_a_config_loaded_again_unchanged_is_the_same_object_and_a_changed_one_is
     path.write_text(text.replace("duration_s: 60.0", "duration_s: 7.0"))
     changed = load_config(path)
     assert changed is not first and changed.duration_s == 7.0 and first.duration_s == 60.0
+
+
+#: a trajectory of each kind, and the key of it the test gives a bad value
+_TRAJECTORIES = [
+    ({"type": "helix", "radius_m": 5.0, "angular_rate_radps": 0.2, "climb_rate_mps": 1.0}, "radius_m"),
+    (
+        {"type": "figure_eight", "amplitude_x_m": 4.0, "amplitude_y_m": 2.0, "angular_rate_radps": 0.3},
+        "amplitude_y_m",
+    ),
+    ({"type": "line", "start_m": [0, 0, 1], "velocity_mps": [1, 0, 0]}, "start_m"),
+]
+
+
+@pytest.mark.parametrize(("trajectory", "bad"), _TRAJECTORIES)
+def test_a_trajectorys_bad_value_is_named_by_its_key_not_its_kinds_name(trajectory, bad):
+    """The line names ``leader.trajectory.KEY``, as the file is written, whichever kind of
+    trajectory it is (pydantic's path has the kind's name in it too), and the value given."""
+    from swarm_sitl.config.load import ConfigError, parse_config
+
+    data = config_data("paper")
+    data["leader"]["trajectory"] = {**trajectory, bad: "north"}
+    with pytest.raises(ConfigError) as e:
+        parse_config(data, "my.yaml")
+    line = str(e.value)
+    assert line.startswith(f"my.yaml: leader.trajectory.{bad}: ") and "'north'" in line, line
+
+
+def test_a_seed_and_a_duration_are_taken_over_their_whole_ranges_and_refused_just_past_them(paper_cfg):
+    """``--seed`` from 0 to 2**63 - 1 and ``--duration`` any time above 0 up to the longest
+    (under a second too): taken; just past either end: one line naming the flag."""
+    from swarm_sitl.config.load import ConfigError, with_duration, with_seed
+
+    for seed in (0, 1, 2**63 - 1):
+        assert with_seed(paper_cfg, seed).seed == seed
+    for seed in (-1, 2**63):
+        with pytest.raises(
+            ConfigError, match=rf"^--seed must be an integer from 0 to 2\*\*63 - 1, got {seed}$"
+        ):
+            with_seed(paper_cfg, seed)
+    for d in (0.05, 0.5, 1.0, 7.25):
+        assert with_duration(paper_cfg, d).duration_s == d
+    for d in (0.0, -1.0, math.inf, math.nan):
+        with pytest.raises(ConfigError, match="--duration"):
+            with_duration(paper_cfg, d)
