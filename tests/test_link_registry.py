@@ -303,3 +303,50 @@ def test_a_delays_severity_is_its_mean_delay_to_the_spread_of_its_jitter(delay_s
     own = severity_of(model, params, 0.02, staleness_s)
     tol = 5 * jitter_s / math.sqrt(12) / staleness_s / math.sqrt(SEVERITY_STEPS) + 1e-12
     assert abs(own - drawn_severity(model, params, 0.02, staleness_s)) <= tol
+
+
+@pytest.mark.unit
+@settings(max_examples=40, deadline=None)
+@given(
+    p=st.floats(0.01, 1.0),
+    delay_s=st.floats(0.0, 2.0),
+    jitter_s=st.floats(0.0, 1.0),
+    staleness_s=st.floats(0.1, 1.0),
+    br=st.tuples(st.floats(0.01, 1.0), st.floats(0.01, 1.0)),
+)
+def test_a_models_severity_is_its_closed_form_cut_at_1(p, delay_s, jitter_s, staleness_s, br):
+    """Closed forms, no draw: every message lost, 1; a loss or a corruption of chance ``p``,
+    ``p``; a bursty link, its chain's stationary loss ``p / (p + r)`` (all lost in the bad
+    state); a delay, its mean over staleness, cut at 1 (an estimate past staleness is lost)."""
+
+    def sev(key: str, value: object, **extra: object) -> float:
+        model, params = FaultEntry.model_validate({"edge": [0, 1], key: value, **extra}).link_how
+        return severity_of(model, params, 0.02, staleness_s)
+
+    gp, gr = br
+    assert sev("drop", True) == 1.0
+    assert sev("loss", p) == p and sev("corrupt", p) == p
+    assert sev("bursty", {"p": gp, "r": gr}) == pytest.approx(gp / (gp + gr), rel=1e-12)
+    assert sev("delay_s", delay_s, jitter_s=jitter_s) == min(1.0, (delay_s + jitter_s / 2) / staleness_s)
+    # and drawn: every message lost is 1, every one on time 0, exactly
+    for key, value, want in (("drop", True, 1.0), ("delay_s", 0.0, 0.0), ("duplicate", p, 0.0)):
+        model, params = FaultEntry.model_validate({"edge": [0, 1], key: value}).link_how
+        assert drawn_severity(model, params, 0.02, staleness_s) == want, key
+
+
+@pytest.mark.unit
+def test_the_parameters_harsher_when_smaller_are_a_radios_range_rate_and_queue_and_a_bursts_way_back():
+    """Read from each registered model's declarations: exactly these parameters hurt more as they
+    shrink (a sweep or a search reads them from the largest down); every other one as it grows."""
+    declared = {
+        (key, name)
+        for key, cls in LINK_MODELS.items()
+        for name in getattr(cls, "Params", BaseModel).model_fields
+        if harsher_when_smaller(cls.Params, name)
+    }
+    assert declared == {
+        ("range", "range_m"),
+        ("bandwidth", "rate_bps"),
+        ("bandwidth", "queue"),
+        ("bursty", "r"),
+    }
