@@ -275,6 +275,6 @@ def test_a_guard_left_open_does_not_keep_its_process_from_ending():
     """A host that ends without closing its guard (an error on its way out) still ends: the
     watchdog does not hold the interpreter."""
     code = "from swarm_sitl.nodes.law_guard import LawGuard\nLawGuard(5.0, None, None, 0)\nprint('made')\n"
-    _guard(5.0).close()  # (the same guard here)
+    _guard(5.0).close()  # (one built here too: a mutation tester maps a test by what it runs in-process)
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
     assert r.returncode == 0 and r.stdout == "made\n", r.stderr
