@@ -9,7 +9,9 @@ import csv
 import json
 import math
 import random
+import re
 
+import numpy as np
 import pytest
 import yaml
 from hypothesis import given, settings
@@ -24,6 +26,7 @@ from swarm_sitl.faults import link_models
 from swarm_sitl.faults.link_model import (
     SEVERITY_STEPS,
     Effect,
+    Effects,
     declared,
     drawn_severity,
     harsher_when_smaller,
@@ -350,3 +353,79 @@ def test_the_parameters_harsher_when_smaller_are_a_radios_range_rate_and_queue_a
         ("bandwidth", "queue"),
         ("bursty", "r"),
     }
+
+
+class _Timed:
+    """An honest model whose effect reads each message's time: 1 ms late per 100 ms of run."""
+
+    class Params(BaseModel):
+        pass
+
+    def fate(self, p, m):
+        return Effect(delay_s=0.001 * int(m.t_s * 10 + 1e-9))
+
+    def fates(self, p, ms):
+        none = np.zeros(len(ms.steps), dtype=bool)
+        return Effects(none, none, 0.001 * np.floor(ms.t_s * 10 + 1e-9), none)
+
+
+class _Liar:
+    """``fates`` says what ``fate`` says (every fifth step 2 ms late), but on the steps ``step %
+    every == at`` it adds ``flaw``: corrupt, duplicated, 0.5 s more late, or (where ``fate`` says
+    lost, which hides the rest) nothing a receiver would see."""
+
+    class Params(BaseModel):
+        flaw: str
+        every: int
+        at: int
+
+    def _late(self, step):
+        return np.where(np.asarray(step) % 5 == 0, 0.002, 0.0)
+
+    def fate(self, p, m):
+        lost = p.flaw == "hidden" and m.step % p.every == p.at
+        return Effect(lost=bool(lost), delay_s=float(self._late(m.step)))
+
+    def fates(self, p, ms):
+        hit = ms.steps % p.every == p.at
+        none = np.zeros(len(ms.steps), dtype=bool)
+        late = self._late(ms.steps) + np.where(hit & (p.flaw == "late"), 0.5, 0.0)
+        lost = hit if p.flaw == "hidden" else none
+        corrupt = hit & (p.flaw in ("corrupt", "hidden"))
+        return Effects(lost, corrupt, late, hit & (p.flaw == "duplicate"))
+
+
+@pytest.mark.unit
+@settings(max_examples=30, deadline=None)
+@given(
+    flaw=st.sampled_from(["corrupt", "duplicate", "late", "hidden"]),
+    every=st.integers(7, 200),
+    at=st.integers(0, 6),
+    seed=st.integers(0, 2**32),
+)
+def test_the_fates_check_names_the_first_flawed_message_with_both_fates_and_passes_an_honest_model(
+    flaw, every, at, seed
+):
+    """``fates_disagreement`` (what ``check`` runs on a user's model): a ``fates`` that differs
+    from ``fate`` in any one field is named at a flawed step, each side's fate said as a receiver
+    sees it, the same line for the same seed; a difference hidden by a loss, and an honest model
+    that reads the messages' times, pass."""
+    from swarm_sitl.faults.link_model import fates_disagreement
+
+    assert fates_disagreement(_Timed(), _Timed.Params(), 0.02, seed) is None
+    params = _Liar.Params(flaw=flaw, every=every, at=at)
+    line = fates_disagreement(_Liar(), params, 0.02, seed)
+    if flaw == "hidden":
+        assert line is None
+        return
+    assert line is not None and line == fates_disagreement(_Liar(), params, 0.02, seed)
+    step = int(re.search(r"at step (\d+) ", line).group(1))
+    assert step % every == at, line
+    late = step % 5 == 0  # (every fifth step 2 ms late on both sides)
+    fate_says = "0.002 s late" if late else "on time"
+    fates_says = {
+        "corrupt": "corrupt" + (", 0.002 s late" if late else ""),
+        "duplicate": "duplicated" + (", 0.002 s late" if late else ""),
+        "late": f"{0.5 + (0.002 if late else 0.0):g} s late",
+    }[flaw]
+    assert line.endswith(f": fate() says {fate_says}, fates() {fates_says}"), line
