@@ -73,6 +73,14 @@ def _stage(plan: FaultPlan, in_order: bool) -> InEdges:
     return stage
 
 
+def _tick(stage: InEdges, k: int) -> None:
+    """The node's tick ``k``, as its loop runs it: what is due is filed, then it publishes (where
+    it is, for what waits on the distance)."""
+    stage.clock.tick = k
+    stage.release()
+    stage.published(Message(NODE, k, k * DT, np.zeros(5), (0.0, 0.0, 0.0)))
+
+
 def _filed(table: EstimateTable) -> set[tuple[int, int, bytes]]:
     return {
         (m.src, m.step, m.values.tobytes()) for by_step in table._estimates.values() for m in by_step.values()
@@ -102,10 +110,8 @@ def test_sim_and_a_controllers_bus_file_the_same_messages_at_the_same_ticks_and_
     values = {s: rng.normal(size=(TICKS, 5 if s else 12)) for s in SOURCES}
     for k in range(TICKS):
         t = k * DT
-        for stage in (sim, bus):  # a tick: release, then the node publishes
-            stage.clock.tick = k
-            stage.release()
-            stage.published(Message(NODE, k, t, np.zeros(5), (0.0, 0.0, 0.0)))
+        for stage in (sim, bus):
+            _tick(stage, k)
         seen = _filed(sim.table)
         assert seen == _filed(bus.table), (k, seen ^ _filed(bus.table))
         assert all(step < k for _, step, _ in seen)  # nothing before the tick after its own
@@ -137,8 +143,7 @@ def test_a_delay_alone_files_each_message_the_ticks_it_says_after_its_own(delay,
     for in_order in (True, False):
         stage = _stage(plan, in_order)
         for k in range(TICKS):
-            stage.clock.tick = k
-            stage.release()
+            _tick(stage, k)
             for s in SOURCES:
                 filed = stage.table.latest(s)
                 want = k - 1 - (late if s == 1 else 0)
@@ -160,8 +165,7 @@ def test_a_corrupted_message_is_dropped_by_its_checksum_and_counted_never_filed(
         stage = _stage(plan, in_order)
         sent = {}
         for k in range(TICKS + 1):
-            stage.clock.tick = k
-            stage.release()
+            _tick(stage, k)
             m = sent[k] = Message(1, k, k * DT, np.full(5, 0.5 + k), (1.0, 2.0, 3.0))
             stage.admit(m)
         st_ = stage.edge_stats()[1]
@@ -188,9 +192,7 @@ def test_a_sender_whose_radio_carries_a_tenth_of_its_messages_loses_most_at_its_
         )
         stage = _stage(plan, in_order)
         for k in range(TICKS):
-            stage.clock.tick = k
-            stage.release()
-            stage.published(Message(NODE, k, k * DT, np.zeros(5), (0.0, 0.0, 0.0)))
+            _tick(stage, k)
             for s in SOURCES:
                 stage.admit(Message(s, k, k * DT, np.zeros(5), (0.0, 0.0, 0.0)))
         st_ = stage.edge_stats()[1]
