@@ -236,8 +236,6 @@ def test_a_leader_says_its_last_tick_and_tick_0_is_a_tick(tmp_path):
 
 
 def test_a_child_stopped_by_no_plan_fails_the_run_after_its_grace_and_one_the_plan_stopped_does_not(tmp_path):
-    import signal
-
     from swarm_sitl.running.supervisor import STOPPED_GRACE_S
 
     sup = _supervisor(tmp_path)
