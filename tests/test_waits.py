@@ -27,18 +27,27 @@ def test_a_sleep_reads_inputs_as_they_come_and_ends_at_its_deadline_though_none_
     a, b = socket.socketpair()
     with a, b:
         a.setblocking(False)
-        got: list[bytes] = []
+        got: list[tuple[bytes, float]] = []
 
         def read() -> None:
             with contextlib.suppress(BlockingIOError):  # (nothing there)
-                got.append(a.recv(100))
+                got.append((a.recv(100), time.monotonic()))
 
+        # The byte is sent 0.05 s in, the deadline is 1 s in: a loaded machine may start the
+        # sender late, but not by the 0.95 s between them. The sender is joined before the
+        # sockets close, so it never writes to a closed one.
         start = time.monotonic()
-        threading.Timer(0.05, lambda: b.send(b"x")).start()
-        _ends(lambda: sleep_until(start + 0.2, [a.fileno()], read), 3.0)
-        assert got == [b"x"] and time.monotonic() - start >= 0.2  # read when it came; slept to the end
+        deadline = start + 1.0
+        sender = threading.Timer(0.05, lambda: b.send(b"x"))
+        sender.start()
+        _ends(lambda: sleep_until(deadline, [a.fileno()], read), 4.0)
+        sender.join()
+        assert [data for data, _ in got] == [b"x"]
+        assert got[0][1] < deadline  # read when it came, not at the deadline
+        assert time.monotonic() >= deadline  # and slept to the end
         start = time.monotonic()
         _ends(lambda: sleep_until(start + 0.1, [a.fileno()], read), 3.0)  # nothing comes at all
+        assert len(got) == 1
 
 
 def test_a_wait_calls_its_idle_hook_while_it_waits_and_past_its_timeout_says_what_it_waited_for():
