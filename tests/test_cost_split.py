@@ -85,11 +85,12 @@ def test_thread_cpu_tells_the_main_thread_from_the_others():
     ended = threading.Thread(target=burn, args=(0.1,))
     ended.start()
     ended.join()  # a thread that has ended is no longer counted
-    done = threading.Event()
-    waiting = threading.Thread(target=lambda: (burn(0.15), done.wait()))
+    burnt, done = threading.Event(), threading.Event()
+    waiting = threading.Thread(target=lambda: (burn(0.15), burnt.set(), done.wait()))
     waiting.start()
     burn(0.1)
-    time.sleep(0.3)  # the other thread has burnt its 0.15 s by now, and waits
+    # the other thread has burnt its 0.15 s and waits (however long a loaded machine took)
+    assert burnt.wait(30)
     main1, others1 = thread_cpu_s()
     done.set()
     waiting.join()
