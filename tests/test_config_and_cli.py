@@ -12,6 +12,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from swarm_sitl.cli import main
+from swarm_sitl.config.load import ConfigError, parse_config
 from tests.support import CLI, CONFIGS, config_data
 
 pytestmark = pytest.mark.integration
@@ -214,6 +215,51 @@ def test_any_config_file_gives_one_line_never_a_traceback(tmp_path, capsys, data
         return
     assert code == 2 and len(err.strip().splitlines()) == 1, err
     assert err.startswith("swarm-sitl: error: ")
+
+
+@given(
+    st.sampled_from([("gains", "k_p"), ("vehicle", "mass_kg"), ("rates", "control_hz")]),
+    st.one_of(
+        st.text("abcdefghijklmnopqrstuvwxyz", min_size=1, max_size=8).filter(
+            lambda s: s not in {"inf", "nan", "infinity"}
+        ),
+        st.lists(st.integers(), max_size=3),
+        st.dictionaries(st.sampled_from("xyz"), st.integers(), max_size=2),
+    ),
+    st.text("abcdefghijklmnopqrstuvwxyz", min_size=1, max_size=8),
+)
+@settings(max_examples=30)  # (each example validates the paper's config twice: about 10 ms)
+def test_a_refused_value_is_shown_once_and_a_refused_structure_is_not_dumped(field, value, model):
+    """A number given a word: the line shows the word, once. Given a list or a mapping: it says
+    what was expected without printing what was given. A value our own check refuses (a vehicle
+    model that is none): that check names it, and it is not shown a second time."""
+    data = config_data("paper")
+    data[field[0]][field[1]] = value
+    with pytest.raises(ConfigError) as e:
+        parse_config(data)
+    line = str(e.value)
+    assert line.startswith(f"config: {field[0]}.{field[1]}: ") and "\n" not in line
+    if isinstance(value, str):
+        assert line.endswith(f" (got {value!r})") and line.count(repr(value)) == 1
+    else:
+        assert "(got" not in line
+    data = config_data("paper")
+    data["vehicle"]["model"] = f"no_such_{model}"
+    with pytest.raises(ConfigError) as e:
+        parse_config(data)
+    assert str(e.value).count(repr(f"no_such_{model}")) == 1 and "(got" not in str(e.value)
+
+
+@settings(suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(st.integers(0, _PAPER_TEXT.count("\n")))
+def test_a_yaml_mistake_is_named_by_its_line_wherever_it_is(tmp_path, capsys, at):
+    """A line that is not YAML (``a: b: c``), put before any line of the paper's config (or after
+    the last): the one line says the line it is on, counted from 1."""
+    lines = _PAPER_TEXT.splitlines()
+    path = tmp_path / "c.yaml"
+    path.write_text("\n".join([*lines[:at], "broken: a: b", *lines[at:]]) + "\n")
+    assert main(["check", str(path)]) == 2
+    assert capsys.readouterr().err.strip().endswith(f"not valid YAML at line {at + 1}")
 
 
 @pytest.mark.parametrize("command", ["run", "sim"])

@@ -1,6 +1,8 @@
 """``swarm-sitl new``: generated swarms load, have the asked shape, and their gain notes are true."""
 
 import itertools
+import math
+import shutil
 
 import numpy as np
 import pytest
@@ -10,14 +12,19 @@ from swarm_sitl.cli import main
 from swarm_sitl.config.generator import (
     FORMATIONS,
     GRAPHS,
+    MAX_SUGGESTED_K,
+    PAPER_GAINS,
     SPACING_M,
     TRAJECTORIES,
+    GeneratorError,
     generate,
     layer_width,
+    random_edges,
 )
-from swarm_sitl.config.load import parse_config
+from swarm_sitl.config.load import load_config, parse_config
 from swarm_sitl.laws.gain_conditions import check_gains
 from swarm_sitl.running.sim import run_sim
+from tests.support import ROOT
 
 
 def _load(text: str):
@@ -69,6 +76,10 @@ def test_initial_positions_spread_around_the_places_at_the_leaders_start(traject
     for f in cfg.followers:
         dev = np.asarray(f.initial_position_m) - p0 - np.asarray(f.offset_m)
         assert np.all(np.abs(dev) <= 2.0 + 1e-5)
+    devs = np.array([np.asarray(f.initial_position_m) - p0 - f.offset_m for f in cfg.followers])
+    # drawn each on its own, uniformly on +-2 m: 36 draws all of one sign, or two alike to the
+    # file's six digits, would come once in billions
+    assert (devs < 0).any() and (devs > 0).any() and len(np.unique(devs.round(4))) == devs.size
     assert cfg.gains.k_gamma >= np.max(
         np.linalg.norm(cfg.trajectory().derivatives(np.linspace(0, 70, 701))[:, 2], axis=1)
     )
@@ -79,16 +90,51 @@ def test_initial_positions_spread_around_the_places_at_the_leaders_start(traject
     "graph, n", [("layered", 4), ("tree", 16), ("ring", 4), ("ring", 16), ("random", 32)]
 )
 def test_the_gain_notes_say_what_check_finds(graph, n):
+    """The paper's gains where every condition holds with them; else ``check``'s suggestion where
+    every condition holds with it (the notes name what failed with the paper's); else the paper's,
+    the notes naming what fails and why the suggestion was not taken."""
     text = generate(n, graph, "grid", "helix", seed=2)
     cfg = _load(text)
-    report = check_gains(cfg.build_graph(), cfg.gain_dict(), cfg.trajectory(), cfg.gravity_mps2, 200.0)
-    notes = [line for line in text.splitlines() if line.startswith("  # ")]
-    if any("FAIL" in line for line in notes):
-        named = {line.strip()[2:].strip() for line in notes}
-        failing = {c.name for c in report.conditions if not c.holds}
-        assert failing and failing <= named  # every failing condition is named in the file
-    else:
+    lines = text.splitlines()
+    notes = list(itertools.takewhile(lambda x: x.startswith("  # "), lines[lines.index("gains:") + 1 :]))
+    notes = [line.removeprefix("  # ") for line in notes]
+    args = (cfg.build_graph(), cfg.trajectory(), cfg.gravity_mps2, 200.0)
+    report = check_gains(args[0], cfg.gain_dict(), *args[1:])
+    paper = check_gains(args[0], {**cfg.gain_dict(), **PAPER_GAINS}, *args[1:])
+    failing = [c.name for c in paper.conditions if not c.holds]
+    written = {k: cfg.gain_dict()[k] for k in PAPER_GAINS}
+    if not failing:
+        assert written == PAPER_GAINS and len(notes) == 1 and "every condition" in notes[0]
+    elif written != PAPER_GAINS:
         assert report.all_hold  # "every condition holds": it does, with the gains written
+        # (written with six significant digits: a relative half unit of the sixth)
+        assert written == pytest.approx({**PAPER_GAINS, **paper.suggestion}, rel=5e-6)
+        assert notes[0] == "the paper's gains fail on this graph: " + "; ".join(failing)
+    else:
+        assert notes[0].startswith("the paper's gains; ") and "FAIL" in notes[0]
+        assert [x.strip() for x in notes[1:-1]] == failing  # every failing condition is named
+        suggested = {**PAPER_GAINS, **paper.suggestion}
+        assert notes[-1].startswith("(") and notes[-1].endswith(")")
+        if check_gains(args[0], suggested, *args[1:]).all_hold:
+            assert f"k_p = k_v = {suggested['k_p']:.4g}" in notes[-1]
+            assert f"past {MAX_SUGGESTED_K:g}" in notes[-1]
+        else:
+            assert notes[-1] == "(no gains were found that satisfy them)"
+
+
+@pytest.mark.unit
+@pytest.mark.parametrize("n", [4, 16, 64])
+def test_a_random_graph_is_a_spanning_tree_plus_about_n_over_2_edges_between_followers(n):
+    """Follower i hears one of 0..i-1, then n // 2 draws of a follower pair add the new ones,
+    none from the leader, none twice. From 16 followers on, at least one in each seed's: a draw
+    falls on a self-loop (1/n) or a taken edge (at most n of n^2 pairs) with a chance under 1/8,
+    all eight under 1/8^8 = 6e-8."""
+    for seed in range(20):
+        edges = random_edges(n, np.random.default_rng(seed))
+        tree, extra = edges[:n], edges[n:]
+        assert [d for _, d in tree] == list(range(1, n + 1)) and all(s < d for s, d in tree)
+        assert (n < 16 or len(extra) >= 1) and len(extra) <= n // 2 and len(set(edges)) == len(edges)
+        assert all(1 <= s <= n and 1 <= d <= n and s != d for s, d in extra)
 
 
 @pytest.mark.unit
@@ -113,6 +159,67 @@ def test_new_writes_a_config_and_refuses_bad_requests_in_one_line(tmp_path, caps
     ]
     assert main(["new", "--followers", "6", "--force", "--seed", "3", "-o", str(out)]) == 0
     assert main(["check", str(out)]) == 0
+
+
+@pytest.mark.unit
+@pytest.mark.parametrize("followers", [-1, 0, 255, 256, 10_000])
+def test_a_follower_count_outside_the_mavlink_system_ids_is_refused_in_one_line(followers):
+    """MAVLink system ids are 1..255, and the ground station is 255: 254 followers at most."""
+    with pytest.raises(GeneratorError) as e:
+        generate(followers, "ring", "grid", "helix")
+    assert str(e.value) == f"--followers must be 1..254 (MAVLink system ids), got {followers}"
+
+
+@pytest.mark.unit
+@pytest.mark.parametrize(
+    "kwargs, named",
+    [
+        ({"duration_s": 0.0}, "--duration must be a number of seconds > 0, got 0.0"),
+        ({"duration_s": math.inf}, "--duration must be a number of seconds > 0, got inf"),
+        ({"graph": "star"}, f"--graph must be one of {', '.join(GRAPHS)}, got 'star'"),
+        ({"trajectory": "loop"}, f"--trajectory must be one of {', '.join(TRAJECTORIES)}, got 'loop'"),
+    ],
+)
+def test_a_bad_request_is_named_in_one_line_with_what_is_allowed(kwargs, named):
+    args = {"followers": 4, "graph": "ring", "formation": "grid", "trajectory": "helix", **kwargs}
+    with pytest.raises(GeneratorError) as e:
+        generate(**args)
+    assert str(e.value) == named
+
+
+@pytest.mark.unit
+def test_a_law_and_a_vehicle_model_of_the_users_are_written_as_given_and_found_beside_the_config(
+    tmp_path, monkeypatch
+):
+    """``new --law my_law.py:... --vehicle my_vehicle.py:...`` in the config's directory, from
+    another working directory: the file holds the entries as typed (relative, so the folder can
+    move), and they load from the config's folder; a file that is not there is named in one line."""
+    base = tmp_path / "swarm"
+    base.mkdir()
+    shutil.copy(ROOT / "examples" / "laws" / "consensus_pd.py", base / "my_law.py")
+    shutil.copy(ROOT / "sim_vehicles" / "models" / "template.py", base / "my_vehicle.py")
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    monkeypatch.chdir(elsewhere)
+    law, model = "my_law.py:ConsensusPD", "my_vehicle.py:LaggyVtol"
+    params = {"THRUST_TAU_S": 0.02}
+    text = generate(3, "ring", "grid", "helix", law=law, law_base=base, vehicle=model, vehicle_params=params)
+    data = yaml.safe_load(text)
+    assert data["law"] == {"entry": law, "params": {}} and data["vehicle"]["model"] == model
+    (base / "s.yaml").write_text(text)
+    cfg = load_config(base / "s.yaml")
+    assert cfg.law.entry == f"{base / 'my_law.py'}:ConsensusPD"
+    assert cfg.vehicle.model == f"{base / 'my_vehicle.py'}:LaggyVtol"
+    assert cfg.vehicle.params == {"THRUST_TAU_S": 0.02}
+    for kwargs, gone in (
+        ({"law": "gone.py:Law"}, "gone.py"),
+        ({"vehicle": "gone_vehicle.py:V"}, "gone_vehicle.py"),
+    ):
+        with pytest.raises(GeneratorError) as e:
+            generate(3, "ring", "grid", "helix", law_base=base, **kwargs)
+        line = str(e.value)
+        assert gone in line and "\n" not in line and not line.startswith("generated config")
+        assert line.startswith(("law: ", "vehicle"))
 
 
 @pytest.mark.integration

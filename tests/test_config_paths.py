@@ -1,0 +1,78 @@
+"""Where a config's plug-in files are found (``config.load``): a file entry of the law, of the
+vehicle model and of each link model in the fault plan is relative to the config that names it,
+whichever config was loaded before with the same text; and a run's record names its plug-ins
+without importing them, whichever way the same file was loaded before."""
+
+import shutil
+from pathlib import Path
+
+import pytest
+import yaml
+
+from swarm_sitl.config.load import ConfigError, load_config, load_recorded
+from tests.support import ROOT, config_data, page_files
+
+pytestmark = pytest.mark.unit
+
+LAW = "my_law.py:ConsensusPD"
+VEHICLE = "my_vehicle.py:LaggyVtol"
+LINK = "my_link.py:DistanceDelay"
+#: ``docs/links.md``'s files: its link model, and its plan naming it
+_LINK_PAGE = page_files((ROOT / "docs" / "links.md").read_text())
+
+
+def _with_plugins(folder: Path, text: str, name: str = "cfg.yaml") -> Path:
+    """``folder`` holding a config of ``text`` and each plug-in file it names, as a user's own."""
+    folder.mkdir(parents=True)
+    shutil.copy(ROOT / "examples" / "laws" / "consensus_pd.py", folder / "my_law.py")
+    shutil.copy(ROOT / "sim_vehicles" / "models" / "template.py", folder / "my_vehicle.py")
+    (folder / "my_link.py").write_text(_LINK_PAGE["my_link.py"])
+    path = folder / name
+    path.write_text(text)
+    return path
+
+
+def _text() -> str:
+    data = config_data("paper")
+    data["law"] = {"entry": LAW}
+    data["vehicle"]["model"] = VEHICLE
+    data["faults"] = yaml.safe_load(_LINK_PAGE["my_plan.yaml"])
+    assert _entries(data)[2:] == [LINK]
+    return yaml.safe_dump(data)
+
+
+def _entries(data: dict) -> list[str]:
+    """The law's, the vehicle model's and the fault plan's link models' entries of a config."""
+    return [
+        data["law"]["entry"],
+        data["vehicle"]["model"],
+        *(f["model"]["entry"] for f in data["faults"]["plan"]),
+    ]
+
+
+def test_each_file_entry_is_found_beside_the_config_that_names_it_whatever_was_loaded_before(tmp_path):
+    """The same text in two folders, loaded one after the other and back (a config is kept from
+    one load to the next while its file is unchanged): each time every entry names the file of
+    the folder of the config loaded, absolutely."""
+    text = _text()
+    folders = [tmp_path / "a", tmp_path / "deeper" / "b"]
+    paths = [_with_plugins(f, text) for f in folders]
+    for path in [*paths, paths[0], paths[1]]:
+        cfg = load_config(path)
+        entries = _entries(cfg.data())
+        assert len(entries) == 3
+        for entry, named in zip(entries, (LAW, VEHICLE, LINK), strict=True):
+            assert entry == f"{path.parent / named.split(':')[0]}:{named.split(':')[1]}", (path, entry)
+
+
+def test_a_records_plugins_are_named_not_imported_whichever_way_the_file_was_loaded_before(tmp_path):
+    """A run's record whose law file is gone (a moved run directory) reads as a record; the same
+    file loaded to be flown is refused in one line naming the file, before or after."""
+    path = _with_plugins(tmp_path / "run", _text(), "config.yaml")
+    (tmp_path / "run" / "my_law.py").unlink()
+    for _ in range(2):
+        cfg = load_recorded(tmp_path / "run")  # (``load_recorded`` reads RUN_DIR/config.yaml)
+        assert _entries(cfg.data())[0] == f"{tmp_path / 'run' / 'my_law.py'}:ConsensusPD"
+        with pytest.raises(ConfigError, match=r"my_law\.py") as e:
+            load_config(path)
+        assert "\n" not in str(e.value)
