@@ -3,6 +3,7 @@ vehicle model and of each link model in the fault plan is relative to the config
 whichever config was loaded before with the same text; and a run's record names its plug-ins
 without importing them, whichever way the same file was loaded before."""
 
+import json
 import shutil
 from pathlib import Path
 
@@ -50,6 +51,16 @@ def _entries(data: dict) -> list[str]:
     ]
 
 
+def test_a_configs_data_is_plain_json_and_yaml_and_reads_back_as_the_same_config(tmp_path):
+    """What ``cfg.data()`` gives (a run directory's ``config.yaml``, a campaign's shipment) is
+    made of JSON's types only (lists, not tuples), and reads back as the same data."""
+    cfg = load_config(_with_plugins(tmp_path / "c", _text()))
+    data = cfg.data()
+    assert json.loads(json.dumps(data)) == data
+    assert yaml.safe_load(yaml.safe_dump(data)) == data
+    assert load_config(_with_plugins(tmp_path / "again", yaml.safe_dump(data))).data() == data
+
+
 def test_each_file_entry_is_found_beside_the_config_that_names_it_whatever_was_loaded_before(tmp_path):
     """The same text in two folders, loaded one after the other and back (a config is kept from
     one load to the next while its file is unchanged): each time every entry names the file of
@@ -66,13 +77,16 @@ def test_each_file_entry_is_found_beside_the_config_that_names_it_whatever_was_l
 
 
 def test_a_records_plugins_are_named_not_imported_whichever_way_the_file_was_loaded_before(tmp_path):
-    """A run's record whose law file is gone (a moved run directory) reads as a record; the same
-    file loaded to be flown is refused in one line naming the file, before or after."""
+    """A run's record whose law file is gone (a moved run directory) reads as a record, and asked
+    for its law class says it does not import it; the same file loaded to be flown is refused in
+    one line naming the file, before or after."""
     path = _with_plugins(tmp_path / "run", _text(), "config.yaml")
     (tmp_path / "run" / "my_law.py").unlink()
     for _ in range(2):
         cfg = load_recorded(tmp_path / "run")  # (``load_recorded`` reads RUN_DIR/config.yaml)
         assert _entries(cfg.data())[0] == f"{tmp_path / 'run' / 'my_law.py'}:ConsensusPD"
+        with pytest.raises(RuntimeError, match="a config read from a run directory does not import its law"):
+            cfg.law_class()
         with pytest.raises(ConfigError, match=r"my_law\.py") as e:
             load_config(path)
         assert "\n" not in str(e.value)

@@ -31,8 +31,10 @@ the draws are checked to put both signs through it.
 import numpy as np
 import pytest
 
+from swarm_sitl.config.load import parse_config
 from swarm_sitl.laws.estimator import acceleration_estimate, acceleration_estimate_ddot, estimator_rhs
 from swarm_sitl.laws.trajectories import Helix, Line
+from tests.support import config_data
 
 pytestmark = pytest.mark.unit
 
@@ -106,6 +108,22 @@ def test_sliding_form_follows_the_proofs_surface_dynamics(seed):
     res, s = _sdot_residual(abar, abardot, abarddot, n_p)
     assert np.all(np.abs(s) > 1e-6)
     assert np.abs(res).max() < 1e-9 * max(1.0, np.abs(abarddot).max())
+
+
+@pytest.mark.parametrize("seed", SEEDS[:2])
+def test_a_configs_bracket_flies_the_form_it_names(seed):
+    """``estimator.bracket`` in a config with this module's l_a: ``printed`` follows the paper's
+    printed error dynamics, ``sliding_surface`` the proof's surface dynamics (not the other's)."""
+    for bracket, holds, misses in (
+        ("printed", _printed_residual, _sdot_residual),
+        ("sliding_surface", _sdot_residual, _printed_residual),
+    ):
+        data = config_data("paper")
+        data["gains"]["l_a"], data["estimator"]["bracket"] = L_A, bracket
+        errors = _errors(parse_config(data).paper_law_params().bracket_a_weight, seed)
+        res, _ = holds(*errors)
+        assert np.abs(res).max() < 1e-9 * max(1.0, np.abs(errors[2]).max()), bracket
+        assert np.abs(misses(*errors)[0]).max() > 1.0, bracket
 
 
 @pytest.mark.parametrize("seed", SEEDS)

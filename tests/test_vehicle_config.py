@@ -294,6 +294,23 @@ def test_every_field_of_the_spec_reaches_the_vehicle_from_where_the_config_sets_
 
 
 @pytest.mark.unit
+@pytest.mark.parametrize("seed", [0, 7])
+def test_still_air_and_true_reports_reach_the_vehicle_as_no_model_at_all(seed):
+    """A wind or sensor section that is absent, or present with nothing in it (a seed, zeros), is
+    no model in any follower's spec: the vehicle draws nothing and computes nothing for it."""
+    from swarm_sitl.config.load import parse_config
+
+    for wind, sensors in (None, None), ({"seed": seed, "gust_mps": 0.0}, {"seed": seed, "latency_s": 0.0}):
+        data = yaml.safe_load((CONFIGS / "paper.yaml").read_text())
+        if wind is not None:
+            data["wind"], data["vehicle"]["sensors"] = wind, sensors
+        cfg = parse_config(data)
+        for f in cfg.followers:
+            spec = cfg.vehicle_config(f.id)
+            assert spec.wind is None and spec.sensors is None, (wind, sensors)
+
+
+@pytest.mark.unit
 def test_a_models_parameters_and_a_followers_autopilot_reach_its_vehicle():
     from swarm_sitl.config.load import parse_config
 
