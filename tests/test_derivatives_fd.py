@@ -32,20 +32,22 @@ from swarm_sitl.laws.follower_law import (
 from swarm_sitl.laws.position_loop import command_force
 from swarm_sitl.laws.trajectories import Helix
 
-#: one worker runs them all: their trajectory (a module fixture) calls the kernels with gains of
-#: their own types, which each process compiles once (14 s of CPU), not once per worker at once
+#: one worker runs them all: their trajectory (a module fixture) calls kernels a flight calls only
+#: inside its tick (``controller_output``, ``acceleration_estimate``), which a fresh machine compiles
+#: once for them (7 s of CPU), not once per worker at once. The gains are floats, as a config's are:
+#: integers were another signature, compiled again (7 s more)
 pytestmark = [pytest.mark.unit, pytest.mark.xdist_group("derivatives_fd")]
 
 PHI = 20.0
 GAINS = ControlGains(
     k_gamma=0.5,
-    k_p=8,
-    k_v=8,
-    l_a=12,
-    k_a=4,
-    l_p=4,
-    l_v=4,
-    k_eta=4,
+    k_p=8.0,
+    k_v=8.0,
+    l_a=12.0,
+    k_a=4.0,
+    l_p=4.0,
+    l_v=4.0,
+    k_eta=4.0,
     sign_boundary_layer=PHI,
     bracket_a_weight=12.0,
     mass_kg=0.85,
