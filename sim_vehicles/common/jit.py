@@ -4,6 +4,12 @@ Kernels are cached on disk, in a directory named after the sources of every modu
 one (``_cache_dir``): numba checks a cached kernel against its own file only, so a kernel that
 calls one from another file (``tick_frames.read_setpoint`` calls ``wire_format``'s) kept the old
 callee after that file changed, and an upgraded install would have flown stale code.
+
+Inside it, a kernel's cache is named after its module's folder in the package
+(``sim_vehicles_plant``), not after that folder's absolute path as numba names it
+(``_TreeLocator``): a checkout and an installed copy of the same sources (a test run from the
+checkout and the commands it starts from the installed package) load each other's kernels instead
+of compiling the whole set twice on a fresh machine.
 """
 
 import hashlib
@@ -15,6 +21,7 @@ from typing import Any
 import numba
 import numpy as np
 from numba import njit as _njit
+from numba.core import caching as _caching
 
 _PACKAGES = ("sim_vehicles", "swarm_sitl")
 
@@ -33,6 +40,35 @@ def _cache_dir() -> Path:
 
 
 numba.config.CACHE_DIR = str(_cache_dir())  # type: ignore[attr-defined]
+
+
+def package_folder(py_file: str) -> str | None:
+    """The folder of ``py_file`` from its package on (``sim_vehicles/plant``), or None for a file
+    of no package of ours (a user's model: numba's own locators place it)."""
+    parts = Path(py_file).resolve().parts[:-1]
+    at = [i for i, part in enumerate(parts) if part in _PACKAGES]
+    return "/".join(parts[at[-1] :]) if at else None
+
+
+class _TreeLocator(_caching.UserProvidedCacheLocator):
+    """numba's locator of ``NUMBA_CACHE_DIR``, for our kernels: named after the package folder
+    (module docstring). numba stamps a cached kernel with its file's content (since 0.68), which
+    two copies of one source share."""
+
+    def __init__(self, py_func: Any, py_file: str):
+        super().__init__(py_func, py_file)
+        folder = str(package_folder(py_file)).replace("/", "_")
+        self._cache_path = os.path.join(str(numba.config.CACHE_DIR), folder)  # type: ignore[attr-defined]
+
+    @classmethod
+    def from_function(cls, py_func: Any, py_file: str) -> Any:
+        if package_folder(py_file) is None:
+            return None
+        return super().from_function(py_func, py_file)
+
+
+if _TreeLocator not in _caching.CacheImpl._locator_classes:
+    _caching.CacheImpl._locator_classes.insert(0, _TreeLocator)
 
 
 def kernel(fn: Callable[..., Any]) -> Any:
