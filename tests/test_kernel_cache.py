@@ -23,6 +23,8 @@ CALL = (
 
 
 def _copy(dst: Path) -> Path:
+    """Both packages, as an installed copy holds them (the cache's directory is named after the
+    kernels' sources in both)."""
     for package in ("sim_vehicles", "swarm_sitl"):
         shutil.copytree(ROOT / package, dst / package, ignore=shutil.ignore_patterns("__pycache__"))
     return dst
