@@ -65,6 +65,19 @@ def config_data(name: str) -> dict:
     return yaml.safe_load((CONFIGS / f"{name}.yaml").read_text())
 
 
+#: a user's law and vehicle model as files of their own folder: their entries, relative to it
+USERS_LAW, USERS_VEHICLE = "my_law.py:ConsensusPD", "my_vehicle.py:LaggyVtol"
+
+
+def users_plugins(folder: Path) -> None:
+    """``USERS_LAW`` and ``USERS_VEHICLE``'s files in ``folder``: the example law and the vehicle
+    model template, copied as a user's own."""
+    import shutil
+
+    shutil.copy(ROOT / "examples" / "laws" / "consensus_pd.py", folder / "my_law.py")
+    shutil.copy(ROOT / "sim_vehicles" / "models" / "template.py", folder / "my_vehicle.py")
+
+
 #: a user's link model in a file (the link-model contract: ``faults.link_model``), with one parameter:
 #: messages lost while ``m.t_s`` is within the first ``dark`` of each second
 BLACKOUT_MODEL = """

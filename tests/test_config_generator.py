@@ -2,7 +2,6 @@
 
 import itertools
 import math
-import shutil
 
 import numpy as np
 import pytest
@@ -24,7 +23,7 @@ from swarm_sitl.config.generator import (
 from swarm_sitl.config.load import load_config, parse_config
 from swarm_sitl.laws.gain_conditions import check_gains
 from swarm_sitl.running.sim import run_sim
-from tests.support import ROOT
+from tests.support import USERS_LAW, USERS_VEHICLE, users_plugins
 
 
 def _load(text: str):
@@ -196,12 +195,11 @@ def test_a_law_and_a_vehicle_model_of_the_users_are_written_as_given_and_found_b
     move), and they load from the config's folder; a file that is not there is named in one line."""
     base = tmp_path / "swarm"
     base.mkdir()
-    shutil.copy(ROOT / "examples" / "laws" / "consensus_pd.py", base / "my_law.py")
-    shutil.copy(ROOT / "sim_vehicles" / "models" / "template.py", base / "my_vehicle.py")
+    users_plugins(base)
     elsewhere = tmp_path / "elsewhere"
     elsewhere.mkdir()
     monkeypatch.chdir(elsewhere)
-    law, model = "my_law.py:ConsensusPD", "my_vehicle.py:LaggyVtol"
+    law, model = USERS_LAW, USERS_VEHICLE
     params = {"THRUST_TAU_S": 0.02}
     text = generate(3, "ring", "grid", "helix", law=law, law_base=base, vehicle=model, vehicle_params=params)
     data = yaml.safe_load(text)

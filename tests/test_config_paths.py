@@ -4,19 +4,17 @@ whichever config was loaded before with the same text; and a run's record names 
 without importing them, whichever way the same file was loaded before."""
 
 import json
-import shutil
 from pathlib import Path
 
 import pytest
 import yaml
 
 from swarm_sitl.config.load import ConfigError, load_config, load_recorded
-from tests.support import ROOT, config_data, page_files
+from tests.support import ROOT, USERS_LAW, USERS_VEHICLE, config_data, page_files, users_plugins
 
 pytestmark = pytest.mark.unit
 
-LAW = "my_law.py:ConsensusPD"
-VEHICLE = "my_vehicle.py:LaggyVtol"
+LAW, VEHICLE = USERS_LAW, USERS_VEHICLE
 LINK = "my_link.py:DistanceDelay"
 #: ``docs/links.md``'s files: its link model, and its plan naming it
 _LINK_PAGE = page_files((ROOT / "docs" / "links.md").read_text())
@@ -25,8 +23,7 @@ _LINK_PAGE = page_files((ROOT / "docs" / "links.md").read_text())
 def _with_plugins(folder: Path, text: str, name: str = "cfg.yaml") -> Path:
     """``folder`` holding a config of ``text`` and each plug-in file it names, as a user's own."""
     folder.mkdir(parents=True)
-    shutil.copy(ROOT / "examples" / "laws" / "consensus_pd.py", folder / "my_law.py")
-    shutil.copy(ROOT / "sim_vehicles" / "models" / "template.py", folder / "my_vehicle.py")
+    users_plugins(folder)
     (folder / "my_link.py").write_text(_LINK_PAGE["my_link.py"])
     path = folder / name
     path.write_text(text)
