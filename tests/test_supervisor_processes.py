@@ -161,4 +161,6 @@ def test_closing_lets_a_child_finish_on_sigterm_within_the_grace_and_kills_only_
     took = time.monotonic() - t0
     assert writer.proc.poll() == 0 and writer.last_line() == "records written"
     assert [c.proc.poll() for c in deaf] == [-signal.SIGKILL] * 2
-    assert grace <= took < grace + 1.0  # one grace for all: the second deaf one is not waited for again
+    # one grace for all: waiting for the second deaf one again would take a second grace (the
+    # bound is that, not a guess at how fast a loaded machine kills and reaps three processes)
+    assert grace <= took < 2 * grace
