@@ -50,25 +50,31 @@ def package_folder(py_file: str) -> str | None:
     return "/".join(parts[at[-1] :]) if at else None
 
 
-class _TreeLocator(_caching.UserProvidedCacheLocator):
-    """numba's locator of ``NUMBA_CACHE_DIR``, for our kernels: named after the package folder
-    (module docstring). numba stamps a cached kernel with its file's content (since 0.68), which
-    two copies of one source share."""
+#: numba's locator of ``NUMBA_CACHE_DIR`` and its list of locators, tried in order (numba 0.68's
+#: names; were either gone in a later numba, kernels would still cache, one folder per copy)
+_USER_LOCATOR: Any = getattr(_caching, "UserProvidedCacheLocator", None)
+_LOCATORS: Any = getattr(getattr(_caching, "CacheImpl", None), "_locator_classes", None)
 
-    def __init__(self, py_func: Any, py_file: str):
-        super().__init__(py_func, py_file)
-        folder = str(package_folder(py_file)).replace("/", "_")
-        self._cache_path = os.path.join(str(numba.config.CACHE_DIR), folder)  # type: ignore[attr-defined]
+if _USER_LOCATOR is not None and isinstance(_LOCATORS, list):
 
-    @classmethod
-    def from_function(cls, py_func: Any, py_file: str) -> Any:
-        if package_folder(py_file) is None:
-            return None
-        return super().from_function(py_func, py_file)
+    class _TreeLocator(_USER_LOCATOR):
+        """numba's locator of ``NUMBA_CACHE_DIR``, for our kernels: named after the package
+        folder (module docstring). numba stamps a cached kernel with its file's content (since
+        0.68), which two copies of one source share."""
 
+        def __init__(self, py_func: Any, py_file: str):
+            super().__init__(py_func, py_file)
+            folder = str(package_folder(py_file)).replace("/", "_")
+            self._cache_path = os.path.join(str(numba.config.CACHE_DIR), folder)  # type: ignore[attr-defined]
 
-if _TreeLocator not in _caching.CacheImpl._locator_classes:
-    _caching.CacheImpl._locator_classes.insert(0, _TreeLocator)
+        @classmethod
+        def from_function(cls, py_func: Any, py_file: str) -> Any:
+            if package_folder(py_file) is None:
+                return None
+            return super().from_function(py_func, py_file)
+
+    if not any(c.__name__ == "_TreeLocator" for c in _LOCATORS):  # (not again: a module reloaded)
+        _LOCATORS.insert(0, _TreeLocator)
 
 
 def kernel(fn: Callable[..., Any]) -> Any:
