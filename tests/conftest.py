@@ -1,5 +1,10 @@
 import os
 
+# MAVLink 2 for every pymavlink the tests import, whichever module imports it first: pymavlink picks
+# its wire protocol once, at its import, from this variable (signing and the vehicles' messages
+# need 2). A test of a client without it removes it from that client's environment.
+os.environ.setdefault("MAVLINK20", "1")
+
 import pytest
 from hypothesis import Phase, settings
 

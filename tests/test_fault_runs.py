@@ -228,7 +228,6 @@ def test_a_ground_station_slowing_a_vehicles_stream_fails_the_run_naming_the_sta
     """Another client asks vehicle 3 for its position at 1 Hz during a real-time run (the vehicle
     has one stream table for every client): follower 3's samples go stale, its formation breaks,
     and the run says so instead of passing."""
-    os.environ.setdefault("MAVLINK20", "1")  # signing is MAVLink 2's
     from pymavlink import mavutil
 
     cfg = yaml.safe_load((CONFIGS / "paper.yaml").read_text())

@@ -10,8 +10,6 @@ import time
 from collections.abc import Iterator
 from typing import Any
 
-os.environ.setdefault("MAVLINK20", "1")
-
 import numpy as np
 import pytest
 from hypothesis import given, settings

@@ -7,15 +7,11 @@ does not hold it.
 
 import hashlib
 import json
-import os
 import re
 import socket
 import subprocess
 import sys
 import time
-
-os.environ.setdefault("MAVLINK20", "1")  # signing needs MAVLink 2 (pymavlink reads this at import)
-
 from pathlib import Path
 
 import numpy as np

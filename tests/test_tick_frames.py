@@ -1,10 +1,7 @@
 """The per-tick frames in one compiled call (``sim_vehicles.mavlink.tick_frames``) against pymavlink and an
 independent reference of the wire conversions (Python floats through ``struct``'s float32)."""
 
-import os
 import struct
-
-os.environ.setdefault("MAVLINK20", "1")
 
 import numpy as np
 import pytest
