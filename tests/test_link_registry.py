@@ -24,6 +24,7 @@ from swarm_sitl.config.load import parse_config
 from swarm_sitl.falsify.space import Space, cost, expand, items, plan_of
 from swarm_sitl.faults import link_models
 from swarm_sitl.faults.link_model import (
+    RECORDED,
     SEVERITY_STEPS,
     Effect,
     Effects,
@@ -149,11 +150,72 @@ def test_a_models_declared_severity_is_the_one_its_fate_draws():
         for _ in range(20):
             value, extra = plan_value(key, rng)
             model, params = FaultEntry.model_validate({"edge": [0, 1], key: value, **extra}).link_how
-            staleness_s = rng.uniform(0.2, 1.0)  # above every delay drawn: none is cut at 1
+            staleness_s = rng.uniform(0.02, 0.2)  # (below, within and above a delay and its jitter)
             own = severity_of(model, params, 0.02, staleness_s)
             assert abs(own - drawn_severity(model, params, 0.02, staleness_s)) <= tol, (key, params)
         checked.append(key)
     assert {"drop", "loss", "corrupt", "delay_s"} <= set(checked)
+
+
+@pytest.mark.unit
+@pytest.mark.parametrize("key", [k for k, m in LINK_MODELS.items() if callable(getattr(m, "severity", None))])
+def test_a_models_own_severity_is_within_0_and_1_for_any_parameters(key):
+    """The contract's range of a declared severity, held by the model itself, not only by
+    ``severity_of``'s clamp: a model read by another consumer gives what it says."""
+    cls, rng = LINK_MODELS[key], random.Random(key)
+    for _ in range(50):
+        value, extra = plan_value(key, rng)
+        model, params = FaultEntry.model_validate({"out_of": 1, key: value, **extra}).link_how
+        own = model.severity(params, rng.uniform(0.005, 0.1), rng.uniform(0.05, 2.0))
+        assert type(model) is cls and 0.0 <= own <= 1.0, (key, params, own)
+
+
+#: a user's link model (``support.BLACKOUT_MODEL``) that declares itself a node's radio, and one
+#: that declares it may act on a vehicle's MAVLink link
+DECLARING_MODELS = (
+    support.BLACKOUT_MODEL
+    + """
+
+class Radio(Blackout):
+    node_radio = True
+
+
+class OnBoard(Blackout):
+    on_mavlink = True
+"""
+)
+
+
+@pytest.mark.unit
+def test_a_users_model_is_held_to_what_it_declares_as_a_built_in_is(tmp_path):
+    """What a user's model declares of itself (``link_model.DECLARED``) is read from its class,
+    as a built-in's is: a radio is named by its sender, a model that does not say it acts on
+    MAVLink is refused there; a run's record, which names the model without importing it, reads
+    back whatever it was flown on."""
+    (tmp_path / "models.py").write_text(DECLARING_MODELS)
+
+    def entry(name: str, **where) -> dict:
+        return {**where, "model": {"entry": f"{tmp_path / 'models.py'}:{name}", "params": {"dark": 0.5}}}
+
+    with pytest.raises(ValueError, match="sending node's radio"):
+        FaultEntry.model_validate(entry("Radio", edge=[0, 1]))
+    FaultEntry.model_validate(entry("Radio", out_of=1))
+    FaultEntry.model_validate(entry("Blackout", edge=[0, 1]))  # (declares nothing: any edge)
+    with pytest.raises(ValueError, match="acts on bus edges"):
+        FaultEntry.model_validate(entry("Blackout", mavlink=1))
+    flown = FaultEntry.model_validate(entry("OnBoard", mavlink=1))
+    assert model_of(flown).__name__ == "OnBoard"
+    for data in (entry("OnBoard", mavlink=1), entry("Radio", out_of=1)):
+        read = FaultEntry.model_validate(data, context=RECORDED)
+        assert model_of(read) is None and read.model.model is None  # named, not imported
+
+
+@pytest.mark.unit
+def test_a_process_entry_has_no_link_model_and_says_so():
+    f = FaultEntry.model_validate({"controller": 2, "kill": True, "from_s": 1.0})
+    for ask in (model_of, link_models.how_of):
+        with pytest.raises(ValueError, match="controller_2: no link model"):
+            ask(f)
 
 
 class Brownout:
@@ -320,7 +382,8 @@ def test_a_delays_severity_is_its_mean_delay_to_the_spread_of_its_jitter(delay_s
 def test_a_models_severity_is_its_closed_form_cut_at_1(p, delay_s, jitter_s, staleness_s, br):
     """Closed forms, no draw: every message lost, 1; a loss or a corruption of chance ``p``,
     ``p``; a bursty link, its chain's stationary loss ``p / (p + r)`` (all lost in the bad
-    state); a delay, its mean over staleness, cut at 1 (an estimate past staleness is lost)."""
+    state); a delay, the mean of each message's delay over staleness, each cut at 1 (an estimate
+    past staleness is lost)."""
 
     def sev(key: str, value: object, **extra: object) -> float:
         model, params = FaultEntry.model_validate({"edge": [0, 1], key: value, **extra}).link_how
@@ -330,7 +393,12 @@ def test_a_models_severity_is_its_closed_form_cut_at_1(p, delay_s, jitter_s, sta
     assert sev("drop", True) == 1.0
     assert sev("loss", p) == p and sev("corrupt", p) == p
     assert sev("bursty", {"p": gp, "r": gr}) == pytest.approx(gp / (gp + gr), rel=1e-12)
-    assert sev("delay_s", delay_s, jitter_s=jitter_s) == min(1.0, (delay_s + jitter_s / 2) / staleness_s)
+    # a delay: the mean over its jitter's draws of each one's delay over staleness, cut at 1 (by
+    # the midpoint rule on N cells: exact where min(1, a + b u) is linear, off by at most b / N^2
+    # in the one cell where it bends)
+    a, b, n = delay_s / staleness_s, jitter_s / staleness_s, 100_000
+    mean = float(np.minimum(1.0, a + b * (np.arange(n) + 0.5) / n).mean())
+    assert sev("delay_s", delay_s, jitter_s=jitter_s) == pytest.approx(mean, abs=b / n**2 + 1e-12)
     # and drawn: every message lost is 1, every one on time 0, exactly
     for key, value, want in (("drop", True, 1.0), ("delay_s", 0.0, 0.0), ("duplicate", p, 0.0)):
         model, params = FaultEntry.model_validate({"edge": [0, 1], key: value}).link_how

@@ -28,8 +28,16 @@ class Delay:
         return Effect(delay_s=p.delay_s + p.jitter_s * m.uniform(JITTER))
 
     def severity(self, p: Params, period_s: float, staleness_s: float) -> float:
-        """The mean delay over the estimator's staleness (an estimate past it is as good as lost)."""
-        return (p.delay_s + p.jitter_s / 2) / staleness_s
+        """The mean over messages of each one's delay over the estimator's staleness, at most 1
+        (an estimate past it is as good as lost): with ``a = delay_s / staleness_s`` and ``b =
+        jitter_s / staleness_s``, the mean of ``min(1, a + b u)`` over ``u`` uniform in [0, 1]."""
+        a, b = p.delay_s / staleness_s, p.jitter_s / staleness_s
+        if a >= 1.0:
+            return 1.0
+        if a + b <= 1.0:
+            return a + b / 2
+        u = (1.0 - a) / b  # the share of messages that come before the staleness
+        return a * u + b * u * u / 2 + (1.0 - u)
 
     def fates(self, p: Params, ms: StepsOnLink) -> Effects:
         none = np.zeros(len(ms.steps), dtype=bool)
