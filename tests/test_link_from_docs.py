@@ -92,6 +92,13 @@ def test_a_link_model_draws_only_through_its_message_and_is_the_same_every_time(
         ({"entry": "LINK:NoParams"}, "does not meet the link-model contract: no Params (a pydantic model"),
         ({"entry": "LINK:DictParams"}, "Params must be a pydantic model"),
         ({"entry": "LINK:NoFate"}, "does not meet the link-model contract: no fate(params, message) method"),
+        ({"entry": "LINK:FateNotAMethod"}, "link-model contract: no fate(params, message) method"),
+        (
+            {"entry": "LINK:Empty"},
+            "contract: no Params (a pydantic model of its parameters), fate(params, message) method",
+        ),
+        ({"entry": "LINK:NOT_A_CLASS"}, "LINK:NOT_A_CLASS' is a int, not a class"),
+        ({"entry": "LINK:BuildFails"}, "LINK:BuildFails': building it raised RuntimeError: no radio"),
     ],
 )
 def test_a_link_model_that_is_not_one_is_one_line_naming_it(tmp_path, model, named):
@@ -109,9 +116,18 @@ def test_a_link_model_that_is_not_one_is_one_line_naming_it(tmp_path, model, nam
         "class DictParams(NoParams):\n"
         "    Params = dict\n\n"
         "class NoFate:\n"
-        "    Params = Coin.Params\n"
+        "    Params = Coin.Params\n\n"
+        "class FateNotAMethod(NoFate):\n"
+        "    fate = 3\n\n"
+        "class Empty:\n"
+        "    pass\n\n"
+        "NOT_A_CLASS = 3\n\n"
+        "class BuildFails(Coin):\n"
+        "    def __init__(self):\n"
+        "        raise RuntimeError('no radio')\n"
     )
     model = {**model, "entry": model["entry"].replace("LINK", str(link))}
+    named = named.replace("LINK", str(link))
     data = yaml.safe_load((CONFIGS / "paper.yaml").read_text())
     data["faults"] = {"plan": [{"all_edges": True, "model": model}]}
     with pytest.raises(ConfigError, match=re.escape(named)) as e:

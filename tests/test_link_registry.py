@@ -24,6 +24,7 @@ from swarm_sitl.config.load import parse_config
 from swarm_sitl.falsify.space import Space, cost, expand, items, plan_of
 from swarm_sitl.faults import link_models
 from swarm_sitl.faults.link_model import (
+    CHECK_BLOCK_STEPS,
     RECORDED,
     SEVERITY_STEPS,
     Effect,
@@ -168,6 +169,51 @@ def test_a_models_own_severity_is_within_0_and_1_for_any_parameters(key):
         model, params = FaultEntry.model_validate({"out_of": 1, key: value, **extra}).link_how
         own = model.severity(params, rng.uniform(0.005, 0.1), rng.uniform(0.05, 2.0))
         assert type(model) is cls and 0.0 <= own <= 1.0, (key, params, own)
+
+
+class _Staircase:
+    """A model with no severity of its own whose fate reads each message's time and the control
+    period: message k is late by ``(t_k mod 4 P)``, that is 0, P, 2P, 3P in turn, or lost where
+    ``k`` is a multiple of 7."""
+
+    class Params(BaseModel):
+        pass
+
+    def fate(self, p, m):
+        if m.step % 7 == 0:
+            return Effect(lost=True)
+        return Effect(delay_s=round(m.t_s / m.period_s) % 4 * m.period_s)
+
+
+class _Declares:
+    """A model whose own severity is the period over the staleness."""
+
+    Params = _Staircase.Params
+
+    def fate(self, p, m):
+        return None
+
+    def severity(self, p, period_s, staleness_s):
+        return period_s / staleness_s
+
+
+@pytest.mark.unit
+@given(period_s=st.floats(0.005, 0.1), ratio=st.floats(0.5, 4.0))
+def test_a_drawn_severity_is_the_mean_over_consecutive_messages_of_one_link_from_time_0(period_s, ratio):
+    """``drawn_severity``'s closed form on a model that reads the message's time and the period:
+    over ``SEVERITY_STEPS`` messages k = 0, 1, ... sent at k P, each lost one counts 1 and each
+    late one its delay over staleness, at most 1; ``severity_of`` gives a model's own severity the
+    period and staleness it was asked with."""
+    staleness_s = ratio * period_s
+    want = 0.0
+    for k in range(SEVERITY_STEPS):
+        want += 1.0 if k % 7 == 0 else min(1.0, (k % 4) / ratio)
+    got = drawn_severity(_Staircase(), _Staircase.Params(), period_s, staleness_s)
+    assert got == pytest.approx(want / SEVERITY_STEPS, rel=1e-12)
+    assert severity_of(_Staircase(), _Staircase.Params(), period_s, staleness_s) == got
+    assert severity_of(_Declares(), None, period_s, staleness_s) == pytest.approx(
+        min(1.0, 1 / ratio), rel=1e-12
+    )
 
 
 #: a user's link model (``support.BLACKOUT_MODEL``) that declares itself a node's radio, and one
@@ -497,3 +543,45 @@ def test_the_fates_check_names_the_first_flawed_message_with_both_fates_and_pass
         "late": f"{0.5 + (0.002 if late else 0.0):g} s late",
     }[flaw]
     assert line.endswith(f": fate() says {fate_says}, fates() {fates_says}"), line
+
+
+class _Raises(_Timed):
+    """A model whose ``fates`` or whose ``fate`` (from step ``at`` on) raises."""
+
+    class Params(BaseModel):
+        which: str
+        at: int = 0
+
+    def fate(self, p, m):
+        if p.which == "fate" and m.step >= p.at:
+            raise ValueError(f"no fate past {p.at}")
+        return super().fate(p, m)
+
+    def fates(self, p, ms):
+        if p.which == "fates":
+            raise KeyError("radio")
+        return super().fates(p, ms)
+
+
+@pytest.mark.unit
+@given(at=st.integers(0, 100_000 + CHECK_BLOCK_STEPS), seed=st.integers(0, 2**32))
+def test_the_fates_check_says_what_a_model_raised_and_where(at, seed):
+    """A model that raises is a disagreement too, said in one line: what ``fates`` raised, or
+    what ``fate`` raised at the first step it raised on (the first block's steps start below
+    100 000; a model that raises only past every step checked passes)."""
+    from swarm_sitl.faults.link_model import fates_disagreement
+
+    assert (
+        fates_disagreement(_Raises(), _Raises.Params(which="fates"), 0.02, seed)
+        == "fates() raised KeyError: 'radio'"
+    )
+    first = fates_disagreement(_Raises(), _Raises.Params(which="fate", at=0), 0.02, seed)
+    assert first is not None and re.fullmatch(
+        r"fate\(\) raised ValueError: no fate past 0 at step \d+", first
+    )
+    line = fates_disagreement(_Raises(), _Raises.Params(which="fate", at=at), 0.02, seed)
+    if line is not None:
+        step = int(
+            re.fullmatch(rf"fate\(\) raised ValueError: no fate past {at} at step (\d+)", line).group(1)
+        )
+        assert step >= at
