@@ -8,6 +8,7 @@ message received is accounted for (``received == delivered - duplicated + lost +
 held``) at every tick; and no message is filed before the tick after its own."""
 
 import math
+import time
 
 import numpy as np
 import pytest
@@ -88,11 +89,15 @@ def _filed(table: EstimateTable) -> set[tuple[int, int, bytes]]:
 
 
 def _accounted(stage: InEdges) -> None:
+    """Every message received is delivered (a duplicate's second copy aside), lost, corrupt or
+    held now, and each of these is a count of messages: none below 0."""
     for src, s in stage.edge_stats().items():
         assert s["received"] == s["delivered"] - s["duplicated"] + s["lost"] + s["corrupt"] + s["held"], (
             src,
             s,
         )
+        counts = ("received", "delivered", "duplicated", "lost", "corrupt", "held")
+        assert all(s[k] >= 0 for k in counts) and s["duplicated"] <= s["delivered"], (src, s)
 
 
 @settings(max_examples=60, deadline=None)
@@ -201,3 +206,83 @@ def test_a_sender_whose_radio_carries_a_tenth_of_its_messages_loses_most_at_its_
         else:
             assert st_["queue_full"] == 0 and st_["lost"] == 0, st_
         assert stage.edge_stats()[2]["queue_full"] == 0  # (another sender's radio is its own)
+
+
+class _CountsFrom(EstimateTable):
+    """A restarted node's table: the steps before ``first`` are not counted in its edges' figures
+    (``ZenohNodeBus.counted_steps``)."""
+
+    def __init__(self, first: int):
+        super().__init__()
+        self.first = first
+
+    def counts(self, step: int) -> bool:
+        return step >= self.first
+
+
+_RANGE = {"range": {"range_m": 20.0, "fading_db": 4.0, "retries": 1, "retry_s": DT / 2}}
+
+
+@settings(max_examples=20, deadline=None)
+@given(first=st.integers(0, TICKS), seed=st.integers(0, 2**32), extra=st.lists(_entry(), max_size=2))
+def test_steps_a_node_does_not_count_meet_their_fate_uncounted_whichever_way_they_are_decided(
+    first, seed, extra
+):
+    """A range entry on every in-edge: each message waits for this node's position of its step
+    and is decided when the node publishes it. Decided there or as it comes, a message of a step
+    the table does not count is counted nowhere: each edge received the counted steps' messages,
+    and every one of them is accounted for."""
+    plan = FaultPlan(seed=seed, plan=[{"into": NODE, **_RANGE}, *extra])
+    for in_order in (True, False):
+        stage = InEdges(_CountsFrom(first), plan, NODE, EDGES, RunClock(True, DT), TICKS * DT, {})
+        stage.in_order = in_order
+        for k in range(TICKS):
+            stage.clock.tick = k
+            stage.release()
+            for s in SOURCES:  # (before this node publishes k: they wait for it)
+                stage.admit(Message(s, k, k * DT, np.zeros(5), (5.0 * s, 0.0, 0.0)))
+            stage.published(Message(NODE, k, k * DT, np.zeros(5), (0.0, 0.0, 0.0)))
+            _accounted(stage)
+        assert all(s["received"] == TICKS - first for s in stage.edge_stats().values())
+
+
+def _real_time(plan: FaultPlan) -> InEdges:
+    return InEdges(EstimateTable(), plan, NODE, EDGES, RunClock(False, DT), TICKS * DT, {})
+
+
+@settings(max_examples=20, deadline=None)
+@given(seed=st.integers(0, 2**32), n=st.integers(1, 5))
+def test_real_time_what_came_before_the_start_is_judged_once_the_node_has_a_clock_and_a_position(seed, n):
+    """Real time: messages that come before this node has the start signal wait; once it has it
+    they wait for its first position (a range entry needs it), and once it has published, each is
+    decided: filed, lost or held, every one accounted for."""
+    stage = _real_time(FaultPlan(seed=seed, plan=[{"into": NODE, **_RANGE}]))
+    for k in range(n):
+        for s in SOURCES:
+            stage.admit(Message(s, k, k * DT, np.zeros(5), (5.0 * s, 0.0, 0.0)))
+    stage.take_early()  # (no clock yet: nothing judged)
+    assert all(s["held"] == n for s in stage.edge_stats().values())
+    stage.clock.epoch_mono = time.monotonic()
+    stage.take_early()
+    stage.published(Message(NODE, 0, 0.0, np.zeros(5), (0.0, 0.0, 0.0)))
+    _accounted(stage)
+    pending = len(stage.held())
+    assert sum(s["held"] for s in stage.edge_stats().values()) == pending
+    stage.clock.epoch_mono -= 1.0  # a second later: everything delayed is due
+    stage.release()
+    assert all(s["held"] == 0 for s in stage.edge_stats().values())
+    assert sum(s["received"] for s in stage.edge_stats().values()) == len(SOURCES) * n
+
+
+@settings(max_examples=10, deadline=None)
+@given(seed=st.integers(0, 2**32))
+def test_real_time_a_reordered_message_is_held_one_control_period_from_its_arrival(seed):
+    """Real time asks the plan for each message's fate as it comes (no table): a reorder of
+    probability 1 holds each message one period from when it came."""
+    stage = _real_time(FaultPlan(seed=seed, plan=[{"edge": [1, NODE], "reorder": 1.0}]))
+    stage.clock.epoch_mono = time.monotonic()
+    before = stage.clock.now_s()
+    stage.admit(Message(1, 0, 0.0, np.zeros(5), (0.0, 0.0, 0.0)))
+    after = stage.clock.now_s()
+    ((due, m, copy),) = stage.held()
+    assert before + DT <= due <= after + DT and (m.src, m.step, copy) == (1, 0, False)
