@@ -295,3 +295,45 @@ def test_hops_from_a_node_are_the_fewest_edges_to_each_node_it_reaches(g, data):
             if e.src in dist and dist[e.src] + 1 < dist.get(e.dst, g.n_followers + 2):
                 dist[e.dst] = dist[e.src] + 1
     assert g.hops_from(start) == dist
+
+
+@pytest.mark.parametrize(
+    "edges", [[(0, 1), (0, 2), (0, 3), (1, 4), (2, 4)], [(0, 1), (1, 2), (2, 3), (3, 4), (4, 1)]]
+)
+@pytest.mark.parametrize("bracket", ["sliding_surface", "printed"])
+def test_the_check_report_says_each_conditions_bound_value_and_verdict_as_computed(edges, bracket):
+    """``swarm-sitl check``'s text read back: Xi row by row, each condition's bound and value (to
+    the digits printed) and its verdict, the failing count and the suggested gains where some
+    fail, "all conditions hold." where none does, and a warning where the config flies a bracket
+    Theorem 1 does not cover."""
+    import re
+
+    from swarm_sitl.laws.gain_report import COVERED_BRACKET, render
+
+    report = check_gains(Graph.from_edges(4, edges), PAPER_GAINS, HELIX, 9.81, 100)
+    text = render(report, "mine", bracket)
+    lines = text.splitlines()
+    assert lines[0].startswith("config mine: Theorem 1")
+    start = lines.index("  Xi = M^T Theta + Theta M =") + 1
+    xi = np.array([[float(x) for x in line.split()] for line in lines[start : start + len(report.xi)]])
+    np.testing.assert_allclose(xi, report.xi, atol=5e-5)  # (printed to 4 decimals)
+    header = next(
+        j for j, line in enumerate(lines) if line.split()[:4] == ["condition", "bound", "value", "verdict"]
+    )
+    rows = lines[header + 1 : header + 1 + len(report.conditions)]
+    for c, row in zip(report.conditions, rows, strict=True):
+        m = re.fullmatch(rf"  {re.escape(c.name)} +(\S+) +(\S+)  (ok|FAILS)", row)
+        assert m is not None, row
+        assert float(m.group(1)) == pytest.approx(c.bound, rel=5e-4, abs=1e-300)  # (4 significant digits)
+        assert float(m.group(2)) == pytest.approx(c.value, rel=5e-4, abs=1e-300)
+        assert (m.group(3) == "ok") == c.holds
+    failing = [c for c in report.conditions if not c.holds]
+    if failing:
+        assert f"WARNING: {len(failing)} condition(s) fail" in text and "all conditions hold." not in text
+        said = re.search(r"suggested gains that satisfy all conditions: (.*)", text).group(1)
+        assert {kv.split("=")[0] for kv in said.split(", ")} == set(report.suggestion)
+    else:
+        assert "all conditions hold." in lines
+    assert (f"WARNING: estimator.bracket is {bracket}" in text) == (bracket != COVERED_BRACKET)
+    warnings = sum(line.startswith("WARNING: ") for line in lines)
+    assert warnings == bool(failing) + (bracket != COVERED_BRACKET)

@@ -1,0 +1,178 @@
+"""The vehicle built from a config is that config (``sim_vehicles.models.build``): what the config
+says of the airframe, the rotors, the air and the sensors is what the built vehicle flies with,
+for any values in range, read back from the vehicle itself; and a user's model is held to its
+parameters as the config's load promises, each refusal one line naming it."""
+
+import dataclasses
+import math
+
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from sim_vehicles.models.build import build_vehicle, sensor_model
+from sim_vehicles.models.vehicle_config import Gusts, SensorNoise, VehicleConfig, VehicleConfigError
+from sim_vehicles.plant import px4_params
+from sim_vehicles.plant.quad_x import AIRFRAME
+from sim_vehicles.plant.wind import WIND_MODELS
+
+pytestmark = pytest.mark.unit
+
+positive = st.floats(0.05, 5.0)
+seeds = st.integers(0, 2**32)
+
+
+@settings(max_examples=30, deadline=None)
+@given(
+    mass=st.floats(0.5, 5.0),
+    inertia=st.tuples(positive, positive, positive),
+    thrust_to_weight=st.floats(1.5, 4.0),
+    drag=st.floats(0.0, 1.0),
+    rates=st.tuples(positive, positive, positive),
+    model=st.sampled_from(["paper_vtol", "px4_quad_x"]),
+)
+def test_a_built_vehicles_airframe_is_its_configs(mass, inertia, thrust_to_weight, drag, rates, model):
+    spec = VehicleConfig(
+        model=model,
+        mass_kg=mass,
+        inertia_kgm2=inertia,
+        max_thrust_N=mass * 9.81 * thrust_to_weight,
+        drag_Ns2pm2=drag,
+        max_rate_rps=rates,
+    )
+    p = build_vehicle(spec, 1).params
+    got = (p.mass_kg, tuple(p.inertia_kgm2), p.max_thrust_N, p.g_mps2, tuple(p.max_rate_rps), p.drag_Ns2pm2)
+    assert got == (mass, inertia, spec.max_thrust_N, spec.g_mps2, rates, drag)
+
+
+def _in_range(name: str, u: float) -> float:
+    p = px4_params.BY_NAME[name]
+    if p.choices:
+        return float(p.choices[int(u * len(p.choices)) % len(p.choices)])
+    return p.low + (p.high - p.low) * u
+
+
+@settings(max_examples=30, deadline=None)
+@given(draws=st.dictionaries(st.sampled_from(sorted(AIRFRAME)), st.floats(0.05, 0.95), min_size=1))
+def test_a_quadrotors_airframe_parameters_reach_its_rotors(draws):
+    """``px4_quad_x``'s airframe parameters (``quad_x.AIRFRAME``: arm lengths, rotor torque, motor
+    time constant and model), set in the config within their ranges, are the rotors' (the rest
+    keep PX4 SIH's defaults)."""
+    params = {name: _in_range(name, u) for name, u in draws.items()}
+    quad = build_vehicle(VehicleConfig(model="px4_quad_x", params=params), 1)
+    want = {**AIRFRAME, **params}
+    got = {
+        "Q_MAX_NM": quad.q_max_Nm,
+        "L_ROLL_M": quad.l_roll_m,
+        "L_PITCH_M": quad.l_pitch_m,
+        "T_TAU_S": quad.tau_s,
+        "MOTOR_MODEL": quad.motor_model,
+    }
+    assert set(got) == set(AIRFRAME)
+    assert got == {k: (int(v) if k == "MOTOR_MODEL" else v) for k, v in want.items()}
+
+
+@settings(max_examples=30, deadline=None)
+@given(
+    mean=st.tuples(*[st.floats(-5.0, 5.0)] * 3),
+    gust=st.floats(0.01, 3.0),
+    gust_time=st.floats(0.1, 5.0),
+    seed=seeds,
+    model=st.sampled_from(sorted(WIND_MODELS)),
+    system_id=st.integers(1, 30),
+)
+def test_a_built_vehicles_air_is_its_configs(mean, gust, gust_time, seed, model, system_id):
+    """The wind section's mean, gusts, correlation time, seed and model are the vehicle's air;
+    independent gusts are each vehicle's own, frozen ones the same for every vehicle."""
+    spec = VehicleConfig(wind=Gusts(mean, gust, gust_time, seed, model))
+    wind = build_vehicle(spec, system_id).wind
+    assert type(wind) is WIND_MODELS[model]
+    assert (tuple(wind.mean_mps), wind.gust_mps, wind.gust_time_s, wind.seed) == (mean, gust, gust_time, seed)
+    other = build_vehicle(spec, system_id + 1).wind
+    same = [wind.at(t).tobytes() == other.at(t).tobytes() for t in (0.0, 1.0, 2.5)]
+    assert all(same) if model == "frozen" else not any(same)
+
+
+@settings(max_examples=30, deadline=None)
+@given(
+    noise=st.tuples(*[st.floats(0.0, 0.5)] * 4),
+    walk=st.floats(0.001, 0.1),
+    seed=seeds,
+    system_id=st.integers(1, 30),
+)
+def test_a_built_vehicles_sensors_are_its_configs(noise, walk, seed, system_id):
+    s = SensorNoise(*noise, seed=seed, position_bias_walk_m_per_sqrt_s=walk)
+    model = sensor_model(VehicleConfig(sensors=s), system_id)
+    assert model is not None
+    got = (
+        model.position_noise_m,
+        model.velocity_noise_mps,
+        model.attitude_noise_rad,
+        model.latency_s,
+        model.seed,
+        model.position_bias_walk_m_per_sqrt_s,
+        model.system_id,
+    )
+    assert got == (*noise, seed, walk, system_id)
+
+
+USERS_MODELS = """
+import numpy as np
+from pydantic import BaseModel, Field
+
+from sim_vehicles.models.build import paper_vtol
+
+
+class Gains(BaseModel):
+    lag_s: float = Field(gt=0, le=1)
+
+
+def declared(spec, state0, dt_s):
+    return paper_vtol(spec.__class__(**{**spec.__dict__, "params": {}}), state0, dt_s)
+
+
+declared.Params = Gains
+
+
+class Tunable:
+    def __init__(self, spec, state0, dt_s):
+        self._inner = paper_vtol(spec.__class__(**{**spec.__dict__, "params": {}}), state0, dt_s)
+        self.tunables = {"lag_s": 0.1}
+
+    def __getattr__(self, name):
+        return getattr(self._inner, name)
+
+
+class BadState(Tunable):
+    @property
+    def state(self):
+        return np.full(13, np.nan)
+"""
+
+
+@pytest.mark.parametrize(
+    ("entry", "params", "named"),
+    [
+        ("declared", {"lag_s": 2.0}, "params: lag_s: Input should be less than or equal to 1 (model "),
+        (
+            "declared",
+            {"lag_s": 0.5, "gain": 1.0},
+            "params: model 'MODELS:declared' has no parameter gain (it has lag_s)",
+        ),
+        ("Tunable", {"gain": 1.0}, "params: model 'MODELS:Tunable' has no parameter gain (it has lag_s)"),
+        ("BadState", {}, "model 'MODELS:BadState': state must be 13 finite values, got shape (13,)"),
+    ],
+)
+def test_a_users_model_is_held_to_its_parameters_and_state_in_one_line(tmp_path, entry, params, named):
+    """A model declaring ``Params`` is held to it, one serving ``tunables`` to those, and a model
+    whose state is not 13 finite values is refused, each in one line naming the model."""
+    (tmp_path / "models.py").write_text(USERS_MODELS)
+    where = f"{tmp_path / 'models.py'}"
+    spec = VehicleConfig(model=f"{where}:{entry}", params=params)
+    with pytest.raises(VehicleConfigError) as e:
+        build_vehicle(spec, 1)
+    said = str(e.value)
+    assert said.startswith("vehicle config: ") and named.replace("MODELS", where) in said and "\n" not in said
+    fine = dataclasses.replace(spec, params={"lag_s": 0.5} if entry != "BadState" else {})
+    if entry != "BadState":
+        assert math.isfinite(float(build_vehicle(fine, 1).state[0]))
