@@ -142,3 +142,36 @@ def test_a_sample_older_than_its_tick_is_carried_to_it_under_the_last_commanded_
     np.testing.assert_array_equal(a.message, b.message)
     for got, want in zip(a.command, b.command, strict=True):
         np.testing.assert_array_equal(got, want)
+
+
+def test_a_tick_whose_output_is_not_finite_says_so_with_what_it_was_given():
+    """Follower 4 (two in-neighbours) with a non-finite state, at its first tick and at a later
+    one: one error naming the follower, the time, each message's age, and the inputs the
+    controller saves to replay the tick (the previous sample empty where there was none)."""
+    from swarm_sitl.laws.command_attitude import SingularCommandError
+    from swarm_sitl.nodes.assembly import reported_vehicle_params
+
+    cfg = config("paper")
+    dt = cfg.control_dt_s
+    law = ZouMengLaw(law_context(cfg, 4, *reported_vehicle_params(cfg)))
+    assert [s for s, _ in law.weights] == [1, 2]
+    sample = VehicleSample(0.0, np.zeros(3), np.zeros(3), np.array([1.0, 0.0, 0.0, 0.0]))
+    msg = np.zeros(12)
+    for t, prev_len in ((0.0, 0), (dt, 14)):  # (t, p, v, q and the acceleration carried)
+        if t > 0:
+            law.state = np.zeros_like(law.state)
+            law.step(0.0, sample, {})  # a finite first tick, then a non-finite one
+        law.state = np.full_like(law.state, np.nan)
+        inbox = {1: Received(msg, t - 0.25, 0.25), 2: Received(msg, t - 0.5, 0.5)}
+        with pytest.raises(SingularCommandError) as e:
+            law.step(t, sample._replace(t_s=t), inbox)
+        said = str(e.value)
+        assert said.startswith(f"follower 4 at t={t:.3f}s: controller output is not finite")
+        assert "message ages [0.250, 0.500] s" in said and "\n" not in said
+        inputs = e.value.inputs
+        assert set(inputs) == {"t", "prev_t", "state_before", "msgs", "sample", "prev_sample"}
+        assert (
+            inputs["t"] == t
+            and np.isnan(inputs["state_before"]).all()
+            and len(inputs["prev_sample"]) == prev_len
+        )

@@ -4,6 +4,7 @@ for any values in range, read back from the vehicle itself; and a user's model i
 parameters as the config's load promises, each refusal one line naming it."""
 
 import dataclasses
+import json
 import math
 
 import pytest
@@ -176,3 +177,40 @@ def test_a_users_model_is_held_to_its_parameters_and_state_in_one_line(tmp_path,
     fine = dataclasses.replace(spec, params={"lag_s": 0.5} if entry != "BadState" else {})
     if entry != "BadState":
         assert math.isfinite(float(build_vehicle(fine, 1).state[0]))
+
+
+def test_a_quadrotors_rate_limits_are_px4s_unless_the_config_gives_them():
+    """PX4 v1.15's MC_ROLLRATE_MAX, MC_PITCHRATE_MAX, MC_YAWRATE_MAX (220, 220, 200 deg/s) for
+    ``px4_quad_x``; the paper's vehicle keeps PX4's largest setting (1800 deg/s)."""
+    quad = build_vehicle(VehicleConfig(model="px4_quad_x"), 1)
+    assert tuple(quad.params.max_rate_rps) == tuple(math.radians(d) for d in (220.0, 220.0, 200.0))
+    vtol = build_vehicle(VehicleConfig(), 1)
+    assert tuple(vtol.params.max_rate_rps) == (math.radians(1800.0),) * 3
+
+
+def test_a_wind_section_without_a_mean_is_still_air_with_gusts():
+    """A wind written with gusts only (``mean_mps`` left out) reads as a zero mean."""
+    data = json.loads(VehicleConfig().to_json())
+    data["wind"] = {"gust_mps": 0.5, "gust_time_s": 1.0, "seed": 3, "model": "independent"}
+    spec = VehicleConfig.from_json(json.dumps(data))
+    assert spec.wind is not None and tuple(spec.wind.mean_mps) == (0.0, 0.0, 0.0)
+    assert build_vehicle(spec, 1).wind.gust_mps == 0.5
+
+
+@pytest.mark.parametrize(
+    ("model", "params", "said"),
+    [
+        ("paper_vtol", {"a": 1.0, "b": 2.0}, "vehicle config: params: paper_vtol takes none, got a, b"),
+        ("px4_quad_x", {"MOTOR_MODEL": 7.0}, "vehicle config: params: MOTOR_MODEL must be 0 or 1, got 7.0"),
+        (
+            "quad9",
+            {},
+            "vehicle config: model 'quad9' is not one of paper_vtol, px4_quad_x nor an entry "
+            "('my_vehicle.py:MyVehicle')",
+        ),
+    ],
+)
+def test_a_built_in_model_refuses_what_it_does_not_take_in_one_line(model, params, said):
+    with pytest.raises(VehicleConfigError) as e:
+        build_vehicle(VehicleConfig(model=model, params=params), 1)
+    assert str(e.value) == said

@@ -107,8 +107,9 @@ def test_what_is_not_a_vehicle_is_one_line_naming_the_field(change, named):
 @pytest.mark.unit
 def test_a_config_file_that_is_not_one_is_refused_in_one_line():
     for text, named in [
-        ("[1, 2]", "must be a mapping"),
+        ("[1, 2]", "^vehicle config: must be a mapping of field names to values$"),
         ('{"mass": 1}', r"unknown field\(s\) mass"),
+        ('{"mass": 1, "colour": 2}', r"^vehicle config: unknown field\(s\) colour, mass$"),
         ("{", "not JSON"),
         ('{"inertia_kgm2": 5}', "vehicle config:"),
     ]:
