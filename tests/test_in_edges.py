@@ -5,7 +5,9 @@ Lockstep equals ``sim`` bit for bit only if the two file the same messages at th
 for any plan of any hows and windows on the node's in-edges, any seed and any motion of the
 senders, they must: at every tick the same table, and at the end the same counts, in which every
 message received is accounted for (``received == delivered - duplicated + lost + corrupt +
-held``) at every tick; and no message is filed before the tick after its own."""
+held``) at every tick; and no message is filed before the tick after its own. Its real-time path
+(the plan asked for each message's fate as it comes) where it differs: what comes before the
+start signal, and a reorder's hold from the arrival."""
 
 import math
 import time
