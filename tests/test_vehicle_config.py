@@ -11,7 +11,7 @@ import sys
 import numpy as np
 import pytest
 import yaml
-from hypothesis import given
+from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from sim_vehicles.models.build import build_vehicle, sensor_model
@@ -347,3 +347,35 @@ def test_a_model_written_against_the_names_before_still_imports_them():
 
     assert spec.VehicleSpec is vehicle_config.VehicleConfig
     assert spec.VehicleSpecError is vehicle_config.VehicleConfigError
+
+
+#: a refusal that names another field than the one changed, where the two are judged together
+COUPLED = {"max_thrust_N": ("mass_kg", "g_mps2")}  # (the thrust must exceed the weight)
+
+_json = st.recursive(
+    st.none() | st.booleans() | st.integers(-10, 10) | st.floats(allow_nan=False) | st.text(max_size=5),
+    lambda inner: st.lists(inner, max_size=4) | st.dictionaries(st.text(max_size=5), inner, max_size=4),
+    max_leaves=8,
+)
+
+
+@pytest.mark.unit
+@settings(max_examples=300, deadline=None)
+@given(
+    name=st.sampled_from([f.name for f in dataclasses.fields(VehicleConfig)]),
+    value=_json,
+    inner=st.sampled_from(["", "mean_mps", "gust_mps", "seed", "model", "latency_s", "T_TAU_S"]),
+)
+def test_any_json_value_of_any_field_is_a_vehicle_or_one_line_naming_the_field(name, value, inner):
+    """A vehicle's JSON file written by hand: whatever JSON a field (or a section's field) holds,
+    the vehicle reads it or refuses it in one line that names that field; never another error."""
+    data = json.loads(VehicleConfig().to_json())
+    data[name] = {inner: value} if inner and name in ("wind", "sensors", "params") else value
+    try:
+        VehicleConfig.from_json(json.dumps(data))
+    except VehicleConfigError as e:
+        said = str(e)
+        assert "\n" not in said and said.startswith("vehicle config: "), said
+        assert said.startswith(f"vehicle config: {name}") or name in COUPLED.get(
+            said.split(":")[1].strip(), ()
+        ), said

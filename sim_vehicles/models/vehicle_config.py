@@ -55,6 +55,41 @@ class SensorNoise:
     position_bias_walk_m_per_sqrt_s: float = 0.0  #: the position's bias, a random walk [m/sqrt(s)]
 
 
+#: ``VehicleConfig.from_dict``: what a JSON value of each field must be, where the field's default
+#: does not say it (a section, or a field that may be left out as null), and how a refusal says it
+_JSON_SECTIONS = {
+    "wind": "a mapping of the wind's fields",
+    "sensors": "a mapping of the sensors' fields",
+    "params": "a mapping of parameter names to numbers",
+    "max_rate_rps": "a list of 3 numbers",
+}
+
+
+def _json_kind(f: Any) -> tuple[tuple[type, ...], str, bool]:
+    """``(types, what it must be, whether null is allowed)`` of field ``f``'s JSON value, read
+    from its default (a bool is not a number here: ``true`` for a mass is a mistake)."""
+    if f.name in _JSON_SECTIONS:
+        kind = (list, tuple) if f.name == "max_rate_rps" else (dict,)
+        return kind, _JSON_SECTIONS[f.name], f.name != "params"
+    if isinstance(f.default, str):
+        return (str,), "a string", False
+    if isinstance(f.default, tuple):
+        return (list, tuple), f"a list of {len(f.default)} numbers", False
+    return (int, float), "a number", False
+
+
+def _refuse_other_kinds(cls: Any, data: dict, where: str) -> None:
+    """``VehicleConfigError`` naming the first field of dataclass ``cls`` whose value in ``data``
+    (JSON's) is of another kind than the field (``_json_kind``); ``where``: the section's prefix."""
+    for f in fields(cls):
+        if f.name not in data:
+            continue
+        value = data[f.name]
+        types, what, nullable = _json_kind(f)
+        if not (value is None and nullable) and (isinstance(value, bool) or not isinstance(value, types)):
+            raise VehicleConfigError(f"vehicle config: {where}{f.name}: must be {what}, got {value!r}")
+
+
 def default_max_rate_rps(model: str) -> tuple[float, float, float]:
     """The body-rate limits of a spec that gives none [rad/s]: ``px4_quad_x``'s are PX4 v1.15's
     MC_*RATE_MAX (220, 220, 200 deg/s, ``plant.px4_params``); every other model's PX4's largest
@@ -174,6 +209,12 @@ class VehicleConfig:
         if unknown:
             raise VehicleConfigError(f"vehicle config: unknown field(s) {', '.join(unknown)}")
         d = dict(data)
+        _refuse_other_kinds(cls, d, "")  # what JSON can hold that no field is: one line, not a traceback
+        for name, section in (("wind", Gusts), ("sensors", SensorNoise)):
+            unknown = sorted(set(d.get(name) or {}) - {f.name for f in fields(section)})
+            if unknown:
+                raise VehicleConfigError(f"vehicle config: {name}: unknown field(s) {', '.join(unknown)}")
+            _refuse_other_kinds(section, d.get(name) or {}, f"{name}.")
         try:
             for f in fields(cls):  # JSON's lists back to the tuples the fields are
                 if isinstance(f.default, tuple) and isinstance(d.get(f.name), list):
