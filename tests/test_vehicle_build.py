@@ -119,13 +119,20 @@ def test_a_built_vehicles_sensors_are_its_configs(noise, walk, seed, system_id):
 
 USERS_MODELS = """
 import numpy as np
-from pydantic import BaseModel, Field
+from pydantic import BaseModel, Field, field_validator
 
 from sim_vehicles.models.build import paper_vtol
 
 
 class Gains(BaseModel):
     lag_s: float = Field(gt=0, le=1)
+
+    @field_validator("lag_s")
+    @classmethod
+    def _below_the_period(cls, v):
+        if v == 0.75:
+            raise ValueError("must not be three quarters")
+        return v
 
 
 def declared(spec, state0, dt_s):
@@ -155,6 +162,7 @@ class BadState(Tunable):
     ("entry", "params", "named"),
     [
         ("declared", {"lag_s": 2.0}, "params: lag_s: Input should be less than or equal to 1 (model "),
+        ("declared", {"lag_s": 0.75}, "params: lag_s: must not be three quarters (model "),
         (
             "declared",
             {"lag_s": 0.5, "gain": 1.0},
