@@ -120,12 +120,14 @@ def _within(e: SpaceEntry, f: dict) -> bool:
         longest = min(b - a, e.max_duration_s or math.inf)
         return (
             "from_s" in f
+            and "until_s" in f
             and a <= f["from_s"] <= b - dt + 1e-12
             and f["from_s"] < f["until_s"] <= b
             and f["until_s"] - f["from_s"] <= max(longest, 2 * dt) + 1e-9
         )
     if e.max_duration_s is not None:
-        return "from_s" not in f and f["until_s"] == min(CFG.duration_s, e.max_duration_s)
+        # (a plan entry another space entry made may have no end: not within this one)
+        return "from_s" not in f and f.get("until_s") == min(CFG.duration_s, e.max_duration_s)
     return "from_s" not in f and "until_s" not in f
 
 
