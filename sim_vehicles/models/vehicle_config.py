@@ -65,6 +65,22 @@ _JSON_SECTIONS = {
 }
 
 
+def _finite_number(v: Any) -> bool:
+    """A float or int (not a bool), finite."""
+    return isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v)
+
+
+def _shown(name: Any) -> str:
+    """A name from a file as a refusal shows it: as written if it reads as a name, else quoted
+    (a line break or a blank in a key stays in one line, and visible)."""
+    return name if isinstance(name, str) and name.isidentifier() else repr(name)
+
+
+def _seed(v: Any) -> bool:
+    """A seed as the swarm config takes one: a whole number in ``0 .. 2**63 - 1``."""
+    return isinstance(v, int) and not isinstance(v, bool) and 0 <= v < 2**63
+
+
 def _json_kind(f: Any) -> tuple[tuple[type, ...], str, bool]:
     """``(types, what it must be, whether null is allowed)`` of field ``f``'s JSON value, read
     from its default (a bool is not a number here: ``true`` for a mass is a mistake)."""
@@ -151,7 +167,7 @@ class VehicleConfig:
                 raise bad(name, f"must be {n} finite numbers, got {v!r}")
         for name, v in self.params.items():  # (a bool is not a number here: {X: true} is a mistake)
             if isinstance(v, bool) or not (isinstance(v, int | float) and math.isfinite(v)):
-                raise bad(f"params: {name}", f"must be a finite number, got {v!r}")
+                raise bad(f"params: {_shown(name)}", f"must be a finite number, got {v!r}")
         if abs(math.sqrt(sum(x * x for x in self.quaternion_wxyz)) - 1.0) > 1e-6:
             raise bad("quaternion_wxyz", f"must be a unit quaternion, got {self.quaternion_wxyz!r}")
         if self.autopilot not in AUTOPILOTS:
@@ -169,10 +185,21 @@ class VehicleConfig:
                 f"{self.max_thrust_N} must exceed the weight m g ({self.mass_kg * self.g_mps2:.3f} N) "
                 "or the vehicle cannot hover",
             )
-        if self.wind is not None and (self.wind.gust_mps < 0 or not self.wind.gust_time_s > 0):
-            raise bad("wind", "gust_mps is zero or positive and gust_time_s positive")
-        if self.wind is not None and self.wind.model not in ("independent", "frozen"):
-            raise bad("wind", f"model must be independent or frozen, got {self.wind.model!r}")
+        if self.wind is not None:
+            w = self.wind
+            mean = w.mean_mps
+            if not isinstance(mean, tuple | list) or len(mean) != 3 or not all(map(_finite_number, mean)):
+                raise bad("wind", f"mean_mps must be 3 finite numbers, got {w.mean_mps!r}")
+            gusts = (w.gust_mps, w.gust_time_s)
+            if not (all(_finite_number(v) for v in gusts) and w.gust_mps >= 0 and w.gust_time_s > 0):
+                raise bad(
+                    "wind",
+                    f"gust_mps must be zero or positive and gust_time_s positive, both finite, got {gusts!r}",
+                )
+            if w.model not in ("independent", "frozen"):
+                raise bad("wind", f"model must be independent or frozen, got {w.model!r}")
+            if not _seed(w.seed):
+                raise bad("wind", f"seed must be a whole number in 0..2**63 - 1, got {w.seed!r}")
         if self.sensors is not None:
             s = self.sensors
             values = (
@@ -182,8 +209,10 @@ class VehicleConfig:
                 s.latency_s,
                 s.position_bias_walk_m_per_sqrt_s,
             )
-            if any(not (v >= 0) for v in values):
-                raise bad("sensors", "noise and latency are zero or positive")
+            if not all(_finite_number(v) and v >= 0 for v in values):
+                raise bad("sensors", f"noise and latency are zero or positive, and finite, got {values!r}")
+            if not _seed(s.seed):
+                raise bad("sensors", f"seed must be a whole number in 0..2**63 - 1, got {s.seed!r}")
 
     # -- crossing a process boundary -------------------------------------------------------------
     def to_json(self) -> str:
@@ -207,13 +236,14 @@ class VehicleConfig:
         known = {f.name for f in fields(cls)}
         unknown = sorted(set(data) - known)
         if unknown:
-            raise VehicleConfigError(f"vehicle config: unknown field(s) {', '.join(unknown)}")
+            raise VehicleConfigError(f"vehicle config: unknown field(s) {', '.join(map(_shown, unknown))}")
         d = dict(data)
         _refuse_other_kinds(cls, d, "")  # what JSON can hold that no field is: one line, not a traceback
         for name, section in (("wind", Gusts), ("sensors", SensorNoise)):
             unknown = sorted(set(d.get(name) or {}) - {f.name for f in fields(section)})
             if unknown:
-                raise VehicleConfigError(f"vehicle config: {name}: unknown field(s) {', '.join(unknown)}")
+                shown = ", ".join(map(_shown, unknown))
+                raise VehicleConfigError(f"vehicle config: {name}: unknown field(s) {shown}")
             _refuse_other_kinds(section, d.get(name) or {}, f"{name}.")
         try:
             for f in fields(cls):  # JSON's lists back to the tuples the fields are
