@@ -7,6 +7,7 @@ import dataclasses
 import json
 import math
 
+import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
@@ -118,6 +119,8 @@ def test_a_built_vehicles_sensors_are_its_configs(noise, walk, seed, system_id):
 
 
 USERS_MODELS = """
+import dataclasses
+
 import numpy as np
 from pydantic import BaseModel, Field, field_validator
 
@@ -140,6 +143,23 @@ def declared(spec, state0, dt_s):
 
 
 declared.Params = Gains
+
+
+@dataclasses.dataclass
+class Plain:
+    lag_s: float = 0.1
+
+    def __post_init__(self):
+        if not 0 < self.lag_s <= 1:
+            raise ValueError(f"lag_s must be within 0..1, got {self.lag_s}")
+
+
+def plain(spec, state0, dt_s):
+    return paper_vtol(spec.__class__(**{**spec.__dict__, "params": {}}), state0, dt_s)
+
+
+plain.Params = Plain
+NOT_CALLABLE = 3
 
 
 class Tunable:
@@ -170,6 +190,12 @@ class BadState(Tunable):
         ),
         ("Tunable", {"gain": 1.0}, "params: model 'MODELS:Tunable' has no parameter gain (it has lag_s)"),
         ("BadState", {}, "model 'MODELS:BadState': state must be 13 finite values, got shape (13,)"),
+        (
+            "plain",
+            {"lag_s": 2.0},
+            "params: ValueError: lag_s must be within 0..1, got 2.0 (model 'MODELS:plain')",
+        ),
+        ("NOT_CALLABLE", {}, "model 'MODELS:NOT_CALLABLE' is a int, not callable"),
     ],
 )
 def test_a_users_model_is_held_to_its_parameters_and_state_in_one_line(tmp_path, entry, params, named):
@@ -183,7 +209,7 @@ def test_a_users_model_is_held_to_its_parameters_and_state_in_one_line(tmp_path,
     said = str(e.value)
     assert said.startswith("vehicle config: ") and named.replace("MODELS", where) in said and "\n" not in said
     fine = dataclasses.replace(spec, params={"lag_s": 0.5} if entry != "BadState" else {})
-    if entry != "BadState":
+    if entry not in ("BadState", "NOT_CALLABLE"):
         assert math.isfinite(float(build_vehicle(fine, 1).state[0]))
 
 
@@ -222,3 +248,67 @@ def test_a_built_in_model_refuses_what_it_does_not_take_in_one_line(model, param
     with pytest.raises(VehicleConfigError) as e:
         build_vehicle(VehicleConfig(model=model, params=params), 1)
     assert str(e.value) == said
+
+
+def test_a_quadrotors_refusals_name_the_parameter_and_what_it_takes():
+    """A rate limit given as a param is pointed to ``max_rate_rps``; an unknown name is answered
+    with the names the model takes (its airframe's and PX4's gains, not the rate limits); a value
+    out of range with the range."""
+    from sim_vehicles.plant.px4_control import GAINS
+
+    def said(params):
+        with pytest.raises(VehicleConfigError) as e:
+            build_vehicle(VehicleConfig(model="px4_quad_x", params=params), 1)
+        return str(e.value)
+
+    for rate in px4_params.RATE_MAX:
+        assert said({rate: 3.0}) == (
+            f"vehicle config: params: {rate} is the vehicle's max_rate_rps (roll, pitch, yaw [rad/s]), "
+            "not a param"
+        )
+    text = said({"MC_FOO": 1.0})
+    head = "vehicle config: params: px4_quad_x has no parameter 'MC_FOO' (it has "
+    assert text.startswith(head) and text.endswith(")")
+    assert set(text[len(head) : -1].split(", ")) == set(AIRFRAME) | set(GAINS)
+    p = px4_params.BY_NAME["MC_ROLL_P"]
+    assert said({"MC_ROLL_P": p.high * 2}) == (
+        f"vehicle config: params: MC_ROLL_P must be within {p.low:g}..{p.high:g}, got {p.high * 2!r}"
+    )
+
+
+@settings(max_examples=30, deadline=None)
+@given(draws=st.dictionaries(st.sampled_from(sorted(px4_params.GAINS)), st.floats(0.05, 0.95), min_size=1))
+def test_a_quadrotors_px4_gains_from_its_config_are_the_ones_in_force(draws):
+    """PX4's attitude and rate gains set in the config (within their ranges) are the vehicle's
+    parameters in force; the others keep PX4 v1.15's defaults."""
+    params = {name: _in_range(name, u) for name, u in draws.items()}
+    quad = build_vehicle(VehicleConfig(model="px4_quad_x", params=params), 1)
+    assert quad.tunables == {**px4_params.GAINS, **params}
+
+
+@settings(max_examples=30, deadline=None)
+@given(
+    position=st.tuples(*[st.floats(-50.0, 50.0)] * 3),
+    velocity=st.tuples(*[st.floats(-5.0, 5.0)] * 3),
+    axis=st.tuples(*[st.floats(-1.0, 1.0)] * 3).filter(lambda a: math.hypot(*a) > 0.1),
+    angle=st.floats(-3.0, 3.0),
+    model=st.sampled_from(["paper_vtol", "px4_quad_x"]),
+)
+def test_a_built_vehicle_starts_where_its_config_puts_it(position, velocity, axis, angle, model):
+    """Position, velocity and attitude from the config; at rest in rotation."""
+    n = math.hypot(*axis)
+    q = (math.cos(angle / 2), *(math.sin(angle / 2) * a / n for a in axis))
+    spec = VehicleConfig(model=model, position_m=position, velocity_mps=velocity, quaternion_wxyz=q)
+    state = np.asarray(build_vehicle(spec, 1).state)
+    assert tuple(state[0:3]) == position and tuple(state[3:6]) == velocity
+    np.testing.assert_allclose(state[6:10], q, rtol=0, atol=4e-16)  # (renormalised: an ulp or two)
+    assert tuple(state[10:13]) == (0.0, 0.0, 0.0)
+
+
+def test_still_air_and_true_sensors_given_as_sections_are_no_model_at_all():
+    """A wind section of no mean and no gusts, a sensors section of no noise, no latency and no
+    bias: the vehicle builds no wind and no sensor model (nothing to draw per step)."""
+    assert build_vehicle(VehicleConfig(wind=Gusts(seed=5)), 1).wind is None
+    assert sensor_model(VehicleConfig(sensors=SensorNoise(seed=5)), 1) is None
+    assert build_vehicle(VehicleConfig(wind=Gusts(gust_mps=0.1)), 1).wind is not None
+    assert sensor_model(VehicleConfig(sensors=SensorNoise(latency_s=0.01)), 1) is not None
