@@ -321,6 +321,13 @@ def test_the_check_report_says_each_conditions_bound_value_and_verdict_as_comput
         j for j, line in enumerate(lines) if line.split()[:4] == ["condition", "bound", "value", "verdict"]
     )
     rows = lines[header + 1 : header + 1 + len(report.conditions)]
+    assert lines[header - 1] == "" and lines[header + 1 + len(report.conditions)] == ""  # a block apart
+    theta = re.fullmatch(r"  Theta = diag\((.*)\)   \((.*)\)", lines[start - 2])
+    assert theta is not None and theta.group(2) == report.theta_source, lines[start - 2]
+    diag = [float(x) for x in theta.group(1).split(", ")]
+    np.testing.assert_allclose(diag, np.diag(report.theta), rtol=5e-4)  # (4 significant digits)
+    assert f"sup|pddot_r| = {report.sup_acc:.4g} m/s^2, sup|N_p| = {report.sup_Np:.4g} m/s^3 " in text
+    assert "(N_p = -l_a p_r^(3) - p_r^(4), as derived)" in text
     for c, row in zip(report.conditions, rows, strict=True):
         m = re.fullmatch(rf"  {re.escape(c.name)} +(\S+) +(\S+)  (ok|FAILS)", row)
         assert m is not None, row

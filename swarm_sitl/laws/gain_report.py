@@ -9,7 +9,6 @@ COVERED_BRACKET = "sliding_surface"  #: the estimator form Theorem 1's proof is 
 
 def render(report: GainReport, name: str, bracket: str = COVERED_BRACKET) -> str:
     """``bracket``: the config's ``estimator.bracket``, the form the run will fly."""
-    np.set_printoptions(precision=4, suppress=True)
     lines = [
         f"config {name}: Theorem 1 and section 3.3 conditions (sufficient, not necessary)",
         f"  they cover the estimator with bracket {COVERED_BRACKET} (the proof's surface "
