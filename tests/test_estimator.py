@@ -175,3 +175,139 @@ def test_a_tick_whose_output_is_not_finite_says_so_with_what_it_was_given():
             and np.isnan(inputs["state_before"]).all()
             and len(inputs["prev_sample"]) == prev_len
         )
+
+
+def _paper_law(follower: int, **params):
+    from swarm_sitl.nodes.assembly import reported_vehicle_params
+
+    cfg = config("paper")
+    ctx = law_context(cfg, follower, *reported_vehicle_params(cfg))
+    if params:
+        ctx = dataclasses.replace(ctx, params=ctx.params._replace(**params))
+    return cfg, ZouMengLaw(ctx)
+
+
+def _leader_inbox(cfg, t: float, age: float = 0.0) -> dict:
+    return {0: Received(reference_values(cfg.trajectory().derivatives(t - age)), t - age, age)}
+
+
+@given(
+    t0=st.floats(0.0, 30.0),
+    gaps=st.lists(st.integers(1, 3), min_size=1, max_size=3),
+    hold=st.sampled_from([0, 1]),
+)
+@settings(max_examples=20, deadline=None)
+def test_a_step_is_the_kernels_tick_its_command_message_and_record_the_ticks_output(t0, gaps, hold):
+    """A law's first step, at any time (a restarted controller's starts late), keeps the state it
+    has; each later one advances it from the last tick at the configured internal step (however
+    many periods passed) carrying the previous sample; the command, the message and the record
+    are the tick's output and state, field by field."""
+    from swarm_sitl.laws.follower_law import (
+        CTRL_SIZE,
+        OUT_A_HAT,
+        OUT_A_HAT_DOT,
+        OUT_OMEGA_C,
+        OUT_OMEGADOT_C,
+        OUT_Q_C,
+        OUT_THRUST,
+        OUT_U,
+        OUT_U_DDOT,
+        OUT_U_DOT,
+        TICK_ACC,
+        TICK_OUT,
+        TICK_STATE,
+        controller_tick,
+        gains_vector,
+    )
+
+    cfg, law = _paper_law(1, hold=hold)
+    dt = cfg.control_dt_s
+    q = np.array([0.99, 0.1, -0.05, 0.02])
+    q /= np.linalg.norm(q)
+    state, prev, prev_t, prev_acc = np.zeros(CTRL_SIZE), None, 0.0, np.zeros(3)
+    t = t0
+    for k, gap in enumerate([0, *gaps]):
+        t += gap * dt
+        p = cfg.trajectory().derivatives(t)[0] + law.offset + 0.1 * k
+        sample = VehicleSample(t, p, np.array([0.2, -0.1, 0.05 * k]), q)
+        inbox = _leader_inbox(cfg, t)
+        msgs = np.array([[1.0, t, *inbox[0].values]])
+        veh = sample if prev is None else prev
+        n_sub = 0 if prev is None else law.substeps * gap
+        want = controller_tick(
+            state, prev_t, t, n_sub, msgs, hold, veh.t_s, veh.p_W, veh.v_W, prev_acc,
+            sample.p_W, sample.v_W, sample.q_WB, 0.0, law.offset, gains_vector(law.gains), law.max_thrust_N,
+        )  # fmt: skip
+        got = law.step(t, sample, inbox)
+        out = want[TICK_OUT]
+        np.testing.assert_array_equal(got.command.q_c, out[OUT_Q_C])
+        assert got.command.thrust_N == out[OUT_THRUST]
+        np.testing.assert_array_equal(got.command.omega_c_B, out[OUT_OMEGA_C])
+        np.testing.assert_array_equal(got.command.omegadot_c_B, out[OUT_OMEGADOT_C])
+        x = want[TICK_STATE]
+        a_hat = (out[OUT_A_HAT], out[OUT_A_HAT_DOT])
+        np.testing.assert_array_equal(got.message, np.concatenate((x[0:6], *a_hat)))
+        force = (out[OUT_U], out[OUT_U_DOT], out[OUT_U_DDOT])
+        np.testing.assert_array_equal(got.record, np.concatenate((x, *force, *a_hat)))
+        state, prev, prev_t, prev_acc = x, sample, t, want[TICK_ACC]
+
+
+@pytest.mark.parametrize("hold", [0, 1])
+@pytest.mark.parametrize("first", [True, False])
+def test_a_sample_older_than_its_tick_is_taken_as_it_came_at_a_first_tick_or_under_a_zero_order_hold(
+    hold, first
+):
+    """Only a later tick of a law that extrapolates carries a sample by its age (with no
+    acceleration commanded yet, or messages held as they came, there is nothing to carry it by):
+    elsewhere a sample ``age`` old gives what the same sample stamped at the tick gives."""
+    cfg, old = _paper_law(1, hold=hold)
+    _, now = _paper_law(1, hold=hold)
+    dt = cfg.control_dt_s
+    q = np.array([0.99, 0.1, -0.05, 0.0])
+    q /= np.linalg.norm(q)
+    p0 = cfg.trajectory().derivatives(0.0)[0] + old.offset + 0.3
+    v0 = np.array([0.4, -0.2, 0.1])
+    t = 0.0 if first else dt
+    if not first:
+        for law in (old, now):
+            law.step(0.0, VehicleSample(0.0, p0, v0, q), _leader_inbox(cfg, 0.0))
+    age = 0.004
+    a = old.step(t, VehicleSample(t - age, p0, v0, q), _leader_inbox(cfg, t))
+    b = now.step(t, VehicleSample(t, p0, v0, q), _leader_inbox(cfg, t))
+    same = np.array_equal(a.record, b.record) and np.array_equal(a.command.q_c, b.command.q_c)
+    assert same == (hold == 0 or first)  # (the carried sample itself: the test above)
+
+
+def test_a_non_finite_ticks_error_says_whether_the_state_was_finite_and_how_old_its_inputs_were():
+    """The line names the state's finiteness, the sample's age and, past five periods, that the
+    inputs were stale; nothing after the message ages otherwise."""
+    from swarm_sitl.laws.command_attitude import SingularCommandError
+    from swarm_sitl.laws.zou_meng import STALE_INPUT_PERIODS
+
+    cfg, law = _paper_law(4)
+    dt = cfg.control_dt_s
+    sample = VehicleSample(0.0, np.zeros(3), np.zeros(3), np.array([1.0, 0.0, 0.0, 0.0]))
+    nan_msg = np.full(12, np.nan)
+    for t, sample_age, msg_age, stale in (
+        (1.0, 0.3 * dt, 0.5 * dt, False),
+        (1.0, (STALE_INPUT_PERIODS + 1) * dt, 0.5 * dt, True),
+        (1.0, 0.0, (STALE_INPUT_PERIODS + 2) * dt, True),
+    ):
+        law.state = np.zeros_like(law.state)
+        law._prev_sample = None
+        inbox = {1: Received(nan_msg, t - msg_age, msg_age), 2: Received(np.zeros(12), t, 0.0)}
+        with pytest.raises(SingularCommandError) as e:
+            law.step(t, sample._replace(t_s=t - sample_age), inbox)
+        said = str(e.value)
+        ages = f"sample age {sample_age:.3f} s, message ages [{msg_age:.3f}, 0.000] s"
+        assert f"state finite: True, {ages}" in said
+        oldest = max(sample_age, msg_age)
+        assert said.endswith(
+            f"; its inputs were up to {oldest:.2f} s old (in real time: a machine too slow for the swarm, "
+            "try fewer followers or lockstep; or a fault plan held them)"
+            if stale
+            else "] s"
+        ), said
+    law.state = np.full_like(law.state, np.nan)
+    with pytest.raises(SingularCommandError, match="state finite: False, "):
+        law.step(2.0, sample._replace(t_s=2.0), {})
