@@ -56,7 +56,6 @@ class TableWriter:
     """Appends rows to the table, each flushed to disk as it comes."""
 
     def __init__(self, path: Path, keys: list[str], requirements: Sequence[str] = ()):
-        self.path = path
         self.cols = columns(keys, requirements)
         new = not path.is_file() or path.stat().st_size == 0
         self._f = path.open("a", newline="")
