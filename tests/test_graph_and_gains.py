@@ -344,3 +344,24 @@ def test_the_check_report_says_each_conditions_bound_value_and_verdict_as_comput
     assert (f"WARNING: estimator.bracket is {bracket}" in text) == (bracket != COVERED_BRACKET)
     warnings = sum(line.startswith("WARNING: ") for line in lines)
     assert warnings == bool(failing) + (bracket != COVERED_BRACKET)
+
+
+@pytest.mark.parametrize("value", [0.0, -1.0, float("inf"), float("nan")])
+def test_a_gain_that_is_not_positive_and_finite_is_refused_at_load_naming_it(tmp_path, value):
+    """Every gain of the paper's law, in a config file: zero, negative, infinite or not a number
+    is one line naming ``gains.NAME`` at load (an infinite gain flew, and failed at the first tick)."""
+    import yaml
+
+    from swarm_sitl.config.load import ConfigError, load_config
+    from swarm_sitl.laws.paper_gains import PaperGains
+    from tests.support import config_data
+
+    for name in PaperGains.model_fields:
+        data = config_data("paper")
+        data["gains"][name] = value
+        path = tmp_path / f"{name}.yaml"
+        path.write_text(yaml.safe_dump(data))
+        with pytest.raises(ConfigError) as e:
+            load_config(path)
+        said = str(e.value)
+        assert said.startswith(f"{path}: gains.{name}: ") and "\n" not in said, said

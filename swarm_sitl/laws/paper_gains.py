@@ -7,7 +7,8 @@ from typing import Annotated
 
 from pydantic import BaseModel, ConfigDict, Field
 
-Positive = Annotated[float, Field(gt=0)]
+#: a gain: positive and finite (an infinite gain is refused at load, not at the first tick)
+Positive = Annotated[float, Field(gt=0, allow_inf_nan=False)]
 
 
 class PaperGains(BaseModel):
