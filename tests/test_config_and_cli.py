@@ -359,3 +359,43 @@ def test_a_seed_and_a_duration_are_taken_over_their_whole_ranges_and_refused_jus
     for d in (0.0, -1.0, math.inf, math.nan):
         with pytest.raises(ConfigError, match="--duration"):
             with_duration(paper_cfg, d)
+
+
+def _number_paths(d, path=()):
+    """The path of every number in a config's data."""
+    if isinstance(d, dict):
+        for k, v in d.items():
+            yield from _number_paths(v, (*path, k))
+    elif isinstance(d, list):
+        for i, v in enumerate(d):
+            yield from _number_paths(v, (*path, i))
+    elif isinstance(d, int | float) and not isinstance(d, bool):
+        yield path
+
+
+@pytest.mark.parametrize("value", [float("inf"), float("nan")])
+def test_an_infinite_or_nan_number_anywhere_in_a_config_is_one_line_or_a_config(tmp_path, value):
+    """Every number of the paper's config (with a wind section), one at a time made infinite or
+    not a number, as YAML's .inf and .nan write them: the config loads, or its refusal is one line
+    naming the file; never another error (attitude_hz: .inf was an OverflowError)."""
+    import yaml
+
+    from swarm_sitl.config.load import ConfigError, load_config
+
+    base = config_data("paper")
+    base["wind"] = {"mean_mps": [1.0, 0.0, 0.0], "gust_mps": 0.5, "gust_time_s": 1.0}
+    paths = list(_number_paths(base))
+    assert len(paths) > 30
+    for where in paths:
+        data = config_data("paper") | {"wind": dict(base["wind"])}
+        data["wind"]["mean_mps"] = list(base["wind"]["mean_mps"])
+        node = data
+        for k in where[:-1]:
+            node = node[k]
+        node[where[-1]] = value
+        path = tmp_path / "c.yaml"
+        path.write_text(yaml.safe_dump(data))
+        try:
+            load_config(path)
+        except ConfigError as e:
+            assert str(e).startswith(f"{path}: ") and "\n" not in str(e), (where, str(e))

@@ -103,7 +103,8 @@ class RatesSection(_Strict):
     #: position loop / estimator exchange rate; at most 1000 Hz: each tick's MAVLink messages are
     #: stamped (and its faults drawn, and a lockstep vehicle stepped) by their whole ms
     control_hz: Annotated[float, Field(gt=0, le=1000)]
-    attitude_hz: Positive  #: attitude loop and plant integration rate
+    #: attitude loop and plant integration rate
+    attitude_hz: Annotated[float, Field(gt=0, allow_inf_nan=False)]
     estimator_substeps: Annotated[int, Field(ge=1, le=1000)] = 10  #: RK4 steps per control period
 
     @model_validator(mode="after")
