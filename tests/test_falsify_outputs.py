@@ -19,7 +19,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from swarm_sitl.falsify.outputs import Found, edge_shares, failed_report, front, report, write_csv
+from swarm_sitl.falsify.outputs import Found, edge_shares, failed_report, front, order, report, write_csv
 from swarm_sitl.falsify.space import expand
 from swarm_sitl.falsify.workers import NO_ROBUSTNESS
 from tests.support import config
@@ -76,6 +76,12 @@ def test_the_front_is_the_evaluations_no_other_beats_and_it_covers_every_evaluat
     assert [f["cost"] for f in fr] == sorted(f["cost"] for f in fr)
     assert all(a["robustness"] > b["robustness"] for a, b in itertools.pairwise(fr))
     assert (fr == []) == (rows == [])
+    # the order evaluations are told and written in: cheapest first, then least robust
+    told = sorted(rows, key=order)
+    assert all(
+        a["cost"] < b["cost"] or (a["cost"] == b["cost"] and a["robustness"] <= b["robustness"])
+        for a, b in itertools.pairwise(told)
+    )
 
 
 @settings(max_examples=50, deadline=None)
