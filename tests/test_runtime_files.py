@@ -72,6 +72,13 @@ def test_a_row_log_reads_back_its_rows_whole_blocks_while_open_and_complete_rows
     assert got.tobytes() == rows[:complete].astype("<f8").tobytes()
 
 
+def test_a_row_log_of_no_columns_reads_as_no_rows(tmp_path):
+    log = RowLog(tmp_path / "none.rows", [])
+    log.close()
+    columns, rows = read_rows(tmp_path / "none.rows")
+    assert columns == [] and rows.shape == (0, 0)
+
+
 def test_a_row_of_the_wrong_width_and_a_file_that_is_no_row_log_are_one_line(tmp_path):
     log = RowLog(tmp_path / "truth.rows", ["a", "b", "c"])
     with pytest.raises(ValueError, match=r"^truth\.rows: row has 4 values, expected 3$"):
@@ -113,6 +120,21 @@ def test_a_counter_file_holds_what_was_counted_at_every_step(steps, tmp_path_fac
     assert read_counter(path.with_name("none")) is None
     path.write_bytes(b"\x00" * 7)
     assert read_counter(path) is None
+
+
+def test_count_files_are_plain_files_others_may_read_and_a_count_may_hold_any_byte(tmp_path):
+    """Created as 0644 under the umask (the supervisor, or another user's tool, reads them; none
+    is executable), even over an old file; a count whose bytes hold a line feed (10) reads back."""
+    umask = os.umask(0o022)
+    os.umask(umask)
+    (tmp_path / "old.count").write_bytes(b"x")
+    os.chmod(tmp_path / "old.count", 0o700)
+    CounterFile(tmp_path / "one.count").close()
+    counts = NamedCounts(tmp_path / "named.counts", ["a", "b"])
+    counts.values[:] = [10, 0x0A0A]
+    for name in ("one.count", "named.counts"):
+        assert stat.S_IMODE((tmp_path / name).stat().st_mode) == 0o644 & ~umask
+    assert read_named_counts(tmp_path / "named.counts") == {"a": 10, "b": 0x0A0A}
 
 
 @settings(max_examples=40, deadline=None)
@@ -169,10 +191,16 @@ def test_an_event_log_is_one_flushed_json_line_per_event_and_without_a_path_only
         "reason": "setpoint lost",
     }
     log.add(2.5, "armed")
+    log.add(3.1234567891, "disarmed")  # (times to the nanosecond)
     log.close()
     log.close()
-    lines = (tmp_path / "events.jsonl").read_text().splitlines()
-    assert [json.loads(x)["kind"] for x in lines] == ["mode", "armed"] and log.count == 2
+    lines = [json.loads(x) for x in (tmp_path / "events.jsonl").read_text().splitlines()]
+    assert [(x["kind"], x["t_s"]) for x in lines] == [
+        ("mode", 1.0),
+        ("armed", 2.5),
+        ("disarmed", 3.123456789),
+    ]
+    assert log.count == 3
     nowhere = EventLog(None, "controller_1")
     nowhere.add(0.0, "start")
     nowhere.close()
@@ -180,6 +208,8 @@ def test_an_event_log_is_one_flushed_json_line_per_event_and_without_a_path_only
 
 
 def test_a_secret_file_is_its_owners_alone_and_replaces_an_old_one(tmp_path):
+    write_secret(tmp_path / "first.key", "new")  # (none there before)
+    assert (tmp_path / "first.key").read_text() == "new"
     path = tmp_path / "signing.key"
     path.write_text("old")
     os.chmod(path, 0o644)
@@ -220,6 +250,22 @@ def test_a_datagram_is_stamped_between_its_sending_and_its_reading(udp_pair):
         # a busy machine may take apart by a few milliseconds: 5 ms either way
         assert before - 0.005 <= arrived <= read_at - 0.025
         assert not waiting()
+
+
+def test_where_poll_is_missing_a_socket_still_says_whether_a_datagram_waits(udp_pair, monkeypatch):
+    """(Not Linux: ``select`` without ``poll``.) The same answers, asked of ``select.select``."""
+    import select
+    import types
+
+    monkeypatch.setattr(udp_arrival, "select", types.SimpleNamespace(select=select.select))
+    rx, tx = udp_pair
+    waiting = udp_arrival.Waiting(rx)
+    assert not waiting()
+    tx.sendto(b"x", rx.getsockname())
+    time.sleep(0.02)
+    assert waiting() and waiting()  # (asking reads nothing)
+    rx.recv(16)
+    assert not waiting()
 
 
 def test_a_socket_without_stamps_dates_its_datagrams_when_read(udp_pair):
