@@ -326,8 +326,10 @@ def test_the_check_report_says_each_conditions_bound_value_and_verdict_as_comput
     assert theta is not None and theta.group(2) == report.theta_source, lines[start - 2]
     diag = [float(x) for x in theta.group(1).split(", ")]
     np.testing.assert_allclose(diag, np.diag(report.theta), rtol=5e-4)  # (4 significant digits)
-    assert f"sup|pddot_r| = {report.sup_acc:.4g} m/s^2, sup|N_p| = {report.sup_Np:.4g} m/s^3 " in text
-    assert "(N_p = -l_a p_r^(3) - p_r^(4), as derived)" in text
+    assert (
+        f"  sup|pddot_r| = {report.sup_acc:.4g} m/s^2, sup|N_p| = {report.sup_Np:.4g} m/s^3 "
+        "(N_p = -l_a p_r^(3) - p_r^(4), as derived)"
+    ) in lines
     for c, row in zip(report.conditions, rows, strict=True):
         m = re.fullmatch(rf"  {re.escape(c.name)} +(\S+) +(\S+)  (ok|FAILS)", row)
         assert m is not None, row
