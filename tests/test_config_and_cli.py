@@ -41,6 +41,10 @@ CASES = {
         lambda d: d["vehicle"].update(mass_kg=-0.85),
         "vehicle.mass_kg: Input should be greater than 0",
     ),
+    "infinite mass": (
+        lambda d: d["vehicle"].update(mass_kg=float("inf")),
+        "vehicle.mass_kg: Input should be a finite number",
+    ),
     "non-unit quaternion": (
         lambda d: d["followers"][1].update(initial_quaternion_wxyz=[1, 0.1, 0, 0]),
         "followers.1.initial_quaternion_wxyz: must be a unit quaternion",

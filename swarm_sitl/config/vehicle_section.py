@@ -11,7 +11,7 @@ from pydantic import BaseModel, ConfigDict, Field, StrictFloat, StrictInt, model
 from sim_vehicles.models import vehicle_config
 
 Vec3 = tuple[float, float, float]
-Positive = Annotated[float, Field(gt=0)]
+Positive = Annotated[float, Field(gt=0, allow_inf_nan=False)]  #: (every vehicle number is finite)
 
 
 class _Strict(BaseModel):
