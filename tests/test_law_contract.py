@@ -426,3 +426,38 @@ def test_a_laws_params_are_refused_in_one_line_naming_what_it_declares_and_its_o
         validate_params(bare, {"x": 1.0}, "e")
     with pytest.raises(LawEntryError, match=r"^params\.k: k must be positive, got -1\.0 \(law e\)$"):
         validate_params(type("L", (), {"Params": _Checked}), {"k": -1.0}, "e")
+
+
+@pytest.mark.unit
+@settings(max_examples=40, deadline=None)
+@given(
+    scale=st.floats(1e-3, 2.0),
+    ages=st.lists(st.floats(0.0, 5.0), max_size=4),
+    p=st.tuples(*[st.floats(-100.0, 100.0)] * 3),
+    v=st.tuples(*[st.floats(-10.0, 10.0)] * 3),
+)
+def test_the_template_law_holds_level_at_its_share_of_the_weight_and_tells_what_it_heard(scale, ages, p, v):
+    """The law users copy (``laws/template.py``), one tick at a time: level, no rates, thrust
+    ``thrust_scale`` times the weight; its message its sample's position and velocity; its record
+    how many it heard and the oldest age (0 with nobody); ``thrust_scale`` within (0, 2]."""
+    from swarm_sitl.laws.template import HoverLaw, HoverParams
+    from swarm_sitl.nodes.assembly import law_context, reported_vehicle_params
+    from tests.support import config
+
+    cfg = config("paper")
+    ctx = dataclasses.replace(
+        law_context(cfg, 1, *reported_vehicle_params(cfg)), params=HoverParams(thrust_scale=scale)
+    )
+    law = HoverLaw(ctx)
+    inbox = {k: Received(np.zeros(6), 1.0 - a, a) for k, a in enumerate(ages)}
+    out = law.step(1.0, VehicleSample(1.0, np.array(p), np.array(v), np.array([0.9, 0.1, 0.3, 0.3])), inbox)
+    assert tuple(out.command.q_c) == (1.0, 0.0, 0.0, 0.0)
+    assert out.command.thrust_N == pytest.approx(scale * ctx.mass_kg * ctx.gravity_mps2, rel=1e-15)
+    assert not np.any(out.command.omega_c_B) and not np.any(out.command.omegadot_c_B)
+    assert tuple(out.message) == (*p, *v)
+    assert out.record == {"heard": len(ages), "oldest_age_s": max(ages, default=0.0)}
+    for bad in (0.0, -1.0, 2.0 + 1e-9):
+        with pytest.raises(pydantic.ValidationError):
+            HoverParams(thrust_scale=bad)
+    with pytest.raises(pydantic.ValidationError):
+        HoverParams(thrust_scale=1.0, scale=2.0)
