@@ -437,6 +437,7 @@ def test_any_json_value_of_any_field_is_a_vehicle_or_one_line_naming_the_field(n
         ({"wind": {"\n": None}}, "wind: unknown field(s) '\\n'"),  # a name that is no name: quoted
         ({"params": {"top speed": "x"}}, "params: 'top speed': must be a finite number, got 'x'"),
         ({"params": None}, "params: must be a mapping of parameter names to numbers, got None"),
+        ({"position_m": [True, 0, 0]}, "position_m: must be 3 finite numbers, got (True, 0, 0)"),  # (no bool)
         ({"wind": None, "sensors": None, "max_rate_rps": None}, None),  # (these three may be null)
     ],
 )

@@ -155,18 +155,18 @@ class VehicleConfig:
 
         for name in ("mass_kg", "max_thrust_N", "g_mps2", "attitude_hz", "setpoint_timeout_s", "l_q", "k_q"):
             v = getattr(self, name)
-            if not (isinstance(v, int | float) and 0 < v < math.inf):
+            if not (_finite_number(v) and v > 0):
                 raise bad(name, f"must be a finite number > 0, got {v!r}")
         for name, n in (("inertia_kgm2", 3), ("max_rate_rps", 3)):
             v = getattr(self, name)
-            if len(v) != n or not all(isinstance(x, int | float) and 0 < x < math.inf for x in v):
+            if len(v) != n or not all(_finite_number(x) and x > 0 for x in v):
                 raise bad(name, f"must be {n} finite numbers > 0, got {v!r}")
         for name, n in (("position_m", 3), ("velocity_mps", 3), ("quaternion_wxyz", 4)):
             v = getattr(self, name)
-            if len(v) != n or not all(isinstance(x, int | float) and math.isfinite(x) for x in v):
+            if len(v) != n or not all(map(_finite_number, v)):
                 raise bad(name, f"must be {n} finite numbers, got {v!r}")
         for name, v in self.params.items():  # (a bool is not a number here: {X: true} is a mistake)
-            if isinstance(v, bool) or not (isinstance(v, int | float) and math.isfinite(v)):
+            if not _finite_number(v):
                 raise bad(f"params: {_shown(name)}", f"must be a finite number, got {v!r}")
         if abs(math.sqrt(sum(x * x for x in self.quaternion_wxyz)) - 1.0) > 1e-6:
             raise bad("quaternion_wxyz", f"must be a unit quaternion, got {self.quaternion_wxyz!r}")
