@@ -403,3 +403,22 @@ def test_an_infinite_or_nan_number_anywhere_in_a_config_is_one_line_or_a_config(
             load_config(path)
         except ConfigError as e:
             assert str(e).startswith(f"{path}: ") and "\n" not in str(e), (where, str(e))
+
+
+@settings(max_examples=20, deadline=None)
+@given(substeps=st.integers(1, 1000), hold=st.sampled_from(["extrapolate", "zero_order"]))
+def test_the_estimators_substeps_and_hold_in_a_config_are_the_laws(substeps, hold):
+    """``rates.estimator_substeps`` and ``estimator.neighbour_hold`` reach the paper's law as it is
+    built for a follower, whatever their values (not only the defaults)."""
+    from swarm_sitl.config.schema import SwarmConfig
+    from swarm_sitl.laws.follower_law import HOLD_EXTRAPOLATE, HOLD_ZERO_ORDER
+    from swarm_sitl.laws.zou_meng import ZouMengLaw
+    from swarm_sitl.nodes.assembly import law_context, reported_vehicle_params
+
+    data = config_data("paper")
+    data["rates"]["estimator_substeps"] = substeps
+    data.setdefault("estimator", {})["neighbour_hold"] = hold
+    cfg = SwarmConfig.model_validate(data)
+    law = ZouMengLaw(law_context(cfg, 1, *reported_vehicle_params(cfg)))
+    assert law.substeps == substeps
+    assert law.hold == {"extrapolate": HOLD_EXTRAPOLATE, "zero_order": HOLD_ZERO_ORDER}[hold]
