@@ -13,7 +13,7 @@ from hypothesis import strategies as st
 
 from swarm_sitl.cli import main
 from swarm_sitl.config.load import ConfigError, parse_config
-from tests.support import CLI, CONFIGS, config_data
+from tests.support import CLI, CONFIGS, config, config_data
 
 pytestmark = pytest.mark.integration
 
@@ -422,3 +422,44 @@ def test_the_estimators_substeps_and_hold_in_a_config_are_the_laws(substeps, hol
     law = ZouMengLaw(law_context(cfg, 1, *reported_vehicle_params(cfg)))
     assert law.substeps == substeps
     assert law.hold == {"extrapolate": HOLD_EXTRAPOLATE, "zero_order": HOLD_ZERO_ORDER}[hold]
+
+
+def test_each_override_of_a_config_is_refused_in_one_line_naming_its_flag_or_its_file(tmp_path):
+    """``--duration``, ``--spec`` and ``--faults`` given what cannot be flown: each refusal whole,
+    naming the flag or the file it came from."""
+    from swarm_sitl.config.load import ConfigError, with_duration, with_faults, with_spec
+
+    cfg = config("paper")
+    (tmp_path / "not_a_list.yaml").write_text("a: 1\n")
+    (tmp_path / "no_signal.yaml").write_text("- name: x\n  formula: 'always (nope <= 1)'\n")
+    (tmp_path / "not_a_plan.yaml").write_text("- 1\n")
+    (tmp_path / "off_graph.yaml").write_text("seed: 1\nplan: [{edge: [9, 9], loss: 0.5}]\n")
+    signals = "pos_err_m, vel_err_mps, est_pos_err_m, altitude_m, speed_mps, thrust_frac, failsafe"
+    cases = [
+        (lambda: with_duration(cfg, 0.0), "--duration must be a number of seconds > 0, got 0.0"),
+        (
+            lambda: with_duration(cfg, 1e300),
+            "--duration: duration_s (1e+300) cannot be flown: MAVLink's time_boot_ms (uint32 ms) wraps "
+            "after 4294967.295 s (49.7 days)",
+        ),
+        (
+            lambda: with_spec(cfg, tmp_path / "not_a_list.yaml"),
+            f"{tmp_path / 'not_a_list.yaml'}: expected a list of requirements (name, over, formula)",
+        ),
+        (
+            lambda: with_spec(cfg, tmp_path / "no_signal.yaml"),
+            f"{tmp_path / 'no_signal.yaml'}: spec x: no signal nope for followers (there: {signals})",
+        ),
+        (
+            lambda: with_faults(cfg, tmp_path / "not_a_plan.yaml"),
+            f"{tmp_path / 'not_a_plan.yaml'}: expected a fault plan (seed, plan) at the top level",
+        ),
+        (
+            lambda: with_faults(cfg, tmp_path / "off_graph.yaml"),
+            f"{tmp_path / 'off_graph.yaml'}: faults.plan.0: edge 9->9 is not in the graph",
+        ),
+    ]
+    for override, said in cases:
+        with pytest.raises(ConfigError) as e:
+            override()
+        assert str(e.value) == said
