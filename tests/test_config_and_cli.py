@@ -35,36 +35,46 @@ CASES = {
     "unknown key": (lambda d: d["gains"].update(k_zeta=1.0), "gains.k_zeta: unknown key"),
     "no spanning tree": (
         lambda d: d["graph"].update(edges=[[0, 1], [0, 2], [3, 4], [4, 3]]),
-        "node 0 cannot reach follower(s) 3, 4",
+        "graph: no spanning tree rooted at the leader: node 0 cannot reach follower(s) 3, 4",
     ),
     "negative mass": (
         lambda d: d["vehicle"].update(mass_kg=-0.85),
-        "vehicle.mass_kg: Input should be greater than 0",
+        "vehicle.mass_kg: Input should be greater than 0 (got -0.85)",
     ),
     "infinite mass": (
         lambda d: d["vehicle"].update(mass_kg=float("inf")),
-        "vehicle.mass_kg: Input should be a finite number",
+        "vehicle.mass_kg: Input should be a finite number (got inf)",
     ),
     "non-unit quaternion": (
         lambda d: d["followers"][1].update(initial_quaternion_wxyz=[1, 0.1, 0, 0]),
-        "followers.1.initial_quaternion_wxyz: must be a unit quaternion",
+        "followers.1.initial_quaternion_wxyz: must be a unit quaternion, its norm is 1.00499",
     ),
-    "rates": (lambda d: d["rates"].update(attitude_hz=1050), "whole multiple of control_hz"),
+    "rates": (
+        lambda d: d["rates"].update(attitude_hz=1050),
+        "rates: attitude_hz (1050.0) must be a whole multiple of control_hz (100.0)",
+    ),
     "lockstep window": (
         lambda d: d.update(run={"lockstep_window": 5, "status_every": 10}),
-        "lockstep_window (5) must exceed status_every (10)",
+        "run: lockstep_window (5) must exceed status_every (10), or the leader waits for a status that "
+        "never comes",
     ),
     "duration past time_boot_ms": (
         lambda d: d.update(duration_s=1e300),
-        "duration_s (1e+300) cannot be flown: MAVLink's time_boot_ms (uint32 ms) wraps after 4294967.295 s",
+        "duration_s (1e+300) cannot be flown: MAVLink's time_boot_ms (uint32 ms) wraps after 4294967.295 s "
+        "(49.7 days)",
     ),
     "control rate past 1 ms ticks": (
         lambda d: d["rates"].update(control_hz=2000, attitude_hz=4000),
-        "rates.control_hz: Input should be less than or equal to 1000",
+        "rates.control_hz: Input should be less than or equal to 1000 (got 2000)",
     ),
     "zenoh mode": (
         lambda d: d.update(zenoh={"mode": "mesh"}),
-        "zenoh.mode: Input should be 'router', 'peer' or 'client'",
+        "zenoh.mode: Input should be 'router', 'peer' or 'client' (got 'mesh')",
+    ),
+    # a validator's own refusal names what it was given itself: no "(got ...)" after it
+    "ros2 namespace": (
+        lambda d: d.update(ros2={"namespace": "bad name"}),
+        "ros2.namespace: topic 'bad name': a fully qualified name starts with '/'",
     ),
 }
 
@@ -80,9 +90,23 @@ def test_bad_config_gives_one_line_naming_the_problem(tmp_path, capsys, case):
     )
     for command in commands:
         assert main(command) == 2
-        err = capsys.readouterr().err
-        assert err.count("\n") == 1 and err.startswith("swarm-sitl: error: ")
-        assert expected in err, err
+        assert capsys.readouterr().err == f"swarm-sitl: error: {path}: {expected}\n"
+
+
+def test_a_file_that_is_no_config_is_one_whole_line_naming_it(tmp_path, capsys):
+    """Not a mapping, or not YAML at all (a NUL byte: libyaml's reader, which marks no line), or
+    not text: each said whole, after the file's name."""
+    cases = [
+        (b"- 1\n", "expected a mapping of keys at the top level"),
+        (b"a: \x00\n", "not valid YAML"),
+        (b"a: [1\n", "not valid YAML at line 2"),
+        (b"\xff\xfe\x00", "not a text file"),
+    ]
+    for raw, said in cases:
+        path = tmp_path / "c.yaml"
+        path.write_bytes(raw)
+        assert main(["check", str(path)]) == 2
+        assert capsys.readouterr().err == f"swarm-sitl: error: {path}: {said}\n", raw
 
 
 def test_unreadable_and_malformed_files(tmp_path, capsys):
@@ -330,6 +354,40 @@ _TRAJECTORIES = [
     ),
     ({"type": "line", "start_m": [0, 0, 1], "velocity_mps": [1, 0, 0]}, "start_m"),
 ]
+
+
+def _section_values(section: type) -> st.SearchStrategy:
+    """Values of every field of trajectory section ``section`` but its ``type``, none its default:
+    each number drawn in [0.1, 10] (positive, as a radius must be), each vector of three such."""
+    number = st.floats(0.1, 10.0)
+    return st.fixed_dictionaries(
+        {
+            name: st.tuples(number, number, number) if "tuple" in str(field.annotation) else number
+            for name, field in section.model_fields.items()
+            if name != "type"
+        }
+    )
+
+
+@settings(max_examples=10, deadline=None)
+@given(data=st.data())
+def test_every_key_of_a_trajectory_section_reaches_the_trajectory_it_builds(data):
+    """For each kind of the leader's trajectory, every key given a value of its own is that field
+    of the trajectory built (a key ``build`` dropped would keep the trajectory's default): the
+    section and the trajectory have the same fields, and the built one equals the one made from
+    the section's keys by name."""
+    import dataclasses
+    import typing
+
+    from swarm_sitl.config.schema import LeaderSection
+
+    union = typing.get_args(LeaderSection.model_fields["trajectory"].annotation)
+    for section in union:
+        values = data.draw(_section_values(section))
+        kind = section.model_fields["type"].annotation.__args__[0]
+        built = section.model_validate({"type": kind, **values}).build()
+        assert {f.name for f in dataclasses.fields(built)} == set(values), section
+        assert built == type(built)(**values), (section, values)
 
 
 @pytest.mark.parametrize(("trajectory", "bad"), _TRAJECTORIES)

@@ -82,8 +82,48 @@ def test_a_records_plugins_are_named_not_imported_whichever_way_the_file_was_loa
     for _ in range(2):
         cfg = load_recorded(tmp_path / "run")  # (``load_recorded`` reads RUN_DIR/config.yaml)
         assert _entries(cfg.data())[0] == f"{tmp_path / 'run' / 'my_law.py'}:ConsensusPD"
-        with pytest.raises(RuntimeError, match="a config read from a run directory does not import its law"):
+        with pytest.raises(
+            RuntimeError, match=r"^a config read from a run directory does not import its law$"
+        ):
             cfg.law_class()
         with pytest.raises(ConfigError, match=r"my_law\.py") as e:
             load_config(path)
         assert "\n" not in str(e.value)
+
+
+def test_a_fault_plan_file_finds_its_link_model_beside_itself_not_beside_the_config(tmp_path):
+    """``--faults PLAN`` (``with_faults``): a link model named by a file relative to the plan is
+    the file beside the plan, wherever the config was read from."""
+    from swarm_sitl.config.load import with_faults
+
+    cfg = load_config(_with_plugins(tmp_path / "configs", _text()))
+    plans = tmp_path / "plans" / "deeper"
+    plans.mkdir(parents=True)
+    (plans / "my_link.py").write_text(_LINK_PAGE["my_link.py"])
+    (plans / "plan.yaml").write_text(_LINK_PAGE["my_plan.yaml"])
+    flown = with_faults(cfg, plans / "plan.yaml")
+    assert [f["model"]["entry"] for f in flown.data()["faults"]["plan"]] == [
+        f"{plans / 'my_link.py'}:DistanceDelay"
+    ]
+
+
+@pytest.mark.parametrize("where", ["law", "vehicle model", "link model"])
+def test_an_entry_that_cannot_name_a_plugin_is_one_whole_line_naming_the_key_that_holds_it(tmp_path, where):
+    """A file entry whose name is no Python name, as the law, the vehicle model or a fault plan's
+    link model: refused before anything is imported, naming the file and the key."""
+    data = config_data("paper")
+    bad = "my_law.py:1st"
+    key = {"law": "law", "vehicle model": "vehicle.model", "link model": "faults"}[where]
+    if where == "law":
+        data["law"] = {"entry": bad}
+    elif where == "vehicle model":
+        data["vehicle"]["model"] = bad
+    else:
+        data["faults"] = {"plan": [{"all_edges": True, "model": {"entry": bad}}]}
+    path = tmp_path / "cfg.yaml"
+    path.write_text(yaml.safe_dump(data))
+    with pytest.raises(ConfigError) as e:
+        load_config(path)
+    assert str(e.value) == (
+        f"{path}: {key}: entry {bad!r} must be 'package.module:ClassName' or 'path/file.py:ClassName'"
+    )
