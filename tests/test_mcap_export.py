@@ -5,6 +5,7 @@ import shutil
 
 import numpy as np
 import pytest
+import yaml
 from mcap.reader import make_reader
 
 from swarm_sitl.cli import main
@@ -21,7 +22,7 @@ pytestmark = pytest.mark.integration
 def run_dir(paper_cfg, tmp_path_factory):
     cfg = paper_cfg.model_copy(update={"duration_s": 2.0})
     d = tmp_path_factory.mktemp("run")
-    (d / "config.yaml").write_text(cfg.to_yaml())
+    (d / "config.yaml").write_text(yaml.safe_dump(cfg.data()))
     write_outputs(cfg, run_sim(cfg), d)
     return d
 

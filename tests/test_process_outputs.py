@@ -7,6 +7,7 @@ written here as the processes write them (``rundir.layout``'s paths), the rows a
 import json
 
 import pytest
+import yaml
 
 from swarm_sitl.config.load import parse_config
 from swarm_sitl.rundir.events import read_events
@@ -40,7 +41,7 @@ def test_a_runs_summary_is_what_its_processes_left(tmp_path):
     rec = run_sim(cfg)
     run_dir = tmp_path / "run"
     procs_dir(run_dir).mkdir(parents=True)
-    (run_dir / "config.yaml").write_text(cfg.to_yaml())
+    (run_dir / "config.yaml").write_text(yaml.safe_dump(cfg.data()))
     _write(
         supervisor_events_path(run_dir),
         [

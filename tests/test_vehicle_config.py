@@ -349,6 +349,37 @@ def test_every_field_of_the_spec_reaches_the_vehicle_from_where_the_config_sets_
 
 
 @pytest.mark.unit
+@pytest.mark.parametrize("at", [0, 5, len(dataclasses.fields(VehicleConfig))])
+def test_a_field_added_to_the_vehicles_config_is_a_config_key_wherever_it_sits(monkeypatch, at):
+    """A field added to ``VehicleConfig`` (at its start, among the others, at its end) is a
+    ``vehicle:`` key with no other file edited: given, it reaches every follower's vehicle; not
+    given, the vehicle keeps the field's default; and every other field reaches the vehicle as it
+    did before the field was added."""
+    from sim_vehicles.models import vehicle_config
+    from swarm_sitl.config.load import parse_config
+
+    data = yaml.safe_load((CONFIGS / "paper.yaml").read_text())
+    data["vehicle"].update(drag_Ns2pm2=0.02, max_rate_rps=[4.0, 5.0, 6.0], failsafe_action="land")
+    before = {
+        f.id: dataclasses.asdict(parse_config(data).vehicle_config(f.id)) for f in config("paper").followers
+    }
+    fields = [
+        (f.name, f.type, dataclasses.field(default=f.default, default_factory=f.default_factory))
+        for f in dataclasses.fields(VehicleConfig)
+    ]
+    fields.insert(at, ("added_m", float, dataclasses.field(default=1.5)))
+    monkeypatch.setattr(vehicle_config, "VehicleConfig", dataclasses.make_dataclass("VehicleConfig", fields))
+    for value in (None, 2.5):
+        cfg = parse_config(
+            data if value is None else {**data, "vehicle": {**data["vehicle"], "added_m": value}}
+        )
+        for f in cfg.followers:
+            got = cfg.vehicle_config(f.id)
+            assert got.added_m == (1.5 if value is None else value)
+            assert {k: v for k, v in dataclasses.asdict(got).items() if k != "added_m"} == before[f.id]
+
+
+@pytest.mark.unit
 @pytest.mark.parametrize("seed", [0, 7])
 def test_still_air_and_true_reports_reach_the_vehicle_as_no_model_at_all(seed):
     """A wind or sensor section that is absent, or present with nothing in it (a seed, zeros), is

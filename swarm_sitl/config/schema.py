@@ -11,7 +11,6 @@ import dataclasses
 from typing import Annotated, Any, Literal
 
 import numpy as np
-import yaml
 from pydantic import (
     BaseModel,
     ConfigDict,
@@ -485,6 +484,3 @@ class SwarmConfig(_Strict):
         """The config as plain data that validates to it again: the streams that take the run's
         seed are left so (their seeds not written), so another ``seed`` moves them all."""
         return without_derived_seeds(self.model_dump(mode="json"), self._pinned)
-
-    def to_yaml(self) -> str:
-        return yaml.safe_dump(self.data(), sort_keys=False)

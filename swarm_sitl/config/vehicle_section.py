@@ -74,12 +74,14 @@ def spec_value(value: Any, kind: object) -> Any:
     """A section's value as the vehicle config's field of type ``kind`` holds it: a section for a nested
     spec (``Gusts``, ``SensorNoise``) field by field by name, or None where it is not ``enabled``;
     a list as a tuple; the rest as it is."""
-    nested = [t for t in (vehicle_config.Gusts, vehicle_config.SensorNoise) if t.__name__ in str(kind)]
-    if nested and isinstance(value, BaseModel):
-        if not getattr(value, "enabled", True):
+    if isinstance(value, SensorSection | WindSection):
+        if not value.enabled:
             return None
-        names = [f.name for f in dataclasses.fields(nested[0])]
-        return nested[0](**{n: spec_value(getattr(value, n), None) for n in names})
+        nested = next(
+            t for t in (vehicle_config.Gusts, vehicle_config.SensorNoise) if t.__name__ in str(kind)
+        )
+        names = [f.name for f in dataclasses.fields(nested)]
+        return nested(**{n: spec_value(getattr(value, n), None) for n in names})
     return tuple(value) if isinstance(value, list) else value
 
 
