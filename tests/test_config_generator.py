@@ -122,6 +122,61 @@ def test_the_gain_notes_say_what_check_finds(graph, n):
 
 
 @pytest.mark.unit
+@pytest.mark.parametrize("paper_holds", [True, False])
+@pytest.mark.parametrize("suggestion_holds", [True, False])
+@pytest.mark.parametrize("k", [MAX_SUGGESTED_K / 2, MAX_SUGGESTED_K, MAX_SUGGESTED_K * 2])
+def test_the_gains_written_are_the_papers_unless_a_suggestion_within_the_bound_satisfies_every_condition(
+    monkeypatch, paper_holds, suggestion_holds, k
+):
+    """Every branch of the choice, with ``check``'s verdicts given (its own are tested in
+    ``test_gain_conditions.py``): the suggestion is written only where the paper's gains fail, it
+    satisfies every condition and its k_p and k_v are at most ``MAX_SUGGESTED_K`` (the bound
+    itself included); the notes say which, whole."""
+    import types
+
+    from swarm_sitl.config import generator
+
+    suggestion = {"k_p": k, "k_v": k / 2, "k_a": 3.0}
+    cfg = _load(generate(3, "ring", "grid", "helix"))
+    asked = []
+
+    def verdict(graph, gains, trajectory, g, horizon):
+        """The first call judges the config's gains, the second the suggestion."""
+        asked.append(gains)
+        holds = paper_holds if len(asked) == 1 else suggestion_holds
+        conditions = [types.SimpleNamespace(name=n, holds=holds) for n in ("(a) one", "(b) two")]
+        return types.SimpleNamespace(all_hold=holds, conditions=conditions, suggestion=suggestion)
+
+    monkeypatch.setattr(generator, "check_gains", verdict)
+    gains, notes = generator._choose_gains(cfg)
+    assert asked[0] == cfg.gain_dict() and asked[1:] in ([], [{**PAPER_GAINS, **suggestion}])
+    failing = ["(a) one", "(b) two"]
+    if paper_holds:
+        assert gains == PAPER_GAINS
+        assert notes == ["the paper's gains: every condition of `swarm-sitl check` holds on this graph"]
+    elif suggestion_holds and k <= MAX_SUGGESTED_K:
+        assert gains == {**PAPER_GAINS, **suggestion}
+        assert notes == [
+            "the paper's gains fail on this graph: (a) one; (b) two",
+            "these are `swarm-sitl check`'s suggestion, with which every condition holds",
+        ]
+    else:
+        assert gains == PAPER_GAINS
+        why = (
+            f"the gains that satisfy them need k_p = k_v = {k:.4g}, k_a = 3: past {MAX_SUGGESTED_K:g} the "
+            "sampled sgn term's chattering costs more than the guarantee gives"
+            if suggestion_holds
+            else "no gains were found that satisfy them"
+        )
+        assert notes == [
+            "the paper's gains; Theorem 1's sufficient conditions FAIL on this graph (it may still "
+            "converge):",
+            *("  " + name for name in failing),
+            f"({why})",
+        ]
+
+
+@pytest.mark.unit
 @pytest.mark.parametrize("n", [4, 16, 64])
 def test_a_random_graph_is_a_spanning_tree_plus_about_n_over_2_edges_between_followers(n):
     """Follower i hears one of 0..i-1, then n // 2 draws of a follower pair add the new ones,
@@ -177,6 +232,7 @@ def test_a_follower_count_outside_the_mavlink_system_ids_is_refused_in_one_line(
         ({"duration_s": math.inf}, "--duration must be a number of seconds > 0, got inf"),
         ({"graph": "star"}, f"--graph must be one of {', '.join(GRAPHS)}, got 'star'"),
         ({"trajectory": "loop"}, f"--trajectory must be one of {', '.join(TRAJECTORIES)}, got 'loop'"),
+        ({"formation": "blob"}, f"--formation must be one of {', '.join(FORMATIONS)}, got 'blob'"),
     ],
 )
 def test_a_bad_request_is_named_in_one_line_with_what_is_allowed(kwargs, named):
