@@ -1,0 +1,168 @@
+"""What ``sim`` gives a law and its vehicle at each tick (``running.sim``), seen by a probe law
+that records everything it is handed: its context, its tick's time and sample, and each
+in-neighbour's message; and what the vehicle does with the commands it is given.
+
+The expectations are the tick's definition (``laws.contract``): at tick ``k`` (``t = k dt``) the
+law gets its vehicle's state at ``t`` through the wire (float32), the newest message of each of
+its in-neighbours (tick ``k - 1``'s, ``dt`` old; none at the first tick), and its command is
+held by the vehicle until ``t + dt``. The probe flies level with a thrust that changes every
+tick, so the vehicle's vertical motion over each period is constant acceleration in closed form
+(RK4 integrates it exactly), and its horizontal position does not move.
+"""
+
+import numpy as np
+import pytest
+import yaml
+
+from sim_vehicles.common.command import AttitudeCommand
+from sim_vehicles.mavlink.wire_format import command_roundtrip
+from swarm_sitl.config.load import load_config
+from swarm_sitl.running.sim import run_sim
+from tests.support import config_data
+
+pytestmark = pytest.mark.integration
+
+SLOTS = 3  #: in-neighbours a probe records (the paper's graph: at most 2)
+
+PROBE = f"""
+import numpy as np
+from swarm_sitl.laws.contract import AttitudeCommand, LawOutput
+
+SLOTS = {SLOTS}
+
+
+def thrust_fraction(k, i):
+    '''The probe's thrust at tick k, as a fraction of its weight: a different one every tick.'''
+    return 1.0 + 0.2 * np.sin(0.7 * k + i)
+
+
+class Probe:
+    message_length = 5  # its id, its tick's time, its sample's position
+    record_fields = {{
+        "ctx": 7, "weights": SLOTS, "seen_t": 1, "sample_p": 3, "sample_v": 3, "sample_q": 4,
+        "from": SLOTS, "sent_at": SLOTS, "age": SLOTS, "said_id": SLOTS, "said_t": SLOTS, "ref_p": 3,
+    }}
+
+    def __init__(self, ctx):
+        self.ctx = ctx
+        weights = sum(w for _, w in ctx.in_edges)
+        self.row = [ctx.follower_id, len(ctx.in_edges), weights, ctx.control_dt_s, ctx.mass_kg,
+                    ctx.max_thrust_N, ctx.gravity_mps2]
+        by_source = [w for _, w in sorted(ctx.in_edges)]
+        self.weights = [*by_source, *[np.nan] * (SLOTS - len(by_source))]
+
+    def step(self, t_s, sample, inbox):
+        ctx = self.ctx
+        k = round(t_s / ctx.control_dt_s)
+        thrust = ctx.mass_kg * ctx.gravity_mps2 * thrust_fraction(k, ctx.follower_id)
+        command = AttitudeCommand(np.array([1.0, 0.0, 0.0, 0.0]), thrust)
+        sources = sorted(inbox)
+        pad = lambda xs: [*xs, *[np.nan] * (SLOTS - len(xs))]
+        follower = lambda s, j: inbox[s].values[j] if s != 0 else np.nan
+        record = {{
+            "ctx": self.row,
+            "weights": self.weights,
+            "seen_t": t_s,
+            "sample_p": sample.p_W, "sample_v": sample.v_W, "sample_q": sample.q_WB,
+            "from": pad(sources),
+            "sent_at": pad([inbox[s].t_s for s in sources]),
+            "age": pad([inbox[s].age_s for s in sources]),
+            "said_id": pad([follower(s, 0) if s else 0.0 for s in sources]),
+            "said_t": pad([follower(s, 1) for s in sources]),
+            "ref_p": inbox[0].values[:3] if 0 in inbox else [np.nan] * 3,
+        }}
+        message = np.array([ctx.follower_id, t_s, *sample.p_W])
+        return LawOutput(command, message, record)
+"""
+
+
+@pytest.fixture(scope="module")
+def probed(tmp_path_factory):
+    """The paper's swarm, its edges weighted, flown 0.5 s in ``sim`` by the probe; and its config."""
+    folder = tmp_path_factory.mktemp("probe")
+    (folder / "probe.py").write_text(PROBE)
+    data = config_data("paper")
+    data.update(duration_s=0.5, law={"entry": "probe.py:Probe"})
+    data["graph"]["edges"] = [[0, 1, 1.5], [0, 2], [0, 3, 0.75], [1, 4, 2.0], [2, 4, 0.5]]
+    (folder / "cfg.yaml").write_text(yaml.safe_dump(data))
+    cfg = load_config(folder / "cfg.yaml")
+    return cfg, run_sim(cfg)
+
+
+def test_a_law_is_built_from_its_followers_place_in_the_graph_and_its_vehicles_reported_numbers(probed):
+    """The context: its id, its in-edges and their weights as the config gives them, the control
+    period, the mass as configured, the full thrust as the vehicle reports it over the float32
+    parameter protocol (its maximum to within two float32 steps), and g."""
+    cfg, rec = probed
+    for i, s in rec.followers.items():
+        ctx = s["ctx"]
+        assert (ctx == ctx[0]).all()  # the same at every tick
+        edges = sorted((e[0], e[2] if len(e) == 3 else 1.0) for e in cfg.graph.edges if e[1] == i)
+        assert ctx[0][:4].tolist() == [i, len(edges), sum(w for _, w in edges), cfg.control_dt_s]
+        weights = [w for _, w in edges] + [np.nan] * (SLOTS - len(edges))
+        np.testing.assert_array_equal(s["weights"], np.broadcast_to(weights, s["weights"].shape))
+        assert ctx[0][4] == cfg.vehicle.mass_kg and ctx[0][6] == cfg.gravity_mps2
+        assert abs(ctx[0][5] - cfg.vehicle.max_thrust_N) <= 2 * 2.0**-24 * cfg.vehicle.max_thrust_N
+
+
+def test_each_tick_gives_the_law_its_time_and_its_vehicles_state_at_that_time_through_the_wire(probed):
+    """Tick ``k`` at ``k dt``; the sample is the recorded state of that row as LOCAL_POSITION_NED
+    and ATTITUDE_QUATERNION carry it: each number within a float32 rounding (half a unit in the
+    last of 24 bits, relative; the quaternion's frame change adds a few float64 roundings)."""
+    cfg, rec = probed
+    n = cfg.n_control_steps
+    for i, s in rec.followers.items():
+        k = np.arange(n + 1)
+        assert s["seen_t"].tolist() == (k * cfg.control_dt_s).tolist() == s["t_s"].tolist()
+        for field, truth in (("sample_p", s["p_W"]), ("sample_v", s["v_W"]), ("sample_q", s["q_WB"])):
+            assert np.all(np.abs(s[field] - truth) <= 2.0**-24 * np.abs(truth) + 1e-15), (i, field)
+        assert s["p_W"][0].tolist() == list(cfg.follower(i).initial_position_m)
+
+
+def test_each_tick_hears_every_in_neighbour_once_with_its_message_of_the_tick_before(probed):
+    """No message at the first tick; from the second on, each in-neighbour's (and only theirs),
+    sent at the tick before, ``dt`` old, saying its sender and its time: the leader's is its
+    trajectory's position at that time."""
+    cfg, rec = probed
+    graph, dt = cfg.build_graph(), cfg.control_dt_s
+    trajectory = cfg.trajectory()
+    for i, s in rec.followers.items():
+        assert np.isnan(s["from"][0]).all() and np.isnan(s["ref_p"][0]).all()
+        sources = sorted(src for src, _ in graph.in_neighbours(i))
+        pad = [np.nan] * (SLOTS - len(sources))
+        for k in range(1, cfg.n_control_steps + 1):
+            sent = (k - 1) * dt
+            row = {name: s[name][k].tolist() for name in ("from", "sent_at", "age", "said_id", "said_t")}
+            assert row["from"][: len(sources)] == sources and np.isnan(row["from"][len(sources) :]).all()
+            assert row["sent_at"][: len(sources)] == [sent] * len(sources), (i, k)
+            assert row["age"][: len(sources)] == [k * dt - sent] * len(sources), (i, k)
+            assert row["said_id"][: len(sources)] == [float(x) for x in sources]
+            said_t = [sent if x else np.nan for x in sources]
+            np.testing.assert_array_equal(row["said_t"], said_t + pad)
+            if 0 in sources:
+                np.testing.assert_array_equal(s["ref_p"][k], trajectory.derivatives(sent)[0])
+
+
+def test_each_command_is_held_by_the_vehicle_for_one_period_as_the_wire_carries_its_thrust(probed):
+    """Level, with the thrust of tick ``k`` as the vehicle reads it off SET_ATTITUDE_TARGET, the
+    vehicle accelerates at ``T / m - g`` straight up from ``t_k`` to ``t_k + dt``: its velocity
+    and height at the next row in closed form (to a few float64 roundings of the numbers), its
+    horizontal position still where it started, its attitude level."""
+    cfg, rec = probed
+    dt, m, g = cfg.control_dt_s, cfg.vehicle.mass_kg, cfg.gravity_mps2
+    level = AttitudeCommand(np.array([1.0, 0.0, 0.0, 0.0]), 0.0)
+    for i, s in rec.followers.items():
+        full = s["ctx"][0][5]
+        assert s["thrust_N"].shape == (cfg.n_control_steps + 1,)
+        for k in range(cfg.n_control_steps):
+            held = command_roundtrip(
+                level._replace(thrust_N=s["thrust_N"][k]), full, cfg.vehicle.max_thrust_N
+            )
+            a = held.thrust_N / m - g
+            v, z = s["v_W"][k][2], s["p_W"][k][2]
+            assert s["v_W"][k + 1][2] == pytest.approx(v + a * dt, abs=1e-12), (i, k)
+            assert s["p_W"][k + 1][2] == pytest.approx(z + v * dt + a * dt**2 / 2, abs=1e-12), (i, k)
+        np.testing.assert_array_equal(
+            s["p_W"][:, :2], np.broadcast_to(s["p_W"][0, :2], s["p_W"][:, :2].shape)
+        )
+        np.testing.assert_array_equal(s["q_WB"], np.broadcast_to([1.0, 0.0, 0.0, 0.0], s["q_WB"].shape))
