@@ -7,6 +7,8 @@ import json
 import signal
 import sys
 import time
+import types
+import unittest.mock
 from pathlib import Path
 
 import pytest
@@ -16,8 +18,8 @@ from hypothesis import strategies as st
 from sim_vehicles.runtime.counter_file import CounterFile
 from swarm_sitl.nodes.law_guard import HARD_STOP_S
 from swarm_sitl.rundir.layout import procs_dir, tick_path
-from swarm_sitl.running import ends
-from swarm_sitl.running.supervisor import Child, RunFailedError, Supervisor
+from swarm_sitl.running import ends, observers
+from swarm_sitl.running.supervisor import SUPERVISE_EVERY_S, Child, RunFailedError, Supervisor
 from tests.support import config
 
 pytestmark = pytest.mark.integration
@@ -383,3 +385,55 @@ def test_a_loss_with_no_run_epoch_yet_is_recorded_at_time_0(tmp_path):
         sup.close()
     events = [json.loads(x) for x in (procs_dir(tmp_path) / "lost.events").read_text().splitlines()]
     assert [(e["t_s"], e["process"], e["code"]) for e in events] == [(0.0, "vehicle_1", 1)]
+
+
+@settings(max_examples=30, deadline=None)
+@given(
+    periods=st.lists(st.floats(0.0, 0.5), min_size=1, max_size=4),
+    passes=st.integers(1, 40),
+    epoch_s=st.floats(-1e6, 1e6),
+)
+def test_the_loop_runs_each_observer_in_order_when_it_is_due_until_the_run_is_finished(
+    periods, passes, epoch_s
+):
+    """``observers.supervise`` on a clock that moves only in its sleeps: it passes ``passes`` times
+    (the supervisor finished after that many looks), each pass one ``SUPERVISE_EVERY_S`` after the
+    last; an observer of period ``e`` acts at the first pass, then at the first pass at least ``e``
+    after the pass it last acted at; in a pass, the observers act in their order, each told the run's
+    time (the UNIX clock less the epoch) and the monotonic instant."""
+    clock = {"mono": 100.0}
+    unix_minus_mono = 1.7e9
+    fake_time = types.SimpleNamespace(
+        monotonic=lambda: clock["mono"],
+        time=lambda: clock["mono"] + unix_minus_mono,
+        sleep=lambda s: clock.update(mono=clock["mono"] + s),
+    )
+    looks = []
+
+    class Sup:
+        def finished(self):
+            looks.append(clock["mono"])
+            return len(looks) > passes
+
+    acted = []
+    watch = [
+        observers.Observer(lambda run_s, mono_s, j=j: acted.append((j, run_s, mono_s)), every_s=e)
+        for j, e in enumerate(periods)
+    ]
+    with unittest.mock.patch.object(observers, "time", fake_time):
+        observers.supervise(Sup(), watch, epoch_s)
+    instants, mono = [], 100.0
+    for _ in range(passes):  # (each pass's instant: the sum of the sleeps before it)
+        instants.append(mono)
+        mono += SUPERVISE_EVERY_S
+    expected = []
+    last = {j: None for j in range(len(periods))}
+    for mono in instants:
+        for j, e in enumerate(periods):
+            if last[j] is None or mono >= last[j] + e:
+                expected.append((j, mono))
+                last[j] = mono
+    assert [(j, mono_s) for j, _, mono_s in acted] == expected
+    for _, run_s, mono_s in acted:  # (about 1.7e9 s: a float64 step there is 2.4e-7 s; four of them)
+        assert run_s == pytest.approx(mono_s + unix_minus_mono - epoch_s, abs=1e-6)
+    assert len(looks) == passes + 1
