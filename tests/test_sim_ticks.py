@@ -78,12 +78,14 @@ class Probe:
 
 @pytest.fixture(scope="module")
 def probed(tmp_path_factory):
-    """The paper's swarm, its edges weighted, flown 0.5 s in ``sim`` by the probe; and its config."""
+    """The paper's swarm, its edges weighted and follower 2 an ArduCopter, flown 0.5 s in ``sim`` by
+    the probe; and its config."""
     folder = tmp_path_factory.mktemp("probe")
     (folder / "probe.py").write_text(PROBE)
     data = config_data("paper")
     data.update(duration_s=0.5, law={"entry": "probe.py:Probe"})
     data["graph"]["edges"] = [[0, 1, 1.5], [0, 2], [0, 3, 0.75], [1, 4, 2.0], [2, 4, 0.5]]
+    data["followers"][1]["autopilot"] = "ardupilot"  # (level: its GUIDED thrust is PX4's, unboosted)
     (folder / "cfg.yaml").write_text(yaml.safe_dump(data))
     cfg = load_config(folder / "cfg.yaml")
     return cfg, run_sim(cfg)
