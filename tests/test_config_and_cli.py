@@ -71,6 +71,10 @@ CASES = {
         lambda d: d.update(zenoh={"mode": "mesh"}),
         "zenoh.mode: Input should be 'router', 'peer' or 'client' (got 'mesh')",
     ),
+    "a plan entry that is no mapping": (
+        lambda d: d.update(faults={"plan": [1]}),
+        "faults.plan.0: Input should be a valid dictionary or instance of FaultEntry (got 1)",
+    ),
     # a validator's own refusal names what it was given itself: no "(got ...)" after it
     "ros2 namespace": (
         lambda d: d.update(ros2={"namespace": "bad name"}),
@@ -495,6 +499,7 @@ def test_each_override_of_a_config_is_refused_in_one_line_naming_its_flag_or_its
     signals = "pos_err_m, vel_err_mps, est_pos_err_m, altitude_m, speed_mps, thrust_frac, failsafe"
     cases = [
         (lambda: with_duration(cfg, 0.0), "--duration must be a number of seconds > 0, got 0.0"),
+        (lambda: with_duration(cfg, math.inf), "--duration must be a number of seconds > 0, got inf"),
         (
             lambda: with_duration(cfg, 1e300),
             "--duration: duration_s (1e+300) cannot be flown: MAVLink's time_boot_ms (uint32 ms) wraps "
