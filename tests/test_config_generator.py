@@ -6,6 +6,8 @@ import math
 import numpy as np
 import pytest
 import yaml
+from hypothesis import example, given, settings
+from hypothesis import strategies as st
 
 from swarm_sitl.cli import main
 from swarm_sitl.config.generator import (
@@ -344,3 +346,32 @@ def test_bench_scale_writes_its_table_with_consistent_figures(tmp_path, capsys):
     out = capsys.readouterr().out
     assert "scale.csv" in out and "where the CPU goes at 2 followers" in out
     assert "beyond the floor at 2 followers" in out and "the gap is: " in out
+
+
+@pytest.mark.unit
+@settings(max_examples=25, deadline=None)
+@given(
+    duration_s=st.floats(1e-3, 4e6),
+    params=st.dictionaries(st.sampled_from(["T_TAU_S", "MC_ROLL_P", "MC_PITCH_P"]), st.floats(0.0, 1.0)),
+)
+@example(duration_s=1.0, params={"MC_ROLL_P": 1.0, "T_TAU_S": 0.0})
+@example(duration_s=0.5, params={})
+@example(duration_s=1e6, params={"T_TAU_S": 1e-5})  # (1e+06 and 1e-05 are strings to YAML 1.1)
+def test_the_numbers_a_generated_config_holds_are_the_ones_asked_to_six_digits(duration_s, params):
+    """``--duration`` and the vehicle's parameters are written with six significant digits: what
+    the config holds, read back, is what was asked, rounded so (1.0 as 1.0, 0 as 0, and a number
+    written with an exponent a number, not a string)."""
+    cfg = _load(
+        generate(
+            2,
+            "ring",
+            "grid",
+            "figure_eight",
+            duration_s=duration_s,
+            vehicle="px4_quad_x",
+            vehicle_params=params,
+        )
+    )
+    assert cfg.duration_s == float(f"{duration_s:.6g}")
+    assert cfg.vehicle.params == {k: float(f"{v:.6g}") for k, v in params.items()}
+    assert cfg.name == "ring2-grid-figure-eight"

@@ -126,7 +126,11 @@ def formation_offsets(kind: str, n: int) -> np.ndarray:
 
 
 def _num(x: float) -> str:
-    return f"{x:.6g}" if x != 0 else "0"
+    """``x`` to six significant digits as YAML reads a number back: PyYAML (YAML 1.1) takes
+    ``1e-05`` for a string, so an exponent's mantissa gets its point (``1.0e-05``)."""
+    text = f"{x:.6g}"
+    mantissa, e, exponent = text.partition("e")
+    return f"{mantissa}.0e{exponent}" if e and "." not in mantissa else text
 
 
 def _vec(v: np.ndarray) -> str:
