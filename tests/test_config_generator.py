@@ -181,16 +181,24 @@ def test_the_gains_written_are_the_papers_unless_a_suggestion_within_the_bound_s
 @pytest.mark.unit
 @pytest.mark.parametrize("n", [4, 16, 64])
 def test_a_random_graph_is_a_spanning_tree_plus_about_n_over_2_edges_between_followers(n):
-    """Follower i hears one of 0..i-1, then n // 2 draws of a follower pair add the new ones,
-    none from the leader, none twice. From 16 followers on, at least one in each seed's: a draw
-    falls on a self-loop (1/n) or a taken edge (at most n of n^2 pairs) with a chance under 1/8,
-    all eight under 1/8^8 = 6e-8."""
+    """Follower i hears one of 0..i-1, then n // 2 draws of a follower pair (any two followers)
+    add the new ones, none from the leader, none twice. From 16 followers on, at least one in
+    each seed's: a draw falls on a self-loop (1/n) or a taken edge (at most n of n^2 pairs) with a
+    chance under 1/8, all eight under 1/8^8 = 6e-8."""
+    ends = set()
     for seed in range(20):
         edges = random_edges(n, np.random.default_rng(seed))
         tree, extra = edges[:n], edges[n:]
         assert [d for _, d in tree] == list(range(1, n + 1)) and all(s < d for s, d in tree)
         assert (n < 16 or len(extra) >= 1) and len(extra) <= n // 2 and len(set(edges)) == len(edges)
         assert all(1 <= s <= n and 1 <= d <= n and s != d for s, d in extra)
+        # at 64 followers a draw is refused with a chance under 1/64 + 96/4096 < 0.04: 10 or more of
+        # the 32 refused comes with a chance under C(32, 10) 0.04^10 < 1e-6
+        assert n < 64 or len(extra) > n // 2 - 10
+        ends |= {("from", s) for s, _ in extra} | {("to", d) for _, d in extra}
+    # every follower may be an end: the first and the last, each way, in 20 seeds' draws (at 16
+    # followers, 160 draws: a given end missed by all with a chance under (15/16)^150 < 1e-4)
+    assert n < 16 or {("from", 1), ("to", 1), ("from", n), ("to", n)} <= ends
 
 
 @pytest.mark.unit
