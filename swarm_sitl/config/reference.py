@@ -15,7 +15,6 @@ import typing
 from typing import Any
 
 from pydantic import BaseModel
-from pydantic_core import PydanticUndefined
 
 from swarm_sitl.config.schema import SwarmConfig
 
@@ -73,17 +72,13 @@ def _default(field: Any) -> str:
     if field.is_required():
         return "required"
     value = field.get_default(call_default_factory=True)
-    if value is PydanticUndefined:
-        return "required"
     if isinstance(value, BaseModel):
         return "(section)"
     return f"`{value!r}`" if not isinstance(value, str) else f'`"{value}"`'
 
 
 def _section(model: type[BaseModel], path: str, docs: dict[tuple[str, str], str], out: list[str]) -> None:
-    doc = (
-        inspect.cleandoc(model.__doc__ or "") if model.__doc__ and model.__doc__ != BaseModel.__doc__ else ""
-    )
+    doc = inspect.cleandoc(model.__doc__ or "")  # (a class's docstring is its own: None if it has none)
     out += [f"## `{path}`" if path else "## top level", ""]
     if doc:
         out += [doc, ""]
