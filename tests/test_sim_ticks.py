@@ -76,18 +76,30 @@ class Probe:
 """
 
 
-@pytest.fixture(scope="module")
-def probed(tmp_path_factory):
-    """The paper's swarm, its edges weighted and follower 2 an ArduCopter, flown 0.5 s in ``sim`` by
-    the probe; and its config."""
-    folder = tmp_path_factory.mktemp("probe")
+def _probe_config(folder, **changes):
+    """The paper's config flown by the probe (its file written in ``folder``), with ``changes``
+    (top-level keys) made."""
     (folder / "probe.py").write_text(PROBE)
     data = config_data("paper")
-    data.update(duration_s=0.5, law={"entry": "probe.py:Probe"})
+    data.update(law={"entry": "probe.py:Probe"}, **changes)
+    return data
+
+
+def _loaded(folder, data):
+    (folder / "cfg.yaml").write_text(yaml.safe_dump(data))
+    return load_config(folder / "cfg.yaml")
+
+
+# (each fixture is a test's own, not a module's: a mutation tester maps a run to the tests that
+# made it, and a module's fixture would make it for its first test only; a flight here is 0.1 s)
+@pytest.fixture
+def probed(tmp_path):
+    """The paper's swarm, its edges weighted and follower 2 an ArduCopter, flown 0.5 s in ``sim`` by
+    the probe; and its config."""
+    data = _probe_config(tmp_path, duration_s=0.5)
     data["graph"]["edges"] = [[0, 1, 1.5], [0, 2], [0, 3, 0.75], [1, 4, 2.0], [2, 4, 0.5]]
     data["followers"][1]["autopilot"] = "ardupilot"  # (level: its GUIDED thrust is PX4's, unboosted)
-    (folder / "cfg.yaml").write_text(yaml.safe_dump(data))
-    cfg = load_config(folder / "cfg.yaml")
+    cfg = _loaded(tmp_path, data)
     return cfg, run_sim(cfg)
 
 
@@ -174,17 +186,12 @@ def test_each_command_is_held_by_the_vehicle_for_one_period_as_the_wire_carries_
 LOSSY = {(0, 1): 0.3, (1, 4): 0.5}
 
 
-@pytest.fixture(scope="module")
-def probed_under_loss(tmp_path_factory):
+@pytest.fixture
+def probed_under_loss(tmp_path):
     """The paper's swarm flown 1 s in ``sim`` by the probe under a plan that loses messages on two
     edges; and its config."""
-    folder = tmp_path_factory.mktemp("probe_loss")
-    (folder / "probe.py").write_text(PROBE)
-    data = config_data("paper")
-    data.update(duration_s=1.0, law={"entry": "probe.py:Probe"})
-    data["faults"] = {"seed": 11, "plan": [{"edge": list(e), "loss": p} for e, p in LOSSY.items()]}
-    (folder / "cfg.yaml").write_text(yaml.safe_dump(data))
-    cfg = load_config(folder / "cfg.yaml")
+    plan = {"seed": 11, "plan": [{"edge": list(e), "loss": p} for e, p in LOSSY.items()]}
+    cfg = _loaded(tmp_path, _probe_config(tmp_path, duration_s=1.0, faults=plan))
     return cfg, run_sim(cfg)
 
 
@@ -215,3 +222,95 @@ def test_under_a_plan_each_tick_hears_the_newest_message_the_plan_let_through(pr
                     slot = heard.index(src)
                     assert s["sent_at"][k][slot] == through[-1] * dt, (i, src, k)
                     assert s["age"][k][slot] == k * dt - through[-1] * dt, (i, src, k)
+
+
+def test_a_vehicle_that_reports_late_and_noisy_gives_the_law_what_its_sensors_report(tmp_path):
+    """With ``vehicle.sensors`` (latency, noise, a drifting bias), the sample of tick ``k`` is what
+    a fresh copy of the vehicle's sensor model (``plant.sensors``, seeded as the vehicle is) reports
+    at ``k`` ms times the period, fed the recorded true states in order; through the wire's float32,
+    as without sensors."""
+    from sim_vehicles.common.state import POS, QUAT, RATE, STATE_SIZE, VEL
+    from sim_vehicles.models.build import sensor_model
+
+    data = _probe_config(tmp_path, duration_s=0.3)
+    data["vehicle"]["sensors"] = {
+        "position_noise_m": 0.05,
+        "velocity_noise_mps": 0.02,
+        "attitude_noise_rad": 0.01,
+        "latency_s": 0.03,
+        "seed": 4,
+        "position_bias_walk_m_per_sqrt_s": 0.1,
+    }
+    cfg = _loaded(tmp_path, data)
+    rec = run_sim(cfg)
+    for i, s in rec.followers.items():
+        model = sensor_model(cfg.vehicle_config(i), i)
+        for k in range(cfg.n_control_steps + 1):
+            x = np.empty(STATE_SIZE)
+            x[POS], x[VEL], x[QUAT], x[RATE] = s["p_W"][k], s["v_W"][k], s["q_WB"][k], s["omega_B"][k]
+            y = model.reported(round(k * cfg.control_dt_s * 1000), x)
+            for field, part in (("sample_p", POS), ("sample_v", VEL)):
+                assert np.all(np.abs(s[field][k] - y[part]) <= 2.0**-24 * np.abs(y[part]) + 1e-15), (i, k)
+            # a unit quaternion's float32 parts mixed by the frame change (each part two of them
+            # times 1/sqrt(2)): within sqrt(2) half-steps of 1, 2^-23, on each part; either sign
+            q = y[QUAT] if y[QUAT] @ s["sample_q"][k] >= 0 else -y[QUAT]
+            assert np.abs(s["sample_q"][k] - q).max() <= 2.0**-23, (i, k)
+        assert np.abs(s["sample_p"] - s["p_W"]).max() > 0.01  # (the noise is there, not the truth)
+
+
+def test_sim_tells_its_progress_at_every_tick_and_flies_the_ticks_asked(tmp_path):
+    """``progress`` is called with each tick in order; ``n_steps`` rows past the first are flown,
+    whatever the config's duration."""
+    cfg = _loaded(tmp_path, _probe_config(tmp_path, duration_s=0.5))
+    told = []
+    rec = run_sim(cfg, n_steps=7, progress=told.append)
+    assert told == list(range(8))
+    assert all(s["t_s"].tolist() == [k * cfg.control_dt_s for k in range(8)] for s in rec.followers.values())
+
+
+CHATTY = """
+import time
+import numpy as np
+from swarm_sitl.laws.contract import AttitudeCommand, LawOutput
+
+
+class Chatty:
+    '''Says each tick it steps; at 0.05 s follower 3's step hangs (3 s, once).'''
+    message_length = 1
+    record_fields = {}
+
+    def __init__(self, ctx):
+        self.id, self.weight = ctx.follower_id, ctx.mass_kg * ctx.gravity_mps2
+
+    def step(self, t_s, sample, inbox):
+        print(f"follower {self.id} at {t_s:.2f}")
+        if self.id == 3 and round(t_s * 100) == 5:
+            time.sleep(3)
+        return LawOutput(AttitudeCommand(np.array([1.0, 0.0, 0.0, 0.0]), self.weight), np.zeros(1), {})
+"""
+
+
+def test_a_users_law_in_sim_is_guarded_its_prints_given_and_a_hung_step_ends_the_run_with_what_was_recorded(
+    tmp_path,
+):
+    """A law that is not the paper's runs under its guard in ``sim`` as in a controller: what it
+    prints goes to ``law_output``, and a step past ``run.tick_timeout_s`` ends the run with one
+    line naming the follower, its time and the timeout, the rows before it kept."""
+    import io
+
+    from swarm_sitl.running.sim import SimFailedError
+
+    (tmp_path / "chatty.py").write_text(CHATTY)
+    data = config_data("paper")
+    data.update(duration_s=0.5, law={"entry": "chatty.py:Chatty"}, run={"tick_timeout_s": 0.3})
+    cfg = _loaded(tmp_path, data)
+    said = io.StringIO()
+    with pytest.raises(SimFailedError) as e:
+        run_sim(cfg, law_output=said)
+    assert "follower 3 at t=0.050 s" in str(e.value) and "0.3" in str(e.value) and "\n" not in str(e.value)
+    lines = said.getvalue().splitlines()
+    assert lines == [
+        f"follower {i} at {k * 0.01:.2f}" for k in range(6) for i in (1, 2, 3, 4) if (k, i) < (5, 4)
+    ]
+    rows = e.value.recording.followers[2]
+    assert np.isfinite(rows["thrust_N"][:5]).all() and np.isnan(rows["thrust_N"][6:]).all()
