@@ -15,7 +15,8 @@ import pytest
 import yaml
 
 from sim_vehicles.common.command import AttitudeCommand
-from sim_vehicles.mavlink.wire_format import command_roundtrip
+from sim_vehicles.mavlink.thrust_map import full_thrust_N, hover_fraction
+from sim_vehicles.mavlink.wire_format import command_roundtrip, f32
 from swarm_sitl.config.load import load_config
 from swarm_sitl.running.sim import run_sim
 from tests.support import config_data
@@ -39,7 +40,8 @@ def thrust_fraction(k, i):
 class Probe:
     message_length = 5  # its id, its tick's time, its sample's position
     record_fields = {{
-        "ctx": 7, "weights": SLOTS, "seen_t": 1, "sample_p": 3, "sample_v": 3, "sample_q": 4,
+        "ctx": 7, "weights": SLOTS, "outs": SLOTS, "first_draw": 1,
+        "seen_t": 1, "sample_p": 3, "sample_v": 3, "sample_q": 4,
         "from": SLOTS, "sent_at": SLOTS, "age": SLOTS, "said_id": SLOTS, "said_t": SLOTS, "ref_p": 3,
     }}
 
@@ -50,6 +52,9 @@ class Probe:
                     ctx.max_thrust_N, ctx.gravity_mps2]
         by_source = [w for _, w in sorted(ctx.in_edges)]
         self.weights = [*by_source, *[np.nan] * (SLOTS - len(by_source))]
+        outs = sorted(ctx.out_neighbours)
+        self.outs = [*outs, *[np.nan] * (SLOTS - len(outs))]
+        self.first_draw = ctx.rng.random()
 
     def step(self, t_s, sample, inbox):
         ctx = self.ctx
@@ -62,6 +67,8 @@ class Probe:
         record = {{
             "ctx": self.row,
             "weights": self.weights,
+            "outs": self.outs,
+            "first_draw": self.first_draw,
             "seen_t": t_s,
             "sample_p": sample.p_W, "sample_v": sample.v_W, "sample_q": sample.q_WB,
             "from": pad(sources),
@@ -104,9 +111,10 @@ def probed(tmp_path):
 
 
 def test_a_law_is_built_from_its_followers_place_in_the_graph_and_its_vehicles_reported_numbers(probed):
-    """The context: its id, its in-edges and their weights as the config gives them, the control
-    period, the mass as configured, the full thrust as the vehicle reports it over the float32
-    parameter protocol (its maximum to within two float32 steps), and g."""
+    """The context: its id, its in-edges and their weights and its out-neighbours as the config
+    gives them, the control period, the mass as configured, the full thrust as the vehicle reports
+    it over the float32 parameter protocol (``thrust_map``: its hover throttle as a float32), g,
+    and its own random stream (``law.seed`` and its id)."""
     cfg, rec = probed
     for i, s in rec.followers.items():
         ctx = s["ctx"]
@@ -115,8 +123,14 @@ def test_a_law_is_built_from_its_followers_place_in_the_graph_and_its_vehicles_r
         assert ctx[0][:4].tolist() == [i, len(edges), sum(w for _, w in edges), cfg.control_dt_s]
         weights = [w for _, w in edges] + [np.nan] * (SLOTS - len(edges))
         np.testing.assert_array_equal(s["weights"], np.broadcast_to(weights, s["weights"].shape))
-        assert ctx[0][4] == cfg.vehicle.mass_kg and ctx[0][6] == cfg.gravity_mps2
-        assert abs(ctx[0][5] - cfg.vehicle.max_thrust_N) <= 2 * 2.0**-24 * cfg.vehicle.max_thrust_N
+        outs = sorted(e[1] for e in cfg.graph.edges if e[0] == i)
+        outs = outs + [np.nan] * (SLOTS - len(outs))
+        np.testing.assert_array_equal(s["outs"], np.broadcast_to(outs, s["outs"].shape))
+        assert (s["first_draw"] == np.random.default_rng([cfg.law.seed, i]).random()).all()
+        v = cfg.vehicle
+        assert ctx[0][4] == v.mass_kg and ctx[0][6] == cfg.gravity_mps2
+        (hover,) = f32(hover_fraction(v.mass_kg, cfg.gravity_mps2, v.max_thrust_N))
+        assert ctx[0][5] == full_thrust_N(v.mass_kg, cfg.gravity_mps2, hover)
 
 
 def test_each_tick_gives_the_law_its_time_and_its_vehicles_state_at_that_time_through_the_wire(probed):
@@ -307,10 +321,30 @@ def test_a_users_law_in_sim_is_guarded_its_prints_given_and_a_hung_step_ends_the
     said = io.StringIO()
     with pytest.raises(SimFailedError) as e:
         run_sim(cfg, law_output=said)
-    assert "follower 3 at t=0.050 s" in str(e.value) and "0.3" in str(e.value) and "\n" not in str(e.value)
+    assert str(e.value) == (
+        f"law {tmp_path / 'chatty.py'}:Chatty, follower 3 at t=0.050 s: its step did not return within "
+        "0.3 s (run.tick_timeout_s)"
+    )
     lines = said.getvalue().splitlines()
     assert lines == [
         f"follower {i} at {k * 0.01:.2f}" for k in range(6) for i in (1, 2, 3, 4) if (k, i) < (5, 4)
     ]
     rows = e.value.recording.followers[2]
     assert np.isfinite(rows["thrust_N"][:5]).all() and np.isnan(rows["thrust_N"][6:]).all()
+
+
+def test_the_leaders_message_is_its_trajectory_at_the_tick(probed):
+    """Node 0's message of tick ``k``: the reference ``laws.contract.REFERENCE`` of its trajectory
+    at ``k dt`` (p, v, a, jerk), stamped with the tick and its time, its position the message's
+    ``p_W`` (what a link model's distance is measured from)."""
+    from swarm_sitl.laws.contract import reference_values
+    from swarm_sitl.nodes.assembly import build_leader
+
+    cfg, _ = probed
+    leader, trajectory = build_leader(cfg), cfg.trajectory()
+    for k in (0, 1, 7, 4321):
+        m = leader.step(k)
+        d = trajectory.derivatives(k * cfg.control_dt_s)
+        assert (m.src, m.step, m.t_s) == (0, k, k * cfg.control_dt_s)
+        np.testing.assert_array_equal(m.values, reference_values(d))
+        assert m.p_W == tuple(d[0])
