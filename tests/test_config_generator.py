@@ -226,6 +226,20 @@ def test_new_writes_a_config_and_refuses_bad_requests_in_one_line(tmp_path, caps
 
 
 @pytest.mark.unit
+def test_254_followers_the_most_mavlink_system_ids_allow_are_generated(monkeypatch):
+    """The largest swarm ``new`` writes (the ground station has id 255). Its gain check is given
+    as holding: the check itself is the same at any size, and takes seconds at 254."""
+    import types
+
+    from swarm_sitl.config import generator
+
+    holds = types.SimpleNamespace(all_hold=True, conditions=[], suggestion={})
+    monkeypatch.setattr(generator, "check_gains", lambda *args: holds)
+    cfg = _load(generate(254, "ring", "grid", "helix"))
+    assert [f.id for f in cfg.followers] == list(range(1, 255))
+
+
+@pytest.mark.unit
 @pytest.mark.parametrize("followers", [-1, 0, 255, 256, 10_000])
 def test_a_follower_count_outside_the_mavlink_system_ids_is_refused_in_one_line(followers):
     """MAVLink system ids are 1..255, and the ground station is 255: 254 followers at most."""
