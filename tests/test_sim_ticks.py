@@ -348,3 +348,45 @@ def test_the_leaders_message_is_its_trajectory_at_the_tick(probed):
         assert (m.src, m.step, m.t_s) == (0, k, k * cfg.control_dt_s)
         np.testing.assert_array_equal(m.values, reference_values(d))
         assert m.p_W == tuple(d[0])
+
+
+def test_a_first_tick_is_the_law_at_zero_on_its_initial_state_hearing_the_leaders_reference_and_zeros(
+    tmp_path,
+):
+    """``assembly.first_tick`` (``run`` and ``check --law`` step each law once before anything
+    starts): at t = 0, on its configured initial state as it is (no wire), with the leader's
+    reference at 0 if it hears node 0 and zeros from its other in-neighbours, all at 0 and 0 old;
+    its context built with the mass and full thrust it is given."""
+    from swarm_sitl.nodes.assembly import first_tick
+    from swarm_sitl.rundir.recording import layout
+
+    data = _probe_config(tmp_path, duration_s=0.5)
+    data["followers"][3]["initial_velocity_mps"] = [0.5, -0.25, 1.0]
+    data["followers"][3]["initial_quaternion_wxyz"] = [0.6, 0.0, 0.8, 0.0]
+    cfg = _loaded(tmp_path, data)
+    ref = cfg.trajectory().derivatives(0.0)[0]
+    for f in cfg.followers:
+        step = first_tick(cfg, f.id, 0.7, 19.5)
+        at = layout(cfg.law_class().record_fields)
+        rec = {name: step.record[where] for name, where in at.items()}
+        sources = sorted(s for s, d in cfg.graph_edges() if d == f.id)
+        n_in, g = len(sources), cfg.gravity_mps2  # (the paper's edges weigh 1 each)
+        assert rec["ctx"].tolist() == [f.id, n_in, float(n_in), cfg.control_dt_s, 0.7, 19.5, g]
+        assert rec["seen_t"].tolist() == [0.0]
+        for name, given in (
+            ("sample_p", f.initial_position_m),
+            ("sample_v", f.initial_velocity_mps),
+            ("sample_q", f.initial_quaternion_wxyz),
+        ):
+            assert rec[name].tolist() == list(given), (f.id, name)
+        assert rec["from"][: len(sources)].tolist() == sources
+        assert (
+            rec["sent_at"][: len(sources)].tolist()
+            == rec["age"][: len(sources)].tolist()
+            == [0.0] * len(sources)
+        )
+        said = [0.0] * len(sources)  # (the probe's "said_id" of node 0 is 0; a follower's zeros say 0)
+        assert rec["said_id"][: len(sources)].tolist() == said
+        if 0 in sources:
+            assert rec["ref_p"].tolist() == ref.tolist()
+        assert step.message.tolist() == [f.id, 0.0, *f.initial_position_m]
