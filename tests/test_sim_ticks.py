@@ -289,7 +289,7 @@ from swarm_sitl.laws.contract import AttitudeCommand, LawOutput
 
 
 class Chatty:
-    '''Says each tick it steps; at 0.05 s follower 3's step hangs (3 s, once).'''
+    '''Says each tick it steps; at 0.05 s follower 3's step hangs (4 s, once).'''
     message_length = 1
     record_fields = {}
 
@@ -299,7 +299,7 @@ class Chatty:
     def step(self, t_s, sample, inbox):
         print(f"follower {self.id} at {t_s:.2f}")
         if self.id == 3 and round(t_s * 100) == 5:
-            time.sleep(3)
+            time.sleep(4)
         return LawOutput(AttitudeCommand(np.array([1.0, 0.0, 0.0, 0.0]), self.weight), np.zeros(1), {})
 """
 
@@ -316,14 +316,15 @@ def test_a_users_law_in_sim_is_guarded_its_prints_given_and_a_hung_step_ends_the
 
     (tmp_path / "chatty.py").write_text(CHATTY)
     data = config_data("paper")
-    data.update(duration_s=0.5, law={"entry": "chatty.py:Chatty"}, run={"tick_timeout_s": 0.3})
+    # (1 s: a step of this law on a busy machine takes far less)
+    data.update(duration_s=0.5, law={"entry": "chatty.py:Chatty"}, run={"tick_timeout_s": 1.0})
     cfg = _loaded(tmp_path, data)
     said = io.StringIO()
     with pytest.raises(SimFailedError) as e:
         run_sim(cfg, law_output=said)
     assert str(e.value) == (
         f"law {tmp_path / 'chatty.py'}:Chatty, follower 3 at t=0.050 s: its step did not return within "
-        "0.3 s (run.tick_timeout_s)"
+        "1.0 s (run.tick_timeout_s)"
     )
     lines = said.getvalue().splitlines()
     assert lines == [
