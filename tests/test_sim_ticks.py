@@ -324,7 +324,7 @@ def test_a_users_law_in_sim_is_guarded_its_prints_given_and_a_hung_step_ends_the
         run_sim(cfg, law_output=said)
     assert str(e.value) == (
         f"law {tmp_path / 'chatty.py'}:Chatty, follower 3 at t=0.050 s: its step did not return within "
-        "1.0 s (run.tick_timeout_s)"
+        "1 s (run.tick_timeout_s)"
     )
     lines = said.getvalue().splitlines()
     assert lines == [
