@@ -246,7 +246,7 @@ def test_a_vehicle_that_reports_late_and_noisy_gives_the_law_what_its_sensors_re
     from sim_vehicles.common.state import POS, QUAT, RATE, STATE_SIZE, VEL
     from sim_vehicles.models.build import sensor_model
 
-    data = _probe_config(tmp_path, duration_s=0.3)
+    data = _probe_config(tmp_path, duration_s=1.0)  # (past 0.5 s: a tick's ms is not t * 1001's)
     data["vehicle"]["sensors"] = {
         "position_noise_m": 0.05,
         "velocity_noise_mps": 0.02,
@@ -272,14 +272,25 @@ def test_a_vehicle_that_reports_late_and_noisy_gives_the_law_what_its_sensors_re
         assert np.abs(s["sample_p"] - s["p_W"]).max() > 0.01  # (the noise is there, not the truth)
 
 
-def test_sim_tells_its_progress_at_every_tick_and_flies_the_ticks_asked(tmp_path):
-    """``progress`` is called with each tick in order; ``n_steps`` rows past the first are flown,
-    whatever the config's duration."""
-    cfg = _loaded(tmp_path, _probe_config(tmp_path, duration_s=0.5))
-    told = []
+#: a plan that acts late (follower 1 stops hearing the leader at 0.45 s): ``sim`` flies it on the
+#: planned path
+LATE_DROP = {"seed": 1, "plan": [{"edge": [0, 1], "drop": True, "from_s": 0.45}]}
+
+
+@pytest.mark.parametrize("plan", [None, LATE_DROP], ids=["plain", "planned"])
+def test_sim_tells_its_progress_at_every_tick_and_flies_the_ticks_asked(tmp_path, plan):
+    """``progress`` is called with each tick in order, in memory and spooled, plain and under a
+    plan; ``n_steps`` rows past the first are flown, whatever the config's duration."""
+    from swarm_sitl.running.sim import run_sim_spooled
+
+    cfg = _loaded(tmp_path, _probe_config(tmp_path, duration_s=0.5, **({"faults": plan} if plan else {})))
+    told: list[int] = []
     rec = run_sim(cfg, n_steps=7, progress=told.append)
     assert told == list(range(8))
     assert all(s["t_s"].tolist() == [k * cfg.control_dt_s for k in range(8)] for s in rec.followers.values())
+    told.clear()
+    run_sim_spooled(cfg, tmp_path / "spool", progress=told.append)
+    assert told == list(range(cfg.n_control_steps + 1))
 
 
 CHATTY = """
@@ -304,24 +315,32 @@ class Chatty:
 """
 
 
+@pytest.mark.parametrize("plan", [None, LATE_DROP], ids=["plain", "planned"])
+@pytest.mark.parametrize("spooled", [False, True], ids=["in memory", "spooled"])
 def test_a_users_law_in_sim_is_guarded_its_prints_given_and_a_hung_step_ends_the_run_with_what_was_recorded(
-    tmp_path,
+    tmp_path, plan, spooled
 ):
-    """A law that is not the paper's runs under its guard in ``sim`` as in a controller: what it
-    prints goes to ``law_output``, and a step past ``run.tick_timeout_s`` ends the run with one
-    line naming the follower, its time and the timeout, the rows before it kept."""
+    """A law that is not the paper's runs under its guard in ``sim`` as in a controller, plain or
+    under a plan, in memory or spooled: what it prints goes to ``law_output``, and a step past
+    ``run.tick_timeout_s`` ends the run with one line naming the follower, its time and the
+    timeout, the rows before it kept."""
     import io
 
-    from swarm_sitl.running.sim import SimFailedError
+    from swarm_sitl.running.sim import SimFailedError, run_sim_spooled
 
     (tmp_path / "chatty.py").write_text(CHATTY)
     data = config_data("paper")
     # (1 s: a step of this law on a busy machine takes far less)
     data.update(duration_s=0.5, law={"entry": "chatty.py:Chatty"}, run={"tick_timeout_s": 1.0})
+    if plan:
+        data["faults"] = plan
     cfg = _loaded(tmp_path, data)
     said = io.StringIO()
     with pytest.raises(SimFailedError) as e:
-        run_sim(cfg, law_output=said)
+        if spooled:
+            run_sim_spooled(cfg, tmp_path / "spool", law_output=said)
+        else:
+            run_sim(cfg, law_output=said)
     assert str(e.value) == (
         f"law {tmp_path / 'chatty.py'}:Chatty, follower 3 at t=0.050 s: its step did not return within "
         "1 s (run.tick_timeout_s)"
@@ -330,8 +349,9 @@ def test_a_users_law_in_sim_is_guarded_its_prints_given_and_a_hung_step_ends_the
     assert lines == [
         f"follower {i} at {k * 0.01:.2f}" for k in range(6) for i in (1, 2, 3, 4) if (k, i) < (5, 4)
     ]
-    rows = e.value.recording.followers[2]
-    assert np.isfinite(rows["thrust_N"][:5]).all() and np.isnan(rows["thrust_N"][6:]).all()
+    if not spooled:
+        rows = e.value.recording.followers[2]
+        assert np.isfinite(rows["thrust_N"][:5]).all() and np.isnan(rows["thrust_N"][6:]).all()
 
 
 def test_the_leaders_message_is_its_trajectory_at_the_tick(probed):
@@ -391,3 +411,45 @@ def test_a_first_tick_is_the_law_at_zero_on_its_initial_state_hearing_the_leader
         if 0 in sources:
             assert rec["ref_p"].tolist() == ref.tolist()
         assert step.message.tolist() == [f.id, 0.0, *f.initial_position_m]
+
+
+#: a plan of the MAVLink and process kinds: vehicle 2's setpoints stop for 0.7 s, half of
+#: vehicle 3's samples are lost, and the leader's process is killed at 0.3 s and back at 0.5 s
+LINK_AND_PROCESS_FAULTS = {
+    "seed": 5,
+    "plan": [
+        {"mavlink": 2, "direction": "up", "drop": True, "from_s": 0.2, "until_s": 0.9},
+        {"mavlink": 3, "direction": "down", "loss": 0.5},
+        {"leader": True, "kill": True, "from_s": 0.3, "restart_after_s": 0.2},
+    ],
+}
+
+
+def test_under_link_and_process_faults_sim_flies_the_failsafe_carries_samples_and_loses_the_leader(tmp_path):
+    """Vehicle 2 without setpoints from 0.2 s enters its failsafe ``setpoint_timeout_s`` (0.5 s)
+    later and leaves it when they come again at 0.9 s: the run's events, in time order. A tick
+    whose sample was lost carries the newest one before it, recorded with that sample's true state
+    and time, and its position error measured at that time; about half are lost, never the first.
+    The leader's followers hear its messages up to the tick before it was killed, then, from its
+    restart on, its new ones."""
+    cfg = _loaded(tmp_path, _probe_config(tmp_path, duration_s=1.5, faults=LINK_AND_PROCESS_FAULTS))
+    rec = run_sim(cfg)
+    dt, trajectory = cfg.control_dt_s, cfg.trajectory()
+    said = [(e["t_s"], e["kind"], e["source"]) for e in rec.events]
+    assert said == [(0.7, "failsafe_enter", "vehicle_2"), (0.9, "failsafe_exit", "vehicle_2")]
+    s = rec.followers[3]
+    carried = np.nonzero(s["sample_t_s"] < s["t_s"])[0]
+    assert 0 not in carried and abs(len(carried) / len(s["t_s"]) - 0.5) < 5 * (0.25 / len(s["t_s"])) ** 0.5
+    for k in carried:
+        j = round(s["sample_t_s"][k] / dt)  # the row of the sample carried: its own, the newest before k
+        assert s["sample_t_s"][j] == s["t_s"][j] and (s["sample_t_s"][j + 1 : k] < s["t_s"][j + 1 : k]).all()
+        assert (s["p_W"][k] == s["p_W"][j]).all() and (s["sample_p"][k] == s["sample_p"][j]).all()
+        offset = np.asarray(cfg.follower(3).offset_m)
+        expected = np.linalg.norm(s["p_W"][j] - trajectory.derivatives(s["sample_t_s"][k])[0] - offset)
+        assert np.linalg.norm(s["pos_err_m"][k]) == pytest.approx(expected, rel=1e-12, abs=1e-12)
+    up = [k for k in range(cfg.n_control_steps + 1) if k < 30 or k >= 50]  # (the leader's ticks)
+    for i in (1, 2, 3):
+        f = rec.followers[i]
+        for k in range(1, cfg.n_control_steps + 1):
+            newest = max(j for j in up if j < k)
+            assert f["from"][k][0] == 0 and f["sent_at"][k][0] == newest * dt, (i, k)
