@@ -41,7 +41,7 @@ class Probe:
     message_length = 5  # its id, its tick's time, its sample's position
     record_fields = {{
         "ctx": 7, "weights": SLOTS, "outs": SLOTS, "first_draw": 1,
-        "seen_t": 1, "sample_p": 3, "sample_v": 3, "sample_q": 4,
+        "seen_t": 1, "sample_t": 1, "sample_p": 3, "sample_v": 3, "sample_q": 4,
         "from": SLOTS, "sent_at": SLOTS, "age": SLOTS, "said_id": SLOTS, "said_t": SLOTS, "ref_p": 3,
     }}
 
@@ -70,6 +70,7 @@ class Probe:
             "outs": self.outs,
             "first_draw": self.first_draw,
             "seen_t": t_s,
+            "sample_t": sample.t_s,
             "sample_p": sample.p_W, "sample_v": sample.v_W, "sample_q": sample.q_WB,
             "from": pad(sources),
             "sent_at": pad([inbox[s].t_s for s in sources]),
@@ -142,6 +143,7 @@ def test_each_tick_gives_the_law_its_time_and_its_vehicles_state_at_that_time_th
     for i, s in rec.followers.items():
         k = np.arange(n + 1)
         assert s["seen_t"].tolist() == (k * cfg.control_dt_s).tolist() == s["t_s"].tolist()
+        assert s["sample_t"].tolist() == s["t_s"].tolist()  # (its own instant's sample)
         for field, truth in (("sample_p", s["p_W"]), ("sample_v", s["v_W"]), ("sample_q", s["q_WB"])):
             assert np.all(np.abs(s[field] - truth) <= 2.0**-24 * np.abs(truth) + 1e-15), (i, field)
         assert s["p_W"][0].tolist() == list(cfg.follower(i).initial_position_m)
@@ -393,7 +395,7 @@ def test_a_first_tick_is_the_law_at_zero_on_its_initial_state_hearing_the_leader
         sources = sorted(s for s, d in cfg.graph_edges() if d == f.id)
         n_in, g = len(sources), cfg.gravity_mps2  # (the paper's edges weigh 1 each)
         assert rec["ctx"].tolist() == [f.id, n_in, float(n_in), cfg.control_dt_s, 0.7, 19.5, g]
-        assert rec["seen_t"].tolist() == [0.0]
+        assert rec["seen_t"].tolist() == rec["sample_t"].tolist() == [0.0]
         for name, given in (
             ("sample_p", f.initial_position_m),
             ("sample_v", f.initial_velocity_mps),
@@ -432,11 +434,14 @@ def test_under_link_and_process_faults_sim_flies_the_failsafe_carries_samples_an
     and time, and its position error measured at that time; about half are lost, never the first.
     The leader's followers hear its messages up to the tick before it was killed, then, from its
     restart on, its new ones."""
+    from swarm_sitl.running.sim import run_sim_spooled
+
     cfg = _loaded(tmp_path, _probe_config(tmp_path, duration_s=1.5, faults=LINK_AND_PROCESS_FAULTS))
     rec = run_sim(cfg)
     dt, trajectory = cfg.control_dt_s, cfg.trajectory()
     said = [(e["t_s"], e["kind"], e["source"]) for e in rec.events]
     assert said == [(0.7, "failsafe_enter", "vehicle_2"), (0.9, "failsafe_exit", "vehicle_2")]
+    assert run_sim_spooled(cfg, tmp_path / "spool").events == rec.events  # (spooled, the same)
     s = rec.followers[3]
     carried = np.nonzero(s["sample_t_s"] < s["t_s"])[0]
     assert 0 not in carried and abs(len(carried) / len(s["t_s"]) - 0.5) < 5 * (0.25 / len(s["t_s"])) ** 0.5
@@ -444,6 +449,7 @@ def test_under_link_and_process_faults_sim_flies_the_failsafe_carries_samples_an
         j = round(s["sample_t_s"][k] / dt)  # the row of the sample carried: its own, the newest before k
         assert s["sample_t_s"][j] == s["t_s"][j] and (s["sample_t_s"][j + 1 : k] < s["t_s"][j + 1 : k]).all()
         assert (s["p_W"][k] == s["p_W"][j]).all() and (s["sample_p"][k] == s["sample_p"][j]).all()
+        assert s["sample_t"][k] == s["sample_t_s"][k]  # (the law is told the carried sample's time)
         offset = np.asarray(cfg.follower(3).offset_m)
         expected = np.linalg.norm(s["p_W"][j] - trajectory.derivatives(s["sample_t_s"][k])[0] - offset)
         assert np.linalg.norm(s["pos_err_m"][k]) == pytest.approx(expected, rel=1e-12, abs=1e-12)
