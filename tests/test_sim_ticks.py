@@ -416,12 +416,14 @@ def test_a_first_tick_is_the_law_at_zero_on_its_initial_state_hearing_the_leader
 
 
 #: a plan of the MAVLink and process kinds: vehicle 2's setpoints stop for 0.7 s, half of
-#: vehicle 3's samples are lost, and the leader's process is killed at 0.3 s and back at 0.5 s
+#: vehicle 3's samples are lost, a third of vehicle 4's setpoints, and the leader's process is
+#: killed at 0.3 s and back at 0.5 s
 LINK_AND_PROCESS_FAULTS = {
     "seed": 5,
     "plan": [
         {"mavlink": 2, "direction": "up", "drop": True, "from_s": 0.2, "until_s": 0.9},
         {"mavlink": 3, "direction": "down", "loss": 0.5},
+        {"mavlink": 4, "direction": "up", "loss": 0.3},
         {"leader": True, "kill": True, "from_s": 0.3, "restart_after_s": 0.2},
     ],
 }
@@ -459,3 +461,49 @@ def test_under_link_and_process_faults_sim_flies_the_failsafe_carries_samples_an
         for k in range(1, cfg.n_control_steps + 1):
             newest = max(j for j in up if j < k)
             assert f["from"][k][0] == 0 and f["sent_at"][k][0] == newest * dt, (i, k)
+
+
+def _mavlink_lost(cfg, vehicle: int, uplink: bool, k: int) -> bool:
+    """Whether the plan loses (or corrupts) tick ``k``'s datagram on one way of ``vehicle``'s link:
+    ``faults.plan.fate`` keyed by its ``time_boot_ms``, as the MAVLink wrapper draws it."""
+    from swarm_sitl.faults.plan import fate, mavlink_channel
+
+    plan, ms = cfg.faults, round(k * cfg.control_dt_s * 1000)
+    rules = plan.on_mavlink(vehicle, uplink)
+    period_ms = round(cfg.control_dt_s * 1000)
+    f = fate(
+        plan.seed,
+        rules,
+        mavlink_channel(vehicle, uplink),
+        ms,
+        ms / 1000,
+        cfg.duration_s,
+        cfg.control_dt_s,
+        ms // period_ms,
+    )
+    return bool(rules) and (f.lost or f.corrupt)
+
+
+def test_the_datagrams_a_plan_loses_on_a_vehicles_link_are_its_fates(tmp_path):
+    """Each way of a vehicle's MAVLink link loses the datagrams whose fate says so (never the
+    first sample: it answers the controller's request). A lost sample: the tick carries the newest
+    one before it. A lost setpoint: the vehicle flies that period on the one it holds, so its
+    vertical acceleration over each period is that of the newest setpoint that came. Links
+    without a rule lose nothing."""
+    cfg = _loaded(tmp_path, _probe_config(tmp_path, duration_s=1.5, faults=LINK_AND_PROCESS_FAULTS))
+    rec = run_sim(cfg)
+    n, dt, m, g = cfg.n_control_steps, cfg.control_dt_s, cfg.vehicle.mass_kg, cfg.gravity_mps2
+    for i, s in rec.followers.items():
+        carried = [k for k in range(n + 1) if s["sample_t_s"][k] < s["t_s"][k]]
+        assert carried == [k for k in range(1, n + 1) if _mavlink_lost(cfg, i, False, k)], i
+    s = rec.followers[4]
+    came = [k for k in range(n) if not _mavlink_lost(cfg, 4, True, k)]
+    assert 0 < len(came) < n  # (some lost, some not)
+    level = AttitudeCommand(np.array([1.0, 0.0, 0.0, 0.0]), 0.0)
+    for k in range(n):
+        newest = max(j for j in came if j <= k)
+        held = command_roundtrip(
+            level._replace(thrust_N=s["thrust_N"][newest]), s["ctx"][0][5], cfg.vehicle.max_thrust_N
+        )
+        a = held.thrust_N / m - g
+        assert s["v_W"][k + 1][2] == pytest.approx(s["v_W"][k][2] + a * dt, abs=1e-12), k
