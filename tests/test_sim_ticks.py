@@ -240,15 +240,17 @@ def test_under_a_plan_each_tick_hears_the_newest_message_the_plan_let_through(pr
                     assert s["age"][k][slot] == k * dt - through[-1] * dt, (i, src, k)
 
 
-def test_a_vehicle_that_reports_late_and_noisy_gives_the_law_what_its_sensors_report(tmp_path):
+@pytest.mark.parametrize("planned", [False, True], ids=["plain", "planned"])
+def test_a_vehicle_that_reports_late_and_noisy_gives_the_law_what_its_sensors_report(tmp_path, planned):
     """With ``vehicle.sensors`` (latency, noise, a drifting bias), the sample of tick ``k`` is what
     a fresh copy of the vehicle's sensor model (``plant.sensors``, seeded as the vehicle is) reports
     at ``k`` ms times the period, fed the recorded true states in order; through the wire's float32,
-    as without sensors."""
+    as without sensors; plain, and on the planned path (a plan that touches no vehicle link)."""
     from sim_vehicles.common.state import POS, QUAT, RATE, STATE_SIZE, VEL
     from sim_vehicles.models.build import sensor_model
 
-    data = _probe_config(tmp_path, duration_s=1.0)  # (past 0.5 s: a tick's ms is not t * 1001's)
+    # (past 0.5 s: a tick's ms is not t * 1001's)
+    data = _probe_config(tmp_path, duration_s=1.0, **({"faults": LATE_DROP} if planned else {}))
     data["vehicle"]["sensors"] = {
         "position_noise_m": 0.05,
         "velocity_noise_mps": 0.02,
