@@ -421,7 +421,7 @@ class SwarmConfig(_Strict):
                 value = given[field.name]
             else:
                 continue  # the vehicle config's default
-            fields[field.name] = spec_value(value, field.type)
+            fields[field.name] = spec_value(value)
         fields["autopilot"] = f.autopilot or v.autopilot  # a follower's own in place of the swarm's
         fields["params"] = {k: float(x) for k, x in v.params.items()}
         return vehicle_configs.VehicleConfig(**fields)

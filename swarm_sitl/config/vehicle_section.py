@@ -58,6 +58,13 @@ class WindSection(_Strict):
         return any(self.mean_mps) or self.gust_mps > 0
 
 
+#: the sections that become a nested spec of the vehicle's config, each the spec it becomes
+NESTED_SPECS: dict[type, type] = {
+    WindSection: vehicle_config.Gusts,
+    SensorSection: vehicle_config.SensorNoise,
+}
+
+
 #: the fields of a vehicle's config the swarm config sets from its other sections, not ``vehicle:``'s:
 #: each the dotted path it is read from (``FOLLOWER.`` the follower's own section)
 SET_ELSEWHERE: dict[str, str] = {
@@ -70,18 +77,16 @@ SET_ELSEWHERE: dict[str, str] = {
 }
 
 
-def spec_value(value: Any, kind: object) -> Any:
-    """A section's value as the vehicle config's field of type ``kind`` holds it: a section for a nested
-    spec (``Gusts``, ``SensorNoise``) field by field by name, or None where it is not ``enabled``;
-    a list as a tuple; the rest as it is."""
-    if isinstance(value, SensorSection | WindSection):
+def spec_value(value: Any) -> Any:
+    """A section's value as the vehicle config's field holds it: a section for a nested spec
+    (``Gusts``, ``SensorNoise``) field by field by name, or None where it is not ``enabled``; a
+    list as a tuple; the rest as it is."""
+    nested = NESTED_SPECS.get(type(value))
+    if nested is not None:
         if not value.enabled:
             return None
-        nested = next(
-            t for t in (vehicle_config.Gusts, vehicle_config.SensorNoise) if t.__name__ in str(kind)
-        )
         names = [f.name for f in dataclasses.fields(nested)]
-        return nested(**{n: spec_value(getattr(value, n), None) for n in names})
+        return nested(**{n: spec_value(getattr(value, n)) for n in names})
     return tuple(value) if isinstance(value, list) else value
 
 
