@@ -1,6 +1,7 @@
-"""What ``sim`` gives a law and its vehicle at each tick (``running.sim``), seen by a probe law
-that records everything it is handed: its context, its tick's time and sample, and each
-in-neighbour's message; and what the vehicle does with the commands it is given.
+"""What ``sim`` gives a law and its vehicle at each tick (``running.sim``), seen by the probe law
+(``tests/probe_law.py``) that records everything it is handed: its context, its tick's time and
+sample, and each in-neighbour's message; and what the vehicle does with the commands it is given.
+Under fault plans: ``tests/test_sim_under_plans.py``.
 
 The expectations are the tick's definition (``laws.contract``): at tick ``k`` (``t = k dt``) the
 law gets its vehicle's state at ``t`` through the wire (float32), the newest message of each of
@@ -12,90 +13,15 @@ tick, so the vehicle's vertical motion over each period is constant acceleration
 
 import numpy as np
 import pytest
-import yaml
 
 from sim_vehicles.common.command import AttitudeCommand
 from sim_vehicles.mavlink.thrust_map import full_thrust_N, hover_fraction
 from sim_vehicles.mavlink.wire_format import command_roundtrip, f32
-from swarm_sitl.config.load import load_config
 from swarm_sitl.running.sim import run_sim
+from tests.probe_law import SLOTS, loaded, probe_config
 from tests.support import config_data
 
 pytestmark = pytest.mark.integration
-
-SLOTS = 3  #: in-neighbours a probe records (the paper's graph: at most 2)
-
-PROBE = f"""
-import numpy as np
-from swarm_sitl.laws.contract import AttitudeCommand, LawOutput
-
-SLOTS = {SLOTS}
-
-
-def thrust_fraction(k, i):
-    '''The probe's thrust at tick k, as a fraction of its weight: a different one every tick.'''
-    return 1.0 + 0.2 * np.sin(0.7 * k + i)
-
-
-class Probe:
-    message_length = 5  # its id, its tick's time, its sample's position
-    record_fields = {{
-        "ctx": 7, "weights": SLOTS, "outs": SLOTS, "first_draw": 1,
-        "seen_t": 1, "sample_t": 1, "sample_p": 3, "sample_v": 3, "sample_q": 4,
-        "from": SLOTS, "sent_at": SLOTS, "age": SLOTS, "said_id": SLOTS, "said_t": SLOTS, "ref_p": 3,
-    }}
-
-    def __init__(self, ctx):
-        self.ctx = ctx
-        weights = sum(w for _, w in ctx.in_edges)
-        self.row = [ctx.follower_id, len(ctx.in_edges), weights, ctx.control_dt_s, ctx.mass_kg,
-                    ctx.max_thrust_N, ctx.gravity_mps2]
-        by_source = [w for _, w in sorted(ctx.in_edges)]
-        self.weights = [*by_source, *[np.nan] * (SLOTS - len(by_source))]
-        outs = sorted(ctx.out_neighbours)
-        self.outs = [*outs, *[np.nan] * (SLOTS - len(outs))]
-        self.first_draw = ctx.rng.random()
-
-    def step(self, t_s, sample, inbox):
-        ctx = self.ctx
-        k = round(t_s / ctx.control_dt_s)
-        thrust = ctx.mass_kg * ctx.gravity_mps2 * thrust_fraction(k, ctx.follower_id)
-        command = AttitudeCommand(np.array([1.0, 0.0, 0.0, 0.0]), thrust)
-        sources = sorted(inbox)
-        pad = lambda xs: [*xs, *[np.nan] * (SLOTS - len(xs))]
-        follower = lambda s, j: inbox[s].values[j] if s != 0 else np.nan
-        record = {{
-            "ctx": self.row,
-            "weights": self.weights,
-            "outs": self.outs,
-            "first_draw": self.first_draw,
-            "seen_t": t_s,
-            "sample_t": sample.t_s,
-            "sample_p": sample.p_W, "sample_v": sample.v_W, "sample_q": sample.q_WB,
-            "from": pad(sources),
-            "sent_at": pad([inbox[s].t_s for s in sources]),
-            "age": pad([inbox[s].age_s for s in sources]),
-            "said_id": pad([follower(s, 0) if s else 0.0 for s in sources]),
-            "said_t": pad([follower(s, 1) for s in sources]),
-            "ref_p": inbox[0].values[:3] if 0 in inbox else [np.nan] * 3,
-        }}
-        message = np.array([ctx.follower_id, t_s, *sample.p_W])
-        return LawOutput(command, message, record)
-"""
-
-
-def _probe_config(folder, **changes):
-    """The paper's config flown by the probe (its file written in ``folder``), with ``changes``
-    (top-level keys) made."""
-    (folder / "probe.py").write_text(PROBE)
-    data = config_data("paper")
-    data.update(law={"entry": "probe.py:Probe"}, **changes)
-    return data
-
-
-def _loaded(folder, data):
-    (folder / "cfg.yaml").write_text(yaml.safe_dump(data))
-    return load_config(folder / "cfg.yaml")
 
 
 # (each fixture is a test's own, not a module's: a mutation tester maps a run to the tests that
@@ -104,10 +30,10 @@ def _loaded(folder, data):
 def probed(tmp_path):
     """The paper's swarm, its edges weighted and follower 2 an ArduCopter, flown 0.5 s in ``sim`` by
     the probe; and its config."""
-    data = _probe_config(tmp_path, duration_s=0.5)
+    data = probe_config(tmp_path, duration_s=0.5)
     data["graph"]["edges"] = [[0, 1, 1.5], [0, 2], [0, 3, 0.75], [1, 4, 2.0], [2, 4, 0.5]]
     data["followers"][1]["autopilot"] = "ardupilot"  # (level: its GUIDED thrust is PX4's, unboosted)
-    cfg = _loaded(tmp_path, data)
+    cfg = loaded(tmp_path, data)
     return cfg, run_sim(cfg)
 
 
@@ -198,48 +124,6 @@ def test_each_command_is_held_by_the_vehicle_for_one_period_as_the_wire_carries_
         np.testing.assert_array_equal(s["q_WB"], np.broadcast_to([1.0, 0.0, 0.0, 0.0], s["q_WB"].shape))
 
 
-#: the edges a plan loses messages on, and at which rate
-LOSSY = {(0, 1): 0.3, (1, 4): 0.5}
-
-
-@pytest.fixture
-def probed_under_loss(tmp_path):
-    """The paper's swarm flown 1 s in ``sim`` by the probe under a plan that loses messages on two
-    edges; and its config."""
-    plan = {"seed": 11, "plan": [{"edge": list(e), "loss": p} for e, p in LOSSY.items()]}
-    cfg = _loaded(tmp_path, _probe_config(tmp_path, duration_s=1.0, faults=plan))
-    return cfg, run_sim(cfg)
-
-
-def test_under_a_plan_each_tick_hears_the_newest_message_the_plan_let_through(probed_under_loss):
-    """The fate of each message (``faults.plan.fate``, keyed by its edge and tick) decides: at tick
-    ``k`` an in-neighbour is heard with its newest message of a tick before ``k`` that was not
-    lost, as old as that makes it (every loss run here is far shorter than the 0.5 s an estimate
-    stays usable); one never yet let through is not heard. Edges without a rule lose nothing."""
-    from swarm_sitl.faults.plan import edge_channel, fate
-
-    cfg, rec = probed_under_loss
-    dt, plan, edges = cfg.control_dt_s, cfg.faults, cfg.graph_edges()
-    for i, s in rec.followers.items():
-        for src in sorted(src for src, d in edges if d == i):
-            rules = plan.on_edge(src, i, edges)
-            lost = [
-                bool(rules)
-                and fate(plan.seed, rules, edge_channel(src, i), j, j * dt, cfg.duration_s, dt).lost
-                for j in range(cfg.n_control_steps)
-            ]
-            p = LOSSY.get((src, i), 0.0)  # (100 draws: within five standard deviations of the rate)
-            assert abs(sum(lost) / len(lost) - p) <= 5 * (p * (1 - p) / len(lost)) ** 0.5, (src, i)
-            for k in range(cfg.n_control_steps + 1):
-                heard = [int(x) for x in s["from"][k] if not np.isnan(x)]
-                through = [j for j in range(k) if not lost[j]]
-                assert (src in heard) == bool(through), (i, src, k)
-                if through:
-                    slot = heard.index(src)
-                    assert s["sent_at"][k][slot] == through[-1] * dt, (i, src, k)
-                    assert s["age"][k][slot] == k * dt - through[-1] * dt, (i, src, k)
-
-
 @pytest.mark.parametrize("planned", [False, True], ids=["plain", "planned"])
 def test_a_vehicle_that_reports_late_and_noisy_gives_the_law_what_its_sensors_report(tmp_path, planned):
     """With ``vehicle.sensors`` (latency, noise, a drifting bias), the sample of tick ``k`` is what
@@ -250,7 +134,7 @@ def test_a_vehicle_that_reports_late_and_noisy_gives_the_law_what_its_sensors_re
     from sim_vehicles.models.build import sensor_model
 
     # (past 0.5 s: a tick's ms is not t * 1001's)
-    data = _probe_config(tmp_path, duration_s=1.0, **({"faults": LATE_DROP} if planned else {}))
+    data = probe_config(tmp_path, duration_s=1.0, **({"faults": LATE_DROP} if planned else {}))
     data["vehicle"]["sensors"] = {
         "position_noise_m": 0.05,
         "velocity_noise_mps": 0.02,
@@ -259,7 +143,7 @@ def test_a_vehicle_that_reports_late_and_noisy_gives_the_law_what_its_sensors_re
         "seed": 4,
         "position_bias_walk_m_per_sqrt_s": 0.1,
     }
-    cfg = _loaded(tmp_path, data)
+    cfg = loaded(tmp_path, data)
     rec = run_sim(cfg)
     for i, s in rec.followers.items():
         model = sensor_model(cfg.vehicle_config(i), i)
@@ -287,7 +171,7 @@ def test_sim_tells_its_progress_at_every_tick_and_flies_the_ticks_asked(tmp_path
     plan; ``n_steps`` rows past the first are flown, whatever the config's duration."""
     from swarm_sitl.running.sim import run_sim_spooled
 
-    cfg = _loaded(tmp_path, _probe_config(tmp_path, duration_s=0.5, **({"faults": plan} if plan else {})))
+    cfg = loaded(tmp_path, probe_config(tmp_path, duration_s=0.5, **({"faults": plan} if plan else {})))
     told: list[int] = []
     rec = run_sim(cfg, n_steps=7, progress=told.append)
     assert told == list(range(8))
@@ -338,7 +222,7 @@ def test_a_users_law_in_sim_is_guarded_its_prints_given_and_a_hung_step_ends_the
     data.update(duration_s=0.5, law={"entry": "chatty.py:Chatty"}, run={"tick_timeout_s": 1.0})
     if plan:
         data["faults"] = plan
-    cfg = _loaded(tmp_path, data)
+    cfg = loaded(tmp_path, data)
     said = io.StringIO()
     with pytest.raises(SimFailedError) as e:
         if spooled:
@@ -385,10 +269,10 @@ def test_a_first_tick_is_the_law_at_zero_on_its_initial_state_hearing_the_leader
     from swarm_sitl.nodes.assembly import first_tick
     from swarm_sitl.rundir.recording import layout
 
-    data = _probe_config(tmp_path, duration_s=0.5)
+    data = probe_config(tmp_path, duration_s=0.5)
     data["followers"][3]["initial_velocity_mps"] = [0.5, -0.25, 1.0]
     data["followers"][3]["initial_quaternion_wxyz"] = [0.6, 0.0, 0.8, 0.0]
-    cfg = _loaded(tmp_path, data)
+    cfg = loaded(tmp_path, data)
     ref = cfg.trajectory().derivatives(0.0)[0]
     for f in cfg.followers:
         step = first_tick(cfg, f.id, 0.7, 19.5)
@@ -415,97 +299,3 @@ def test_a_first_tick_is_the_law_at_zero_on_its_initial_state_hearing_the_leader
         if 0 in sources:
             assert rec["ref_p"].tolist() == ref.tolist()
         assert step.message.tolist() == [f.id, 0.0, *f.initial_position_m]
-
-
-#: a plan of the MAVLink and process kinds: vehicle 2's setpoints stop for 0.7 s, half of
-#: vehicle 3's samples are lost, a third of vehicle 4's setpoints, and the leader's process is
-#: killed at 0.3 s and back at 0.5 s
-LINK_AND_PROCESS_FAULTS = {
-    "seed": 5,
-    "plan": [
-        {"mavlink": 2, "direction": "up", "drop": True, "from_s": 0.2, "until_s": 0.9},
-        {"mavlink": 3, "direction": "down", "loss": 0.5},
-        {"mavlink": 4, "direction": "up", "loss": 0.3},
-        {"leader": True, "kill": True, "from_s": 0.3, "restart_after_s": 0.2},
-    ],
-}
-
-
-def test_under_link_and_process_faults_sim_flies_the_failsafe_carries_samples_and_loses_the_leader(tmp_path):
-    """Vehicle 2 without setpoints from 0.2 s enters its failsafe ``setpoint_timeout_s`` (0.5 s)
-    later and leaves it when they come again at 0.9 s: the run's events, in time order. A tick
-    whose sample was lost carries the newest one before it, recorded with that sample's true state
-    and time, and its position error measured at that time; about half are lost, never the first.
-    The leader's followers hear its messages up to the tick before it was killed, then, from its
-    restart on, its new ones."""
-    from swarm_sitl.running.sim import run_sim_spooled
-
-    cfg = _loaded(tmp_path, _probe_config(tmp_path, duration_s=1.5, faults=LINK_AND_PROCESS_FAULTS))
-    rec = run_sim(cfg)
-    dt, trajectory = cfg.control_dt_s, cfg.trajectory()
-    said = [(e["t_s"], e["kind"], e["source"]) for e in rec.events]
-    assert said == [(0.7, "failsafe_enter", "vehicle_2"), (0.9, "failsafe_exit", "vehicle_2")]
-    assert run_sim_spooled(cfg, tmp_path / "spool").events == rec.events  # (spooled, the same)
-    s = rec.followers[3]
-    carried = np.nonzero(s["sample_t_s"] < s["t_s"])[0]
-    assert 0 not in carried and abs(len(carried) / len(s["t_s"]) - 0.5) < 5 * (0.25 / len(s["t_s"])) ** 0.5
-    for k in carried:
-        j = round(s["sample_t_s"][k] / dt)  # the row of the sample carried: its own, the newest before k
-        assert s["sample_t_s"][j] == s["t_s"][j] and (s["sample_t_s"][j + 1 : k] < s["t_s"][j + 1 : k]).all()
-        assert (s["p_W"][k] == s["p_W"][j]).all() and (s["sample_p"][k] == s["sample_p"][j]).all()
-        assert s["sample_t"][k] == s["sample_t_s"][k]  # (the law is told the carried sample's time)
-        offset = np.asarray(cfg.follower(3).offset_m)
-        expected = np.linalg.norm(s["p_W"][j] - trajectory.derivatives(s["sample_t_s"][k])[0] - offset)
-        assert np.linalg.norm(s["pos_err_m"][k]) == pytest.approx(expected, rel=1e-12, abs=1e-12)
-    up = [k for k in range(cfg.n_control_steps + 1) if k < 30 or k >= 50]  # (the leader's ticks)
-    for i in (1, 2, 3):
-        f = rec.followers[i]
-        for k in range(1, cfg.n_control_steps + 1):
-            newest = max(j for j in up if j < k)
-            assert f["from"][k][0] == 0 and f["sent_at"][k][0] == newest * dt, (i, k)
-
-
-def _mavlink_lost(cfg, vehicle: int, uplink: bool, k: int) -> bool:
-    """Whether the plan loses (or corrupts) tick ``k``'s datagram on one way of ``vehicle``'s link:
-    ``faults.plan.fate`` keyed by its ``time_boot_ms``, as the MAVLink wrapper draws it."""
-    from swarm_sitl.faults.plan import fate, mavlink_channel
-
-    plan, ms = cfg.faults, round(k * cfg.control_dt_s * 1000)
-    rules = plan.on_mavlink(vehicle, uplink)
-    period_ms = round(cfg.control_dt_s * 1000)
-    f = fate(
-        plan.seed,
-        rules,
-        mavlink_channel(vehicle, uplink),
-        ms,
-        ms / 1000,
-        cfg.duration_s,
-        cfg.control_dt_s,
-        ms // period_ms,
-    )
-    return bool(rules) and (f.lost or f.corrupt)
-
-
-def test_the_datagrams_a_plan_loses_on_a_vehicles_link_are_its_fates(tmp_path):
-    """Each way of a vehicle's MAVLink link loses the datagrams whose fate says so (never the
-    first sample: it answers the controller's request). A lost sample: the tick carries the newest
-    one before it. A lost setpoint: the vehicle flies that period on the one it holds, so its
-    vertical acceleration over each period is that of the newest setpoint that came. Links
-    without a rule lose nothing."""
-    cfg = _loaded(tmp_path, _probe_config(tmp_path, duration_s=1.5, faults=LINK_AND_PROCESS_FAULTS))
-    rec = run_sim(cfg)
-    n, dt, m, g = cfg.n_control_steps, cfg.control_dt_s, cfg.vehicle.mass_kg, cfg.gravity_mps2
-    for i, s in rec.followers.items():
-        carried = [k for k in range(n + 1) if s["sample_t_s"][k] < s["t_s"][k]]
-        assert carried == [k for k in range(1, n + 1) if _mavlink_lost(cfg, i, False, k)], i
-    s = rec.followers[4]
-    came = [k for k in range(n) if not _mavlink_lost(cfg, 4, True, k)]
-    assert 0 < len(came) < n  # (some lost, some not)
-    level = AttitudeCommand(np.array([1.0, 0.0, 0.0, 0.0]), 0.0)
-    for k in range(n):
-        newest = max(j for j in came if j <= k)
-        held = command_roundtrip(
-            level._replace(thrust_N=s["thrust_N"][newest]), s["ctx"][0][5], cfg.vehicle.max_thrust_N
-        )
-        a = held.thrust_N / m - g
-        assert s["v_W"][k + 1][2] == pytest.approx(s["v_W"][k][2] + a * dt, abs=1e-12), k
