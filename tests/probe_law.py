@@ -6,8 +6,11 @@ message) and flies level on a thrust that changes every tick; and the paper's co
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import yaml
 
+from sim_vehicles.common.command import AttitudeCommand
+from sim_vehicles.mavlink.wire_format import command_roundtrip
 from swarm_sitl.config.load import load_config
 from swarm_sitl.config.schema import SwarmConfig
 from tests.support import config_data
@@ -86,3 +89,12 @@ def loaded(folder: Path, data: dict) -> SwarmConfig:
     """``data`` written as ``folder/cfg.yaml`` and loaded as a run loads it."""
     (folder / "cfg.yaml").write_text(yaml.safe_dump(data))
     return load_config(folder / "cfg.yaml")
+
+
+def climb_acceleration(cfg: SwarmConfig, thrust_N: float, full_thrust_N: float) -> float:
+    """The vertical acceleration of a level vehicle holding a setpoint of ``thrust_N`` as the wire
+    carries it (a fraction of the controller's ``full_thrust_N``, read back as one of the vehicle's
+    maximum): ``T / m - g`` [m/s^2]."""
+    level = AttitudeCommand(np.array([1.0, 0.0, 0.0, 0.0]), thrust_N)
+    held = command_roundtrip(level, full_thrust_N, cfg.vehicle.max_thrust_N)
+    return float(held.thrust_N) / cfg.vehicle.mass_kg - cfg.gravity_mps2

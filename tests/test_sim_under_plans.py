@@ -7,10 +7,8 @@ fates are drawn by ``faults.plan.fate``, the reference the processes' fault wrap
 import numpy as np
 import pytest
 
-from sim_vehicles.common.command import AttitudeCommand
-from sim_vehicles.mavlink.wire_format import command_roundtrip
 from swarm_sitl.running.sim import run_sim
-from tests.probe_law import loaded, probe_config
+from tests.probe_law import climb_acceleration, loaded, probe_config
 
 pytestmark = pytest.mark.integration
 
@@ -134,20 +132,16 @@ def test_the_datagrams_a_plan_loses_on_a_vehicles_link_are_its_fates(tmp_path):
     without a rule lose nothing."""
     cfg = loaded(tmp_path, probe_config(tmp_path, duration_s=1.5, faults=LINK_AND_PROCESS_FAULTS))
     rec = run_sim(cfg)
-    n, dt, m, g = cfg.n_control_steps, cfg.control_dt_s, cfg.vehicle.mass_kg, cfg.gravity_mps2
+    n, dt = cfg.n_control_steps, cfg.control_dt_s
     for i, s in rec.followers.items():
         carried = [k for k in range(n + 1) if s["sample_t_s"][k] < s["t_s"][k]]
         assert carried == [k for k in range(1, n + 1) if _mavlink_lost(cfg, i, False, k)], i
     s = rec.followers[4]
     came = [k for k in range(n) if not _mavlink_lost(cfg, 4, True, k)]
     assert 0 < len(came) < n  # (some lost, some not)
-    level = AttitudeCommand(np.array([1.0, 0.0, 0.0, 0.0]), 0.0)
     for k in range(n):
         newest = max(j for j in came if j <= k)
-        held = command_roundtrip(
-            level._replace(thrust_N=s["thrust_N"][newest]), s["ctx"][0][5], cfg.vehicle.max_thrust_N
-        )
-        a = held.thrust_N / m - g
+        a = climb_acceleration(cfg, s["thrust_N"][newest], s["ctx"][0][5])
         assert s["v_W"][k + 1][2] == pytest.approx(s["v_W"][k][2] + a * dt, abs=1e-12), k
 
 
@@ -162,7 +156,7 @@ def test_a_controller_killed_and_restarted_records_nothing_between_and_starts_af
     plan = {"seed": 2, "plan": [{"controller": 2, "kill": True, "from_s": 0.3, "restart_after_s": 0.2}]}
     cfg = loaded(tmp_path, probe_config(tmp_path, duration_s=1.0, faults=plan))
     rec = run_sim(cfg)
-    n, dt, m, g = cfg.n_control_steps, cfg.control_dt_s, cfg.vehicle.mass_kg, cfg.gravity_mps2
+    n, dt = cfg.n_control_steps, cfg.control_dt_s
     down = range(30, 50)
     s = rec.followers[2]
     for k in range(n + 1):
@@ -175,11 +169,7 @@ def test_a_controller_killed_and_restarted_records_nothing_between_and_starts_af
     for k in range(1, n + 1):
         newest = max(j for j in range(k) if j not in down)
         assert f4["from"][k][1] == 2 and f4["sent_at"][k][1] == newest * dt, k
-    level = AttitudeCommand(np.array([1.0, 0.0, 0.0, 0.0]), 0.0)
-    held = command_roundtrip(
-        level._replace(thrust_N=s["thrust_N"][29]), s["ctx"][0][5], cfg.vehicle.max_thrust_N
-    )
-    a, gap = held.thrust_N / m - g, 21 * dt
+    a, gap = climb_acceleration(cfg, s["thrust_N"][29], s["ctx"][0][5]), 21 * dt
     v, z = s["v_W"][29][2], s["p_W"][29][2]
     assert s["v_W"][50][2] == pytest.approx(v + a * gap, abs=1e-9)
     assert s["p_W"][50][2] == pytest.approx(z + v * gap + a * gap**2 / 2, abs=1e-9)
