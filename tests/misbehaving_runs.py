@@ -15,7 +15,7 @@ import yaml
 from swarm_sitl.nodes.law_guard import HARD_STOP_S
 from swarm_sitl.rundir.load import load_run
 from tests import misbehaving_laws as laws
-from tests.support import CLI, CONFIGS
+from tests.support import CONFIGS, cli
 
 LAWS_FILE = Path(laws.__file__)
 DURATION_S = 1.2
@@ -62,9 +62,9 @@ def duration_s(name: str) -> float:
 def fly(tmp_path: Path, command: str, name: str, *extra: str) -> tuple[subprocess.CompletedProcess, float]:
     out = tmp_path / f"{command}-{name}"
     duration = duration_s(name)
-    argv = [*CLI, command, str(config(tmp_path, name, duration)), "--out", str(out), "--quiet", *extra]
+    argv = [command, config(tmp_path, name, duration), "--out", out, "--quiet", *extra]
     t0 = time.monotonic()
-    r = subprocess.run(argv, capture_output=True, text=True, timeout=240)
+    r = cli(*argv, timeout=240)
     return r, time.monotonic() - t0
 
 

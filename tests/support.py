@@ -16,16 +16,32 @@ from typing import Any
 
 import numpy as np
 
+from tests import cli_host
+
 ROOT = Path(__file__).resolve().parents[1]
 CONFIGS = ROOT / "configs"
 #: ``swarm-sitl`` as this interpreter runs it
-CLI = [sys.executable, "-m", "swarm_sitl"]
+CLI = cli_host.CLI
 
 
 # -- the command line --------------------------------------------------------------------------------
-def cli(*args: object, timeout: float = 300, **kw: Any) -> "subprocess.CompletedProcess[str]":
-    """``swarm-sitl ARGS`` run to its end, its output captured (``kw``: ``cwd``, ``env``, ...)."""
-    return subprocess.run([*CLI, *map(str, args)], capture_output=True, text=True, timeout=timeout, **kw)
+def cli(
+    *args: object,
+    timeout: float = 300,
+    cwd: Any = None,
+    env: dict[str, str] | None = None,
+    fresh: bool = False,
+) -> "subprocess.CompletedProcess[str]":
+    """``swarm-sitl ARGS`` run to its end, its output captured, in working directory ``cwd`` with
+    environment ``env`` (default: this process's). Forked from the worker's warm interpreter
+    (``tests/cli_host.py``: the same process a new interpreter would be, without its second of
+    imports); ``fresh``: a new interpreter, for what its start is part of."""
+    argv = [str(a) for a in args]
+    if fresh or not cli_host.forkable(env):
+        return subprocess.run(
+            [*CLI, *argv], capture_output=True, text=True, timeout=timeout, cwd=cwd, env=env
+        )
+    return cli_host.run(argv, timeout, cwd=cwd, env=env)
 
 
 def cli_ok(*args: object, **kw: Any) -> "subprocess.CompletedProcess[str]":
@@ -36,17 +52,24 @@ def cli_ok(*args: object, **kw: Any) -> "subprocess.CompletedProcess[str]":
     return r
 
 
-def start_cli(*args: object, **kw: Any) -> "subprocess.Popen[str]":
-    """``swarm-sitl ARGS`` started in its own session (a signal to the group reaches all of it),
-    its output piped."""
-    return subprocess.Popen(
-        [*CLI, *map(str, args)],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-        start_new_session=True,
-        **kw,
-    )
+def start_cli(
+    *args: object,
+    cwd: Any = None,
+    env: dict[str, str] | None = None,
+    start_new_session: bool = True,
+    **streams: Any,
+) -> Any:
+    """``swarm-sitl ARGS`` started, by default in its own session (a signal to the group reaches
+    all of it), its output piped (``streams``: ``Popen``'s ``stdout`` and ``stderr`` in place of
+    the pipes). Forked as ``cli`` is: what it returns has ``Popen``'s ``args``, ``pid``,
+    ``stdout``, ``stderr``, ``poll``, ``wait``, ``communicate``, ``send_signal``, ``terminate``
+    and ``kill``."""
+    streams = {"stdout": subprocess.PIPE, "stderr": subprocess.PIPE, **streams}
+    argv = [str(a) for a in args]
+    how = {"text": True, "start_new_session": start_new_session, "cwd": cwd, "env": env, **streams}
+    if not cli_host.forkable(env):
+        return subprocess.Popen([*CLI, *argv], **how)
+    return cli_host.ForkedCli(argv, **how)
 
 
 # -- the configs ---------------------------------------------------------------------------------------

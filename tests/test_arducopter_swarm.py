@@ -3,15 +3,13 @@ two ArduCopters, on the paper's vehicle and on the rotor-level quadrotor. As a l
 processes each equals ``sim`` of the same swarm bit for bit, and it converges as the PX4 swarm
 does (its final formation error within twice the PX4 one's)."""
 
-import subprocess
-
 import numpy as np
 import pytest
 import yaml
 
 from swarm_sitl.config.load import parse_config
 from swarm_sitl.running.sim import run_sim
-from tests.support import CLI, CONFIGS
+from tests.support import CONFIGS, cli
 
 #: its system tests run in lockstep or ``sim`` only (no wall clock): free to run beside others
 pytestmark = [pytest.mark.system, pytest.mark.lockstep]
@@ -41,12 +39,7 @@ def test_arducopters_fly_the_paper_swarm_as_processes_equal_to_sim_and_as_px4_do
     path = tmp_path / "mixed.yaml"
     path.write_text(yaml.safe_dump(data))
     out = tmp_path / "run"
-    r = subprocess.run(
-        [*CLI, "run", str(path), "--out", str(out), "--quiet"],
-        capture_output=True,
-        text=True,
-        timeout=240,
-    )
+    r = cli("run", str(path), "--out", str(out), "--quiet", timeout=240)
     assert r.returncode == 0, r.stderr + r.stdout
     sim = run_sim(parse_config(data))
     for i, arrays in sim.followers.items():

@@ -17,9 +17,9 @@ from pymavlink.dialects.v20 import common as mav
 
 from swarm_sitl.link.transport import LinkError
 from swarm_sitl.link.vehicle_link import VehicleLink
-from swarm_sitl.running.children import child_env, module_argv
+from swarm_sitl.running.children import child_env
 from tests.fake_autopilot import FakeAutopilot
-from tests.support import CONFIGS
+from tests.support import CONFIGS, cli
 
 TIMEOUT_S = 1.5
 DURATION_S = 4.0  #: the real-time run's
@@ -143,13 +143,7 @@ def test_in_real_time_a_refusal_or_a_reboot_ends_one_follower_and_the_rest_fly_o
         path = tmp_path / "mixed.yaml"
         path.write_text(yaml.safe_dump(data))
         out = tmp_path / "run"
-        r = subprocess.run(
-            [*module_argv("swarm_sitl"), "run", str(path), "--realtime", "--out", str(out), "--quiet"],
-            capture_output=True,
-            text=True,
-            timeout=120,
-            env=child_env(),
-        )
+        r = cli("run", path, "--realtime", "--out", out, "--quiet", timeout=120)
     finally:
         for p in procs.values():
             p.kill()

@@ -33,7 +33,7 @@ from swarm_sitl.bus.node_bus import ZenohNodeBus
 from swarm_sitl.bus.session import ROUTER_RUNTIME, RUNTIME_ENV, ZenohSection, open_session, router_runtime
 from swarm_sitl.running.children import child_env
 from swarm_sitl.running.hub import free_tcp_port
-from tests.support import CLI
+from tests.support import start_cli
 
 finite = st.floats(allow_nan=False, allow_infinity=False, width=64)
 
@@ -384,11 +384,8 @@ def test_swarm_sitl_router_routes_on_one_thread_unless_the_user_sets_the_runtime
     env = {k: v for k, v in child_env().items() if k != RUNTIME_ENV}
     if users_runtime is not None:
         env[RUNTIME_ENV] = users_runtime
-    router = subprocess.Popen(
-        [*CLI, "router", "--listen", endpoint],
-        stdout=subprocess.PIPE,
-        text=True,
-        env=env,
+    router = start_cli(
+        "router", "--listen", endpoint, stdout=subprocess.PIPE, env=env, stderr=None, start_new_session=False
     )
     sessions = []
     try:

@@ -13,7 +13,7 @@ from hypothesis import strategies as st
 
 from swarm_sitl.cli import main
 from swarm_sitl.config.load import ConfigError, parse_config
-from tests.support import CLI, CONFIGS, config, config_data
+from tests.support import CONFIGS, cli_ok, config, config_data
 
 pytestmark = pytest.mark.integration
 
@@ -163,21 +163,7 @@ def test_check_warns_when_the_estimator_flies_the_printed_bracket(capsys, tmp_pa
 
 def test_sim_writes_a_run_directory_and_plot_draws_it(tmp_path):
     run = tmp_path / "run"
-    r = subprocess.run(
-        [
-            *CLI,
-            "sim",
-            str(CONFIGS / "paper.yaml"),
-            "--duration",
-            "3",
-            "--out",
-            str(run),
-            "--quiet",
-        ],
-        capture_output=True,
-        text=True,
-        check=True,
-    )
+    r = cli_ok("sim", str(CONFIGS / "paper.yaml"), "--duration", "3", "--out", str(run), "--quiet")
     assert "3 s simulated" in r.stdout
     assert "no peak after 20 s (the run is shorter)" in r.stdout  # not a peak of 0 m
     swarm = json.loads((run / "summary.json").read_text())["swarm"]
@@ -187,7 +173,7 @@ def test_sim_writes_a_run_directory_and_plot_draws_it(tmp_path):
     f1 = np.load(run / "follower_1.npz")
     assert f1["t_s"].shape == (301,) and f1["p_W"].shape == (301, 3) and f1["q_c"].shape == (301, 4)
     assert yaml.safe_load((run / "config.yaml").read_text())["duration_s"] == 3.0
-    r = subprocess.run([*CLI, "plot", str(run)], capture_output=True, text=True, check=True)
+    r = cli_ok("plot", str(run))
     pngs = sorted(p.name for p in (run / "plots").glob("*.png"))
     assert pngs == [
         "estimator_error.png",

@@ -6,7 +6,6 @@ import copy
 import json
 import math
 import signal
-import subprocess
 import tempfile
 from pathlib import Path
 
@@ -22,7 +21,7 @@ from swarm_sitl.falsify.evaluate import evaluate, requirement_config
 from swarm_sitl.falsify.search import assert_no_counterexample, falsify
 from swarm_sitl.falsify.shrink import RESOLUTION, at, held_below, shrink
 from swarm_sitl.falsify.space import cost, expand
-from tests.support import CLI, CONFIGS, FixedTrial, cli, cli_in_process
+from tests.support import CONFIGS, FixedTrial, cli, cli_in_process, start_cli
 
 #: its system tests run in lockstep or ``sim`` only (no wall clock): free to run beside others
 pytestmark = pytest.mark.lockstep
@@ -501,7 +500,6 @@ def test_a_search_resumes_its_study_and_ctrl_c_keeps_what_was_found(tmp_path):
     # Ctrl-C after the first batch: exit 130, and what the study holds is written
     stop = tmp_path / "stopped"
     argv = [
-        *CLI,
         "falsify",
         PAPER,
         "--space",
@@ -515,12 +513,7 @@ def test_a_search_resumes_its_study_and_ctrl_c_keeps_what_was_found(tmp_path):
         "--jobs",
         1,
     ]
-    p = subprocess.Popen(
-        [*map(str, argv), "--no-confirm", "--out", str(stop)],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-    )
+    p = start_cli(*argv, "--no-confirm", "--out", stop, start_new_session=False)
     assert p.stdout is not None
     for line in p.stdout:
         if line.startswith("falsify: 4/400"):

@@ -2,7 +2,6 @@
 seeded function with the statistics the plan asks for."""
 
 import math
-import subprocess
 
 import numpy as np
 import pytest
@@ -11,7 +10,7 @@ import yaml
 from swarm_sitl.config.load import ConfigError, parse_config, with_faults
 from swarm_sitl.faults.draws import uniform
 from swarm_sitl.faults.plan import FaultEntry, FaultPlan, edge_channel, fate
-from tests.support import CLI, CONFIGS
+from tests.support import CONFIGS, cli
 
 pytestmark = pytest.mark.unit
 
@@ -104,12 +103,7 @@ def test_a_fault_file_replaces_the_plan_and_is_checked_against_the_config(tmp_pa
 def test_the_cli_refuses_a_bad_fault_file_in_one_line(tmp_path):
     f = tmp_path / "plan.yaml"
     f.write_text("plan:\n  - {edge: [1, 4], loss: 0.5, until_s: 99}\n")
-    r = subprocess.run(
-        [*CLI, "run", str(CONFIGS / "paper.yaml"), "--faults", str(f)],
-        capture_output=True,
-        text=True,
-        timeout=60,
-    )
+    r = cli("run", str(CONFIGS / "paper.yaml"), "--faults", str(f), timeout=60)
     assert r.returncode == 2
     assert r.stderr.strip().count("\n") == 0
     assert "until_s: 99 s is past the end of the run (60 s)" in r.stderr

@@ -18,10 +18,11 @@ import yaml
 
 from swarm_sitl.rundir.load import load_run
 from tests.support import (
-    CLI,
     CONFIGS,
+    cli,
     cmdline,
     processes_mentioning,
+    start_cli,
     start_paper_run,
     udp_port_free,
     vehicle_ports,
@@ -59,12 +60,7 @@ def _near(count: int, n: int, p: float) -> bool:
 
 def _run(path, out, *extra, timeout=240):
     t0 = time.monotonic()
-    r = subprocess.run(
-        [*CLI, "run", str(path), "--out", str(out), "--quiet", *map(str, extra)],
-        capture_output=True,
-        text=True,
-        timeout=timeout,
-    )
+    r = cli("run", str(path), "--out", str(out), "--quiet", *map(str, extra), timeout=timeout)
     return r, time.monotonic() - t0
 
 
@@ -219,7 +215,7 @@ def test_a_killed_supervisor_leaves_a_readable_run_and_nothing_running(tmp_path)
     for i in range(1, 5):
         t = rec.followers[i]["t_s"]
         assert np.isfinite(t).sum() > 100 and np.isfinite(rec.followers[i]["pos_err_m"][np.isfinite(t)]).all()
-    r = subprocess.run([*CLI, "plot", str(out)], capture_output=True, text=True, timeout=120)
+    r = cli("plot", str(out), timeout=120)
     assert r.returncode == 0, r.stderr
     assert (out / "plots" / "position_error.png").is_file()
 
@@ -235,11 +231,17 @@ def test_a_ground_station_slowing_a_vehicles_stream_fails_the_run_naming_the_sta
     path = tmp_path / "gcs.yaml"
     path.write_text(yaml.safe_dump(cfg))
     out = tmp_path / "gcs"
-    proc = subprocess.Popen(
-        [*CLI, "run", str(path), "--realtime", "--duration", "14", "--out", str(out), "--quiet"],
+    proc = start_cli(
+        "run",
+        str(path),
+        "--realtime",
+        "--duration",
+        "14",
+        "--out",
+        str(out),
+        "--quiet",
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
-        text=True,
         start_new_session=True,
     )
     wait_running(out)

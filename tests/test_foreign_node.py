@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 import yaml
 
-from tests.support import CLI, CONFIGS
+from tests.support import CONFIGS, start_cli
 
 pytestmark = pytest.mark.system
 HERE = Path(__file__).resolve().parent
@@ -36,11 +36,16 @@ def test_a_foreign_node_takes_a_controllers_place_and_the_formation_holds(tmp_pa
     duration = 12.0
     run_args = ["--duration", str(duration), "--out", str(out), "--quiet"]
     node_args = ["--id", "3", "--offset", "-2", "-2", "0", "--duration", str(duration), "--out-edges", "4"]
-    run = subprocess.Popen(
-        [*CLI, "run", str(path), "--realtime", "--external", "3", *run_args],
+    run = start_cli(
+        "run",
+        str(path),
+        "--realtime",
+        "--external",
+        "3",
+        *run_args,
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
-        text=True,
+        start_new_session=False,
     )
     node = None
     try:

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tests.support import CLI, CONFIGS
+from tests.support import CONFIGS, cli
 
 #: its system tests run in lockstep or ``sim`` only (no wall clock): free to run beside others
 pytestmark = [pytest.mark.system, pytest.mark.lockstep]
@@ -53,7 +53,7 @@ def test_a_run_on_a_disk_that_fills_keeps_its_raw_records_and_is_rebuilt_where_t
     mnt, resize = small_disk
     args = ["run", str(CONFIGS / "paper.yaml"), "--duration", "3", "--quiet"]
     good = tmp_path / "good"
-    r = subprocess.run([*CLI, *args, "--out", str(good)], capture_output=True, text=True, timeout=180)
+    r = cli(*args, "--out", str(good), timeout=180)
     assert r.returncode == 0, r.stderr
     files = [p for p in good.rglob("*") if p.is_file()]
     outputs = [p for p in files if p.name in OUTPUTS or p.name.startswith("follower_")]
@@ -61,7 +61,7 @@ def test_a_run_on_a_disk_that_fills_keeps_its_raw_records_and_is_rebuilt_where_t
     # room for every raw record (and a margin for the logs' wall-clock stamps), and half the outputs
     resize(PAGE * (_pages(raw) + 16 + _pages(outputs) // 2))
     full = mnt / "run"
-    r = subprocess.run([*CLI, *args, "--out", str(full)], capture_output=True, text=True, timeout=180)
+    r = cli(*args, "--out", str(full), timeout=180)
     assert r.returncode == 1, r.stdout + r.stderr
     last = r.stderr.strip().splitlines()[-1]
     assert last.startswith(f"swarm-sitl: error: cannot write {full}/") and "(No space left on device)" in last
@@ -70,11 +70,11 @@ def test_a_run_on_a_disk_that_fills_keeps_its_raw_records_and_is_rebuilt_where_t
         if p.parent.name == "procs" and p.suffix in (".rows", ".truth"):
             assert (full / "procs" / p.name).read_bytes() == p.read_bytes(), p.name
     resize(PAGE * (_pages(raw) + 16 + 2 * _pages(outputs)))  # room made
-    r = subprocess.run([*CLI, "merge", str(full)], capture_output=True, text=True, timeout=120)
+    r = cli("merge", str(full), timeout=120)
     assert r.returncode == 0, r.stderr
     for i in range(1, 5):
         a, b = np.load(good / f"follower_{i}.npz"), np.load(full / f"follower_{i}.npz")
         assert all(np.array_equal(a[k], b[k], equal_nan=True) for k in a.files), i
-    r = subprocess.run([*CLI, "plot", str(full)], capture_output=True, text=True, timeout=120)
+    r = cli("plot", str(full), timeout=120)
     assert r.returncode == 0, r.stderr
     assert (full / "plots").is_dir() and any(Path(full / "plots").glob("*.png"))

@@ -17,7 +17,7 @@ import yaml
 from pymavlink import mavutil
 
 from swarm_sitl.running.sim import run_sim
-from tests.support import CLI, CONFIGS, free_udp_port, spawn_vehicle
+from tests.support import CONFIGS, free_udp_port, spawn_vehicle, start_cli
 
 pytestmark = pytest.mark.system
 mav = mavutil.mavlink
@@ -111,11 +111,14 @@ def test_a_watcher_on_the_ground_station_port_leaves_a_lockstep_run_unchanged(tm
     path = tmp_path / "paper.yaml"
     path.write_text(yaml.safe_dump(cfg))
     out = tmp_path / "run"
-    run = subprocess.Popen(
-        [*CLI, "run", str(path), "--out", str(out)],
+    run = start_cli(
+        "run",
+        str(path),
+        "--out",
+        str(out),
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
-        text=True,
+        start_new_session=False,
     )
     try:
         assert run.stdout is not None

@@ -3,7 +3,6 @@ error naming the law, and the follower once it runs), and what a run keeps when 
 
 import dataclasses
 import math
-import subprocess
 from pathlib import Path
 from typing import ClassVar, NamedTuple
 
@@ -21,7 +20,7 @@ from swarm_sitl.nodes.assembly import build_law
 from swarm_sitl.nodes.law_guard import LawExit, LawStopped
 from swarm_sitl.nodes.law_host import HostedLaw, LawError
 from swarm_sitl.running.sim import SimFailedError, run_sim
-from tests.support import CLI, CONFIGS, cli
+from tests.support import CONFIGS, cli
 
 #: its system tests run in lockstep or ``sim`` only (no wall clock): free to run beside others
 pytestmark = pytest.mark.lockstep
@@ -228,12 +227,7 @@ def test_sim_of_a_failing_law_keeps_what_it_recorded_and_exits_1_in_one_line(tmp
     f2 = rec.followers[2]
     assert np.isfinite(f2["p_W"][t <= 0.5]).all() and np.isnan(f2["thrust_N"][t > 0.51]).all()
     out = tmp_path / "sim"
-    r = subprocess.run(
-        [*CLI, "sim", str(tmp_path / "cfg.yaml"), "--out", str(out), "--quiet"],
-        capture_output=True,
-        text=True,
-        timeout=120,
-    )
+    r = cli("sim", str(tmp_path / "cfg.yaml"), "--out", str(out), "--quiet", timeout=120)
     assert r.returncode == 1 and len(r.stderr.strip().splitlines()) == 1, r.stderr
     assert "follower 2 at t=0.510 s: ZeroDivisionError: my bug" in r.stderr and "Traceback" not in r.stderr
     f2 = np.load(out / "follower_2.npz")

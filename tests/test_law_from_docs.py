@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tests.support import CLI, ROOT, page_files
+from tests.support import ROOT, cli, page_files
 
 #: its system tests run in lockstep or ``sim`` only (no wall clock): free to run beside others
 pytestmark = [pytest.mark.system, pytest.mark.lockstep]
@@ -24,8 +24,9 @@ COMMANDS = [
 
 def _sh(cmd: str, cwd: Path) -> subprocess.CompletedProcess:
     argv = cmd.split()
-    argv = [*CLI, *argv[1:]] if argv[0] == "swarm-sitl" else [sys.executable, *argv[1:]]
-    return subprocess.run(argv, cwd=cwd, capture_output=True, text=True, timeout=300)
+    if argv[0] == "swarm-sitl":
+        return cli(*argv[1:], cwd=cwd, timeout=300)
+    return subprocess.run([sys.executable, *argv[1:]], cwd=cwd, capture_output=True, text=True, timeout=300)
 
 
 def test_the_guides_law_loads_by_its_entry_flies_and_passes_its_fault_test(tmp_path):

@@ -7,7 +7,6 @@ run's duration plus its limits."""
 
 import json
 import re
-import subprocess
 import time
 
 import numpy as np
@@ -28,7 +27,7 @@ from tests.misbehaving_runs import (
     law_path,
     the_line,
 )
-from tests.support import CLI, processes_mentioning
+from tests.support import cli, processes_mentioning
 
 PAPER = support.config("paper")
 DT_S, N = PAPER.control_dt_s, len(PAPER.followers)
@@ -113,12 +112,7 @@ def test_with_stop_on_loss_a_failing_law_ends_a_real_time_run_at_once(tmp_path):
     path.write_text(yaml.safe_dump(data))
     out = tmp_path / "out"
     t0 = time.monotonic()
-    r = subprocess.run(
-        [*CLI, "run", str(path), "--realtime", "--out", str(out), "--quiet"],
-        capture_output=True,
-        text=True,
-        timeout=240,
-    )
+    r = cli("run", str(path), "--realtime", "--out", str(out), "--quiet", timeout=240)
     wall = time.monotonic() - t0
     line = the_line(r)
     assert r.returncode == 1 and "it called os._exit(3)" in line and "flew on" not in line, line

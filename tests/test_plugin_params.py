@@ -14,7 +14,7 @@ from hypothesis import strategies as st
 from swarm_sitl.config.load import ConfigError, parse_config
 from swarm_sitl.faults.link_model import fates_disagreement
 from swarm_sitl.faults.plan import FaultEntry
-from tests.support import CLI, CONFIGS, ROOT, page_files
+from tests.support import CONFIGS, ROOT, cli, page_files, start_cli
 
 #: plug-ins of each kind, in one file: each declares ``k`` and ``tau_s`` (a pydantic ``Params``
 #: that lets extra keys through, a dataclass, a vehicle's ``tunables``)
@@ -149,13 +149,7 @@ def test_a_vehicle_parameter_is_a_finite_number_not_a_bool_or_text(value):
 
 
 def _spawn(args: list[str], cwd) -> subprocess.Popen:
-    return subprocess.Popen(
-        [*CLI, *args],
-        cwd=cwd,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-    )
+    return start_cli(*args, cwd=cwd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=False)
 
 
 @pytest.mark.system
@@ -246,16 +240,7 @@ def test_check_names_the_first_message_a_models_fates_and_fate_disagree_on(plugi
     assert step % 97 == 13 and "fate() says" in lines[0] and "fates() lost" in lines[0], lines
     honest = parse_config(_data(plugins, "link", "LooseLink", {}))
     assert link_model_lines(honest) == []  # (no fates: nothing to hold it to)
-    r = subprocess.run(
-        [
-            *CLI,
-            "check",
-            str(_write(tmp_path, _data(plugins, "link", "LyingLink", {}))),
-        ],
-        capture_output=True,
-        text=True,
-        timeout=120,
-    )
+    r = cli("check", str(_write(tmp_path, _data(plugins, "link", "LyingLink", {}))), timeout=120)
     assert r.returncode == 1 and "disagree at step" in r.stdout, (r.stdout, r.stderr)
 
 
@@ -280,24 +265,17 @@ def test_new_writes_a_config_for_a_model_with_a_required_parameter_given_on_the_
         "    Params = Req\n"
     )
     base = [
-        *CLI,
         "new",
         "--followers",
         "3",
         "--vehicle",
         "req_vehicle.py:ReqVtol",
     ]
-    r = subprocess.run([*base, "-o", "a.yaml"], cwd=tmp_path, capture_output=True, text=True, timeout=120)
+    r = cli(*base, "-o", "a.yaml", cwd=tmp_path, timeout=120)
     lines = r.stderr.strip().splitlines()
     assert r.returncode == 2 and len(lines) == 1 and "THRUST_TAU_S: Field required" in lines[0], r.stderr
     assert "--vehicle-param NAME=VALUE" in lines[0] and not (tmp_path / "a.yaml").exists()
-    r = subprocess.run(
-        [*base, "--vehicle-param", "THRUST_TAU_S=0.02", "-o", "a.yaml"],
-        cwd=tmp_path,
-        capture_output=True,
-        text=True,
-        timeout=120,
-    )
+    r = cli(*base, "--vehicle-param", "THRUST_TAU_S=0.02", "-o", "a.yaml", cwd=tmp_path, timeout=120)
     assert r.returncode == 0, r.stderr
     from swarm_sitl.config.load import load_config
 

@@ -12,7 +12,6 @@ receiver got is delivered or counted under a named reason.
 """
 
 import json
-import subprocess
 
 import numpy as np
 import pytest
@@ -21,7 +20,7 @@ import yaml
 from sim_vehicles.runtime.row_log import read_rows
 from swarm_sitl.config.generator import generate
 from swarm_sitl.rundir.layout import controller_rows_path, controller_stats_path
-from tests.support import CLI, CONFIGS
+from tests.support import CONFIGS, cli
 
 pytestmark = pytest.mark.system
 
@@ -57,8 +56,9 @@ def _fly(tmp_path, cfg: dict, plan: list[dict], duration_s: float, realtime: boo
     path = tmp_path / f"{name}.yaml"
     path.write_text(yaml.safe_dump(cfg))
     out = tmp_path / name
-    args = [*CLI, "run", str(path), "--out", str(out), "--quiet", *(["--realtime"] if realtime else [])]
-    r = subprocess.run(args, capture_output=True, text=True, timeout=duration_s + 120)
+    r = cli(
+        "run", path, "--out", out, "--quiet", *(["--realtime"] if realtime else []), timeout=duration_s + 120
+    )
     return r, out, json.loads((out / "summary.json").read_text())
 
 

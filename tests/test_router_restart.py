@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 import yaml
 
-from tests.support import CLI, CONFIGS, udp_port_free, vehicle_ports
+from tests.support import CONFIGS, start_cli, udp_port_free, vehicle_ports
 
 pytestmark = pytest.mark.system
 #: the bound the real-time paper run holds (test_swarm_processes): a converged follower is under
@@ -30,8 +30,13 @@ def _free_tcp_port() -> int:
 
 
 def _router(port: int) -> subprocess.Popen:
-    r = subprocess.Popen(
-        [*CLI, "router", "--listen", f"tcp/127.0.0.1:{port}"], stdout=subprocess.PIPE, text=True
+    r = start_cli(
+        "router",
+        "--listen",
+        f"tcp/127.0.0.1:{port}",
+        stdout=subprocess.PIPE,
+        stderr=None,
+        start_new_session=False,
     )
     assert r.stdout is not None and "router listening" in r.stdout.readline()
     return r
@@ -62,21 +67,18 @@ def test_real_time_rides_through_a_router_restart(tmp_path):
     duration = 22.0  # the router back by about 7 s, the bound judged from 10 s later to the end
     out = tmp_path / "rt"
     router = _router(port)
-    run = subprocess.Popen(
-        [
-            *CLI,
-            "run",
-            _config(tmp_path, port),
-            "--realtime",
-            "--duration",
-            str(duration),
-            "--out",
-            str(out),
-            "--quiet",
-        ],
+    run = start_cli(
+        "run",
+        _config(tmp_path, port),
+        "--realtime",
+        "--duration",
+        str(duration),
+        "--out",
+        str(out),
+        "--quiet",
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
-        text=True,
+        start_new_session=False,
     )
     try:
         epoch = _wait_started(out)
@@ -113,11 +115,17 @@ def test_lockstep_ends_in_one_line_naming_the_router(tmp_path):
     port = _free_tcp_port()
     out = tmp_path / "ls"
     router = _router(port)
-    run = subprocess.Popen(
-        [*CLI, "run", _config(tmp_path, port), "--duration", "600", "--out", str(out), "--quiet"],
+    run = start_cli(
+        "run",
+        _config(tmp_path, port),
+        "--duration",
+        "600",
+        "--out",
+        str(out),
+        "--quiet",
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
-        text=True,
+        start_new_session=False,
     )
     try:
         _wait_started(out)

@@ -4,7 +4,6 @@ anything starts."""
 import errno
 import os
 import signal
-import subprocess
 from collections import namedtuple
 
 import numpy as np
@@ -14,7 +13,7 @@ from swarm_sitl.rundir import recording
 from swarm_sitl.rundir.layout import expected_run_bytes
 from swarm_sitl.rundir.recording import save_npz
 from swarm_sitl.rundir.whole_files import WriteError, write_text_whole
-from tests.support import CLI, CONFIGS, config
+from tests.support import CONFIGS, cli, config
 
 Usage = namedtuple("Usage", "total used free")
 
@@ -69,12 +68,7 @@ def test_a_bad_out_is_one_line_before_anything_starts(tmp_path, command, says):
     f = tmp_path / "a_file"
     f.write_text("mine\n")
     out = f / "sub" if command == "run-below-file" else f
-    r = subprocess.run(
-        [*CLI, command.split("-")[0], str(CONFIGS / "paper.yaml"), "--out", str(out)],
-        capture_output=True,
-        text=True,
-        timeout=60,
-    )
+    r = cli(command.split("-")[0], str(CONFIGS / "paper.yaml"), "--out", str(out), timeout=60)
     assert r.returncode == 2, r.stderr
     assert r.stderr.strip() == f"swarm-sitl: error: --out {out}: {says}"
     assert f.read_text() == "mine\n"  # untouched
@@ -147,7 +141,7 @@ def test_a_run_whose_disk_fills_keeps_its_raw_records_and_merge_rebuilds_it(tmp_
         "directory from them"
     )
     assert not list(full.glob("follower_*.npz")) and (full / "procs" / "controller_1.rows").is_file()
-    r = subprocess.run([*CLI, "merge", str(full)], capture_output=True, text=True, timeout=120)
+    r = cli("merge", str(full), timeout=120)
     assert r.returncode == 0, r.stderr
     for i in range(1, 5):
         a, b = np.load(good / f"follower_{i}.npz"), np.load(full / f"follower_{i}.npz")

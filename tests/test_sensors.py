@@ -14,7 +14,7 @@ from sim_vehicles.common.quaternion import qconj, qmul
 from sim_vehicles.common.state import POS, QUAT, VEL, make_state
 from sim_vehicles.plant.sensors import SensorModel
 from tests.strategies import unit_quaternions
-from tests.support import CLI, CONFIGS
+from tests.support import CONFIGS, cli
 
 #: its system tests run in lockstep or ``sim`` only (no wall clock): free to run beside others
 pytestmark = pytest.mark.lockstep
@@ -117,17 +117,12 @@ def _noisy_config(tmp_path) -> str:
 
 @pytest.mark.system
 def test_a_swarm_on_noisy_late_reports_flies_in_processes_as_in_sim_and_records_the_true_state(tmp_path):
-    import subprocess
 
     from swarm_sitl.config.load import load_config
     from swarm_sitl.running.sim import run_sim
 
     path = _noisy_config(tmp_path)
-    r = subprocess.run(
-        [*CLI, "run", path, "--out", str(tmp_path / "run"), "--quiet"],
-        capture_output=True,
-        text=True,
-    )
+    r = cli("run", path, "--out", str(tmp_path / "run"), "--quiet")
     assert r.returncode == 0, r.stderr
     sim = run_sim(load_config(path))
     for i in range(1, 5):

@@ -26,8 +26,8 @@ from pymavlink.generator.mavcrc import x25crc
 import sim_vehicles.mavlink.signing as signing
 from sim_vehicles.mavlink.sha256 import sha256_into
 from sim_vehicles.mavlink.signing import Signer, Verifier, key_from_passphrase
-from swarm_sitl.running.children import child_env, module_argv
-from tests.support import CONFIGS
+from swarm_sitl.running.children import child_env
+from tests.support import CONFIGS, start_cli
 
 KEY = key_from_passphrase("correct horse battery staple")
 
@@ -430,8 +430,7 @@ def test_the_docs_pymavlink_script_sets_a_parameter_of_a_signed_run_and_each_uns
     path = tmp_path / "paper.yaml"
     path.write_text(yaml.safe_dump(cfg))
     out = tmp_path / "run"
-    argv = [*module_argv("swarm_sitl"), "run", str(path), "--realtime", "--out", str(out)]
-    run = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=child_env())
+    run = start_cli("run", path, "--realtime", "--out", out, start_new_session=False)
     try:
         assert run.stdout is not None
         gcs: dict[int, int] = {}

@@ -7,7 +7,6 @@ overlap little, so each kind acts on the swarm; the test checks that they all do
 """
 
 import json
-import subprocess
 import textwrap
 
 import numpy as np
@@ -21,7 +20,7 @@ from swarm_sitl.faults.plan import LINK_HOW, FaultPlan
 from swarm_sitl.rundir.requirements import judge
 from swarm_sitl.running.sim import run_sim
 from swarm_sitl.specs.requirement import Requirement
-from tests.support import CLI, CONFIGS, config
+from tests.support import CONFIGS, cli, config
 
 #: its system tests run in lockstep or ``sim`` only (no wall clock): free to run beside others
 pytestmark = pytest.mark.lockstep
@@ -106,20 +105,15 @@ def test_a_lockstep_run_under_every_fault_kind_equals_sim_bit_for_bit(tmp_path):
     (tmp_path / "plan.yaml").write_text(yaml.safe_dump(plan))
     (tmp_path / "spec.yaml").write_text(yaml.safe_dump(SPEC))
     out = tmp_path / "ls"
-    r = subprocess.run(
-        [
-            *CLI,
-            "run",
-            str(CONFIGS / "paper.yaml"),
-            "--faults",
-            str(tmp_path / "plan.yaml"),
-            "--spec",
-            str(tmp_path / "spec.yaml"),
-            *ARGS,
-            str(out),
-        ],
-        capture_output=True,
-        text=True,
+    r = cli(
+        "run",
+        str(CONFIGS / "paper.yaml"),
+        "--faults",
+        str(tmp_path / "plan.yaml"),
+        "--spec",
+        str(tmp_path / "spec.yaml"),
+        *ARGS,
+        str(out),
         timeout=300,
     )
     assert r.returncode == 3, r.stderr + r.stdout  # (the failsafe requirement fails: vehicle 3's)
@@ -194,11 +188,8 @@ def test_a_sample_is_found_behind_a_statustext_in_its_datagram():
 def test_sim_refuses_what_lockstep_cannot_fly_in_one_line(tmp_path):
     plan = tmp_path / "plan.yaml"
     plan.write_text(yaml.safe_dump({"plan": [{"mavlink": 1, "delay_s": 0.1}]}))
-    r = subprocess.run(
-        [*CLI, "sim", str(CONFIGS / "paper.yaml"), "--faults", str(plan), "--out", str(tmp_path / "o")],
-        capture_output=True,
-        text=True,
-        timeout=120,
+    r = cli(
+        "sim", str(CONFIGS / "paper.yaml"), "--faults", str(plan), "--out", str(tmp_path / "o"), timeout=120
     )
     assert r.returncode == 2
     lines = r.stderr.strip().splitlines()
@@ -224,9 +215,7 @@ def test_noisy_late_reports_under_sample_loss_and_a_restart_equal_sim(tmp_path):
     config = tmp_path / "noisy.yaml"
     config.write_text(yaml.safe_dump(data))
     out = tmp_path / "ls"
-    r = subprocess.run(
-        [*CLI, "run", str(config), "--out", str(out), "--quiet"], capture_output=True, text=True, timeout=300
-    )
+    r = cli("run", str(config), "--out", str(out), "--quiet", timeout=300)
     assert r.returncode == 0, r.stderr + r.stdout
     sim = run_sim(load_config(config))
     for i in range(1, 5):

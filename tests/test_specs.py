@@ -7,7 +7,6 @@ import itertools
 import json
 import math
 import re
-import subprocess
 from typing import Any
 
 import numpy as np
@@ -34,7 +33,7 @@ from swarm_sitl.specs.formula import (
 )
 from swarm_sitl.specs.requirement import Requirement, SpecError, parse_over
 from swarm_sitl.specs.robustness import robustness, verdict
-from tests.support import CLI, CONFIGS, config
+from tests.support import CONFIGS, cli, config
 
 N = 12  #: samples of a random trace
 
@@ -449,12 +448,7 @@ def test_three_requirements_land_in_the_summary_and_one_that_fails_exits_3(tmp_p
     path = tmp_path / "cfg.yaml"
     path.write_text(yaml.safe_dump(_paper(reqs, duration_s=30.0)))
     out = tmp_path / "run"
-    r = subprocess.run(
-        [*CLI, "sim", str(path), "--out", str(out), "--quiet"],
-        capture_output=True,
-        text=True,
-        timeout=240,
-    )
+    r = cli("sim", str(path), "--out", str(out), "--quiet", timeout=240)
     assert r.returncode == 3, r.stderr
     assert r.stderr.strip().splitlines()[-1].startswith("swarm-sitl: error: requirement tight (")
     spec = json.loads((out / "summary.json").read_text())["spec"]

@@ -17,11 +17,11 @@ from sim_vehicles.runtime.row_log import read_rows
 from swarm_sitl.config.load import parse_config
 from swarm_sitl.running.sim import run_sim
 from tests.support import (
-    CLI,
     CONFIGS,
     cli,
     cmdline,
     processes_mentioning,
+    start_cli,
     start_paper_run,
     udp_port_free,
     vehicle_ports,
@@ -196,11 +196,14 @@ def test_own_vehicles_and_controllers_meet_over_given_endpoints(tmp_path, paper_
             f["autopilot"] = "ardupilot"
     mixed = tmp_path / "mixed.yaml"
     mixed.write_text(yaml.safe_dump(data))
-    vehicles = subprocess.Popen(
-        [*CLI, "vehicles", str(mixed), "--lockstep", "--out", str(tmp_path / "veh")],
+    vehicles = start_cli(
+        "vehicles",
+        str(mixed),
+        "--lockstep",
+        "--out",
+        str(tmp_path / "veh"),
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
-        text=True,
         start_new_session=True,
     )
     try:

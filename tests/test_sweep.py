@@ -6,7 +6,6 @@ cluster, the same rows: ``test_sweep_plugins.py``)."""
 import csv
 import math
 import signal
-import subprocess
 import time
 from pathlib import Path
 
@@ -19,7 +18,7 @@ from swarm_sitl.campaigns.breaking import breaking_point
 from swarm_sitl.campaigns.grid import SweepSpecError, grid, parse_values, parse_vary, point_data
 from swarm_sitl.campaigns.table import TableWriter, read_rows, row_key
 from swarm_sitl.config.load import ConfigError, parse_config
-from tests.support import CLI, CONFIGS, cli_in_process, config
+from tests.support import CONFIGS, cli, cli_in_process, config, start_cli
 
 #: its system tests run in lockstep or ``sim`` only (no wall clock): free to run beside others
 pytestmark = pytest.mark.lockstep
@@ -159,9 +158,7 @@ def _config(tmp_path, duration_s=4.0):
 
 
 def _sweep(*args, timeout=300):
-    return subprocess.run(
-        [*CLI, "sweep", *map(str, args), "--quiet"], capture_output=True, text=True, timeout=timeout
-    )
+    return cli("sweep", *map(str, args), "--quiet", timeout=timeout)
 
 
 @pytest.mark.system
@@ -189,9 +186,7 @@ def test_a_campaign_writes_one_row_per_run_is_judged_again_and_each_row_runs_aga
     # a row is its config: run it again and get the same error, to the bit
     one = rows[3]
     run = tmp_path / "again"
-    rr = subprocess.run(
-        [*CLI, "run", str(out / one["config"]), "--out", str(run), "--quiet"], capture_output=True
-    )
+    rr = cli("run", str(out / one["config"]), "--out", str(run), "--quiet")
     assert rr.returncode in (0, 3), rr.stderr
     from swarm_sitl.campaigns.point import metrics_of
 
@@ -201,9 +196,9 @@ def test_a_campaign_writes_one_row_per_run_is_judged_again_and_each_row_runs_aga
 @pytest.mark.system
 def test_an_interrupted_campaign_keeps_every_finished_row_and_the_same_command_finishes_it(tmp_path):
     out = tmp_path / "c"
-    args = [*CLI, "sweep", str(_config(tmp_path)), "--vary", "link.loss=0:0.2:0.1", "--seeds", "1"]
-    args += ["--out", str(out), "--jobs", "1", "--quiet"]
-    proc = subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    args = ["sweep", _config(tmp_path), "--vary", "link.loss=0:0.2:0.1", "--seeds", "1"]
+    args += ["--out", out, "--jobs", "1", "--quiet"]
+    proc = start_cli(*args, start_new_session=False)
     table = out / "table.csv"
     end = time.monotonic() + 120
     while time.monotonic() < end and len(read_rows(table, ["link.loss"])) < 1:
@@ -214,7 +209,7 @@ def test_an_interrupted_campaign_keeps_every_finished_row_and_the_same_command_f
     assert "interrupted (SIGTERM)" in err and "the same command runs the rest" in err
     kept = read_rows(table, ["link.loss"])
     assert 1 <= len(kept) < 3 and all(r["failure"] == "" for r in kept)
-    r = subprocess.run(args, capture_output=True, text=True, timeout=300)
+    r = cli(*args, timeout=300)
     assert r.returncode == 0, r.stderr
     done = read_rows(table, ["link.loss"])
     assert len(done) == 3 and all(r in done for r in kept)

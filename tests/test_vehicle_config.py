@@ -17,7 +17,7 @@ from hypothesis import strategies as st
 from sim_vehicles.models.build import build_vehicle, sensor_model
 from sim_vehicles.models.vehicle_config import Gusts, SensorNoise, VehicleConfig, VehicleConfigError
 from swarm_sitl.nodes.assembly import build_autopilot
-from tests.support import CLI, CONFIGS, config
+from tests.support import CONFIGS, cli, config
 
 finite = st.floats(-1e6, 1e6, allow_nan=False)
 positive = st.floats(1e-6, 1e6, allow_nan=False)
@@ -244,7 +244,7 @@ def test_the_cli_says_the_notice_in_one_line_and_carries_on(tmp_path):
     data["gains"]["l_q"] = data["vehicle"].pop("l_q")
     path = tmp_path / "old.yaml"
     path.write_text(yaml.safe_dump(data))
-    r = subprocess.run([*CLI, "check", str(path)], capture_output=True, text=True, timeout=120)
+    r = cli("check", str(path), timeout=120)
     assert r.returncode == 0 and "all conditions hold" in r.stdout
     assert r.stderr.strip() == (
         f"swarm-sitl: notice: {path}: gains.l_q: the vehicle's attitude loop now, read as vehicle.l_q "

@@ -13,10 +13,10 @@ import yaml
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import common as mav
 
-from tests.support import CLI, CONFIGS
+from tests.support import CONFIGS, cli, start_cli
 
 pytestmark = pytest.mark.system
-VEHICLES = [*CLI, "vehicles", str(CONFIGS / "paper.yaml")]
+VEHICLES = ["vehicles", CONFIGS / "paper.yaml"]
 
 DOWN_LOSS, UP_LOSS = 0.3, 0.5
 
@@ -25,12 +25,7 @@ def _start(tmp_path: Path, plan: dict) -> tuple[subprocess.Popen, dict[int, int]
     faults = tmp_path / "plan.yaml"
     faults.write_text(yaml.safe_dump(plan))
     out = tmp_path / "vehicles"
-    proc = subprocess.Popen(
-        [*VEHICLES, "--faults", str(faults), "--out", str(out)],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-    )
+    proc = start_cli(*VEHICLES, "--faults", faults, "--out", out, start_new_session=False)
     ports: dict[int, int] = {}
     end = time.monotonic() + 120
     assert proc.stdout is not None
@@ -110,18 +105,8 @@ def test_a_pymavlink_controller_sees_the_planned_loss_on_its_link(tmp_path):
 def test_vehicles_faults_refuses_what_it_cannot_do(tmp_path):
     plan = tmp_path / "plan.yaml"
     plan.write_text(yaml.safe_dump({"plan": [{"edge": [0, 1], "loss": 0.5}]}))
-    r = subprocess.run(
-        [*VEHICLES, "--faults", str(plan)],
-        capture_output=True,
-        text=True,
-        timeout=60,
-    )
+    r = cli(*VEHICLES, "--faults", plan, timeout=60)
     assert r.returncode == 2 and "MAVLink links only" in r.stderr and "Traceback" not in r.stderr
     plan.write_text(yaml.safe_dump({"plan": [{"mavlink": 1, "loss": 0.5}]}))
-    r = subprocess.run(
-        [*VEHICLES, "--faults", str(plan), "--lockstep"],
-        capture_output=True,
-        text=True,
-        timeout=60,
-    )
+    r = cli(*VEHICLES, "--faults", plan, "--lockstep", timeout=60)
     assert r.returncode == 2 and "real time only" in r.stderr and len(r.stderr.strip().splitlines()) == 1

@@ -23,14 +23,14 @@ import time
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from importlib import resources
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
 import yaml
 
-from swarm_sitl.running.children import child_env, module_argv
 from swarm_sitl.view.replay import FRAME_HZ
-from tests.support import CONFIGS
+from tests.support import CONFIGS, cli_ok, start_cli
 
 pytestmark = pytest.mark.system
 CUT = {"edge": [1, 4], "drop": True, "from_s": 2.0, "until_s": 4.0}
@@ -82,8 +82,7 @@ def run_dir(tmp_path_factory) -> Path:
     plan = d / "cut.yaml"
     plan.write_text(yaml.safe_dump({"seed": 1, "plan": [CUT]}))
     out = d / "run"
-    argv = [*module_argv("swarm_sitl"), "sim", str(CONFIGS / "paper.yaml"), "--duration", "6"]
-    subprocess.run([*argv, "--faults", str(plan), "--out", str(out), "--quiet"], check=True, env=child_env())
+    cli_ok("sim", CONFIGS / "paper.yaml", "--duration", "6", "--faults", plan, "--out", out, "--quiet")
     return out
 
 
@@ -103,15 +102,9 @@ def browser(browser_paths):
     driver.quit()
 
 
-def _page_process(*args: str) -> tuple[subprocess.Popen, str]:
+def _page_process(*args: str) -> tuple[Any, str]:
     """``swarm-sitl ARGS`` (``view`` or ``run --view 0``) and the page's address it prints first."""
-    proc = subprocess.Popen(
-        [*module_argv("swarm_sitl"), *args],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.STDOUT,
-        text=True,
-        env=child_env(),
-    )
+    proc = start_cli(*args, stderr=subprocess.STDOUT, start_new_session=False)
     line = proc.stdout.readline() if proc.stdout else ""
     m = re.search(r"http://127\.0\.0\.1:\d+/", line)
     if not m:
@@ -120,7 +113,7 @@ def _page_process(*args: str) -> tuple[subprocess.Popen, str]:
     return proc, m.group(0)
 
 
-def _serve(run: Path) -> tuple[subprocess.Popen, str]:
+def _serve(run: Path) -> tuple[Any, str]:
     """``swarm-sitl view RUN --port 0``."""
     return _page_process("view", str(run), "--port", "0")
 
@@ -150,7 +143,7 @@ def _go_to(driver, t_s: float) -> float:
     return float(re.search(r"t = ([0-9.]+) s", text).group(1))
 
 
-def _run_live(config: Path, out: Path, *extra: object) -> tuple[subprocess.Popen, str]:
+def _run_live(config: Path, out: Path, *extra: object) -> tuple[Any, str]:
     """``swarm-sitl run CONFIG --view 0 ...``."""
     return _page_process("run", str(config), *map(str, extra), "--view", "0", "--out", str(out), "--quiet")
 
@@ -392,17 +385,7 @@ def test_a_lockstep_run_paused_stepped_and_resumed_from_its_page_equals_sim_bit_
             proc.send_signal(signal.SIGTERM)
             proc.wait(30)
     sim = tmp_path / "sim"
-    argv = [
-        *module_argv("swarm_sitl"),
-        "sim",
-        str(path),
-        "--duration",
-        duration,
-        "--out",
-        str(sim),
-        "--quiet",
-    ]
-    subprocess.run(argv, check=True, env=child_env())
+    cli_ok("sim", path, "--duration", duration, "--out", sim, "--quiet")
     for i in range(1, 5):
         a, b = np.load(tmp_path / "run" / f"follower_{i}.npz"), np.load(sim / f"follower_{i}.npz")
         for key in ("p_W", "v_W", "q_WB", "omega_B", "thrust_N", "p_hat", "v_hat", "u"):

@@ -9,7 +9,6 @@ import json
 import re
 import socket
 import struct
-import subprocess
 import threading
 import time
 
@@ -17,10 +16,9 @@ import numpy as np
 import pytest
 
 from swarm_sitl.bus.codec import Status
-from swarm_sitl.running.children import child_env, module_argv
 from swarm_sitl.view.foxglove_live import FoxgloveError, FoxgloveStream
 from swarm_sitl.view.live import LiveFeed
-from tests.support import CONFIGS, config
+from tests.support import CONFIGS, config, start_cli
 
 #: its system tests run in lockstep or ``sim`` only (no wall clock): free to run beside others
 pytestmark = pytest.mark.lockstep
@@ -173,14 +171,8 @@ def test_a_port_in_use_is_one_line(cfg):
 @pytest.mark.system
 def test_a_lockstep_run_streams_where_it_recorded_each_follower(tmp_path):
     out = tmp_path / "run"
-    argv = [*module_argv("swarm_sitl"), "run", str(CONFIGS / "paper.yaml"), "--duration", "20"]
-    proc = subprocess.Popen(
-        [*argv, "--foxglove", "0", "--out", str(out), "--quiet"],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-        env=child_env(),
-    )
+    argv = ["run", CONFIGS / "paper.yaml", "--duration", "20", "--foxglove", "0", "--out", out, "--quiet"]
+    proc = start_cli(*argv, start_new_session=False)
     try:
         line = proc.stdout.readline() if proc.stdout else ""
         m = re.match(r"foxglove: (ws://127\.0\.0\.1:\d+) ", line)

@@ -16,7 +16,7 @@ from sim_vehicles.plant.autopilot import Autopilot
 from sim_vehicles.plant.params import AttitudeGains, VehicleParams
 from sim_vehicles.plant.wind import WIND_DT_S, FrozenGusts, WindModel
 from swarm_sitl.config.load import ConfigError, parse_config
-from tests.support import CLI, CONFIGS, config
+from tests.support import CONFIGS, cli, config
 
 #: its system tests run in lockstep or ``sim`` only (no wall clock): free to run beside others
 pytestmark = pytest.mark.lockstep
@@ -143,7 +143,6 @@ def test_the_worlds_gusts_are_felt_alike_across_the_wind_and_later_downstream():
 @pytest.mark.system
 @pytest.mark.parametrize("air", ["independent", "frozen"])
 def test_the_paper_swarm_in_wind_gusts_and_noisy_reports_flies_in_processes_as_in_sim(tmp_path, air):
-    import subprocess
 
     from swarm_sitl.config.load import load_config
     from swarm_sitl.running.sim import run_sim
@@ -156,11 +155,7 @@ def test_the_paper_swarm_in_wind_gusts_and_noisy_reports_flies_in_processes_as_i
         data["vehicle"]["sensors"]["position_bias_walk_m_per_sqrt_s"] = 0.002
     path = tmp_path / "windy.yaml"
     path.write_text(yaml.safe_dump(data))
-    r = subprocess.run(
-        [*CLI, "run", str(path), "--out", str(tmp_path / "run")],
-        capture_output=True,
-        text=True,
-    )
+    r = cli("run", str(path), "--out", str(tmp_path / "run"))
     assert r.returncode == 0, r.stderr
     assert "formation error" in r.stdout  # it reports its error
     sim = run_sim(load_config(path))

@@ -20,7 +20,7 @@ from swarm_sitl.bus import keys as zenoh_keys
 from swarm_sitl.rundir.layout import zenoh_users_path
 from swarm_sitl.running.hub import free_tcp_port
 from swarm_sitl.running.sim import run_sim
-from tests.support import CLI, CONFIGS
+from tests.support import CONFIGS, start_cli
 from tests.zenoh_client import client_session, client_session_once_up
 
 #: its system tests run in lockstep or ``sim`` only (no wall clock): free to run beside others
@@ -46,11 +46,15 @@ def test_strangers_and_a_node_out_of_its_rights_leave_the_formation_where_it_was
     path = tmp_path / "paper.yaml"
     path.write_text(yaml.safe_dump(cfg))
     out = tmp_path / "run"
-    run = subprocess.Popen(
-        [*CLI, "run", str(path), "--out", str(out), "--quiet"],
+    run = start_cli(
+        "run",
+        str(path),
+        "--out",
+        str(out),
+        "--quiet",
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
-        text=True,
+        start_new_session=False,
     )
     try:
         users = zenoh_users_path(out)
