@@ -7,6 +7,7 @@ fates are drawn by ``faults.plan.fate``, the reference the processes' fault wrap
 import numpy as np
 import pytest
 
+from swarm_sitl.running import sim_plan
 from swarm_sitl.running.sim import run_sim
 from tests.probe_law import climb_acceleration, loaded, probe_config
 
@@ -124,12 +125,16 @@ def _mavlink_lost(cfg, vehicle: int, uplink: bool, k: int) -> bool:
     return bool(rules) and (f.lost or f.corrupt)
 
 
-def test_the_datagrams_a_plan_loses_on_a_vehicles_link_are_its_fates(tmp_path):
+@pytest.mark.parametrize("in_blocks", [True, False], ids=["fates-in-blocks", "fate-by-fate"])
+def test_the_datagrams_a_plan_loses_on_a_vehicles_link_are_its_fates(tmp_path, monkeypatch, in_blocks):
     """Each way of a vehicle's MAVLink link loses the datagrams whose fate says so (never the
     first sample: it answers the controller's request). A lost sample: the tick carries the newest
     one before it. A lost setpoint: the vehicle flies that period on the one it holds, so its
     vertical acceleration over each period is that of the newest setpoint that came. Links
-    without a rule lose nothing."""
+    without a rule lose nothing. The same whether the fates are drawn a block at a time (a
+    built-in model's) or one by one (a model with no block form, as a user's may be)."""
+    if not in_blocks:
+        monkeypatch.setattr(sim_plan, "batched", lambda rules: False)
     cfg = loaded(tmp_path, probe_config(tmp_path, duration_s=1.5, faults=LINK_AND_PROCESS_FAULTS))
     rec = run_sim(cfg)
     n, dt = cfg.n_control_steps, cfg.control_dt_s
