@@ -23,12 +23,13 @@ Protocol, over a ``SOCK_SEQPACKET`` socket pair (one JSON object per packet):
 - host -> test: ``{"pid": N}`` for each request, in order; ``{"exit": N, "code": C}`` when child N
   ends (C as ``Popen.returncode``: -signal if a signal ended it).
 
-The host ends when the test's end of the socket closes (its worker ended); its children live on
-to their own end, as a new interpreter's would.
+The host ends when the test's end of the socket closes (its worker is ending), once its children
+have ended; the worker reaps it, so the CPU of every command is counted in the worker's children's.
 """
 
 from __future__ import annotations
 
+import atexit
 import contextlib
 import json
 import os
@@ -77,7 +78,9 @@ def serve() -> None:
         readable = select_one(sock, 0.02)
         if readable:
             packet, fds, _, _ = socket.recv_fds(sock, PACKET_BYTES, 3)
-            if not packet:
+            if not packet:  # the worker is ending: reap what is left (its CPU is the run's), end
+                for pid in live:
+                    os.waitpid(pid, 0)
                 return
             request = json.loads(packet)
             pid = os.fork()
@@ -209,7 +212,16 @@ def host() -> _Host:
     global _host
     if _host is None or _host.proc.poll() is not None:
         _host = _Host()
+        atexit.register(_end, _host)
     return _host
+
+
+def _end(h: _Host) -> None:
+    """At this process's end: close the host's socket and reap it (it reaps its children first),
+    so that what they spent is counted where this process's children's time is."""
+    h.sock.close()
+    with contextlib.suppress(subprocess.TimeoutExpired):
+        h.proc.wait(timeout=60)
 
 
 def forkable(env: dict[str, str] | None) -> bool:
