@@ -20,8 +20,9 @@ Protocol, over a ``SOCK_SEQPACKET`` socket pair (one JSON object per packet):
 
 - test -> host: ``{"argv", "cwd", "env", "session", "nice"}`` with the child's stdin, stdout and
   stderr as three descriptors (``SCM_RIGHTS``);
-- host -> test: ``{"pid": N}`` for each request, in order; ``{"exit": N, "code": C}`` when child N
-  ends (C as ``Popen.returncode``: -signal if a signal ended it).
+- host -> test: ``{"pid": N}`` for each request, in order; ``{"exit": N, "code": C, "cpu_s": S}``
+  when child N ends (C as ``Popen.returncode``: -signal if a signal ended it; S its CPU time and
+  that of the children it reaped, as ``getrusage`` counts a reaped child's).
 
 The host ends when the test's end of the socket closes (its worker is ending), once its children
 have ended; the worker reaps it, so the CPU of every command is counted in the worker's children's.
@@ -92,11 +93,14 @@ def serve() -> None:
             live.add(pid)
             sock.sendall(json.dumps({"pid": pid}).encode())
         while live:
-            pid, status = os.waitpid(-1, os.WNOHANG)
+            pid, status, usage = os.wait4(-1, os.WNOHANG)
             if pid == 0:
                 break
             live.discard(pid)
-            sock.sendall(json.dumps({"exit": pid, "code": os.waitstatus_to_exitcode(status)}).encode())
+            cpu_s = usage.ru_utime + usage.ru_stime
+            sock.sendall(
+                json.dumps({"exit": pid, "code": os.waitstatus_to_exitcode(status), "cpu_s": cpu_s}).encode()
+            )
 
 
 def select_one(sock: socket.socket, timeout_s: float) -> bool:
@@ -166,6 +170,8 @@ class _Host:
             raise RuntimeError(f"the tests' swarm-sitl host did not start (exit {self.proc.poll()})")
 
     ready = False
+    #: the CPU time of the commands that have ended (and of the children they reaped) [s]
+    cpu_s = 0.0
 
     def _read(self, timeout_s: float | None) -> bool:
         """Take one message from the host if one comes within ``timeout_s``."""
@@ -181,6 +187,7 @@ class _Host:
             self.pids.append(msg["pid"])
         else:
             self.exits[msg["exit"]] = msg["code"]
+            self.cpu_s += msg["cpu_s"]
         return True
 
     def fork(self, argv: list[str], cwd: str, env: dict[str, str], session: bool, fds: list[int]) -> int:
