@@ -14,7 +14,7 @@ import pytest
 import yaml
 from pymavlink.dialects.v20 import common as mav
 
-from swarm_sitl.config.load import load_config
+from swarm_sitl.config.load import load_config, parse_config
 from swarm_sitl.faults.mavlink import sample_ms
 from swarm_sitl.faults.plan import LINK_HOW, FaultPlan
 from swarm_sitl.rundir.requirements import judge
@@ -151,11 +151,30 @@ def test_a_lockstep_run_under_every_fault_kind_equals_sim_bit_for_bit(tmp_path):
     assert np.allclose(f3["t_s"][:300], np.arange(300) * dt, rtol=0, atol=1e-12)
 
 
+#: air and sensors that differ by vehicle (each vehicle's own gusts and noise, drawn by its id)
+WINDY = {
+    "wind": {
+        "mean_mps": [5.0, 0.0, 0.0],
+        "gust_mps": 1.0,
+        "gust_time_s": 2.0,
+        "seed": 3,
+        "model": "independent",
+    },
+    "vehicle": {"drag_Ns2pm2": 0.02, "sensors": {"position_noise_m": 0.03, "seed": 1}},
+}
+
+
 @pytest.mark.unit
+@pytest.mark.parametrize("air", [False, True], ids=["still", "gusts-and-noise"])
 @pytest.mark.parametrize("seed", [0, 1, 2])
-def test_a_plan_that_does_nothing_to_the_swarm_flies_the_plain_sim(seed):
-    """The planned path (stages, inboxes, the vehicle's modes) and the plain one are one run."""
+def test_a_plan_that_does_nothing_to_the_swarm_flies_the_plain_sim(seed, air):
+    """The planned path (stages, inboxes, the vehicle's modes) and the plain one are one run, in
+    still air and in gusts with noisy reports, each vehicle's its own."""
     cfg = config("paper").model_copy(update={"duration_s": 3.0})
+    if air:
+        data = yaml.safe_load((CONFIGS / "paper.yaml").read_text())
+        data["vehicle"].update(WINDY["vehicle"])
+        cfg = parse_config({**data, "wind": WINDY["wind"], "duration_s": 3.0})
     quiet = FaultPlan.model_validate(
         {
             "seed": seed,
