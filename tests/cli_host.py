@@ -1,4 +1,5 @@
-"""``swarm-sitl`` for the tests, forked from a warm interpreter instead of started as a new one.
+"""``swarm-sitl`` (and a vehicle, ``python -m sim_vehicles``) for the tests, forked from a warm
+interpreter instead of started as a new one.
 
 A new ``python -m swarm_sitl`` spends 1.2-1.5 s of CPU before its command begins: importing numpy,
 numba, pydantic, pymavlink and zenoh, and loading its kernels from numba's cache. The suite starts
@@ -18,8 +19,8 @@ install (which copy of the package a command imports) or of the interpreter's st
 
 Protocol, over a ``SOCK_SEQPACKET`` socket pair (one JSON object per packet):
 
-- test -> host: ``{"argv", "cwd", "env", "session", "nice"}`` with the child's stdin, stdout and
-  stderr as three descriptors (``SCM_RIGHTS``);
+- test -> host: ``{"module", "argv", "cwd", "env", "session", "nice"}`` with the child's stdin,
+  stdout and stderr as three descriptors (``SCM_RIGHTS``);
 - host -> test: ``{"pid": N}`` for each request, in order; ``{"exit": N, "code": C, "cpu_s": S}``
   when child N ends (C as ``Popen.returncode``: -signal if a signal ended it; S its CPU time and
   that of the children it reaped, as ``getrusage`` counts a reaped child's).
@@ -44,6 +45,8 @@ from pathlib import Path
 from typing import IO, Any
 
 ROOT = Path(__file__).resolve().parents[1]
+#: the modules a child may run as ``python -m``: the command line, and a vehicle
+MODULES = ("swarm_sitl", "sim_vehicles")
 #: ``swarm-sitl`` as a new interpreter runs it (the command line the children show)
 CLI = [sys.executable, "-m", "swarm_sitl"]
 #: what starts the host: this module's ``serve`` in a new interpreter, in the repository's root
@@ -131,21 +134,23 @@ def _become(request: dict[str, Any], fds: list[int]) -> None:
     sys.stdin = open(0, closefd=False)  # noqa: SIM115
     sys.stdout = open(1, "w", closefd=False)  # noqa: SIM115
     sys.stderr = open(2, "w", buffering=1, closefd=False)  # noqa: SIM115
-    argv = list(request["argv"])
-    setproctitle(" ".join([*CLI, *argv]))
+    argv, module = list(request["argv"]), request["module"]
+    setproctitle(" ".join([sys.executable, "-m", module, *argv]))
     os.environ.clear()
     os.environ.update(request["env"])
     os.chdir(request["cwd"])
     sys.path[0] = os.getcwd()  # (as ``-m`` puts it)
-    sys.argv = [str(ROOT / "swarm_sitl" / "__main__.py"), *argv]
+    sys.argv = [str(ROOT / module / "__main__.py"), *argv]
     tempfile.tempdir = None  # (read again from TMPDIR)
     random.seed()
     np.random.seed()
     for sig in (signal.SIGTERM, signal.SIGHUP, signal.SIGCHLD):  # (SIGPIPE ignored, as Python starts)
         signal.signal(sig, signal.SIG_DFL)
     signal.signal(signal.SIGINT, signal.default_int_handler)
-    from swarm_sitl.cli import main
-
+    if module == "sim_vehicles":
+        from sim_vehicles.__main__ import main
+    else:
+        from swarm_sitl.cli import main
     raise SystemExit(main(argv))
 
 
@@ -190,8 +195,17 @@ class _Host:
             self.cpu_s += msg["cpu_s"]
         return True
 
-    def fork(self, argv: list[str], cwd: str, env: dict[str, str], session: bool, fds: list[int]) -> int:
-        request = {"argv": argv, "cwd": cwd, "env": env, "session": session, "nice": os.nice(0)}
+    def fork(
+        self, module: str, argv: list[str], cwd: str, env: dict[str, str], session: bool, fds: list[int]
+    ) -> int:
+        request = {
+            "module": module,
+            "argv": argv,
+            "cwd": cwd,
+            "env": env,
+            "session": session,
+            "nice": os.nice(0),
+        }
         with self.lock:
             socket.send_fds(self.sock, [json.dumps(request).encode()], fds)
             while not self.pids:
@@ -241,9 +255,10 @@ def forkable(env: dict[str, str] | None) -> bool:
 
 
 class ForkedCli:
-    """The part of ``subprocess.Popen`` the tests use, for ``swarm-sitl ARGV`` forked from the
-    host. ``stdin``, ``stdout``, ``stderr``: ``subprocess.PIPE``, ``DEVNULL``, ``None`` (this
-    process's own), a file object or a descriptor, as ``Popen`` takes them."""
+    """The part of ``subprocess.Popen`` the tests use, for ``swarm-sitl ARGV`` (``module``:
+    ``python -m MODULE ARGV``, one of ``MODULES``) forked from the host. ``stdin``, ``stdout``,
+    ``stderr``: ``subprocess.PIPE``, ``DEVNULL``, ``None`` (this process's own), a file object or a
+    descriptor, as ``Popen`` takes them."""
 
     def __init__(
         self,
@@ -256,8 +271,11 @@ class ForkedCli:
         env: dict[str, str] | None = None,
         text: bool = False,
         start_new_session: bool = False,
+        module: str = "swarm_sitl",
     ):
-        self.args = [*CLI, *args]
+        if module not in MODULES:
+            raise ValueError(f"the host runs {MODULES}, not {module!r}")
+        self.args = [sys.executable, "-m", module, *args]
         self.returncode: int | None = None
         self._host = host()
         child_fds, ours = [], []
@@ -284,7 +302,7 @@ class ForkedCli:
         env = dict(os.environ if env is None else env)
         try:
             self.pid = self._host.fork(
-                [str(a) for a in args], str(cwd or os.getcwd()), env, start_new_session, child_fds
+                module, [str(a) for a in args], str(cwd or os.getcwd()), env, start_new_session, child_fds
             )
         finally:
             for fd in ours:
@@ -361,10 +379,15 @@ class ForkedCli:
 
 
 def run(
-    args: list[str], timeout: float, cwd: Any = None, env: dict[str, str] | None = None
+    args: list[str],
+    timeout: float,
+    cwd: Any = None,
+    env: dict[str, str] | None = None,
+    module: str = "swarm_sitl",
 ) -> subprocess.CompletedProcess[str]:
     """``subprocess.run(CLI + args, capture_output=True, text=True, timeout=...)``, forked."""
-    proc = ForkedCli(args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, cwd=cwd, env=env, text=True)
+    pipe = subprocess.PIPE
+    proc = ForkedCli(args, stdout=pipe, stderr=pipe, cwd=cwd, env=env, text=True, module=module)
     try:
         out, err = proc.communicate(timeout=timeout)
     except subprocess.TimeoutExpired:

@@ -9,7 +9,6 @@ import math
 import re
 import socket
 import subprocess
-import sys
 import time
 from pathlib import Path
 from typing import Any
@@ -157,10 +156,21 @@ def wait_running(out: Path, followers: int = 4, timeout: float = 120.0) -> None:
     raise AssertionError("the run did not get going")
 
 
-def spawn_vehicle(system_id: int, port: int, *extra: str) -> "subprocess.Popen[str]":
+def vehicle(*args: object, timeout: float = 120) -> "subprocess.CompletedProcess[str]":
+    """``python -m sim_vehicles ARGS`` run to its end, its output captured; forked as ``cli`` is."""
+    return cli_host.run([str(a) for a in args], timeout, module="sim_vehicles")
+
+
+def start_vehicle(*args: object, **streams: Any) -> Any:
+    """``python -m sim_vehicles ARGS`` started, its standard output piped (``streams``: ``Popen``'s
+    ``stdout`` and ``stderr`` otherwise); forked as ``cli`` is."""
+    streams = {"stdout": subprocess.PIPE, **streams}
+    return cli_host.ForkedCli([str(a) for a in args], text=True, module="sim_vehicles", **streams)
+
+
+def spawn_vehicle(system_id: int, port: int, *extra: str) -> Any:
     """``python -m sim_vehicles`` at 20 m up on ``port``, once it says it listens."""
-    argv = [sys.executable, "-m", "sim_vehicles", "--id", str(system_id), "--port", str(port)]
-    proc = subprocess.Popen([*argv, "--position", "0", "0", "20", *extra], stdout=subprocess.PIPE, text=True)
+    proc = start_vehicle("--id", system_id, "--port", port, "--position", "0", "0", "20", *extra)
     assert proc.stdout is not None and "listening" in proc.stdout.readline()
     return proc
 

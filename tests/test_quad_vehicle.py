@@ -6,8 +6,6 @@ process in lockstep (its time moves one period per stamped setpoint), driven by 
 import json
 import math
 import re
-import subprocess
-import sys
 import time
 
 import numpy as np
@@ -16,7 +14,7 @@ from pymavlink import mavutil
 
 from sim_vehicles.mavlink.enu_ned import q_enu_flu_to_ned_frd, q_ned_frd_to_enu_flu
 from sim_vehicles.models.vehicle_config import VehicleConfig
-from tests.support import sih_quad, sih_roll_step
+from tests.support import sih_quad, sih_roll_step, start_vehicle, vehicle
 
 pytestmark = pytest.mark.integration
 SIH = sih_quad()
@@ -38,8 +36,7 @@ def quad(tmp_path):
     )
     path = tmp_path / "quad.json"
     path.write_text(spec.to_json())
-    argv = [sys.executable, "-m", "sim_vehicles", "--id", "1", "--port", "0", "--config", str(path)]
-    proc = subprocess.Popen([*argv, "--lockstep-period-s", "0.01"], stdout=subprocess.PIPE, text=True)
+    proc = start_vehicle("--id", "1", "--port", "0", "--config", path, "--lockstep-period-s", "0.01")
     assert proc.stdout is not None
     line = proc.stdout.readline()
     m = re.search(r"listening on udp:([0-9.]+):(\d+)", line)
@@ -131,12 +128,7 @@ def test_a_quad_spec_with_a_gain_out_of_its_range_is_one_line_before_the_vehicle
     path.write_text(
         json.dumps({**json.loads(VehicleConfig(model="px4_quad_x").to_json()), "params": {"MC_ROLL_P": 40}})
     )
-    r = subprocess.run(
-        [sys.executable, "-m", "sim_vehicles", "--port", "0", "--config", str(path)],
-        capture_output=True,
-        text=True,
-        timeout=60,
-    )
+    r = vehicle("--port", "0", "--config", path, timeout=60)
     assert r.returncode == 2 and r.stderr.strip() == (
         "sim_vehicles: error: vehicle config: params: MC_ROLL_P must be within 0..12, got 40"
     )

@@ -27,7 +27,7 @@ import sim_vehicles.mavlink.signing as signing
 from sim_vehicles.mavlink.sha256 import sha256_into
 from sim_vehicles.mavlink.signing import Signer, Verifier, key_from_passphrase
 from swarm_sitl.running.children import child_env
-from tests.support import CONFIGS, start_cli
+from tests.support import CONFIGS, start_cli, start_vehicle
 
 KEY = key_from_passphrase("correct horse battery staple")
 
@@ -313,9 +313,6 @@ def _free_udp_port() -> int:
 
 
 VEHICLE = [
-    sys.executable,
-    "-m",
-    "sim_vehicles",
     "--id",
     "3",
     "--position",
@@ -333,11 +330,7 @@ def signed_vehicle(tmp_path):
     key_file.write_text("correct horse battery staple\n")
     port = _free_udp_port()
     stats = tmp_path / "stats.json"
-    proc = subprocess.Popen(
-        [*VEHICLE, "--port", str(port), "--signing-key-file", str(key_file), "--stats", str(stats)],
-        stdout=subprocess.PIPE,
-        text=True,
-    )
+    proc = start_vehicle(*VEHICLE, "--port", port, "--signing-key-file", key_file, "--stats", stats)
     assert "listening" in proc.stdout.readline()
     yield port, proc, stats
     if proc.poll() is None:

@@ -28,11 +28,13 @@ def test_no_test_module_imports_another():
 
 
 def test_swarm_sitl_is_run_one_way():
-    """``swarm-sitl`` is run through ``support.cli``, ``cli_ok`` and ``start_cli`` (forked from a
-    warm interpreter, ``tests/cli_host.py``): no test spells its command line (``"-m",
-    "swarm_sitl"``, ``module_argv("swarm_sitl")``, ``[*CLI, ...]``) to start it some other way.
-    One may in a network namespace (``ip netns exec``), where the host cannot fork it."""
-    forms = r'"-m",\s*"swarm_sitl"[,\]]|\*CLI\b|(?<!"exec", ns, \*)module_argv\("swarm_sitl"\)'
+    """``swarm-sitl`` is run through ``support.cli``, ``cli_ok`` and ``start_cli``, a vehicle through
+    ``vehicle``, ``start_vehicle`` and ``spawn_vehicle`` (forked from a warm interpreter,
+    ``tests/cli_host.py``): no test spells their command lines (``"-m", "swarm_sitl"``, ``"-m",
+    "sim_vehicles"``, ``module_argv("swarm_sitl")``, ``[*CLI, ...]``) to start them some other
+    way. One may in a network namespace (``ip netns exec``), where the host cannot fork it, and
+    the supervisor's own tests give it ``module_argv("sim_vehicles")``: it starts what it is given."""
+    forms = r'"-m",\s*"(swarm_sitl|sim_vehicles)"[,\]]|\*CLI\b|(?<!"exec", ns, \*)module_argv\("swarm_sitl"\)'
     others = [p for p in TEST_FILES if p.name != "test_suite_rules.py"]  # (this rule names the forms)
     spelled = [f"{p.name}: {m.group(0)}" for p in others for m in re.finditer(forms, p.read_text())]
     assert not spelled, f"run swarm-sitl through tests.support.cli, cli_ok or start_cli: {spelled}"

@@ -5,8 +5,6 @@ vehicle is one line naming the field."""
 import dataclasses
 import json
 import math
-import subprocess
-import sys
 
 import numpy as np
 import pytest
@@ -17,7 +15,7 @@ from hypothesis import strategies as st
 from sim_vehicles.models.build import build_vehicle, sensor_model
 from sim_vehicles.models.vehicle_config import Gusts, SensorNoise, VehicleConfig, VehicleConfigError
 from swarm_sitl.nodes.assembly import build_autopilot
-from tests.support import CONFIGS, cli, config
+from tests.support import CONFIGS, cli, config, vehicle
 
 finite = st.floats(-1e6, 1e6, allow_nan=False)
 positive = st.floats(1e-6, 1e6, allow_nan=False)
@@ -169,12 +167,7 @@ def test_the_vehicle_process_refuses_a_bad_config_file_in_one_line_before_it_bin
         (["--model", "nope"], "model 'nope' is not one of"),
         (["--spec", str(bad)], "vehicle config: mass_kg"),  # the flag's name before: read, with a notice
     ]:
-        r = subprocess.run(
-            [sys.executable, "-m", "sim_vehicles", "--port", "0", *args],
-            capture_output=True,
-            text=True,
-            timeout=60,
-        )
+        r = vehicle("--port", "0", *args, timeout=60)
         assert r.returncode == 2, r.stderr
         lines = r.stderr.strip().splitlines()
         if args[0] == "--spec":

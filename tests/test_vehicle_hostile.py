@@ -27,7 +27,7 @@ from sim_vehicles.vehicle.modes import MODE_OFFBOARD
 from sim_vehicles.vehicle.port import PEER_SILENT_S
 from sim_vehicles.vehicle.services import COMMAND_PARAMS
 from tests.strategies import FUZZ, FUZZ_TIMEOUT, unit_quaternions
-from tests.support import raw_frame
+from tests.support import raw_frame, start_vehicle
 
 SYS = 3
 PEER = ("127.0.0.1", 40001)
@@ -328,19 +328,13 @@ def test_fuzz_vehicle_survives_random_bytes_from_anyone(flying, data, sender):
 @pytest.mark.light
 def test_the_vehicle_process_keeps_flying_after_a_hostile_burst(tmp_path):
     """Across the real socket: a burst of the inputs above, then the vehicle still answers."""
-    import subprocess
-    import sys
 
     from pymavlink import mavutil
 
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "sim_vehicles", "--id", str(SYS), "--port", str(port), "--duration", "30"],
-        stdout=subprocess.PIPE,
-        text=True,
-    )
+    proc = start_vehicle("--id", SYS, "--port", port, "--duration", "30")
     try:
         assert "listening" in proc.stdout.readline()
         conn = mavutil.mavlink_connection(f"udpout:127.0.0.1:{port}", source_system=SYS, source_component=191)

@@ -25,6 +25,7 @@ from sim_vehicles.runtime.row_log import read_rows
 from sim_vehicles.vehicle import lockstep_tick, loops
 from sim_vehicles.vehicle.endpoint import VehicleEndpoint
 from tests.fakes import ENDPOINT_PARAMS, answers, recording_endpoint
+from tests.support import start_vehicle
 
 pytestmark = pytest.mark.integration
 mav = mavutil.mavlink
@@ -220,9 +221,9 @@ def test_waiting_says_whether_a_datagram_or_an_error_waits():
 def test_a_lockstep_vehicle_asks_for_batch_scheduling_and_a_real_time_one_does_not():
     policies = {}
     for lockstep in (True, False):
-        argv = [sys.executable, "-m", "sim_vehicles", "--port", "0", "--duration", "30"]
+        argv = ["--port", "0", "--duration", "30"]
         argv += ["--lockstep-period-s", "0.01"] if lockstep else []
-        proc = subprocess.Popen(argv, stdout=subprocess.PIPE, text=True)
+        proc = start_vehicle(*argv)
         try:
             assert "listening" in proc.stdout.readline()
             policies[lockstep] = os.sched_getscheduler(proc.pid)
