@@ -150,31 +150,37 @@ def test_the_datagrams_a_plan_loses_on_a_vehicles_link_are_its_fates(tmp_path, m
         assert s["v_W"][k + 1][2] == pytest.approx(s["v_W"][k][2] + a * dt, abs=1e-12), k
 
 
-def test_a_controller_killed_and_restarted_records_nothing_between_and_starts_afresh_on_its_vehicle(tmp_path):
-    """Follower 2's controller killed at 0.3 s and started again 0.2 s later: it records nothing
-    in between (its rows NaN), publishes nothing (follower 4 keeps hearing its message of 0.29 s,
-    then its new ones); its new incarnation is a fresh law (the same first draw of its random
-    stream) that hears nothing at its first tick and its in-neighbours from the next; and its
-    vehicle, whose setpoints stopped for less than its timeout, flew the gap on the last one it
-    had: its vertical motion across the 21 periods from the last tick before the kill in closed
-    form."""
-    plan = {"seed": 2, "plan": [{"controller": 2, "kill": True, "from_s": 0.3, "restart_after_s": 0.2}]}
+@pytest.mark.parametrize("restart_s, back", [(0.2, 50), (0.004, 30)], ids=["after-20-ticks", "within-a-tick"])
+def test_a_controller_killed_and_restarted_records_nothing_between_and_starts_afresh_on_its_vehicle(
+    tmp_path, restart_s, back
+):
+    """Follower 2's controller killed at 0.3 s and started again ``restart_s`` later (tick
+    ``back``; within one period: the same tick): it records nothing in between (its rows NaN),
+    publishes nothing (follower 4 keeps hearing its message of 0.29 s, then its new ones); its
+    new incarnation is a fresh law (the same first draw of its random stream) that hears nothing
+    at its first tick and its in-neighbours from the next; and its vehicle, whose setpoints
+    stopped for less than its timeout, flew the gap on the last one it had: its vertical motion
+    across the periods from the last tick before the kill in closed form."""
+    plan = {"seed": 2, "plan": [{"controller": 2, "kill": True, "from_s": 0.3, "restart_after_s": restart_s}]}
     cfg = loaded(tmp_path, probe_config(tmp_path, duration_s=1.0, faults=plan))
     rec = run_sim(cfg)
     n, dt = cfg.n_control_steps, cfg.control_dt_s
-    down = range(30, 50)
+    down = range(30, back)
     s = rec.followers[2]
     for k in range(n + 1):
         assert (
             np.isnan(s["t_s"][k]) == np.isnan(s["thrust_N"][k]) == np.isnan(s["p_W"][k]).all() == (k in down)
         )
-    assert np.isnan(s["from"][50]).all() and s["from"][51][0] == 0 and s["sent_at"][51][0] == 50 * dt
-    assert s["first_draw"][50] == s["first_draw"][0] and s["seen_t"][50] == s["sample_t"][50] == 50 * dt
+    assert np.isnan(s["from"][back]).all() and s["from"][back + 1][0] == 0
+    assert s["sent_at"][back + 1][0] == back * dt
+    assert (
+        s["first_draw"][back] == s["first_draw"][0] and s["seen_t"][back] == s["sample_t"][back] == back * dt
+    )
     f4 = rec.followers[4]  # (hears 1 and 2: 2 in its second slot)
     for k in range(1, n + 1):
         newest = max(j for j in range(k) if j not in down)
         assert f4["from"][k][1] == 2 and f4["sent_at"][k][1] == newest * dt, k
-    a, gap = climb_acceleration(cfg, s["thrust_N"][29], s["ctx"][0][5]), 21 * dt
+    a, gap = climb_acceleration(cfg, s["thrust_N"][29], s["ctx"][0][5]), (back - 29) * dt
     v, z = s["v_W"][29][2], s["p_W"][29][2]
-    assert s["v_W"][50][2] == pytest.approx(v + a * gap, abs=1e-9)
-    assert s["p_W"][50][2] == pytest.approx(z + v * gap + a * gap**2 / 2, abs=1e-9)
+    assert s["v_W"][back][2] == pytest.approx(v + a * gap, abs=1e-9)
+    assert s["p_W"][back][2] == pytest.approx(z + v * gap + a * gap**2 / 2, abs=1e-9)
