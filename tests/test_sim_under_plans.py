@@ -72,18 +72,19 @@ LINK_AND_PROCESS_FAULTS = {
 
 def test_under_link_and_process_faults_sim_flies_the_failsafe_carries_samples_and_loses_the_leader(tmp_path):
     """Vehicle 2 without setpoints from 0.2 s enters its failsafe ``setpoint_timeout_s`` (0.5 s)
-    later and leaves it when they come again at 0.9 s: the run's events, in time order. A tick
-    whose sample was lost carries the newest one before it, recorded with that sample's true state
-    and time, and its position error measured at that time; about half are lost, never the first.
-    The leader's followers hear its messages up to the tick before it was killed, then, from its
-    restart on, its new ones."""
+        later and leaves it when they come again at 0.9 s: the run's events, in time order, each naming
+    the vehicle. A tick
+        whose sample was lost carries the newest one before it, recorded with that sample's true state
+        and time, and its position error measured at that time; about half are lost, never the first.
+        The leader's followers hear its messages up to the tick before it was killed, then, from its
+        restart on, its new ones."""
     from swarm_sitl.running.sim import run_sim_spooled
 
     cfg = loaded(tmp_path, probe_config(tmp_path, duration_s=1.5, faults=LINK_AND_PROCESS_FAULTS))
     rec = run_sim(cfg)
     dt, trajectory = cfg.control_dt_s, cfg.trajectory()
-    said = [(e["t_s"], e["kind"], e["source"]) for e in rec.events]
-    assert said == [(0.7, "failsafe_enter", "vehicle_2"), (0.9, "failsafe_exit", "vehicle_2")]
+    said = [(e["t_s"], e["kind"], e["source"], e["vehicle"]) for e in rec.events]
+    assert said == [(0.7, "failsafe_enter", "vehicle_2", 2), (0.9, "failsafe_exit", "vehicle_2", 2)]
     assert run_sim_spooled(cfg, tmp_path / "spool").events == rec.events  # (spooled, the same)
     s = rec.followers[3]
     carried = np.nonzero(s["sample_t_s"] < s["t_s"])[0]
