@@ -171,12 +171,11 @@ class _Host:
         self.lock = threading.Lock()
         self.exits: dict[int, int] = {}
         self.pids: list[int] = []
+        self.ready = False
+        #: the CPU time of the commands that have ended (and of the children they reaped) [s]
+        self.cpu_s = 0.0
         if not self._read(120.0) or not self.ready:
             raise RuntimeError(f"the tests' swarm-sitl host did not start (exit {self.proc.poll()})")
-
-    ready = False
-    #: the CPU time of the commands that have ended (and of the children they reaped) [s]
-    cpu_s = 0.0
 
     def _read(self, timeout_s: float | None) -> bool:
         """Take one message from the host if one comes within ``timeout_s``."""
@@ -248,7 +247,7 @@ def _end(h: _Host) -> None:
 def forkable(env: dict[str, str] | None) -> bool:
     """Whether a command with environment ``env`` may run forked from the host: numba's
     variables, read at its import, are the host's."""
-    ours = host().env if _host is not None else os.environ
+    ours = _host.env if _host is not None else os.environ
     env = os.environ if env is None else env
     keys = {k for k in [*env, *ours] if k.startswith("NUMBA_")}
     return all(env.get(k) == ours.get(k) for k in keys)
