@@ -219,3 +219,23 @@ def test_every_folder_docstring_names_each_of_its_modules():
         folder = init.parent.relative_to(ROOT)
         missing += [f"{folder}/{n}" for n in names if not re.search(rf"\b{re.escape(n)}\b", doc)]
     assert not missing, f"modules their folder's docstring does not name: {missing}"
+
+
+def test_every_file_of_the_packages_that_is_not_python_is_installed():
+    """The tests run the commands from the checkout (``tests/cli_host.py``), so a data file the
+    install leaves out would pass them: each tracked file of the packages that is not a module is
+    matched by ``pyproject.toml``'s package data (the page's assets, the ROS 2 messages)."""
+    import fnmatch
+    import subprocess
+    import tomllib
+
+    data = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]["package-data"]
+    globs = [f"{package.replace('.', '/')}/{g}" for package, gs in data.items() for g in gs]
+    tracked = subprocess.run(
+        ["git", "ls-files", *PACKAGES], cwd=ROOT, capture_output=True, text=True, check=True
+    ).stdout.split()
+    if not tracked:
+        pytest.skip("not a git checkout: no list of the tracked files")
+    left_out = [f for f in tracked if not f.endswith(".py") and not any(fnmatch.fnmatch(f, g) for g in globs)]
+    assert not left_out, f"not in [tool.setuptools.package-data]: {left_out}"
+    assert all(any(fnmatch.fnmatch(f, g) for f in tracked) for g in globs), globs  # (no stale glob)
