@@ -64,7 +64,8 @@ LINK_AND_PROCESS_FAULTS = {
     "plan": [
         {"mavlink": 2, "direction": "up", "drop": True, "from_s": 0.2, "until_s": 0.9},
         {"mavlink": 3, "direction": "down", "loss": 0.5},
-        {"mavlink": 4, "direction": "up", "loss": 0.3},
+        # (bursts of mean length 2: its fates depend on the chain a datagram's time stamp keys)
+        {"mavlink": 4, "direction": "up", "bursty": {"p": 0.2, "r": 0.5, "loss_bad": 1.0, "loss_good": 0.0}},
         {"leader": True, "kill": True, "from_s": 0.3, "restart_after_s": 0.2},
     ],
 }
