@@ -159,12 +159,10 @@ class _Host:
     """This process's host: started at the first request, ended with this process."""
 
     def __init__(self) -> None:
+        from swarm_sitl.running.children import child_env
+
         mine, theirs = socket.socketpair(socket.AF_UNIX, socket.SOCK_SEQPACKET)
-        env = dict(os.environ)
-        env["PYTHONPATH"] = os.pathsep.join(
-            [str(ROOT), *([env["PYTHONPATH"]] if env.get("PYTHONPATH") else [])]
-        )
-        self.env = env
+        self.env = env = child_env()  # (the packages this process imported, as a run's children)
         self.proc = subprocess.Popen(HOST, stdin=theirs, cwd=ROOT, env=env, start_new_session=True)
         theirs.close()
         self.sock = mine
