@@ -151,7 +151,11 @@ def _init(ship: Shipment, log_dir: str) -> None:
     from there), its config unpacked. Ctrl-C at a terminal reaches every process of the group, and
     the search (its parent) is the one that stops; a worker finishes the plan it flies. A config
     it cannot load is kept to be said with the first plan (an initializer that raises would only
-    break the pool)."""
+    break the pool). Every other signal does what it does to a new process (a forked worker
+    would otherwise keep the search's own handlers: SIGTERM noted by its ``_Stop``, not obeyed)."""
+    for sig in signal.valid_signals():
+        if callable(signal.getsignal(sig)):  # (a handler of the search's: Python set no other)
+            signal.signal(sig, signal.SIG_DFL)
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     log = Path(log_dir) / f"worker_{os.getpid()}.log"
     fd = os.open(log, os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o600)
@@ -194,9 +198,19 @@ def _last_line(log: Path) -> str:
     return lines[-1].strip()[:300] if lines else "(no output)"
 
 
+def _start_method() -> str:
+    """How a worker process starts: forked from this process where that is safe (one thread, no
+    zenoh session: ``fork_server.can_fork_here``; a search opens none), so a worker begins with
+    numpy, numba, the config's modules and the laws imported (about a second of CPU each, paid
+    once); else spawned. Either way a worker flies only what the shipment says: ``_init`` unpacks
+    the config from it, as a Dask worker does, and reads nothing else of this process's."""
+    from swarm_sitl.running.fork_server import can_fork_here
+
+    return "fork" if can_fork_here() else "spawn"
+
+
 class Local:
-    """Plans flown by ``jobs`` worker processes of this machine (spawned: nothing of this
-    process's state but the shipment goes with them)."""
+    """Plans flown by ``jobs`` worker processes of this machine (``_start_method``)."""
 
     def __init__(self, jobs: int, cfg: SwarmConfig, name: str, models: Sequence[str] = ()):
         self.jobs = jobs
@@ -207,7 +221,8 @@ class Local:
         self.pool = self._pool()
 
     def _pool(self) -> concurrent.futures.ProcessPoolExecutor:
-        ctx = multiprocessing.get_context("spawn")
+        # (a forking pool starts every process at its first batch, before its own thread)
+        ctx = multiprocessing.get_context(_start_method())
         return concurrent.futures.ProcessPoolExecutor(
             self.jobs, mp_context=ctx, initializer=_init, initargs=(self.ship, self.log_dir)
         )
@@ -226,7 +241,7 @@ class Local:
     def _fly_alone(self, plan: dict[str, Any]) -> float:
         """``plan`` in a process of its own: its robustness; ``NO_ROBUSTNESS`` if its law's guard
         ended it; ``WorkerError`` naming the process and its last line if it died otherwise."""
-        ctx = multiprocessing.get_context("spawn")
+        ctx: Any = multiprocessing.get_context(_start_method())  # (a fork or spawn context)
         recv, send = ctx.Pipe(duplex=False)
         proc = ctx.Process(target=_alone, args=(self.ship, self.log_dir, plan, send), daemon=True)
         proc.start()
