@@ -32,10 +32,16 @@ def test_swarm_sitl_is_run_one_way():
     ``vehicle``, ``start_vehicle`` and ``spawn_vehicle`` (forked from a warm interpreter,
     ``tests/cli_host.py``): no test spells their command lines (``"-m", "swarm_sitl"``, ``"-m",
     "sim_vehicles"``, ``module_argv("swarm_sitl")``, ``[*CLI, ...]``) to start them some other
-    way. One may in a network namespace (``ip netns exec``), where the host cannot fork it, and
-    the supervisor's own tests give it ``module_argv("sim_vehicles")``: it starts what it is given."""
-    forms = r'"-m",\s*"(swarm_sitl|sim_vehicles)"[,\]]|\*CLI\b|(?<!"exec", ns, \*)module_argv\("swarm_sitl"\)'
-    others = [p for p in TEST_FILES if p.name != "test_suite_rules.py"]  # (this rule names the forms)
+    way, nor the command line a campaign forks its runs by (``warm_commands.CLI``). One may in a
+    network namespace (``ip netns exec``), where the host cannot fork it; the supervisor's own
+    tests give it ``module_argv("sim_vehicles")``: it starts what it is given; and
+    ``warm_commands``' own tests compare what it forks with a new interpreter's command."""
+    forms = (
+        r'"-m",\s*"(swarm_sitl|sim_vehicles)"[,\]]|\*CLI\b|(?<!"exec", ns, \*)module_argv\("swarm_sitl"\)'
+        r"|warm_commands\.CLI\b"
+    )
+    own = ("test_suite_rules.py", "test_warm_commands.py")  # (this rule names the forms; the fork's own)
+    others = [p for p in TEST_FILES if p.name not in own]
     spelled = [f"{p.name}: {m.group(0)}" for p in others for m in re.finditer(forms, p.read_text())]
     assert not spelled, f"run swarm-sitl through tests.support.cli, cli_ok or start_cli: {spelled}"
 

@@ -10,13 +10,14 @@ import math
 import shutil
 import signal
 import subprocess
-import sys
 import tempfile
 import time
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from swarm_sitl.running import warm_commands
 
 #: the metrics of a row, in the table's order
 METRICS = (
@@ -32,7 +33,7 @@ METRICS = (
 )
 EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_BOUND = 0, 1, 2, 3
 #: the runs under way in this process (a campaign interrupted here ends them: ``stop_running``)
-RUNNING: set[subprocess.Popen] = set()
+RUNNING: set[warm_commands.Command] = set()
 
 
 def stop_running() -> None:
@@ -52,8 +53,9 @@ INTERRUPT_GRACE_S = 30.0
 
 
 def run_command(cfg_path: Path, run_dir: Path) -> list[str]:
-    """The command that flies a point: a lockstep ``swarm-sitl run``."""
-    return [sys.executable, "-m", "swarm_sitl", "run", str(cfg_path), "--out", str(run_dir), "--quiet"]
+    """The command that flies a point: a lockstep ``swarm-sitl run`` (forked from a warm server
+    where it can be: ``running.warm_commands``)."""
+    return [*warm_commands.CLI, "run", str(cfg_path), "--out", str(run_dir), "--quiet"]
 
 
 def _timed_out(timeout_s: float, wall_s: float) -> dict[str, Any]:
@@ -76,6 +78,7 @@ def run_point(
     the point and written beside it (``rundir.plugins.pack``). A run past ``timeout_s`` of wall
     time is interrupted and its row failed ``timed out``."""
     work = Path(tempfile.mkdtemp(prefix=f"sweep-{name}-"))
+    said = Path(tempfile.mkdtemp(prefix=f"sweep-{name}-said-"))  # its stdout and stderr, apart
     try:
         cfg_path = work / f"{name}.yaml"
         cfg_path.write_text(config_yaml)
@@ -87,23 +90,28 @@ def run_point(
             shutil.rmtree(run_dir, ignore_errors=True)
         cmd = run_command(cfg_path, run_dir)
         t0 = time.monotonic()
-        proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        proc = warm_commands.start(cmd, said / "stdout", said / "stderr")
         RUNNING.add(proc)
         try:
             try:
-                stdout, stderr = proc.communicate(timeout=timeout_s)
+                proc.wait(timeout=timeout_s)
             except subprocess.TimeoutExpired:
                 proc.send_signal(signal.SIGINT)  # the run writes what it recorded
                 try:
-                    proc.communicate(timeout=INTERRUPT_GRACE_S)
+                    proc.wait(timeout=INTERRUPT_GRACE_S)
                 except subprocess.TimeoutExpired:
                     proc.kill()
-                    proc.communicate()
+                    proc.wait()
                 assert timeout_s is not None
                 return _timed_out(timeout_s, time.monotonic() - t0)
         finally:
             RUNNING.discard(proc)
-        r = subprocess.CompletedProcess(cmd, proc.returncode, stdout, stderr)
+        r = subprocess.CompletedProcess(
+            proc.args,
+            proc.wait(),  # (ended: its code)
+            (said / "stdout").read_text(errors="replace"),
+            (said / "stderr").read_text(errors="replace"),
+        )
         wall = time.monotonic() - t0
         if r.returncode == EXIT_USAGE or not (run_dir / "summary.json").is_file():
             last = (r.stderr.strip().splitlines() or [f"exit {r.returncode}"])[-1]
@@ -120,6 +128,7 @@ def run_point(
         return metrics_of(run_dir, failure, wall)
     finally:
         shutil.rmtree(work, ignore_errors=True)
+        shutil.rmtree(said, ignore_errors=True)
 
 
 def _bound_and_windows(run_dir: Path) -> tuple[float, float, list[float]]:

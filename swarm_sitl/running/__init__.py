@@ -7,6 +7,7 @@ rules;
 bus; ``fork_server``: children forked from one warmed-up process; ``children``: a child's command
 line and environment; ``router_watch``: a client-mode run's zenoh router, lost and back;
 ``first_compile``: every compiled kernel of a fresh install, once, on two processes;
+``warm_commands``: ``swarm-sitl`` commands (a campaign's runs) forked from one warm server;
 ``vehicle_relay``: a plan's MAVLink faults at a vehicle's port, for a controller the bench does
 not run; ``ros2_face``: the run on ROS 2 topics, through the supervisor's session).
 
