@@ -1,0 +1,122 @@
+"""Where a campaign's runs go on this machine (``campaigns.runner``): every task run once with its
+own inputs and its row given back with it, never more runs at once than ``jobs``, and a campaign
+that stops (Ctrl-C, a point that raised) stopping the runs under way and starting no other;
+``connect``'s refusals in one line. (``run_point`` is stood in for: its own tests are
+``test_campaign_point.py``; a cluster's runs, ``test_sweep_plugins.py``.)"""
+
+import os
+import threading
+import time
+
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+import swarm_sitl.campaigns.runner as runner
+from swarm_sitl.campaigns.runner import SchedulerError, Task, connect, default_jobs, run_local
+
+pytestmark = pytest.mark.unit
+
+
+class _Points:
+    """``run_point`` stood in for: each call noted (its inputs, how many ran at once), a row
+    naming its inputs back after ``sleep_s``; a name in ``fail`` raises ``fail[name]``."""
+
+    def __init__(self, sleep_s: float = 0.0, fail: dict[str, BaseException] | None = None, together: int = 1):
+        self.sleep_s, self.fail, self.together = sleep_s, fail or {}, together
+        self.calls: list[tuple] = []
+        self.now = self.most = 0
+        self.stopped = 0
+        self._lock = threading.Condition()
+
+    def __call__(self, config_yaml, name, keep_dir, plugins, timeout_s):
+        with self._lock:
+            self.calls.append((config_yaml, name, keep_dir, plugins, timeout_s))
+            self.now += 1
+            self.most = max(self.most, self.now)
+            self._lock.notify_all()
+            # the first runs wait (a while) for ``together`` of them to be under way at once
+            self._lock.wait_for(lambda: self.most >= self.together, timeout=10.0)
+        try:
+            time.sleep(self.sleep_s)
+            if name in self.fail:
+                raise self.fail[name]
+            return {
+                "name": name,
+                "config": config_yaml,
+                "keep": keep_dir,
+                "plugins": plugins,
+                "timeout": timeout_s,
+            }
+        finally:
+            with self._lock:
+                self.now -= 1
+
+    def stop(self) -> None:
+        self.stopped += 1
+
+
+def _tasks(n: int) -> list[Task]:
+    return [
+        Task(key=(i, i % 3), name=f"p{i}", config_yaml=f"name: p{i}\n", keep_dir=f"/k/{i}" if i % 2 else None,
+             plugins={f"plugins/l{i}.py": bytes([i])} if i % 3 else None, timeout_s=float(i) or None)
+        for i in range(n)
+    ]  # fmt: skip
+
+
+@settings(max_examples=20, deadline=None)
+@given(n=st.integers(0, 12), jobs=st.integers(1, 5))
+def test_every_task_runs_once_with_its_own_inputs_and_never_more_than_jobs_at_once(n, jobs):
+    points = _Points(sleep_s=0.002, together=min(n, jobs))
+    tasks = _tasks(n)
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(runner, "run_point", points)
+        done = list(run_local(tasks, jobs))
+    assert sorted(t.name for t, _ in done) == sorted(t.name for t in tasks) and len(points.calls) == n
+    for t, row in done:
+        assert row == {"name": t.name, "config": t.config_yaml, "keep": t.keep_dir, "plugins": t.plugins,
+                       "timeout": t.timeout_s}  # fmt: skip
+    assert points.most == min(n, jobs)  # (as many at once as it may: each waits for the others)
+
+
+@pytest.mark.parametrize("stop", [KeyboardInterrupt(), RuntimeError("a point broke")])
+def test_a_campaign_that_stops_stops_the_runs_under_way_and_starts_no_other(monkeypatch, stop):
+    """Point p1 raises (Ctrl-C in its run, or an error): the campaign raises it, the runs under
+    way are told to stop once, and of twelve tasks run two at a time no more than the first few
+    ever start."""
+    points = _Points(sleep_s=0.05, fail={"p1": stop})
+    monkeypatch.setattr(runner, "run_point", points)
+    monkeypatch.setattr(runner, "stop_running", points.stop)
+    with pytest.raises(type(stop)):
+        for _ in run_local(_tasks(12), 2):
+            pass
+    assert points.stopped == 1 and 2 <= len(points.calls) <= 4, points.calls
+
+
+def test_a_campaign_left_by_its_reader_waits_for_the_runs_it_started():
+    """The reader stops reading (a ``break``): the runs under way finish, no other starts."""
+    points = _Points(sleep_s=0.05)
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(runner, "run_point", points)
+        rows = run_local(_tasks(10), 2)
+        next(rows)
+        rows.close()
+    assert points.now == 0 and len(points.calls) <= 4
+
+
+def test_the_default_is_one_run_per_core_this_process_may_use():
+    assert default_jobs() == len(os.sched_getaffinity(0)) >= 1
+
+
+@pytest.mark.parametrize(
+    ("address", "says"),
+    [
+        ("tcp://127.0.0.1:1", "cannot reach the Dask scheduler at tcp://127.0.0.1:1"),
+        ("nonsense://x", "nonsense://x"),
+    ],
+)
+def test_a_scheduler_that_cannot_be_used_is_one_line_naming_it(address, says):
+    pytest.importorskip("distributed", reason="Dask's scheduler is the cluster extra")
+    with pytest.raises(SchedulerError, match=says) as e:
+        connect(address, timeout_s=0.5)
+    assert "\n" not in str(e.value)
