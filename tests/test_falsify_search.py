@@ -198,7 +198,10 @@ def test_a_configs_own_plan_flies_under_every_plan_and_a_cluster_finds_what_this
     running each task here) the study, rows and counterexample are the same."""
     import swarm_sitl.campaigns.runner as runner
     import swarm_sitl.falsify.search as search
+    import swarm_sitl.falsify.workers as workers
 
+    monkeypatch.setattr(workers, "_SHIPPED", {})  # (a cluster's worker starts with nothing unpacked)
+    monkeypatch.setattr(workers, "_UNPACKED", {})
     config, space, cfg, name = _own_plan_config(tmp_path, loss=0.3)
     own = {"seed": 0, "plan": []}
     at_seed = [evaluate(cfg, name, flown_plan({**own, "seed": s}, cfg)) for s in (0, 1)]

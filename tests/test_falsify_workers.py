@@ -5,14 +5,20 @@ The checks run in a process of their own (``python -c``): the pytest worker that
 has threads of its own, and a fork of it is what ``_start_method`` refuses."""
 
 import json
+import math
+import os
 import signal
 import subprocess
 import sys
+import tempfile
 import textwrap
+from pathlib import Path
 
 import pytest
+import yaml
 
-from tests.support import CONFIGS, ROOT
+import swarm_sitl.falsify.workers as workers
+from tests.support import BLACKOUT_MODEL, CONFIGS, ROOT, config_data
 
 ESTIMATE_SPEC = '- {name: estimate, formula: "always[2, end] (est_pos_err_m <= 1e-4)"}\n'
 
@@ -88,3 +94,134 @@ def test_a_worker_forked_or_spawned_flies_the_same_plans_and_starts_with_a_new_p
     assert forked["signals"] == spawned["signals"]
     assert forked["signals"][str(int(signal.SIGTERM))] == repr(signal.Handlers.SIG_DFL)
     assert forked["signals"][str(int(signal.SIGINT))] == repr(signal.Handlers.SIG_IGN)
+
+
+def _shipment_inputs(tmp_path):
+    """The paper's config with a plan of its own on a user's link model kept in a sub-folder
+    (``models/blackout.py``) and a space searching that same model's ``dark``."""
+    from swarm_sitl.falsify.search import load_inputs
+
+    (tmp_path / "models").mkdir()
+    (tmp_path / "models" / "blackout.py").write_text(BLACKOUT_MODEL)
+    data = config_data("paper")
+    data["faults"] = {
+        "plan": [{"edge": [0, 1], "model": {"entry": "models/blackout.py:Blackout", "params": {"dark": 0.2}}}]
+    }
+    (tmp_path / "own.yaml").write_text(yaml.safe_dump(data))
+    entry = {"entry": "models/blackout.py:Blackout", "params": {"dark": [0.0, 0.9]}}
+    (tmp_path / "space.yaml").write_text(yaml.safe_dump({"entries": [{"edges": [[0, 2]], "model": entry}]}))
+    (tmp_path / "spec.yaml").write_text(ESTIMATE_SPEC)
+    return load_inputs(
+        tmp_path / "own.yaml", tmp_path / "space.yaml", tmp_path / "spec.yaml", None, None, 3.0, 2, "severity"
+    )
+
+
+@pytest.mark.integration
+def test_a_shipment_unpacked_where_its_files_are_not_flies_its_own_copies_as_here(tmp_path, monkeypatch):
+    """A worker elsewhere (a Dask cluster's: nothing of this machine's files) unpacks the config
+    and every file it names, a searched model's too, in a directory of its own, once per
+    shipment, and flies a plan that names the model by this machine's path from its copy: the
+    robustness is what this machine flies; the directory goes when the process ends."""
+    monkeypatch.setattr(workers, "_UNPACKED", {})
+    monkeypatch.setattr(workers, "_SHIPPED", {})
+    cfg, sp, name = _shipment_inputs(tmp_path)
+    (searched,) = sp.user_models()
+    plan = {
+        "seed": 3,
+        "plan": [
+            {"edge": [0, 2], "model": {"entry": searched, "params": {"dark": 0.5}}},
+            {"edge": [1, 4], "loss": 0.2},
+        ],
+    }
+    here = workers.fly(cfg, name, plan)
+    ship = workers.Shipment.of(cfg, name, [searched])
+    source = (tmp_path / "models" / "blackout.py").read_bytes()
+    assert sorted(ship.files.values()) == [source] and set(ship.models) == {searched}
+    (tmp_path / "models").rename(tmp_path / "gone")  # (this machine's files are not the worker's)
+    registered: list[tuple] = []
+    monkeypatch.setattr(workers.atexit, "register", lambda *a: registered.append(a))
+    r, why = workers.fly_shipped(ship, plan)
+    assert (r, why) == (here, "")
+    ((remove, where, quiet),) = registered  # (one directory, for the process's end)
+    assert where.name.startswith("swarm-sitl-shipment-") and Path(where).parent == Path(tempfile.gettempdir())
+    copies = sorted(p for p in where.rglob("*") if p.is_file())
+    assert [p.read_bytes() for p in copies if p.suffix == ".py"] == [source]
+    assert yaml.safe_load((where / "config.yaml").read_text()) == yaml.safe_load(ship.config_yaml)
+    moved = ship.plan_here(plan)
+    assert moved["plan"][1] == plan["plan"][1] and moved["seed"] == 3
+    assert moved["plan"][0]["model"] == {"entry": str(where / ship.models[searched]), "params": {"dark": 0.5}}
+    assert Path(moved["plan"][0]["model"]["entry"].rpartition(":")[0]).read_bytes() == source
+    assert workers.fly_shipped(ship, plan) == (here, "") and len(registered) == 1  # (unpacked once)
+    assert ship.unpack(str(tmp_path / "under")).law == cfg.law and not (tmp_path / "under").exists()
+    remove(where, quiet)
+    remove(where, quiet)  # (gone already, at exit: quietly)
+    assert not where.exists()
+    other = workers.Shipment.of(cfg, name)  # (another shipment: no searched model)
+    assert other.plan_here(plan) is plan and other.digest != ship.digest
+
+
+@pytest.mark.integration
+def test_a_shipment_unpacked_under_a_directory_lands_there_once_and_a_plan_that_cannot_fly_is_said(
+    tmp_path, monkeypatch
+):
+    """``unpack(under)``: the copies land in one directory under it named after the process and
+    the shipment; a plan a worker cannot fly comes back as its reason (``Dask worker pid N: ...``),
+    and a cluster whose task failed is one ``WorkerError`` naming what failed."""
+    monkeypatch.setattr(workers, "_UNPACKED", {})
+    monkeypatch.setattr(workers, "_SHIPPED", {})
+    cfg, sp, name = _shipment_inputs(tmp_path)
+    ship = workers.Shipment.of(cfg, name, sp.user_models())
+    under = tmp_path / "under"
+    unpacked = ship.unpack(str(under))
+    (where,) = list(under.iterdir())
+    assert where.name == f"shipment-{os.getpid()}-{ship.digest[:16]}"
+    assert unpacked.faults.plan[0].model.entry == f"{where / 'plugins' / 'blackout.py'}:Blackout"
+    assert ship.unpack(str(under)) == unpacked and list(under.iterdir()) == [where]
+    bad = {"seed": 0, "plan": [{"edge": [0, 2], "model": {"entry": "nowhere.py:Nothing", "params": {}}}]}
+    r, why = workers.fly_shipped(ship, bad)
+    assert r is None and why.startswith(f"Dask worker pid {os.getpid()}: ") and "nowhere.py" in why
+
+    class Failing:
+        def submit(self, fn, *args, **kw):
+            return None
+
+        def gather(self, futures):
+            raise RuntimeError("worker tcp://10.0.0.9 lost")
+
+        def close(self):
+            pass
+
+    import swarm_sitl.campaigns.runner as runner
+
+    monkeypatch.setattr(runner, "connect", lambda address: Failing())
+    ev = workers.Dask("tcp://x:1", cfg, name, sp.user_models())
+    assert ev.ship == ship  # (the searched model's file shipped with the config)
+    with pytest.raises(
+        workers.WorkerError, match=r"^a Dask worker failed: RuntimeError: worker tcp://10\.0\.0\.9 lost$"
+    ):
+        ev.map([{"seed": 0, "plan": []}])
+    with pytest.raises(workers.WorkerError, match=r'^plan \{"plan": \[\], "seed": 0\}: the reason$'):
+        workers._robustness({"seed": 0, "plan": []}, None, "the reason")
+
+
+@pytest.mark.integration
+def test_a_plan_that_leaves_nothing_to_judge_is_a_violation_and_a_vacuous_hold_is_capped(tmp_path):
+    """A follower's controller killed for good leaves the requirement nothing after it: robustness
+    ``-inf``, which the study takes as ``NO_ROBUSTNESS``; one that holds it over an empty window
+    (``+inf``) is capped at ``-NO_ROBUSTNESS``; any other is the requirement's own."""
+    from swarm_sitl.falsify.evaluate import evaluate
+    from swarm_sitl.falsify.search import load_inputs
+
+    killed = {"seed": 0, "plan": [{"controller": 1, "kill": True, "from_s": 0.5}]}
+    got = {}
+    for formula in ("always[1, end] (pos_err_m <= 1)", "always[1.991, 1.999] (pos_err_m <= 1)"):
+        (tmp_path / "spec.yaml").write_text(f'- {{name: r, formula: "{formula}"}}\n')
+        cfg, _sp, name = load_inputs(
+            CONFIGS / "paper.yaml", None, tmp_path / "spec.yaml", None, None, 2.0, 1, "severity"
+        )
+        for plan in (killed, {"seed": 0, "plan": []}):
+            got[formula, bool(plan["plan"])] = (evaluate(cfg, name, plan), workers.fly(cfg, name, plan))
+    assert got["always[1, end] (pos_err_m <= 1)", True] == (-math.inf, workers.NO_ROBUSTNESS)
+    plain = got["always[1, end] (pos_err_m <= 1)", False]
+    assert math.isfinite(plain[0]) and plain[0] == plain[1]
+    assert got["always[1.991, 1.999] (pos_err_m <= 1)", False] == (math.inf, -workers.NO_ROBUSTNESS)
