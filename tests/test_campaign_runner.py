@@ -5,6 +5,7 @@ that stops (Ctrl-C, a point that raised) stopping the runs under way and startin
 ``test_campaign_point.py``; a cluster's runs, ``test_sweep_plugins.py``.)"""
 
 import os
+import signal
 import threading
 import time
 
@@ -120,3 +121,60 @@ def test_a_scheduler_that_cannot_be_used_is_one_line_naming_it(address, says):
     with pytest.raises(SchedulerError, match=says) as e:
         connect(address, timeout_s=0.5)
     assert "\n" not in str(e.value)
+
+
+def test_where_the_cores_usable_cannot_be_asked_the_default_is_the_cores_and_at_least_one(monkeypatch):
+    """(macOS has no ``sched_getaffinity``.) The machine's cores; one where even they are unknown."""
+    import types
+
+    for cores, jobs in ((6, 6), (None, 1)):
+        monkeypatch.setattr(runner, "os", types.SimpleNamespace(cpu_count=lambda cores=cores: cores))
+        assert default_jobs() == jobs
+    monkeypatch.setattr(
+        runner, "os", types.SimpleNamespace(sched_getaffinity=lambda pid: set(), cpu_count=lambda: 8)
+    )
+    assert default_jobs() == 1
+
+
+def test_ctrl_c_ends_at_once_runs_that_end_only_when_told_and_no_other_starts(monkeypatch):
+    """Each run under way ends only when the campaign tells it to (as ``swarm-sitl run`` on its
+    interrupt); the reader's Ctrl-C tells the runs under way, and the campaign returns without
+    waiting for them first, nor starting one that nothing would tell."""
+    told = threading.Event()
+    started: list[str] = []
+    under_way: set[str] = set()
+    lock = threading.Lock()
+    stops: dict[str, threading.Event] = {}
+
+    def point(config_yaml, name, keep_dir, plugins, timeout_s):
+        with lock:
+            started.append(name)
+            stops[name] = threading.Event()
+            under_way.add(name)
+        stops[name].wait(20)  # (a run no one stops: the test would wait 20 s and fail)
+        with lock:
+            under_way.discard(name)
+        return {"name": name}
+
+    def stop():
+        with lock:  # the runs under way now, as point.RUNNING holds them
+            for n in under_way:
+                stops[n].set()
+        told.set()
+
+    monkeypatch.setattr(runner, "run_point", point)
+    monkeypatch.setattr(runner, "stop_running", stop)
+
+    def ctrl_c_once_two_run() -> None:  # (Ctrl-C reaches the campaign's main thread)
+        end = time.monotonic() + 10
+        while len(started) < 2 and time.monotonic() < end:
+            time.sleep(0.01)
+        os.kill(os.getpid(), signal.SIGINT)
+
+    t0 = time.monotonic()
+    threading.Thread(target=ctrl_c_once_two_run, daemon=True).start()
+    with pytest.raises(KeyboardInterrupt):
+        for _ in run_local(_tasks(6), 2):
+            pass
+    assert told.is_set() and time.monotonic() - t0 < 10
+    assert sorted(started) == ["p0", "p1"] and not under_way
