@@ -124,16 +124,31 @@ def test_a_command_past_its_wait_is_told_and_goes_on_until_killed(tmp_path):
     assert c.wait(timeout=60) == -signal.SIGKILL
 
 
-def test_a_forked_commands_exit_handlers_run_as_a_new_interpreters_do(tmp_path):
-    """A user's law that registers an exit handler (its own log flushed, a device closed): the
-    handler runs once when ``check`` ends, forked as in a new interpreter."""
+def test_a_forked_commands_exit_handlers_run_and_it_sees_its_callers_environment_as_a_new_interpreter(
+    tmp_path, monkeypatch
+):
+    """A user's law that reads a variable of its environment and the temporary directory when
+    imported, and registers an exit handler (its own log flushed, a device closed): the handler
+    runs once when ``check`` ends, forked as in a new interpreter, and each command sees the
+    environment its caller had when it started it (the fork server's is the first caller's)."""
     config = dict(config_data("paper"), law={"entry": "my_law.py:ConsensusPD", "params": {}})
     (tmp_path / "c.yaml").write_text(yaml.safe_dump(config))
     law = (ROOT / "examples" / "laws" / "consensus_pd.py").read_text()
     marker = tmp_path / "marker"
     (tmp_path / "my_law.py").write_text(
-        law + f"\n\nimport atexit\n\natexit.register(lambda: open({str(marker)!r}, 'a').write('ran\\n'))\n"
+        law
+        + "\n\nimport atexit, os, tempfile\n\n"
+        + "mark = os.environ['SWARM_MARK'] + ' ' + tempfile.gettempdir()\n"
+        + f"open({str(marker)!r}, 'a').write(mark + '\\n')\n"
+        + f"atexit.register(lambda: open({str(marker)!r}, 'a').write('ran\\n'))\n"
     )
-    forked, fresh = _both(tmp_path, ["check", str(tmp_path / "c.yaml")], "law")
-    assert forked[0] == fresh[0] == 0, (forked, fresh)
-    assert marker.read_text() == "ran\n" * 2
+    seen = []
+    for mark in ("first", "second"):
+        tmp = tmp_path / f"tmp-{mark}"
+        tmp.mkdir()
+        monkeypatch.setenv("SWARM_MARK", mark)
+        monkeypatch.setenv("TMPDIR", str(tmp))
+        forked, fresh = _both(tmp_path, ["check", str(tmp_path / "c.yaml")], "law")
+        assert forked[0] == fresh[0] == 0, (forked, fresh)
+        seen.append(f"{mark} {tmp}")
+    assert marker.read_text() == "".join(f"{s}\nran\n" * 2 for s in seen)

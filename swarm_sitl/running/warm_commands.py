@@ -6,7 +6,8 @@ a run that fails or is killed takes nothing of the campaign with it. Started as 
 interpreter, each point spent 1.2-1.5 s of CPU importing numpy, numba, pydantic, pymavlink and
 zenoh before its run began, on a machine whose cores the runs themselves share. Here the first
 command starts the server (one interpreter, those imports) and every command is a fork of it:
-its own pid and process, its stdout and stderr in the files given, ``ps`` showing the command
+its own pid and process, its stdout and stderr in the files given, the caller's environment and
+working directory at the time, ``ps`` showing the command
 line a new interpreter would have had; it runs the ``swarm_sitl`` module as ``-m`` does and ends as
 the interpreter would (its exit handlers run), with the exit code ``python -m swarm_sitl`` would
 have had (``-N`` when signal N ended it). Commands may be started from any thread.
@@ -24,6 +25,7 @@ import shlex
 import signal
 import subprocess
 import sys
+import tempfile
 import threading
 import time
 from pathlib import Path
@@ -59,9 +61,10 @@ def _forkserver() -> Any:
     return _context
 
 
-def _command(argv: list[str], out_path: str, err_path: str) -> None:
+def _command(argv: list[str], out_path: str, err_path: str, env: dict[str, str]) -> None:
     """In the forked process: become ``python -m swarm_sitl ARGV`` with stdout and stderr in the
-    files, run it, end as it would."""
+    files and the caller's environment ``env`` (the server's is the one it started with), run it,
+    end as it would."""
     for target, path in ((1, out_path), (2, err_path)):
         fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
         os.dup2(fd, target)
@@ -72,6 +75,10 @@ def _command(argv: list[str], out_path: str, err_path: str) -> None:
         from setproctitle import setproctitle
 
         setproctitle(" ".join(shlex.quote(a) for a in [*CLI, *argv]))
+    # (after the title: setproctitle takes its room from where the environment's strings lie)
+    os.environ.clear()
+    os.environ.update(env)
+    tempfile.tempdir = None  # (read from TMPDIR again, as a new interpreter would)
     sys.argv = ["-m", *argv]  # (runpy puts the module's file first, as -m does)
     try:
         runpy.run_module("swarm_sitl", run_name="__main__", alter_sys=True)  # (it ends in SystemExit)
@@ -98,7 +105,8 @@ class Command:
             with open(out_path, "wb") as out, open(err_path, "wb") as err:
                 self._proc = subprocess.Popen(cmd, stdout=out, stderr=err)
         else:
-            self._proc = ctx.Process(target=_command, args=(cmd[len(CLI) :], str(out_path), str(err_path)))
+            args = (cmd[len(CLI) :], str(out_path), str(err_path), dict(os.environ))
+            self._proc = ctx.Process(target=_command, args=args)
             self._proc.start()
         self.pid = self._proc.pid
 
