@@ -103,7 +103,9 @@ def test_a_search_writes_each_plans_own_robustness_and_cost_its_front_and_a_shru
     assert found.cost == cost(found.plan, cfg, "severity") <= min(r["cost"] for r in violating)
     assert yaml.safe_load(found.counterexample.read_text()) == json.loads(json.dumps(found.plan))
     assert found.evaluations >= 1 + 4 and found.per_minute > 0 and found.confirmed is None
-    assert name in (out / "report.md").read_text()
+    assert (
+        name in (out / "report.md").read_text() and (out / "study.db").is_file()
+    )  # (a later run resumes it)
     assert (out / "robustness_cost.png").stat().st_size > 0 and (out / "edges.png").stat().st_size > 0
 
 
@@ -125,7 +127,8 @@ def test_a_study_resumes_with_only_the_trials_it_lacks(tmp_path):
 
 
 def test_a_requirement_that_fails_without_a_fault_stops_the_search_after_the_baseline(tmp_path):
-    """Nothing to search for: said in one line, one evaluation, no plan, no counterexample."""
+    """Nothing to search for: said in one line, one evaluation, no plan, no counterexample; the
+    same for a bound on the formation error (``--bound``) no run can hold."""
     args, cfg, name = _inputs(tmp_path, bound="1e-12")
     said: list[str] = []
     found = falsify(PAPER, tmp_path / "out", budget=4, jobs=1, confirm=False, say=said.append, **args)
@@ -133,6 +136,12 @@ def test_a_requirement_that_fails_without_a_fault_stops_the_search_after_the_bas
     assert said == [f"falsify: estimate fails with any fault (robustness {found.baseline:.4g})"]
     assert found.evaluations == 1 and found.plan is None and found.counterexample is None
     assert not math.isnan(found.per_minute) and _rows(tmp_path / "out" / "evaluations.csv") == []
+    # (judged from run.settle_s, 20 s in the paper's config: a run past it)
+    bound = falsify(
+        PAPER, tmp_path / "b", bound_m=1e-9, duration_s=21.0, budget=4, jobs=1, confirm=False, say=said.append
+    )
+    assert bound.requirement == "bound" and bound.evaluations == 1 and bound.baseline < 0
+    assert said[-1] == f"falsify: bound fails with any fault (robustness {bound.baseline:.4g})"
 
 
 def test_the_command_line_and_the_python_api_search_alike_by_default():

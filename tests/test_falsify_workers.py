@@ -177,6 +177,8 @@ def test_a_shipment_unpacked_under_a_directory_lands_there_once_and_a_plan_that_
     assert where.name == f"shipment-{os.getpid()}-{ship.digest[:16]}"
     assert unpacked.faults.plan[0].model.entry == f"{where / 'plugins' / 'blackout.py'}:Blackout"
     assert ship.unpack(str(under)) == unpacked and list(under.iterdir()) == [where]
+    bare = workers.Shipment.of(cfg.model_copy(update={"faults": type(cfg.faults)()}), name)  # (no file)
+    assert not bare.files and bare.unpack(str(tmp_path / "a" / "b")).faults.plan == []
     bad = {"seed": 0, "plan": [{"edge": [0, 2], "model": {"entry": "nowhere.py:Nothing", "params": {}}}]}
     r, why = workers.fly_shipped(ship, bad)
     assert r is None and why.startswith(f"Dask worker pid {os.getpid()}: ") and "nowhere.py" in why
@@ -200,8 +202,17 @@ def test_a_shipment_unpacked_under_a_directory_lands_there_once_and_a_plan_that_
         workers.WorkerError, match=r"^a Dask worker failed: RuntimeError: worker tcp://10\.0\.0\.9 lost$"
     ):
         ev.map([{"seed": 0, "plan": []}])
-    with pytest.raises(workers.WorkerError, match=r'^plan \{"plan": \[\], "seed": 0\}: the reason$'):
-        workers._robustness({"seed": 0, "plan": []}, None, "the reason")
+
+    class Answering(Failing):  # (a task that ran and could not fly its plan)
+        def gather(self, futures):
+            return [(0.5, ""), (None, "Dask worker pid 7: the reason")]
+
+    monkeypatch.setattr(runner, "connect", lambda address: Answering())
+    plans = [{"seed": 0, "plan": []}, {"seed": 1, "plan": []}]
+    with pytest.raises(
+        workers.WorkerError, match=r'^plan \{"plan": \[\], "seed": 1\}: Dask worker pid 7: the reason$'
+    ):
+        workers.Dask("tcp://x:1", cfg, name).map(plans)
 
 
 @pytest.mark.integration
@@ -225,3 +236,16 @@ def test_a_plan_that_leaves_nothing_to_judge_is_a_violation_and_a_vacuous_hold_i
     plain = got["always[1, end] (pos_err_m <= 1)", False]
     assert math.isfinite(plain[0]) and plain[0] == plain[1]
     assert got["always[1.991, 1.999] (pos_err_m <= 1)", False] == (math.inf, -workers.NO_ROBUSTNESS)
+
+
+@pytest.mark.unit
+def test_a_plan_is_told_in_one_line_of_at_most_300_characters():
+    """``shown``: the plan's JSON, keys sorted; a longer one cut to 297 characters and ``...``."""
+    short = {"seed": 1, "plan": [{"edge": [0, 1], "loss": 0.5}]}
+    assert workers.shown(short) == json.dumps(short, sort_keys=True)
+    for n in (30, 31, 200):
+        long = {"seed": 2, "plan": [{"edge": [0, 1], "loss": 0.5 + k / 1000} for k in range(n)]}
+        text, full = workers.shown(long), json.dumps(long, sort_keys=True)
+        assert (text == full) == (len(full) <= 300) and "\n" not in text
+        if len(full) > 300:
+            assert len(text) == 300 and text == full[:297] + "..."
