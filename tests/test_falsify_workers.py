@@ -243,9 +243,9 @@ def test_a_plan_is_told_in_one_line_of_at_most_300_characters():
     """``shown``: the plan's JSON, keys sorted; a longer one cut to 297 characters and ``...``."""
     short = {"seed": 1, "plan": [{"edge": [0, 1], "loss": 0.5}]}
     assert workers.shown(short) == json.dumps(short, sort_keys=True)
-    for n in (30, 31, 200):
-        long = {"seed": 2, "plan": [{"edge": [0, 1], "loss": 0.5 + k / 1000} for k in range(n)]}
+    for size in (299, 300, 301, 302, 2000):  # (the plan's text this long, around the cut)
+        bare = json.dumps({"plan": [{"note": ""}], "seed": 2}, sort_keys=True)
+        long = {"seed": 2, "plan": [{"note": "x" * (size - len(bare))}]}
         text, full = workers.shown(long), json.dumps(long, sort_keys=True)
-        assert (text == full) == (len(full) <= 300) and "\n" not in text
-        if len(full) > 300:
-            assert len(text) == 300 and text == full[:297] + "..."
+        assert len(full) == size and "\n" not in text
+        assert text == (full if size <= 300 else full[:297] + "...") and len(text) == min(size, 300)
