@@ -112,12 +112,22 @@ def test_a_search_writes_each_plans_own_robustness_and_cost_its_front_and_a_shru
 def test_a_study_resumes_with_only_the_trials_it_lacks(tmp_path):
     """The same ``OUT`` with a larger budget: the study's trials are taken up and only the
     difference is flown (one batch of one, after the baseline), the first run's trials all kept.
-    (A bound no plan breaks: nothing to shrink.)"""
-    args, _cfg, _name = _inputs(tmp_path, bound="1", budget=2)
+    (A bound no plan breaks: nothing to shrink. Loss on all edges at once, costed by the edges a
+    plan touches: an entry on every follower's in-edges, or none.)"""
+    args, cfg, _name = _inputs(tmp_path, bound="1", budget=2)
+    (tmp_path / "space.yaml").write_text(
+        yaml.safe_dump({"seeds": [0, 1], "entries": [{"edges": "all", "loss": [0.2, 0.4]}]})
+    )
+    args["cost_how"] = "edges"
     out = tmp_path / "out"
     first = falsify(PAPER, out, budget=2, batch=2, jobs=1, confirm=False, say=lambda s: None, **args)
     trials = _rows(out / "evaluations.csv")
     assert first.plan is None and len(trials) == 2
+    every = len(cfg.graph_edges())
+    for t in trials:  # (written as flown: one entry into each follower)
+        entries = t["plan"]["plan"]
+        assert len(entries) in (0, len(cfg.followers)) and t["cost"] == (every if entries else 0.0)
+        assert sorted(e["into"] for e in entries) == ([f.id for f in cfg.followers] if entries else [])
     said: list[str] = []
     again = falsify(PAPER, out, budget=3, batch=2, jobs=1, confirm=False, say=said.append, **args)
     after = _rows(out / "evaluations.csv")
