@@ -4,6 +4,7 @@ the wall budget and, asked, its kept run directory; a row names its point's file
 this machine's pool with the jobs asked, or to a cluster's client, closed at the end; the
 figures are the heat map for two varied keys and an error chart per varied key."""
 
+import json
 import re
 from pathlib import Path
 
@@ -134,3 +135,47 @@ def test_a_campaign_draws_a_heat_map_for_two_varied_keys_and_a_chart_per_varied_
     assert drawn == [out / f for f in figures]
     assert all(p.read_bytes()[:4] == b"\x89PNG" for p in drawn)
     assert sorted(p.name for p in out.iterdir()) == sorted(figures)
+
+
+def test_a_campaign_widened_again_runs_only_what_it_lacks_and_records_the_union(tmp_path, monkeypatch):
+    """The same campaign again with more values and seeds: only the new points run (whatever
+    order the done ones come in), ``campaign.json`` holds every value and seed either run asked,
+    and each task's wall budget is the default: its start, ten times its duration and a minute."""
+    config = _setup(tmp_path, monkeypatch)
+    handed: list = []
+
+    def runs(tasks, jobs):
+        handed.append(list(tasks))
+        for t in tasks:
+            yield t, _metrics(t)
+
+    monkeypatch.setattr(sweep_mod, "run_local", runs)
+    monkeypatch.setattr(sweep_mod, "draw", lambda c: [])
+    out = tmp_path / "w"
+    sweep_mod.sweep(config, {"link.loss": [0.1, 0.3]}, out=out, seeds=[1], bound_m=0.5)
+    c = sweep_mod.sweep(config, {"link.loss": [0.0, 0.1, 0.2, 0.3]}, out=out, seeds=[0, 1], bound_m=0.5)
+    first, second = ([(t.key[0], t.key[1]) for t in ts] for ts in handed)
+    assert sorted(first) == [(0.1, 1), (0.3, 1)]
+    assert sorted(second) == sorted({(v, s) for v in (0.0, 0.1, 0.2, 0.3) for s in (0, 1)} - set(first))
+    assert len(c.rows) == 8
+    recorded = json.loads((out / "campaign.json").read_text())
+    assert recorded["values"] == {"link.loss": [0.0, 0.1, 0.2, 0.3]} and recorded["seeds"] == [0, 1]
+    base = yaml.safe_load((out / "base.yaml").read_text())
+    budget = base["run"]["start_timeout_s"] + 10 * base["duration_s"] + 60
+    assert {t.timeout_s for ts in handed for t in ts} == {budget}
+
+
+def test_an_out_that_is_a_file_or_holds_an_unreadable_campaign_is_one_line_naming_it(tmp_path, monkeypatch):
+    config = _setup(tmp_path, monkeypatch)
+    monkeypatch.setattr(sweep_mod, "run_local", lambda tasks, jobs: pytest.fail("ran"))
+    (tmp_path / "file").write_text("x")
+    with pytest.raises(
+        sweep_mod.SweepSpecError, match=rf"^--out {tmp_path / 'file'}: exists and is not a directory$"
+    ):
+        sweep_mod.sweep(config, {"link.loss": [0.1]}, out=tmp_path / "file", seeds=1, bound_m=0.5)
+    (tmp_path / "bad").mkdir()
+    (tmp_path / "bad" / "campaign.json").write_text("{not json")
+    with pytest.raises(
+        sweep_mod.SweepSpecError, match=rf"^{tmp_path / 'bad' / 'campaign.json'}: cannot read it \("
+    ):
+        sweep_mod.sweep(config, {"link.loss": [0.1]}, out=tmp_path / "bad", seeds=1, bound_m=0.5)
