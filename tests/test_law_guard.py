@@ -4,7 +4,6 @@ the process, memory past the bound stops the law at once or at its next step, th
 its limit with the count of what was dropped, and a step held where no signal reaches it ends its
 process with the line."""
 
-import gc
 import io
 import math
 import os
@@ -118,7 +117,6 @@ def test_the_step_that_took_the_memory_past_its_bound_is_the_one_stopped(monkeyp
     import swarm_sitl.nodes.law_guard as law_guard
 
     monkeypatch.setattr(law_guard, "WATCH_EVERY_S", 3600.0)  # (the watchdog does not look)
-    gc.collect()  # (garbage of earlier tests freed now, not between the baseline and the check)
     guard = _guard(5.0, memory_mb=40.0)
     held = []
     try:
