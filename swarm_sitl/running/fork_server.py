@@ -59,11 +59,13 @@ class ForkServerError(RuntimeError):
     """The fork server did not start, ended, or could not start a child; the message says which."""
 
 
-def _become(fds: tuple[int, int, int], argv: list[str], env: dict[str, str]) -> None:
+def become(fds: tuple[int, int, int], argv: list[str], env: dict[str, str], session: bool = True) -> None:
     """In a forked process: become what ``subprocess.Popen`` would have started for command line
-    ``argv`` with ``env``, in a session of its own, ``fds`` its stdin, stdout and stderr (and
-    Python's streams on them)."""
-    os.setsid()
+    ``argv`` with ``env``, in a session of its own (``session``; else in its parent's process
+    group, as ``Popen`` leaves a child), ``fds`` its stdin, stdout and stderr (and Python's streams
+    on them). (Also ``warm_commands``': a campaign's forked runs.)"""
+    if session:
+        os.setsid()
     for target, fd in enumerate(fds):
         os.dup2(fd, target)
     sys.stdin = open(0, closefd=False)  # noqa: SIM115
@@ -84,7 +86,7 @@ def _run_child(request: dict[str, Any], fd: int) -> int:
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
     signal.signal(signal.SIGINT, signal.SIG_DFL)
     null = os.open(os.devnull, os.O_RDONLY)
-    _become((null, fd, fd), [*module_argv(request["module"]), *request["argv"]], request["env"])
+    become((null, fd, fd), [*module_argv(request["module"]), *request["argv"]], request["env"])
     os.close(fd)
     os.close(null)
     os.environ[PARENT_ENV] = str(os.getppid())  # hold_on(): this process dies with the server
@@ -212,7 +214,7 @@ def _serve_here(argv: list[str], env: dict[str, str], fds: tuple[int, int, int])
     the supervisor's (its exit handlers, its objects' finalizers)."""
     code = 1
     try:
-        _become(fds, argv, env)
+        become(fds, argv, env)
         for fd in _open_fds():  # (as Popen's close_fds: the children inherit only their own)
             if fd > 2:
                 with contextlib.suppress(OSError):

@@ -6,11 +6,12 @@ a run that fails or is killed takes nothing of the campaign with it. Started as 
 interpreter, each point spent 1.2-1.5 s of CPU importing numpy, numba, pydantic, pymavlink and
 zenoh before its run began, on a machine whose cores the runs themselves share. Here the first
 command starts the server (one interpreter, those imports) and every command is a fork of it:
-its own pid and process, its stdout and stderr in the files given, the caller's environment and
-working directory at the time, ``ps`` showing the command
-line a new interpreter would have had; it runs the ``swarm_sitl`` module as ``-m`` does and ends as
-the interpreter would (its exit handlers run), with the exit code ``python -m swarm_sitl`` would
-have had (``-N`` when signal N ended it). Commands may be started from any thread.
+its own pid and process in its caller's process group, its stdout and stderr in the files given,
+the caller's environment and working directory at the time, ``ps`` showing the command line a
+new interpreter would have had (``fork_server.become``, as a run's children become theirs); it
+runs the ``swarm_sitl`` module as ``-m`` does and ends as the interpreter would (its exit
+handlers run), with the exit code ``python -m swarm_sitl`` would have had (``-N`` when signal N
+ended it). Commands may be started from any thread.
 
 Where a fork server cannot be used (not Linux; a daemonic process, which may have no children:
 a Dask worker), ``start`` starts a new interpreter instead, the same command with the same files.
@@ -21,7 +22,6 @@ import contextlib
 import multiprocessing
 import os
 import runpy
-import shlex
 import signal
 import subprocess
 import sys
@@ -63,21 +63,19 @@ def _forkserver() -> Any:
 
 def _command(argv: list[str], out_path: str, err_path: str, env: dict[str, str]) -> None:
     """In the forked process: become ``python -m swarm_sitl ARGV`` with stdout and stderr in the
-    files and the caller's environment ``env`` (the server's is the one it started with), run it,
+    files and the caller's environment ``env`` (the server's is the one it started with), in the
+    caller's process group as ``Popen`` leaves a child (Ctrl-C at a terminal reaches it), run it,
     end as it would."""
-    for target, path in ((1, out_path), (2, err_path)):
-        fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
-        os.dup2(fd, target)
-        os.close(fd)
-    sys.stdout = open(1, "w", buffering=1, closefd=False)  # noqa: SIM115
-    sys.stderr = open(2, "w", buffering=1, closefd=False)  # noqa: SIM115
-    with contextlib.suppress(Exception):
-        from setproctitle import setproctitle
+    from swarm_sitl.running.fork_server import become
 
-        setproctitle(" ".join(shlex.quote(a) for a in [*CLI, *argv]))
-    # (after the title: setproctitle takes its room from where the environment's strings lie)
-    os.environ.clear()
-    os.environ.update(env)
+    fds = (
+        os.open(os.devnull, os.O_RDONLY),
+        os.open(out_path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644),
+        os.open(err_path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644),
+    )
+    become(fds, [*CLI, *argv], env, session=False)
+    for fd in fds:
+        os.close(fd)
     tempfile.tempdir = None  # (read from TMPDIR again, as a new interpreter would)
     sys.argv = ["-m", *argv]  # (runpy puts the module's file first, as -m does)
     try:
