@@ -5,7 +5,6 @@ import csv
 import json
 import math
 import subprocess
-import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -16,6 +15,7 @@ from swarm_sitl.config.schema import SwarmConfig
 from swarm_sitl.falsify.evaluate import robustness_of
 from swarm_sitl.falsify.space import edges_of, expand
 from swarm_sitl.falsify.workers import NO_ROBUSTNESS
+from swarm_sitl.running.warm_commands import CLI
 
 
 @dataclass
@@ -77,7 +77,7 @@ def confirm_in_lockstep(
     config = run_dir.parent / f"{name}.config.yaml"
     config.parent.mkdir(parents=True, exist_ok=True)
     config.write_text(yaml.safe_dump(cfg.data(), sort_keys=False))
-    cmd = [sys.executable, "-m", "swarm_sitl", "run", str(config), "--faults", str(plan_file)]
+    cmd = [*CLI, "run", str(config), "--faults", str(plan_file)]
     subprocess.run([*cmd, "--out", str(run_dir), "--quiet"], capture_output=True, text=True, check=False)
     try:
         rec = load_run(run_dir)
