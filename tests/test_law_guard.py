@@ -6,6 +6,7 @@ process with the line."""
 
 import io
 import math
+import mmap
 import os
 import subprocess
 import sys
@@ -88,6 +89,14 @@ def test_os_exit_in_a_step_raises_and_outside_a_step_is_the_real_one():
         guard.close()
 
 
+def _fresh_resident(mb: float) -> np.ndarray:
+    """``mb`` MB that were not resident before: new pages mapped and touched. (An array from the
+    allocator may reuse memory an earlier test freed, still resident, and the process not grow.)"""
+    pages = np.frombuffer(mmap.mmap(-1, int(mb * 1e6)), dtype=np.uint8)
+    pages[:] = 1
+    return pages
+
+
 def test_memory_past_the_bound_stops_the_step_or_the_next_one():
     guard = _guard(5.0, memory_mb=40.0)
     held = []
@@ -95,7 +104,7 @@ def test_memory_past_the_bound_stops_the_step_or_the_next_one():
 
         def grow():
             while True:  # 8 MB at a time, touched (resident), until the guard stops it
-                held.append(np.ones(1_000_000))
+                held.append(_fresh_resident(8.0))
                 time.sleep(0.005)
 
         e = _stepping(guard, grow)
@@ -123,7 +132,7 @@ def test_the_step_that_took_the_memory_past_its_bound_is_the_one_stopped(monkeyp
 
         def hoard(mb: float):
             def step():
-                held.append(np.ones(int(mb * 1e6 / 8)))  # touched: resident
+                held.append(_fresh_resident(mb))
                 guard.after_step()  # (as the host calls it when the step returned)
 
             return step
