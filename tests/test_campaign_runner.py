@@ -146,9 +146,12 @@ def test_ctrl_c_ends_at_once_runs_that_end_only_when_told_and_no_other_starts(mo
     lock = threading.Lock()
     stops: dict[str, threading.Event] = {}
 
+    threads: set[str] = set()
+
     def point(config_yaml, name, keep_dir, plugins, timeout_s):
         with lock:
             started.append(name)
+            threads.add(threading.current_thread().name)
             stops[name] = threading.Event()
             under_way.add(name)
         stops[name].wait(20)  # (a run no one stops: the test would wait 20 s and fail)
@@ -160,6 +163,7 @@ def test_ctrl_c_ends_at_once_runs_that_end_only_when_told_and_no_other_starts(mo
         with lock:  # the runs under way now, as point.RUNNING holds them
             for n in under_way:
                 stops[n].set()
+        time.sleep(0.3)  # (telling takes a while: a task still pending would start meanwhile)
         told.set()
 
     monkeypatch.setattr(runner, "run_point", point)
@@ -185,3 +189,43 @@ def test_ctrl_c_ends_at_once_runs_that_end_only_when_told_and_no_other_starts(mo
         signal.signal(signal.SIGINT, before)
     assert told.is_set() and time.monotonic() - t0 < 20  # (not the 20 s a run no one told waits)
     assert sorted(started) == ["p0", "p1"] and all(stops[n].is_set() for n in started)
+    assert all(t.startswith("sweep") for t in threads), threads  # (named in a stack dump)
+
+
+def test_an_address_that_accepts_and_never_answers_is_one_line_within_the_timeout():
+    """Another service's port: Dask's own client would wait for ever."""
+    pytest.importorskip("distributed", reason="Dask's scheduler is the cluster extra")
+    import socket
+
+    with socket.socket() as silent:
+        silent.bind(("127.0.0.1", 0))
+        silent.listen(4)
+        address = f"tcp://127.0.0.1:{silent.getsockname()[1]}"
+        t0 = time.monotonic()
+        with pytest.raises(SchedulerError) as e:
+            connect(address, timeout_s=0.5)
+    assert str(e.value) == f"cannot reach the Dask scheduler at {address} (no answer within 0.5 s)"
+    assert time.monotonic() - t0 < 0.5 + 5.0  # (the handshake's cancellation, on a loaded machine)
+
+
+def test_a_scheduler_reached_gives_a_client_that_is_not_the_callers_default(monkeypatch):
+    """The campaign's client is its own: a user's code that asks Dask for its default client
+    still gets its own (or none), not the campaign's."""
+    distributed = pytest.importorskip("distributed", reason="Dask's scheduler is the cluster extra")
+    with distributed.LocalCluster(n_workers=0, processes=False, dashboard_address=None) as cluster:
+        client = connect(cluster.scheduler_address, timeout_s=5.0)
+        try:
+            assert client.scheduler.address == cluster.scheduler_address
+            with pytest.raises(ValueError, match="No clients found"):
+                distributed.default_client()
+        finally:
+            client.close()
+
+
+def test_without_dask_installed_a_scheduler_is_one_line_saying_what_to_install(monkeypatch):
+    import sys
+
+    monkeypatch.setitem(sys.modules, "distributed", None)  # (import distributed: ImportError)
+    with pytest.raises(SchedulerError) as e:
+        connect("tcp://127.0.0.1:8786")
+    assert str(e.value) == "--scheduler needs Dask's distributed scheduler: pip install 'swarm-sitl[cluster]'"

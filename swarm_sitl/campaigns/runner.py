@@ -3,7 +3,9 @@ itself 2n + 1 processes), or a Dask distributed cluster (``--scheduler``), each 
 whole swarms on its own host. Both call ``point.run_point`` on the same inputs, so a row is the
 same wherever it ran (but its wall time)."""
 
+import asyncio
 import os
+import threading
 from collections.abc import Iterator
 from concurrent.futures import FIRST_COMPLETED, ThreadPoolExecutor, wait
 from dataclasses import dataclass
@@ -60,7 +62,9 @@ def _as_done(futures: dict[Any, Task]) -> Iterator[tuple[Task, dict[str, Any]]]:
 
 
 def connect(address: str, timeout_s: float = 10.0) -> Any:
-    """A Dask client of the scheduler at ``address`` (``tcp://host:8786``)."""
+    """A Dask client of the scheduler at ``address`` (``tcp://host:8786``), or ``SchedulerError``
+    within about ``timeout_s`` (Dask's own client waits for ever on an address that accepts a
+    connection and never answers: another service's port)."""
     try:
         from distributed import Client
     except ImportError:
@@ -68,11 +72,44 @@ def connect(address: str, timeout_s: float = 10.0) -> Any:
             "--scheduler needs Dask's distributed scheduler: pip install 'swarm-sitl[cluster]'"
         ) from None
     try:
+        _answers(address, timeout_s)
         return Client(address, timeout=f"{timeout_s}s", set_as_default=False)
     except (OSError, TimeoutError) as e:
-        raise SchedulerError(f"cannot reach the Dask scheduler at {address} ({e})") from None
+        raise SchedulerError(
+            f"cannot reach the Dask scheduler at {address} ({e or type(e).__name__})"
+        ) from None
     except ValueError as e:
         raise SchedulerError(f"--scheduler {address}: {e}") from None
+
+
+def _answers(address: str, timeout_s: float) -> None:
+    """Returns once a Dask peer at ``address`` has answered the handshake of Dask's protocol;
+    ``TimeoutError`` if none did within ``timeout_s``, else the error connecting raised. In a
+    thread of its own, whose event loop is its own (the caller's may be running: a notebook)."""
+    from distributed.comm import connect as dask_connect
+
+    async def handshake() -> None:
+        comm = await dask_connect(address, timeout=timeout_s)
+        await comm.close()
+
+    outcome: list[BaseException | None] = []
+
+    def attempt() -> None:
+        try:
+            asyncio.run(asyncio.wait_for(handshake(), timeout_s))
+            outcome.append(None)
+        except BaseException as e:  # given to the caller
+            outcome.append(e)
+
+    probe = threading.Thread(target=attempt, name="dask-handshake", daemon=True)
+    probe.start()
+    probe.join(timeout_s + 5.0)  # (the wait_for above ends it by then)
+    if not outcome:
+        raise TimeoutError(f"no answer within {timeout_s:g} s")
+    if isinstance(outcome[0], asyncio.TimeoutError | TimeoutError):
+        raise TimeoutError(f"no answer within {timeout_s:g} s")
+    if outcome[0] is not None:
+        raise outcome[0]
 
 
 def run_dask(tasks: list[Task], client: Any) -> Iterator[tuple[Task, dict[str, Any]]]:
