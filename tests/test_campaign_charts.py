@@ -23,7 +23,7 @@ import matplotlib.pyplot as plt
 pytestmark = pytest.mark.unit
 
 KEY, KEY2 = "link.loss", "link.delay_s"
-_err = st.one_of(st.floats(1e-6, 10.0), st.just(math.nan))
+_err = st.one_of(st.floats(1e-6, 10.0), st.just(math.nan), st.just(0.0))  # (0: none, off a log scale)
 _rows = st.lists(
     st.tuples(st.sampled_from([0.0, 0.1, 0.25, 0.5]), st.sampled_from([0.0, 0.2]), _err, st.booleans()),
     min_size=1,
@@ -71,6 +71,7 @@ def test_the_error_chart_shows_each_run_the_median_the_band_the_bound_and_the_br
     assert path == tmp_path / "e.png" and path.read_bytes() == b"kept"
     ax = kept().axes[0]
     assert ax.get_yscale() == "log" and ax.get_xlabel() == KEY and ax.get_title() == "the title"
+    assert ax.get_ylabel() == "largest formation error after settling [m]"
     values, per = _per_value(rows, KEY)
     medians = [np.nanmedian(p) if np.isfinite(p).any() else math.nan for p in per]
     lines = {(ln.get_marker(), ln.get_linestyle()): ln for ln in ax.lines}
@@ -94,6 +95,8 @@ def test_the_error_chart_shows_each_run_the_median_the_band_the_bound_and_the_br
         assert upright[0].get_label() == f"holds up to {held:g}"
     else:
         assert not upright
+    named = {"min to max over seeds", "median", f"bound {bound:g} m"} | {ln.get_label() for ln in upright}
+    assert {t.get_text() for t in ax.get_legend().get_texts()} == named  # (what each mark is)
 
 
 @settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
@@ -131,6 +134,9 @@ def test_the_heat_map_shows_each_cells_median_and_marks_every_cell_where_a_seed_
         if positive.min() < positive.max():
             assert (image.norm.vmin, image.norm.vmax) == (positive.min(), positive.max())
     assert len(fig.axes) == 2  # (the colour bar)
+    assert fig.axes[1].get_ylabel() == "median largest error after settling [m]"
+    bottom, top = ax.get_ylim()
+    assert bottom < top  # (the first value of KEY2 at the bottom, as on any axis)
 
 
 def test_the_figures_are_written_where_asked(tmp_path):
