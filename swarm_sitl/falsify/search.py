@@ -1,6 +1,6 @@
 """``falsify``: the search for the cheapest fault plan that breaks a requirement, and its outputs.
 
-The search is an Optuna study (``OUT/study.db``, so a run that stopped resumes where it was) with
+The search is an Optuna study (kept in ``OUT/study.db``, so a run that stopped resumes where it was) with
 two objectives to minimise, the plan's cost and the requirement's robustness, and Optuna's
 multi-objective TPE sampler seeded by ``seed``. Why Optuna: its samplers take a space of mixed
 parameters (an entry on or off, a loss, a window's start) with conditional ones, keep a Pareto
@@ -90,6 +90,25 @@ class _Stop:
             signal.signal(sig, handler)
 
 
+def _studies(db: Path, seed: int, batch: int) -> tuple[Any, Any]:
+    """The search's study, in memory, and its record on disk (``db``, which a search of the same
+    ``OUT`` takes up: its trials are the new study's first). The sampler works on the one in
+    memory: on Optuna's SQLite storage each suggested value was a transaction of its own, and
+    every suggestion read the trials back (measured, a search of budget 40 with its flights
+    stood in for: 17 CPU s in the study on disk, 2.5 s in memory)."""
+    import optuna
+
+    directions = [optuna.study.StudyDirection.MINIMIZE] * 2
+    record = optuna.create_study(
+        study_name="falsify", storage=f"sqlite:///{db}", load_if_exists=True, directions=directions
+    )
+    study = optuna.create_study(
+        directions=directions, sampler=optuna.samplers.TPESampler(seed=seed, n_startup_trials=max(4, batch))
+    )
+    study.add_trials(record.get_trials(deepcopy=False, states=[optuna.trial.TrialState.COMPLETE]))
+    return study, record
+
+
 def _rows(study: Any) -> list[dict[str, Any]]:
     """Every evaluation the study holds: its cost, robustness and plan (of the space's items)."""
     import optuna
@@ -171,13 +190,7 @@ def falsify(
     out = Path(out)
     (out / "counterexamples").mkdir(parents=True, exist_ok=True)
     optuna.logging.set_verbosity(optuna.logging.WARNING)
-    study = optuna.create_study(
-        study_name="falsify",
-        storage=f"sqlite:///{out / 'study.db'}",
-        load_if_exists=True,
-        directions=["minimize", "minimize"],
-        sampler=optuna.samplers.TPESampler(seed=seed, n_startup_trials=max(4, batch)),
-    )
+    study, record = _studies(out / "study.db", seed, batch)
     jobs = jobs or min(batch, multiprocessing.cpu_count())
     t0 = time.monotonic()
     flown = 0
@@ -209,9 +222,11 @@ def falsify(
                 trials = [study.ask() for _ in range(min(batch, budget - done))]
                 plans = [plan_of(t, sp, its, cfg) for t in trials]
                 robs = fly_all(plans)
+                told = []
                 for t, plan, r in zip(trials, plans, robs, strict=True):
                     t.set_user_attr("plan", plan)
-                    study.tell(t, [cost(expand(plan, cfg), cfg, cost_how), r])
+                    told.append(study.tell(t, [cost(expand(plan, cfg), cfg, cost_how), r]))
+                record.add_trials(told)  # (flown and told: kept for a search that takes it up)
                 done += len(trials)
                 flown += len(trials)
                 say(f"falsify: {done}/{budget} evaluations, {sum(r < 0 for r in robs)} of the last violating")
