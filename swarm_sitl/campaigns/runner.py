@@ -75,9 +75,7 @@ def connect(address: str, timeout_s: float = 10.0) -> Any:
         _answers(address, timeout_s)
         return Client(address, timeout=f"{timeout_s}s", set_as_default=False)
     except (OSError, TimeoutError) as e:
-        raise SchedulerError(
-            f"cannot reach the Dask scheduler at {address} ({e or type(e).__name__})"
-        ) from None
+        raise SchedulerError(f"cannot reach the Dask scheduler at {address} ({e})") from None
     except ValueError as e:
         raise SchedulerError(f"--scheduler {address}: {e}") from None
 
@@ -89,27 +87,26 @@ def _answers(address: str, timeout_s: float) -> None:
     from distributed.comm import connect as dask_connect
 
     async def handshake() -> None:
-        comm = await dask_connect(address, timeout=timeout_s)
+        comm = await asyncio.wait_for(dask_connect(address), timeout_s)
         await comm.close()
 
-    outcome: list[BaseException | None] = []
+    failed: list[BaseException] = []
 
-    def attempt() -> None:
+    def dask_handshake() -> None:  # (the thread's name in a stack dump)
         try:
-            asyncio.run(asyncio.wait_for(handshake(), timeout_s))
-            outcome.append(None)
+            asyncio.run(handshake())
         except BaseException as e:  # given to the caller
-            outcome.append(e)
+            failed.append(e)
 
-    probe = threading.Thread(target=attempt, name="dask-handshake", daemon=True)
+    probe = threading.Thread(target=dask_handshake)
     probe.start()
-    probe.join(timeout_s + 5.0)  # (the wait_for above ends it by then)
-    if not outcome:
-        raise TimeoutError(f"no answer within {timeout_s:g} s")
-    if isinstance(outcome[0], asyncio.TimeoutError | TimeoutError):
-        raise TimeoutError(f"no answer within {timeout_s:g} s")
-    if outcome[0] is not None:
-        raise outcome[0]
+    probe.join()  # (within the timeout: wait_for ends it)
+    if failed:
+        raise (
+            TimeoutError(f"no answer within {timeout_s:g} s")
+            if isinstance(failed[0], TimeoutError)
+            else failed[0]
+        )
 
 
 def run_dask(tasks: list[Task], client: Any) -> Iterator[tuple[Task, dict[str, Any]]]:
