@@ -298,6 +298,11 @@ PLAN = {"seed": 3, "plan": [{"edge": [0, 1], "drop": True}, {"edge": [1, 2], "lo
                 "    {'edge': [0, 1]}",
             ],
         ),
+        (
+            _found(baseline=0.0),
+            0,
+            ["  no plan in the space breaks formation within 60 evaluations"],
+        ),  # (0 holds)
         (_found(interrupted=True, signum=15), 143, ["  interrupted: what was found is written"]),
         (
             _found(
@@ -397,3 +402,42 @@ def test_what_a_command_raises_is_one_line_and_its_exit_code(monkeypatch, error,
     monkeypatch.setattr(sweep_mod, "sweep", _Called(error))
     got, out, err = cli_in_process("sweep", "c.yaml", "--vary", "link.loss=0,1", "--out", "o")
     assert (got, out, err) == (code, "", says + "\n")
+
+
+def test_no_command_is_the_usage_and_one_line_naming_what_is_missing():
+    code, out, err = cli_in_process()
+    assert (code, out) == (2, "")
+    assert err.splitlines() == [
+        "usage: swarm-sitl [-h] COMMAND ...",
+        "swarm-sitl: error: the following arguments are required: COMMAND",
+    ]
+
+
+@pytest.mark.parametrize(("role", "argv"), [("controller", ["--id", "3", "--mavlink", "udpout:127.0.0.1:9"]),
+                                            ("leader", [])])  # fmt: skip
+def test_a_node_command_runs_its_role_with_its_arguments(monkeypatch, role, argv):
+    import swarm_sitl.nodes.entry as entry
+
+    ran = _Called(0)
+    monkeypatch.setattr(entry, "run_role", ran)
+    assert cli_in_process(role, "c.yaml", "--lockstep", *argv) == (0, "", "")
+    ((args, kw),) = ran.calls
+    assert args[0] == role and args[1].config == "c.yaml" and args[1].lockstep and kw == {}
+    assert getattr(args[1], "id", 3) == 3
+
+
+def test_every_option_of_every_command_says_what_it_is():
+    """Each command and each of its options has help text (``-h`` shows what a flag does)."""
+    import argparse
+
+    from swarm_sitl.cli import build_parser
+
+    parser = build_parser()
+    assert parser.description
+    (sub,) = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
+    helped = {a.dest for a in sub._choices_actions if a.help}
+    assert helped == set(sub.choices), set(sub.choices) - helped
+    for name, command in sub.choices.items():
+        for action in command._actions:
+            if action.option_strings and action.dest != "help":
+                assert action.help, (name, action.option_strings)

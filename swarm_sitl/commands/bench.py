@@ -108,8 +108,17 @@ def cmd_bench(args: argparse.Namespace) -> int:
 def add_bench(sub: Any) -> None:
     """``swarm-sitl bench``: speed figures."""
     b = sub.add_parser("bench", help="measure speed figures and print them")
-    b.add_argument("--config", default=str(Path("configs") / "paper.yaml"))
-    b.add_argument("--repeats", type=int, default=3)
+    b.add_argument(
+        "--config",
+        default=str(Path("configs") / "paper.yaml"),
+        help="the swarm benchmarked (default: the paper's)",
+    )
+    b.add_argument(
+        "--repeats",
+        type=int,
+        default=3,
+        help="how many times each is run, alternated where two are compared (default 3)",
+    )
     b.add_argument(
         "--scale-config", default=str(Path("configs") / "swarm16.yaml"), help="real-time scale run"
     )

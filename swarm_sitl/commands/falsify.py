@@ -98,6 +98,8 @@ def add_falsify(sub: Any) -> None:
         "--scheduler", metavar="ADDR", help="fly the plans on a Dask cluster (tcp://host:8786) instead"
     )
     p.add_argument("--no-confirm", action="store_true", help="do not fly the counterexample as processes")
-    p.add_argument("--quiet", action="store_true")
-    p.add_argument("--out", required=True, metavar="DIR")
+    p.add_argument("--quiet", action="store_true", help="no progress lines, only the verdict")
+    p.add_argument(
+        "--out", required=True, metavar="DIR", help="the search's directory (the same command resumes it)"
+    )
     p.set_defaults(func=cmd_falsify)
