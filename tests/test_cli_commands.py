@@ -441,3 +441,22 @@ def test_every_option_of_every_command_says_what_it_is():
         for action in command._actions:
             if action.option_strings and action.dest != "help":
                 assert action.help, (name, action.option_strings)
+
+
+@pytest.mark.parametrize(
+    ("argv", "missing"),
+    [
+        (["sweep", "c.yaml", "--out", "o"], "--vary"),
+        (["sweep", "c.yaml", "--vary", "link.loss=0,1"], "--out"),
+        (["falsify", "c.yaml"], "--out"),
+    ],
+)
+def test_a_command_without_what_it_needs_is_one_line_naming_it(monkeypatch, argv, missing):
+    monkeypatch.setattr(sweep_mod, "sweep", _Called(AssertionError("ran")))
+    monkeypatch.setattr(search_mod, "falsify", _Called(AssertionError("ran")))
+    code, out, err = cli_in_process(*argv)
+    assert (code, out) == (2, "")
+    assert (
+        err.splitlines()[-1]
+        == f"swarm-sitl {argv[0]}: error: the following arguments are required: {missing}"
+    )
