@@ -269,10 +269,11 @@ def start_paper_run(out: Path, *extra: object) -> "subprocess.Popen[str]":
     return start_cli("run", CONFIGS / "paper.yaml", "--out", out, "--quiet", *extra)
 
 
-def cli_in_process(*args: object) -> tuple[int, str, str]:
+def cli_in_process(*args: object, stdout: Any = None) -> tuple[int, str, str]:
     """``swarm-sitl ARGS`` run in this process (``cli.main``): its exit code, standard output and
     error. For what fails before anything starts (a bad argument, config or space), where a new
-    interpreter would only add its start-up; the signal handlers ``main`` installs are put back."""
+    interpreter would only add its start-up; the signal handlers ``main`` installs are put back.
+    ``stdout``: a stream of the caller's for its standard output (then given back as "")."""
     import contextlib
     import io
     import signal
@@ -282,7 +283,7 @@ def cli_in_process(*args: object) -> tuple[int, str, str]:
     saved = {s: signal.getsignal(s) for s in (signal.SIGTERM, signal.SIGHUP)}
     out, err = io.StringIO(), io.StringIO()
     try:
-        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        with contextlib.redirect_stdout(out if stdout is None else stdout), contextlib.redirect_stderr(err):
             try:
                 code = main([str(a) for a in args])
             except SystemExit as e:  # (argparse's own refusals)

@@ -460,3 +460,31 @@ def test_a_command_without_what_it_needs_is_one_line_naming_it(monkeypatch, argv
         err.splitlines()[-1]
         == f"swarm-sitl {argv[0]}: error: the following arguments are required: {missing}"
     )
+
+
+def test_a_searchs_progress_reaches_a_pipe_as_it_is_said(monkeypatch):
+    """Through a pipe (``falsify ... | tee``) standard output is buffered: each progress line is
+    flushed as it is said, so a reader sees it while the search goes on, not at its end."""
+    import contextlib
+    import io
+    import os
+
+    read_end, write_end = os.pipe()
+    os.set_blocking(read_end, False)
+    seen: list[bytes] = []
+
+    def engine(*a, say, **kw):
+        say("falsify: 4/8 evaluations, 1 of the last violating")
+        with contextlib.suppress(BlockingIOError):
+            seen.append(os.read(read_end, 1 << 16))
+        return _found()
+
+    monkeypatch.setattr(search_mod, "load_inputs", _Called(None))
+    monkeypatch.setattr(search_mod, "falsify", engine)
+    piped = io.TextIOWrapper(io.BufferedWriter(io.FileIO(write_end, "w"), 1 << 16))
+    try:
+        assert cli_in_process("falsify", "c.yaml", "--out", "o", stdout=piped) == (0, "", "")
+    finally:
+        piped.close()
+        os.close(read_end)
+    assert seen == [b"falsify: 4/8 evaluations, 1 of the last violating\n"]
