@@ -294,3 +294,25 @@ def test_a_search_interrupted_between_batches_keeps_the_flown_trials_and_no_aske
     )
     assert found.interrupted and found.signum == signal.SIGINT and found.plan is None
     assert len(_rows(tmp_path / "out" / "evaluations.csv")) == 2
+
+
+def test_a_study_on_disk_as_optuna_writes_it_is_taken_up_and_its_unfinished_trial_is_not(tmp_path):
+    """``OUT/study.db`` written by Optuna itself (as an earlier version of the search wrote it,
+    and as a user's own script may): its completed trial counts towards the budget and is a row;
+    a trial asked and never told (a search killed mid-batch) is neither."""
+    import optuna
+
+    args, cfg, _name = _inputs(tmp_path, bound="1", budget=1)
+    out = tmp_path / "out"
+    out.mkdir()
+    plan = {"seed": 1, "plan": [{"into": cfg.followers[0].id, "edge": [0, 1], "loss": 0.6}]}
+    study = optuna.create_study(
+        study_name="falsify", storage=f"sqlite:///{out / 'study.db'}", directions=["minimize", "minimize"]
+    )
+    study.add_trial(optuna.trial.create_trial(values=[0.25, 0.5], user_attrs={"plan": plan}))
+    study.ask()  # (asked, never told: RUNNING)
+    found = falsify(PAPER, out, budget=1, jobs=1, confirm=False, say=lambda s: None, **args)
+    assert found.evaluations == 1  # (the baseline: the budget was spent)
+    assert [(r["cost"], r["robustness"], r["plan"]) for r in _rows(out / "evaluations.csv")] == [
+        (0.25, 0.5, plan)
+    ]
