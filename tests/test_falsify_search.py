@@ -136,21 +136,29 @@ def test_a_study_resumes_with_only_the_trials_it_lacks(tmp_path):
     assert all(t in after for t in trials), (trials, after)
 
 
-def test_a_requirement_that_fails_without_a_fault_stops_the_search_after_the_baseline(tmp_path):
+def test_a_requirement_that_fails_without_a_fault_stops_the_search_after_the_baseline(tmp_path, monkeypatch):
     """Nothing to search for: said in one line, one evaluation, no plan, no counterexample; the
-    same for a bound on the formation error (``--bound``) no run can hold."""
+    same for a bound on the formation error (``--bound``) no run can hold. The rate is the
+    evaluations per minute of the search's own clock (stood in for: 30 s; none passed: no rate)."""
+    import types
+
+    import swarm_sitl.falsify.search as search_mod
+
     args, cfg, name = _inputs(tmp_path, bound="1e-12")
     said: list[str] = []
+    monkeypatch.setattr(search_mod, "time", types.SimpleNamespace(monotonic=iter([100.0, 130.0]).__next__))
     found = falsify(PAPER, tmp_path / "out", budget=4, jobs=1, confirm=False, say=said.append, **args)
     assert found.baseline == evaluate(cfg, name, {"seed": 0, "plan": []}) < 0
     assert said == [f"falsify: estimate fails with any fault (robustness {found.baseline:.4g})"]
     assert found.evaluations == 1 and found.plan is None and found.counterexample is None
-    assert not math.isnan(found.per_minute) and _rows(tmp_path / "out" / "evaluations.csv") == []
+    assert found.per_minute == 1 / 30 * 60 and _rows(tmp_path / "out" / "evaluations.csv") == []
     # (judged from run.settle_s, 20 s in the paper's config: a run past it)
+    monkeypatch.setattr(search_mod, "time", types.SimpleNamespace(monotonic=iter([5.0, 5.0]).__next__))
     bound = falsify(
         PAPER, tmp_path / "b", bound_m=1e-9, duration_s=21.0, budget=4, jobs=1, confirm=False, say=said.append
     )
     assert bound.requirement == "bound" and bound.evaluations == 1 and bound.baseline < 0
+    assert math.isnan(bound.per_minute)
     assert said[-1] == f"falsify: bound fails with any fault (robustness {bound.baseline:.4g})"
 
 
